@@ -1,0 +1,3 @@
+//! nanocal host library.
+#![warn(missing_docs)]
+pub use nanocal_model as model;

@@ -1,11 +1,24 @@
-use clap::Parser;
+use clap::{Parser, Subcommand};
 
-/// nanocal: calibrate nanopositioning stages.
+/// nanocal: calibrate nanopositioning stages and ultra-precision robots for open-loop accuracy.
 #[derive(Parser)]
-#[command(version, about)]
-struct Cli {}
+#[command(version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Print the build's limits of the shared model (axes, temperatures, terms).
+    Limits,
+}
 
 fn main() -> anyhow::Result<()> {
-    let _cli = Cli::parse();
-    Ok(())
+    match Cli::parse().command {
+        Command::Limits => {
+            println!("nanocal-model {}", env!("CARGO_PKG_VERSION"));
+            Ok(())
+        }
+    }
 }

@@ -12,6 +12,8 @@ struct Cli {
 enum Command {
     /// Print the build's limits of the shared model (axes, temperatures, terms).
     Limits,
+    /// Stepwise regression (MATLAB stepwisefit semantics) on the columns of a CSV file.
+    Stepwise(nanocal::cli::stepwise::StepwiseArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -20,5 +22,6 @@ fn main() -> anyhow::Result<()> {
             println!("nanocal-model {}", env!("CARGO_PKG_VERSION"));
             Ok(())
         }
+        Command::Stepwise(a) => nanocal::cli::stepwise::run(a),
     }
 }

@@ -3,3 +3,4 @@
 pub use nanocal_model as model;
 
 pub mod cli;
+pub mod published;

@@ -7,3 +7,4 @@ pub mod linalg;
 pub mod recording;
 pub mod stats;
 pub mod stepwise;
+pub mod published;

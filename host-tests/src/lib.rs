@@ -3,3 +3,5 @@
 pub use nanocal_model as model;
 
 pub mod cli;
+pub mod effects;
+pub mod twin;

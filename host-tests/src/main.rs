@@ -12,6 +12,8 @@ struct Cli {
 enum Command {
     /// Print the build's limits of the shared model (axes, temperatures, terms).
     Limits,
+    /// Run the digital twin and write a simulated recording (CSV).
+    Simulate(nanocal::cli::simulate::SimulateArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -20,5 +22,6 @@ fn main() -> anyhow::Result<()> {
             println!("nanocal-model {}", env!("CARGO_PKG_VERSION"));
             Ok(())
         }
+        Command::Simulate(a) => nanocal::cli::simulate::run(a),
     }
 }

@@ -5,3 +5,5 @@ pub use nanocal_model as model;
 pub mod cli;
 pub mod effects;
 pub mod twin;
+pub mod linalg;
+pub mod recording;

@@ -7,3 +7,4 @@ pub mod effects;
 pub mod twin;
 pub mod linalg;
 pub mod recording;
+pub mod published;

@@ -1,0 +1,175 @@
+//! The blob's bytes: golden bytes for format version 1, round trips, CRC check value.
+
+use nanocal::published::{coupled_2dof, published_1dof};
+use nanocal_model::blob::{self, BlobError, FORMAT_VERSION, MAX_BLOB_LEN};
+use nanocal_model::{Factor, Input, Model, ModelBuilder, Scaling, Term};
+
+/// A small model with one of everything, on round binary numbers so the bytes read easily.
+fn golden_model() -> Model {
+    let mut b = ModelBuilder::new(1, 1, 0)
+        .unwrap()
+        .id(0xDEAD_BEEF)
+        .scaling(
+            Input::Axis(0),
+            Scaling {
+                centre: 50.0,
+                half_range: 50.0,
+            },
+        )
+        .envelope(Input::Axis(0), 0.0, 100.0)
+        .scaling(
+            Input::Temp(0),
+            Scaling {
+                centre: 22.0,
+                half_range: 1.0,
+            },
+        )
+        .envelope(Input::Temp(0), 21.0, 23.0)
+        .travel_um(0, -5.0, 105.0)
+        .offset_um(0, 0.5)
+        .kmz_offset_um(0, -0.25);
+    let lag = b.lag(0, 600.0).unwrap();
+    let terms = [
+        ([1, 0, 0], Factor::None, 0, 1.5),
+        ([0, 0, 0], Factor::Temp(0), 0, -0.25),
+        ([1, 0, 0], Factor::Lagged(lag), 0, 0.125),
+        ([0, 0, 0], Factor::None, 1, 0.03125),
+    ];
+    for (powers, factor, direction, coeff) in terms {
+        b.add_term(Term {
+            output: 0,
+            powers,
+            factor,
+            direction,
+            coeff,
+        })
+        .unwrap();
+    }
+    b.build().unwrap()
+}
+
+/// Format version 1, byte for byte. Changing these bytes needs a FORMAT_VERSION bump.
+const GOLDEN_V1_HEX: &str = concat!(
+    "4e43414c",
+    "0100",
+    "0000",
+    "bc000000", // magic, version 1, reserved, payload 188
+    "efbeadde",
+    "01010001",
+    "0400",
+    "0000", // id, A T X L, 4 terms, reserved
+    "0000000000004940",
+    "0000000000004940",
+    "0000000000000000",
+    "0000000000005940", // axis 0
+    "0000000000003640",
+    "000000000000f03f",
+    "0000000000003540",
+    "0000000000003740", // temp 0
+    "00000000000014c0",
+    "0000000000405a40", // travel −5 … 105
+    "000000000000e03f",
+    "000000000000d0bf", // λ 0.5, λ_KMZ −0.25
+    "0000000000000000",
+    "0000000000c08240", // lag: sensor 0, τ 600 s
+    "0001000000000000",
+    "000000000000f83f", // 1.5·u
+    "0000000001000000",
+    "000000000000d0bf", // −0.25·T0
+    "0001000003000000",
+    "000000000000c03f", // 0.125·u·lag0
+    "0000000000000100",
+    "000000000000a03f", // 0.03125·sign(x)
+    "f533fc72",         // CRC-32/IEEE (zlib) of all bytes above
+);
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+fn encode(model: &Model) -> Vec<u8> {
+    let mut buf = vec![0u8; MAX_BLOB_LEN];
+    let n = blob::encode(model, &mut buf).unwrap();
+    buf.truncate(n);
+    buf
+}
+
+#[test]
+fn crc32_matches_the_standard_check_value() {
+    assert_eq!(blob::crc32(b"123456789"), 0xCBF4_3926);
+    assert_eq!(
+        blob::crc32_update(blob::crc32(b"12345"), b"6789"),
+        0xCBF4_3926
+    );
+}
+
+#[test]
+fn golden_bytes_of_format_version_1() {
+    assert_eq!(FORMAT_VERSION, 1, "a version bump needs new golden bytes");
+    assert_eq!(hex(&encode(&golden_model())), GOLDEN_V1_HEX);
+}
+
+#[test]
+fn golden_bytes_decode_to_the_golden_model() {
+    let bytes: Vec<u8> = (0..GOLDEN_V1_HEX.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&GOLDEN_V1_HEX[i..i + 2], 16).unwrap())
+        .collect();
+    assert_eq!(blob::decode(&bytes).unwrap(), golden_model());
+}
+
+#[test]
+fn reference_models_round_trip() {
+    for model in [published_1dof().unwrap(), coupled_2dof().unwrap()] {
+        let bytes = encode(&model);
+        assert_eq!(bytes.len(), blob::encoded_len(&model));
+        assert_eq!(blob::decode(&bytes).unwrap(), model);
+    }
+}
+
+#[test]
+fn encode_refuses_a_buffer_that_is_too_small() {
+    let model = golden_model();
+    let mut small = [0u8; 64];
+    assert_eq!(
+        blob::encode(&model, &mut small),
+        Err(BlobError::BufferTooSmall {
+            needed: blob::encoded_len(&model)
+        })
+    );
+}
+
+#[test]
+fn a_full_model_fits_the_largest_blob() {
+    let mut b = ModelBuilder::new(3, 8, 4).unwrap();
+    for k in 0..8 {
+        b.lag(k, 100.0 * (k + 1) as f64).unwrap();
+    }
+    let mut n = 0;
+    'outer: for px in 0..=9u8 {
+        for py in 0..=9 - px {
+            for pz in 0..=9 - px - py {
+                if px + py + pz == 0 {
+                    continue;
+                }
+                if n == nanocal_model::MAX_TERMS {
+                    break 'outer;
+                }
+                let t = Term {
+                    output: (n % 3) as u8,
+                    powers: [px, py, pz],
+                    factor: Factor::None,
+                    direction: 0,
+                    coeff: 1e-3,
+                };
+                b.add_term(t).unwrap();
+                n += 1;
+            }
+        }
+    }
+    let model = b.build().unwrap();
+    assert_eq!(model.terms().len(), nanocal_model::MAX_TERMS);
+    let bytes = encode(&model);
+    assert_eq!(bytes.len(), MAX_BLOB_LEN);
+    assert_eq!(blob::decode(&bytes).unwrap(), model);
+}

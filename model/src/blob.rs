@@ -1,0 +1,453 @@
+//! The coefficient blob: the only place that knows the bytes of a stored model.
+//!
+//! All integers and floats are little-endian; floats are IEEE-754 binary64.
+//!
+//! ```text
+//! offset      size  field
+//! 0           4     magic "NCAL"
+//! 4           2     format version (u16) = FORMAT_VERSION
+//! 6           2     reserved, 0
+//! 8           4     payload length N (u32)
+//! 12          N     payload
+//! 12+N        4     CRC-32/IEEE (zlib) of bytes 0 .. 12+N (u32)
+//!
+//! payload
+//! +0          4     model id (u32)
+//! +4          1     axes A (1..=3)
+//! +5          1     temperatures T (0..=8)
+//! +6          1     aux channels X (0..=4)
+//! +7          1     lag filters L (0..=8)
+//! +8          2     terms K (u16, 0..=128)
+//! +10         2     reserved, 0
+//! +12         32·(A+T+X)  per input, axes then temperatures then aux:
+//!                   centre f64 | half_range f64 | envelope min f64 | envelope max f64
+//! then        16·A  per axis: travel min f64 | travel max f64 (command space, µm)
+//! then        16·A  per axis: offset λ f64 | adaptive offset λ_KMZ f64 (µm)
+//! then        16·L  per lag: sensor u8 | 7 reserved bytes, 0 | τ f64 (s)
+//! then        16·K  per term: output u8 | power x u8 | power y u8 | power z u8 |
+//!                   factor kind u8 (0 none, 1 temp, 2 aux, 3 lagged) | factor index u8 |
+//!                   direction u8 (0 none, 1+axis) | reserved u8, 0 | coefficient f64 (µm)
+//! ```
+//!
+//! The decoder checks everything — lengths, CRC, counts, indices, finiteness, reserved bytes —
+//! and returns a typed [`BlobError`]; it never panics, whatever the bytes.
+
+use core::fmt;
+
+use crate::error::ModelError;
+use crate::input::{Input, Scaling};
+use crate::lag::LagSpec;
+use crate::limits::{MAX_AUX, MAX_AXES, MAX_INPUTS, MAX_LAGS, MAX_TEMPS, MAX_TERMS};
+use crate::model::Model;
+use crate::term::{Factor, Term};
+use crate::ModelBuilder;
+
+/// First four bytes of every blob.
+pub const MAGIC: [u8; 4] = *b"NCAL";
+/// Version of the byte layout above; bumped whenever the bytes change.
+pub const FORMAT_VERSION: u16 = 1;
+/// Bytes before the payload.
+pub const HEADER_LEN: usize = 12;
+/// Bytes after the payload (the CRC).
+pub const TRAILER_LEN: usize = 4;
+const PAYLOAD_FIXED_LEN: usize = 12;
+const INPUT_LEN: usize = 32;
+const AXIS_LEN: usize = 32;
+const LAG_LEN: usize = 16;
+const TERM_LEN: usize = 16;
+/// Largest payload a valid blob can have.
+pub const MAX_PAYLOAD_LEN: usize = PAYLOAD_FIXED_LEN
+    + INPUT_LEN * MAX_INPUTS
+    + AXIS_LEN * MAX_AXES
+    + LAG_LEN * MAX_LAGS
+    + TERM_LEN * MAX_TERMS;
+/// Largest valid blob, in bytes.
+pub const MAX_BLOB_LEN: usize = HEADER_LEN + MAX_PAYLOAD_LEN + TRAILER_LEN;
+
+/// Why bytes are not a valid blob, or a model could not be encoded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum BlobError {
+    /// Fewer bytes than a header and a CRC.
+    TooShort {
+        /// Bytes given.
+        len: usize,
+    },
+    /// The first four bytes are not "NCAL".
+    BadMagic,
+    /// A format version this build does not read.
+    UnsupportedVersion {
+        /// Version found.
+        found: u16,
+    },
+    /// The payload length field disagrees with the bytes given.
+    LengthMismatch {
+        /// Total length the header implies.
+        expected: usize,
+        /// Bytes given.
+        found: usize,
+    },
+    /// The CRC does not match: the bytes were corrupted.
+    CrcMismatch {
+        /// CRC stored in the blob.
+        stored: u32,
+        /// CRC computed over the bytes.
+        computed: u32,
+    },
+    /// The payload length disagrees with the counts it declares.
+    PayloadSizeMismatch {
+        /// Payload length the counts imply.
+        expected: usize,
+        /// Payload length in the header.
+        found: usize,
+    },
+    /// A reserved byte is not zero.
+    ReservedNotZero {
+        /// Offset of the byte in the blob.
+        offset: usize,
+    },
+    /// A term has an unknown factor kind.
+    UnknownFactor {
+        /// Index of the term.
+        term: u16,
+        /// Kind byte found.
+        kind: u8,
+    },
+    /// The bytes describe a model that breaks the model's rules.
+    InvalidModel(ModelError),
+    /// The output buffer is too small for the encoded model.
+    BufferTooSmall {
+        /// Bytes needed.
+        needed: usize,
+    },
+}
+
+impl fmt::Display for BlobError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            BlobError::TooShort { len } => write!(f, "blob too short: {len} bytes"),
+            BlobError::BadMagic => f.write_str("not a nanocal blob (bad magic)"),
+            BlobError::UnsupportedVersion { found } => {
+                write!(f, "blob format version {found} is not supported (this build reads {FORMAT_VERSION})")
+            }
+            BlobError::LengthMismatch { expected, found } => {
+                write!(
+                    f,
+                    "blob length mismatch: header says {expected} bytes, got {found}"
+                )
+            }
+            BlobError::CrcMismatch { stored, computed } => {
+                write!(
+                    f,
+                    "blob CRC mismatch: stored {stored:#010x}, computed {computed:#010x}"
+                )
+            }
+            BlobError::PayloadSizeMismatch { expected, found } => {
+                write!(
+                    f,
+                    "blob payload is {found} bytes but its counts need {expected}"
+                )
+            }
+            BlobError::ReservedNotZero { offset } => {
+                write!(f, "reserved byte at offset {offset} is not zero")
+            }
+            BlobError::UnknownFactor { term, kind } => {
+                write!(f, "term {term} has unknown factor kind {kind}")
+            }
+            BlobError::InvalidModel(e) => write!(f, "blob holds an invalid model: {e}"),
+            BlobError::BufferTooSmall { needed } => {
+                write!(f, "output buffer too small: need {needed} bytes")
+            }
+        }
+    }
+}
+
+#[cfg(feature = "std")]
+impl std::error::Error for BlobError {}
+
+impl From<ModelError> for BlobError {
+    fn from(e: ModelError) -> Self {
+        BlobError::InvalidModel(e)
+    }
+}
+
+/// CRC-32/IEEE as zlib computes it (reflected, polynomial 0xEDB88320, init and xorout !0).
+pub fn crc32(bytes: &[u8]) -> u32 {
+    crc32_update(0, bytes)
+}
+
+/// Continues a CRC-32 over more bytes: `crc32_update(crc32(a), b) == crc32(a ++ b)`.
+pub fn crc32_update(crc: u32, bytes: &[u8]) -> u32 {
+    let mut c = !crc;
+    for &b in bytes {
+        c ^= b as u32;
+        for _ in 0..8 {
+            c = (c >> 1) ^ (0xEDB8_8320 & (c & 1).wrapping_neg());
+        }
+    }
+    !c
+}
+
+fn payload_len(axes: usize, temps: usize, aux: usize, lags: usize, terms: usize) -> usize {
+    PAYLOAD_FIXED_LEN
+        + INPUT_LEN * (axes + temps + aux)
+        + AXIS_LEN * axes
+        + LAG_LEN * lags
+        + TERM_LEN * terms
+}
+
+/// Length of the blob `model` encodes to.
+pub fn encoded_len(model: &Model) -> usize {
+    HEADER_LEN
+        + payload_len(
+            model.axes(),
+            model.temps(),
+            model.aux(),
+            model.lags().len(),
+            model.terms().len(),
+        )
+        + TRAILER_LEN
+}
+
+/// Writes `model` as a blob into `out`; returns the number of bytes written.
+pub fn encode(model: &Model, out: &mut [u8]) -> Result<usize, BlobError> {
+    let total = encoded_len(model);
+    let out = out
+        .get_mut(..total)
+        .ok_or(BlobError::BufferTooSmall { needed: total })?;
+    out.fill(0);
+    let mut w = Writer { buf: out, pos: 0 };
+    w.bytes(&MAGIC);
+    w.u16(FORMAT_VERSION);
+    w.u16(0);
+    w.u32((total - HEADER_LEN - TRAILER_LEN) as u32);
+    w.u32(model.id());
+    w.bytes(&[model.axes, model.temps, model.aux, model.lags]);
+    w.u16(model.n_terms);
+    w.u16(0);
+    for input in model.used_inputs() {
+        let s = model.scaling(input);
+        let (min, max) = model.envelope(input);
+        for v in [s.centre, s.half_range, min, max] {
+            w.f64(v);
+        }
+    }
+    for a in 0..model.axes() {
+        let (min, max) = model.travel_um(a);
+        w.f64(min);
+        w.f64(max);
+    }
+    for a in 0..model.axes() {
+        w.f64(model.offset_um(a));
+        w.f64(model.kmz_offset_um(a));
+    }
+    for lag in model.lags() {
+        w.bytes(&[lag.sensor, 0, 0, 0, 0, 0, 0, 0]);
+        w.f64(lag.tau_s);
+    }
+    for t in model.terms() {
+        let (kind, index) = match t.factor {
+            Factor::None => (0, 0),
+            Factor::Temp(n) => (1, n),
+            Factor::Aux(n) => (2, n),
+            Factor::Lagged(n) => (3, n),
+        };
+        w.bytes(&[
+            t.output,
+            t.powers[0],
+            t.powers[1],
+            t.powers[2],
+            kind,
+            index,
+            t.direction,
+            0,
+        ]);
+        w.f64(t.coeff);
+    }
+    let crc = crc32(&w.buf[..w.pos]);
+    w.u32(crc);
+    Ok(total)
+}
+
+/// Reads a blob; every malformation is a typed error, never a panic.
+pub fn decode(bytes: &[u8]) -> Result<Model, BlobError> {
+    if bytes.len() < HEADER_LEN + TRAILER_LEN {
+        return Err(BlobError::TooShort { len: bytes.len() });
+    }
+    let mut r = Reader { buf: bytes, pos: 0 };
+    if r.bytes::<4>()? != MAGIC {
+        return Err(BlobError::BadMagic);
+    }
+    let version = r.u16()?;
+    if version != FORMAT_VERSION {
+        return Err(BlobError::UnsupportedVersion { found: version });
+    }
+    r.reserved_u16()?;
+    let payload = r.u32()? as usize;
+    let expected = HEADER_LEN
+        .saturating_add(payload)
+        .saturating_add(TRAILER_LEN);
+    if expected != bytes.len() {
+        return Err(BlobError::LengthMismatch {
+            expected,
+            found: bytes.len(),
+        });
+    }
+    let body_end = HEADER_LEN + payload;
+    let stored = u32::from_le_bytes([
+        bytes[body_end],
+        bytes[body_end + 1],
+        bytes[body_end + 2],
+        bytes[body_end + 3],
+    ]);
+    let computed = crc32(&bytes[..body_end]);
+    if stored != computed {
+        return Err(BlobError::CrcMismatch { stored, computed });
+    }
+
+    let id = r.u32()?;
+    let [axes, temps, aux, lags] = r.bytes::<4>()?;
+    let n_terms = r.u16()?;
+    r.reserved_u16()?;
+    let (na, nt, nx, nl, nk) = (
+        axes as usize,
+        temps as usize,
+        aux as usize,
+        lags as usize,
+        n_terms as usize,
+    );
+    if na > MAX_AXES || nt > MAX_TEMPS || nx > MAX_AUX || nl > MAX_LAGS {
+        return Err(ModelError::TooManyInputs.into());
+    }
+    if nk > MAX_TERMS {
+        return Err(ModelError::TooManyTerms.into());
+    }
+    let needed = payload_len(na, nt, nx, nl, nk);
+    if needed != payload {
+        return Err(BlobError::PayloadSizeMismatch {
+            expected: needed,
+            found: payload,
+        });
+    }
+
+    let mut b = ModelBuilder::new(na, nt, nx)?.id(id);
+    let inputs = (0..axes)
+        .map(Input::Axis)
+        .chain((0..temps).map(Input::Temp))
+        .chain((0..aux).map(Input::Aux));
+    for input in inputs {
+        let scaling = Scaling {
+            centre: r.f64()?,
+            half_range: r.f64()?,
+        };
+        let (min, max) = (r.f64()?, r.f64()?);
+        b = b.scaling(input, scaling).envelope(input, min, max);
+    }
+    for a in 0..na {
+        let (min, max) = (r.f64()?, r.f64()?);
+        b = b.travel_um(a, min, max);
+    }
+    let mut model = b.into_unchecked();
+    for a in 0..na {
+        model.offset_um[a] = r.f64()?;
+        model.kmz_offset_um[a] = r.f64()?;
+    }
+    model.lags = lags;
+    for k in 0..nl {
+        let sensor = r.bytes::<1>()?[0];
+        for _ in 0..7 {
+            r.reserved_u8()?;
+        }
+        model.lag_specs[k] = LagSpec {
+            sensor,
+            tau_s: r.f64()?,
+        };
+    }
+    model.n_terms = n_terms;
+    for k in 0..nk {
+        let [output, px, py, pz, kind, index, direction] = r.bytes::<7>()?;
+        r.reserved_u8()?;
+        let factor = match kind {
+            0 if index == 0 => Factor::None,
+            1 => Factor::Temp(index),
+            2 => Factor::Aux(index),
+            3 => Factor::Lagged(index),
+            _ => {
+                return Err(BlobError::UnknownFactor {
+                    term: k as u16,
+                    kind,
+                })
+            }
+        };
+        model.terms[k] = Term {
+            output,
+            powers: [px, py, pz],
+            factor,
+            direction,
+            coeff: r.f64()?,
+        };
+    }
+    model.validate()?;
+    Ok(model)
+}
+
+struct Writer<'a> {
+    buf: &'a mut [u8],
+    pos: usize,
+}
+
+impl Writer<'_> {
+    fn bytes(&mut self, b: &[u8]) {
+        self.buf[self.pos..self.pos + b.len()].copy_from_slice(b);
+        self.pos += b.len();
+    }
+    fn u16(&mut self, v: u16) {
+        self.bytes(&v.to_le_bytes());
+    }
+    fn u32(&mut self, v: u32) {
+        self.bytes(&v.to_le_bytes());
+    }
+    fn f64(&mut self, v: f64) {
+        self.bytes(&v.to_le_bytes());
+    }
+}
+
+struct Reader<'a> {
+    buf: &'a [u8],
+    pos: usize,
+}
+
+impl Reader<'_> {
+    fn bytes<const N: usize>(&mut self) -> Result<[u8; N], BlobError> {
+        let end = self.pos.checked_add(N).filter(|&e| e <= self.buf.len());
+        let slice = end.and_then(|e| self.buf.get(self.pos..e));
+        let out: [u8; N] = slice
+            .and_then(|s| s.try_into().ok())
+            .ok_or(BlobError::TooShort {
+                len: self.buf.len(),
+            })?;
+        self.pos += N;
+        Ok(out)
+    }
+    fn u16(&mut self) -> Result<u16, BlobError> {
+        Ok(u16::from_le_bytes(self.bytes()?))
+    }
+    fn u32(&mut self) -> Result<u32, BlobError> {
+        Ok(u32::from_le_bytes(self.bytes()?))
+    }
+    fn f64(&mut self) -> Result<f64, BlobError> {
+        Ok(f64::from_le_bytes(self.bytes()?))
+    }
+    fn reserved_u8(&mut self) -> Result<(), BlobError> {
+        let offset = self.pos;
+        match self.bytes::<1>()? {
+            [0] => Ok(()),
+            _ => Err(BlobError::ReservedNotZero { offset }),
+        }
+    }
+    fn reserved_u16(&mut self) -> Result<(), BlobError> {
+        self.reserved_u8()?;
+        self.reserved_u8()
+    }
+}

@@ -1,0 +1,100 @@
+//! Why a model cannot be built or used.
+
+use core::fmt;
+
+/// A model description that breaks the format's rules.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum ModelError {
+    /// More axes, temperatures, aux channels or lags than the fixed capacity allows.
+    TooManyInputs,
+    /// A model needs at least one axis.
+    NoAxes,
+    /// More than `MAX_TERMS` distinct terms.
+    TooManyTerms,
+    /// A term names an output axis, axis power, factor or direction the model does not have.
+    TermOutOfRange {
+        /// Index of the offending term.
+        term: u16,
+    },
+    /// A term's power is above `MAX_POWER`.
+    DegreeTooHigh {
+        /// Index of the offending term.
+        term: u16,
+    },
+    /// A coefficient, offset, scaling or bound is NaN or infinite where it must be finite.
+    NonFinite,
+    /// A scaling has a half range that is not positive.
+    InvalidScaling {
+        /// Flat index of the input (axes, temperatures, aux).
+        input: u8,
+    },
+    /// An envelope or travel range has min > max.
+    InvalidRange {
+        /// Flat index of the input (axes, temperatures, aux); travel ranges use the axis index.
+        input: u8,
+    },
+    /// A lag filter follows a sensor the model does not have, or has τ ≤ 0.
+    InvalidLag {
+        /// Index of the lag filter.
+        lag: u8,
+    },
+}
+
+impl fmt::Display for ModelError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ModelError::TooManyInputs => f.write_str("more inputs than the model can hold"),
+            ModelError::NoAxes => f.write_str("a model needs at least one axis"),
+            ModelError::TooManyTerms => f.write_str("more terms than the model can hold"),
+            ModelError::TermOutOfRange { term } => {
+                write!(
+                    f,
+                    "term {term} names an axis or input the model does not have"
+                )
+            }
+            ModelError::DegreeTooHigh { term } => write!(f, "term {term} has too high a power"),
+            ModelError::NonFinite => f.write_str("a number in the model is not finite"),
+            ModelError::InvalidScaling { input } => {
+                write!(
+                    f,
+                    "input {input} has a scaling with a non-positive half range"
+                )
+            }
+            ModelError::InvalidRange { input } => write!(f, "input {input} has min > max"),
+            ModelError::InvalidLag { lag } => {
+                write!(f, "lag filter {lag} has an unknown sensor or τ ≤ 0")
+            }
+        }
+    }
+}
+
+#[cfg(feature = "std")]
+impl std::error::Error for ModelError {}
+
+/// The inverse map did not find a position for a command.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum InverseError {
+    /// Newton's iteration did not converge within its iteration bound.
+    NotConverged,
+    /// The model's Jacobian is singular (or nearly) at the iterate: no unique position.
+    Singular,
+    /// The command or an iterate is NaN or infinite.
+    NonFinite,
+}
+
+impl fmt::Display for InverseError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            InverseError::NotConverged => f.write_str("inverse did not converge"),
+            InverseError::Singular => f.write_str("model is singular at this command"),
+            InverseError::NonFinite => f.write_str("command or iterate is not finite"),
+        }
+    }
+}
+
+#[cfg(feature = "std")]
+impl std::error::Error for InverseError {}

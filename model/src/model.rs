@@ -1,0 +1,309 @@
+//! The calibration model: terms, offsets, scalings, envelope, travel; its f64 reference evaluation.
+
+use crate::error::ModelError;
+use crate::input::{EnvelopeFlags, Input, Range, Scaling, SlowInputs};
+use crate::lag::LagSpec;
+use crate::limits::{MAX_AUX, MAX_AXES, MAX_INPUTS, MAX_LAGS, MAX_POWER, MAX_TEMPS, MAX_TERMS};
+use crate::term::{approach_sign, Factor, Term};
+
+/// A calibration model mapping calibrated target positions `x` (µm) to the commands `q` (µm)
+/// the stage controller must be sent:
+///
+/// `q_o = λ_o + λ_KMZ,o + Σ_terms coeff · Π_a u_a^p_a · factor · sign`
+///
+/// with every input centred and scaled (`u = (v − centre)/half_range`). Fixed capacity, no heap.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Model {
+    pub(crate) id: u32,
+    pub(crate) axes: u8,
+    pub(crate) temps: u8,
+    pub(crate) aux: u8,
+    pub(crate) lags: u8,
+    /// Scaling of every input in flat order (axes, temperatures, aux).
+    pub(crate) scaling: [Scaling; MAX_INPUTS],
+    /// Training envelope of every input in flat order.
+    pub(crate) envelope: [Range; MAX_INPUTS],
+    pub(crate) travel_um: [Range; MAX_AXES],
+    pub(crate) offset_um: [f64; MAX_AXES],
+    pub(crate) kmz_offset_um: [f64; MAX_AXES],
+    pub(crate) lag_specs: [LagSpec; MAX_LAGS],
+    pub(crate) terms: [Term; MAX_TERMS],
+    pub(crate) n_terms: u16,
+}
+
+/// Every input of one evaluation, already scaled, ready for [`Term::value`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScaledInputs {
+    /// Scaled axis positions.
+    pub axes: [f64; MAX_AXES],
+    /// Sign of approach per axis (+1, −1, 0).
+    pub sign: [f64; MAX_AXES],
+    /// Scaled temperatures.
+    pub temps: [f64; MAX_TEMPS],
+    /// Scaled aux channels.
+    pub aux: [f64; MAX_AUX],
+    /// Scaled lag-filter outputs (scaled like the sensor they follow).
+    pub lagged: [f64; MAX_LAGS],
+}
+
+impl Term {
+    /// The term's regressor (everything but the coefficient) at `inputs`.
+    pub fn value(&self, inputs: &ScaledInputs) -> f64 {
+        let mut v = self.slow_factor(inputs);
+        if self.direction > 0 {
+            v *= inputs.sign[(self.direction - 1) as usize];
+        }
+        for (a, &p) in self.powers.iter().enumerate() {
+            v *= powi(inputs.axes[a], p);
+        }
+        v
+    }
+
+    /// The slow factor's scaled value (1 for [`Factor::None`]).
+    pub(crate) fn slow_factor(&self, inputs: &ScaledInputs) -> f64 {
+        match self.factor {
+            Factor::None => 1.0,
+            Factor::Temp(n) => inputs.temps[n as usize],
+            Factor::Aux(n) => inputs.aux[n as usize],
+            Factor::Lagged(n) => inputs.lagged[n as usize],
+        }
+    }
+}
+
+/// `x^p` by repeated multiplication (exact for small `p`, no libm call).
+#[inline]
+pub(crate) fn powi(x: f64, p: u8) -> f64 {
+    let mut v = 1.0;
+    for _ in 0..p {
+        v *= x;
+    }
+    v
+}
+
+impl Model {
+    /// Identifier chosen by whoever fitted the model.
+    pub fn id(&self) -> u32 {
+        self.id
+    }
+    /// Number of axes.
+    pub fn axes(&self) -> usize {
+        self.axes as usize
+    }
+    /// Number of temperature inputs.
+    pub fn temps(&self) -> usize {
+        self.temps as usize
+    }
+    /// Number of auxiliary inputs.
+    pub fn aux(&self) -> usize {
+        self.aux as usize
+    }
+    /// The declared lag filters.
+    pub fn lags(&self) -> &[LagSpec] {
+        &self.lag_specs[..self.lags as usize]
+    }
+    /// The terms.
+    pub fn terms(&self) -> &[Term] {
+        &self.terms[..self.n_terms as usize]
+    }
+    /// Scaling of an input.
+    pub fn scaling(&self, input: Input) -> Scaling {
+        self.scaling[input.flat_index()]
+    }
+    /// Training envelope `(min, max)` of an input.
+    pub fn envelope(&self, input: Input) -> (f64, f64) {
+        let r = self.envelope[input.flat_index()];
+        (r.min, r.max)
+    }
+    /// Stage travel `(min, max)` of an axis, in command space (µm).
+    pub fn travel_um(&self, axis: usize) -> (f64, f64) {
+        let r = self.travel_um[axis.min(MAX_AXES - 1)];
+        (r.min, r.max)
+    }
+    /// Static offset λ of an axis, µm (the constant of the scaled model).
+    pub fn offset_um(&self, axis: usize) -> f64 {
+        self.offset_um[axis.min(MAX_AXES - 1)]
+    }
+    /// Adaptive offset λ_KMZ of an axis, µm.
+    pub fn kmz_offset_um(&self, axis: usize) -> f64 {
+        self.kmz_offset_um[axis.min(MAX_AXES - 1)]
+    }
+    /// Sets the adaptive offset λ_KMZ of an axis (ignored for an axis the model lacks or a
+    /// non-finite value).
+    pub fn set_kmz_offset_um(&mut self, axis: usize, value_um: f64) {
+        if axis < self.axes() && value_um.is_finite() {
+            self.kmz_offset_um[axis] = value_um;
+        }
+    }
+
+    /// Scales raw inputs for evaluation.
+    pub fn scale(
+        &self,
+        x_um: &[f64; MAX_AXES],
+        dir: &[i8; MAX_AXES],
+        slow: &SlowInputs,
+    ) -> ScaledInputs {
+        let mut s = ScaledInputs {
+            axes: [0.0; MAX_AXES],
+            sign: [0.0; MAX_AXES],
+            temps: [0.0; MAX_TEMPS],
+            aux: [0.0; MAX_AUX],
+            lagged: [0.0; MAX_LAGS],
+        };
+        for a in 0..self.axes() {
+            s.axes[a] = self.scaling(Input::Axis(a as u8)).apply(x_um[a]);
+            s.sign[a] = approach_sign(dir[a]);
+        }
+        for t in 0..self.temps() {
+            s.temps[t] = self.scaling(Input::Temp(t as u8)).apply(slow.temps_c[t]);
+        }
+        for n in 0..self.aux() {
+            s.aux[n] = self.scaling(Input::Aux(n as u8)).apply(slow.aux[n]);
+        }
+        for (k, spec) in self.lags().iter().enumerate() {
+            s.lagged[k] = self
+                .scaling(Input::Temp(spec.sensor))
+                .apply(slow.lagged_c[k]);
+        }
+        s
+    }
+
+    /// Reference evaluation in f64: the commands `q` (µm) for calibrated targets `x` (µm).
+    /// Outputs beyond [`Model::axes`] are 0.
+    pub fn eval_f64(
+        &self,
+        x_um: &[f64; MAX_AXES],
+        dir: &[i8; MAX_AXES],
+        slow: &SlowInputs,
+    ) -> [f64; MAX_AXES] {
+        self.eval_scaled(&self.scale(x_um, dir, slow))
+    }
+
+    /// Evaluation on inputs already scaled by [`Model::scale`].
+    pub fn eval_scaled(&self, inputs: &ScaledInputs) -> [f64; MAX_AXES] {
+        let mut q = [0.0; MAX_AXES];
+        for a in 0..self.axes() {
+            q[a] = self.offset_um[a] + self.kmz_offset_um[a];
+        }
+        for term in self.terms() {
+            q[term.output as usize] += term.coeff * term.value(inputs);
+        }
+        q
+    }
+
+    /// Which inputs lie outside the training envelope (axes of `x_um`, temperatures and aux).
+    pub fn check_envelope(&self, x_um: &[f64; MAX_AXES], slow: &SlowInputs) -> EnvelopeFlags {
+        let mut flags = self.slow_envelope_flags(slow).0;
+        for a in 0..self.axes() {
+            if !self.envelope[a].contains(x_um[a]) {
+                flags |= 1 << Input::Axis(a as u8).flat_index();
+            }
+        }
+        EnvelopeFlags(flags)
+    }
+
+    /// Which temperature and aux inputs lie outside the training envelope.
+    pub fn slow_envelope_flags(&self, slow: &SlowInputs) -> EnvelopeFlags {
+        let mut flags = 0u16;
+        let temps = (0..self.temps).map(|t| (Input::Temp(t), slow.temps_c[t as usize]));
+        let aux = (0..self.aux).map(|n| (Input::Aux(n), slow.aux[n as usize]));
+        for (input, v) in temps.chain(aux) {
+            if !self.envelope[input.flat_index()].contains(v) {
+                flags |= 1 << input.flat_index();
+            }
+        }
+        EnvelopeFlags(flags)
+    }
+
+    /// Re-measures the adaptive offset at a reference pose ("KiloMeter-Zero"): command `q_cmd_um`
+    /// was sent and the external reference measured `x_meas_um`; λ_KMZ moves so that the model
+    /// maps `x_meas_um` to `q_cmd_um` again.
+    pub fn set_kmz_from_reference(
+        &mut self,
+        q_cmd_um: &[f64; MAX_AXES],
+        x_meas_um: &[f64; MAX_AXES],
+        dir: &[i8; MAX_AXES],
+        slow: &SlowInputs,
+    ) {
+        let predicted = self.eval_f64(x_meas_um, dir, slow);
+        for a in 0..self.axes() {
+            let v = self.kmz_offset_um[a] + (q_cmd_um[a] - predicted[a]);
+            self.set_kmz_offset_um(a, v);
+        }
+    }
+
+    /// Checks every rule of the format; the builder and the blob decoder both call it.
+    pub(crate) fn validate(&self) -> Result<(), ModelError> {
+        let (axes, temps, aux) = (self.axes(), self.temps(), self.aux());
+        if axes == 0 {
+            return Err(ModelError::NoAxes);
+        }
+        if axes > MAX_AXES || temps > MAX_TEMPS || aux > MAX_AUX || self.lags as usize > MAX_LAGS {
+            return Err(ModelError::TooManyInputs);
+        }
+        if self.n_terms as usize > MAX_TERMS {
+            return Err(ModelError::TooManyTerms);
+        }
+        for i in self.used_inputs() {
+            let flat = i.flat_index();
+            if !self.scaling[flat].is_valid() {
+                return Err(ModelError::InvalidScaling { input: flat as u8 });
+            }
+            if !self.envelope[flat].is_valid() {
+                return Err(ModelError::InvalidRange { input: flat as u8 });
+            }
+        }
+        for a in 0..axes {
+            if !self.travel_um[a].is_valid() {
+                return Err(ModelError::InvalidRange { input: a as u8 });
+            }
+            if !self.offset_um[a].is_finite() || !self.kmz_offset_um[a].is_finite() {
+                return Err(ModelError::NonFinite);
+            }
+        }
+        for (k, spec) in self.lags().iter().enumerate() {
+            if spec.sensor as usize >= temps || !(spec.tau_s > 0.0 && spec.tau_s.is_finite()) {
+                return Err(ModelError::InvalidLag { lag: k as u8 });
+            }
+        }
+        for (i, term) in self.terms().iter().enumerate() {
+            self.validate_term(term, i as u16)?;
+        }
+        Ok(())
+    }
+
+    pub(crate) fn validate_term(&self, term: &Term, index: u16) -> Result<(), ModelError> {
+        let out_of_range = ModelError::TermOutOfRange { term: index };
+        if term.output as usize >= self.axes() || term.direction as usize > self.axes() {
+            return Err(out_of_range);
+        }
+        let factor_ok = match term.factor {
+            Factor::None => true,
+            Factor::Temp(n) => (n as usize) < self.temps(),
+            Factor::Aux(n) => (n as usize) < self.aux(),
+            Factor::Lagged(n) => n < self.lags,
+        };
+        if !factor_ok {
+            return Err(out_of_range);
+        }
+        for (a, &p) in term.powers.iter().enumerate() {
+            if p > 0 && a >= self.axes() {
+                return Err(out_of_range);
+            }
+        }
+        if term.powers.iter().any(|&p| p > MAX_POWER) || term.degree() > MAX_POWER {
+            return Err(ModelError::DegreeTooHigh { term: index });
+        }
+        if !term.coeff.is_finite() {
+            return Err(ModelError::NonFinite);
+        }
+        Ok(())
+    }
+
+    /// The inputs this model uses, in flat order.
+    pub(crate) fn used_inputs(&self) -> impl Iterator<Item = Input> + '_ {
+        let axes = (0..self.axes).map(Input::Axis);
+        let temps = (0..self.temps).map(Input::Temp);
+        let aux = (0..self.aux).map(Input::Aux);
+        axes.chain(temps).chain(aux)
+    }
+}

@@ -7,4 +7,6 @@ pub mod linalg;
 pub mod recording;
 pub mod stats;
 pub mod stepwise;
+pub mod effects;
+pub mod twin;
 pub mod published;

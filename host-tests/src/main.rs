@@ -14,6 +14,8 @@ enum Command {
     Limits,
     /// Stepwise regression (MATLAB stepwisefit semantics) on the columns of a CSV file.
     Stepwise(nanocal::cli::stepwise::StepwiseArgs),
+    /// Run the digital twin and write a simulated recording (CSV).
+    Simulate(nanocal::cli::simulate::SimulateArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -23,5 +25,6 @@ fn main() -> anyhow::Result<()> {
             Ok(())
         }
         Command::Stepwise(a) => nanocal::cli::stepwise::run(a),
+        Command::Simulate(a) => nanocal::cli::simulate::run(a),
     }
 }

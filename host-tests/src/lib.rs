@@ -10,3 +10,6 @@ pub mod stepwise;
 pub mod effects;
 pub mod twin;
 pub mod published;
+pub mod design;
+pub mod dwell;
+pub mod fit;

@@ -49,12 +49,12 @@ pub struct FitArgs {
 
 /// Runs `nanocal fit`.
 pub fn run(args: FitArgs) -> anyhow::Result<()> {
-    let rec = Recording::read_path(&args.recording)?;
     let (spec, fixed) = if args.published_static {
         (DesignSpec::published_static(), true)
     } else {
         (DesignSpec::parse(&args.terms)?, args.fixed)
     };
+    let rec = Recording::read_path(&args.recording)?;
     let selection = if fixed {
         Selection::Fixed
     } else {

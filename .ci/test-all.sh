@@ -15,6 +15,10 @@ cd "$root/host-tests"
 cargo fmt --all --check
 cargo clippy --all-targets -- -D warnings
 
+step "shared model builds for the firmware target (no_std, with and without defmt)"
+cargo clippy -p nanocal-model --target thumbv7em-none-eabihf -- -D warnings
+cargo clippy -p nanocal-model --target thumbv7em-none-eabihf --features defmt -- -D warnings
+
 step "fuzz target builds (run it with cargo +nightly fuzz run decode_blob in model/)"
 cd "$root/model/fuzz"
 cargo build --quiet --target "$(rustc -vV | sed -n 's/^host: //p')"

@@ -3,4 +3,10 @@
 pub use nanocal_model as model;
 
 pub mod cli;
+pub mod linalg;
+pub mod recording;
+pub mod stats;
+pub mod stepwise;
+pub mod effects;
+pub mod twin;
 pub mod published;

@@ -12,6 +12,10 @@ struct Cli {
 enum Command {
     /// Print the build's limits of the shared model (axes, temperatures, terms).
     Limits,
+    /// Stepwise regression (MATLAB stepwisefit semantics) on the columns of a CSV file.
+    Stepwise(nanocal::cli::stepwise::StepwiseArgs),
+    /// Run the digital twin and write a simulated recording (CSV).
+    Simulate(nanocal::cli::simulate::SimulateArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -20,5 +24,7 @@ fn main() -> anyhow::Result<()> {
             println!("nanocal-model {}", env!("CARGO_PKG_VERSION"));
             Ok(())
         }
+        Command::Stepwise(a) => nanocal::cli::stepwise::run(a),
+        Command::Simulate(a) => nanocal::cli::simulate::run(a),
     }
 }

@@ -23,6 +23,9 @@ step "fuzz target builds (run it with cargo +nightly fuzz run decode_blob in mod
 cd "$root/model/fuzz"
 cargo build --quiet --target "$(rustc -vV | sed -n 's/^host: //p')"
 
+step "host prerequisites (GNU Octave for the differential stepwise test)"
+bash "$root/.ci/host.sh"
+
 step "host tests"
 cd "$root/host-tests"
 cargo test --no-fail-fast

@@ -3,10 +3,10 @@
 pub use nanocal_model as model;
 
 pub mod cli;
+pub mod effects;
 pub mod linalg;
+pub mod published;
 pub mod recording;
 pub mod stats;
 pub mod stepwise;
-pub mod effects;
 pub mod twin;
-pub mod published;

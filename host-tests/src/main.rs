@@ -14,6 +14,14 @@ enum Command {
     Limits,
     /// Stepwise regression (MATLAB stepwisefit semantics) on the columns of a CSV file.
     Stepwise(nanocal::cli::stepwise::StepwiseArgs),
+    /// Fit a calibration model to a training recording and write the model blob.
+    Fit(nanocal::cli::fit::FitArgs),
+    /// Validate a model on a recording: no model / static / adaptive KMZ, ISO 9283 metrics.
+    Validate(nanocal::cli::validate::ValidateArgs),
+    /// Validate and write the report plots (PNG + SVG).
+    Report(nanocal::cli::report::ReportArgs),
+    /// The whole workflow on the bundled example: train, fit, validate, table, plots.
+    Demo(nanocal::cli::demo::DemoArgs),
     /// Run the digital twin and write a simulated recording (CSV).
     Simulate(nanocal::cli::simulate::SimulateArgs),
 }
@@ -25,6 +33,10 @@ fn main() -> anyhow::Result<()> {
             Ok(())
         }
         Command::Stepwise(a) => nanocal::cli::stepwise::run(a),
+        Command::Fit(a) => nanocal::cli::fit::run(a),
+        Command::Validate(a) => nanocal::cli::validate::run(a),
+        Command::Report(a) => nanocal::cli::report::run(a),
+        Command::Demo(a) => nanocal::cli::demo::run(a),
         Command::Simulate(a) => nanocal::cli::simulate::run(a),
     }
 }

@@ -12,7 +12,10 @@
 //! tested natively with the model's own code.
 
 use crate::gcs::{self, AxisMap, Feed, GcsError, LineBuf, MAP_AXES, MAX_LINE};
+use crate::{Fold, Model, SlowInputs, MAX_AXES};
 use core::fmt;
+
+const _: () = assert!(MAP_AXES == MAX_AXES);
 
 /// Output buffer for a forwarded/rewritten line or a complete reply.
 pub type Out = LineBuf<OUT_LEN>;
@@ -59,6 +62,49 @@ pub trait Corrector {
     fn inverse(&self, q_um: &[f32; MAP_AXES], dir: &[i8; MAP_AXES]) -> Option<[f32; MAP_AXES]>;
     /// Stage travel of a model axis in command space (min, max), µm.
     fn travel_um(&self, axis: usize) -> (f32, f32);
+}
+
+/// The model's fast path as the proxy uses it: a thermal fold and the stage travel.
+#[derive(Debug, Clone, Copy)]
+pub struct FoldCorrector {
+    /// The current thermal fold.
+    pub fold: Fold,
+    /// Stage travel per axis in command space, µm.
+    pub travel_um: [(f32, f32); MAX_AXES],
+}
+
+impl FoldCorrector {
+    /// Fold `model` at `slow` (the slow path).
+    pub fn new(model: &Model, slow: &SlowInputs) -> Self {
+        let mut travel_um = [(0.0, 0.0); MAX_AXES];
+        for (a, t) in travel_um.iter_mut().enumerate().take(model.axes()) {
+            let (lo, hi) = model.travel_um(a);
+            *t = (lo as f32, hi as f32);
+        }
+        Self {
+            fold: model.fold(slow),
+            travel_um,
+        }
+    }
+}
+
+impl Corrector for FoldCorrector {
+    fn axes(&self) -> usize {
+        self.fold.axes()
+    }
+    fn correct(&self, x_um: &[f32; MAP_AXES], dir: &[i8; MAP_AXES]) -> Corrected {
+        let c = self.fold.correct(x_um, dir);
+        Corrected {
+            q_um: c.q_um,
+            outside_envelope: c.outside_envelope,
+        }
+    }
+    fn inverse(&self, q_um: &[f32; MAP_AXES], dir: &[i8; MAP_AXES]) -> Option<[f32; MAP_AXES]> {
+        self.fold.inverse(q_um, dir).ok()
+    }
+    fn travel_um(&self, axis: usize) -> (f32, f32) {
+        self.travel_um.get(axis).copied().unwrap_or((0.0, 0.0))
+    }
 }
 
 /// Why moves are refused regardless of target.

@@ -24,55 +24,15 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::pipe::Pipe;
 use embassy_sync::signal::Signal;
 use nanocal_model::fault::{Faults, Policy};
-use nanocal_model::proxy::{Corrected, Corrector, Proxy};
+use nanocal_model::proxy::{FoldCorrector, Proxy};
 use nanocal_model::slots::Active;
-use nanocal_model::{Fold, Model, SlowInputs, MAX_AXES, MAX_TEMPS};
+use nanocal_model::{Model, SlowInputs, MAX_TEMPS};
 
 /// Bytes buffered toward each link.
 pub const PIPE_LEN: usize = 512;
 
-/// The model's fast path as the proxy sees it: the current fold and the stage travel.
-#[derive(Clone, Copy)]
-pub struct Comp {
-    /// The current thermal fold.
-    pub fold: Fold,
-    /// Stage travel per axis in command space, µm.
-    pub travel_um: [(f32, f32); MAX_AXES],
-}
-
-impl Comp {
-    /// Fold `model` at `slow`.
-    pub fn new(model: &Model, slow: &SlowInputs) -> Self {
-        let mut travel_um = [(0.0, 0.0); MAX_AXES];
-        for (a, t) in travel_um.iter_mut().enumerate().take(model.axes()) {
-            let (lo, hi) = model.travel_um(a);
-            *t = (lo as f32, hi as f32);
-        }
-        Self {
-            fold: model.fold(slow),
-            travel_um,
-        }
-    }
-}
-
-impl Corrector for Comp {
-    fn axes(&self) -> usize {
-        self.fold.axes()
-    }
-    fn correct(&self, x_um: &[f32; MAX_AXES], dir: &[i8; MAX_AXES]) -> Corrected {
-        let c = self.fold.correct(x_um, dir);
-        Corrected {
-            q_um: c.q_um,
-            outside_envelope: c.outside_envelope,
-        }
-    }
-    fn inverse(&self, q_um: &[f32; MAX_AXES], dir: &[i8; MAX_AXES]) -> Option<[f32; MAX_AXES]> {
-        self.fold.inverse(q_um, dir).ok()
-    }
-    fn travel_um(&self, axis: usize) -> (f32, f32) {
-        self.travel_um.get(axis).copied().unwrap_or((0.0, 0.0))
-    }
-}
+/// The model's fast path as the command path uses it.
+pub type Comp = FoldCorrector;
 
 /// What the command path needs, behind one short lock.
 pub struct Core {

@@ -3,4 +3,5 @@
 pub use nanocal_model as model;
 
 pub mod cli;
+pub mod device;
 pub mod published;

@@ -12,6 +12,9 @@ struct Cli {
 enum Command {
     /// Print the build's limits of the shared model (axes, temperatures, terms).
     Limits,
+    /// The inline compensator: upload a model, status, KMZ, bypass.
+    #[command(subcommand)]
+    Device(nanocal::cli::device::DeviceCommand),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -20,5 +23,6 @@ fn main() -> anyhow::Result<()> {
             println!("nanocal-model {}", env!("CARGO_PKG_VERSION"));
             Ok(())
         }
+        Command::Device(cmd) => nanocal::cli::device::run(cmd),
     }
 }

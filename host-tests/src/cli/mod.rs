@@ -1,1 +1,2 @@
 //! Command-line subcommands: one file each, a thin layer over the library.
+pub mod device;

@@ -21,7 +21,8 @@ pub fn repo_root() -> PathBuf {
         .to_path_buf()
 }
 
-/// Build the QEMU firmware once per test process; returns the ELF path.
+/// Build the QEMU firmware images (compensator and benchmark) once per test process; returns
+/// the compensator's ELF path (the benchmark's is next to it, `nanocal-fw-bench`).
 pub fn qemu_elf() -> PathBuf {
     static ELF: OnceLock<PathBuf> = OnceLock::new();
     ELF.get_or_init(|| {
@@ -35,8 +36,7 @@ pub fn qemu_elf() -> PathBuf {
                 "--no-default-features",
                 "--features",
                 "qemu",
-                "--bin",
-                "nanocal-fw-qemu",
+                "--bins",
             ])
             .env_remove("CARGO_TARGET_DIR")
             .env_remove("CARGO_BUILD_TARGET")
@@ -48,6 +48,86 @@ pub fn qemu_elf() -> PathBuf {
         root.join("target/thumbv7em-none-eabihf/release/nanocal-fw-qemu")
     })
     .clone()
+}
+
+/// The benchmark image.
+pub fn bench_elf() -> PathBuf {
+    qemu_elf().with_file_name("nanocal-fw-bench")
+}
+
+/// Symbols and section sizes of a little-endian ELF32 file.
+pub struct Elf {
+    /// (name, value) of every symbol.
+    pub symbols: Vec<(String, u32)>,
+    /// (name, address, size) of every section.
+    pub sections: Vec<(String, u32, u32)>,
+}
+
+impl Elf {
+    /// Read `path`.
+    pub fn read(path: &Path) -> Elf {
+        let b = std::fs::read(path).expect("read ELF");
+        assert_eq!(&b[..5], b"\x7fELF\x01", "ELF32 expected");
+        let u16_at = |o: usize| u16::from_le_bytes([b[o], b[o + 1]]) as usize;
+        let u32_at = |o: usize| u32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]);
+        let shoff = u32_at(0x20) as usize;
+        let (shentsize, shnum, shstrndx) = (u16_at(0x2E), u16_at(0x30), u16_at(0x32));
+        let sh = |i: usize| shoff + i * shentsize;
+        let cstr = |o: usize| {
+            let end = b[o..].iter().position(|&c| c == 0).unwrap_or(0);
+            String::from_utf8_lossy(&b[o..o + end]).into_owned()
+        };
+        let shstr = u32_at(sh(shstrndx) + 0x10) as usize;
+        let mut sections = vec![];
+        let mut symbols = vec![];
+        for i in 0..shnum {
+            let h = sh(i);
+            let name = cstr(shstr + u32_at(h) as usize);
+            let (ty, addr, off, size) = (
+                u32_at(h + 4),
+                u32_at(h + 0x0C),
+                u32_at(h + 0x10),
+                u32_at(h + 0x14),
+            );
+            sections.push((name, addr, size));
+            if ty == 2 {
+                // SHT_SYMTAB: its string table is the section in sh_link
+                let strtab = u32_at(sh(u32_at(h + 0x18) as usize) + 0x10) as usize;
+                for k in 0..(size / 16) as usize {
+                    let e = off as usize + k * 16;
+                    symbols.push((cstr(strtab + u32_at(e) as usize), u32_at(e + 4)));
+                }
+            }
+        }
+        Elf { symbols, sections }
+    }
+
+    /// A symbol's value.
+    pub fn symbol(&self, name: &str) -> u32 {
+        self.symbols
+            .iter()
+            .find(|(n, _)| n == name)
+            .unwrap_or_else(|| panic!("symbol {name}"))
+            .1
+    }
+
+    /// Size of a section (0 when absent).
+    pub fn section(&self, name: &str) -> u32 {
+        self.sections
+            .iter()
+            .find(|(n, _, _)| n == name)
+            .map(|s| s.2)
+            .unwrap_or(0)
+    }
+
+    /// Flash (vector table, code, constants, initialised data) and static RAM (data, bss).
+    pub fn flash_ram(&self) -> (u32, u32) {
+        let s = |n| self.section(n);
+        (
+            s(".vector_table") + s(".text") + s(".rodata") + s(".data"),
+            s(".data") + s(".bss") + s(".uninit"),
+        )
+    }
 }
 
 /// True when qemu-system-arm runs.

@@ -69,7 +69,8 @@ fn model_1dof() -> Option<Model> {
         .trained_range(Input::Temp(1), 21.0, 23.0)
         .travel_um(0, -20.0, 520.0);
     for (k, c) in [1.2, -0.3, 0.05, -0.01, 0.002].iter().enumerate() {
-        b.add_term(term(0, [k as u8 + 1, 0, 0], Factor::None, *c)).ok()?;
+        b.add_term(term(0, [k as u8 + 1, 0, 0], Factor::None, *c))
+            .ok()?;
     }
     b.add_term(term(0, [0; 3], Factor::Temp(0), 2.9)).ok()?;
     b.add_term(term(0, [0; 3], Factor::Temp(1), -3.1)).ok()?;
@@ -92,18 +93,23 @@ fn model_2dof() -> Option<Model> {
         for k in 1..=5u8 {
             let mut p = [0u8; 3];
             p[own] = k;
-            b.add_term(term(out, p, Factor::None, 0.5 / f64::from(k))).ok()?;
+            b.add_term(term(out, p, Factor::None, 0.5 / f64::from(k)))
+                .ok()?;
             let mut p = [0u8; 3];
             p[other] = k;
-            b.add_term(term(out, p, Factor::None, 0.01 / f64::from(k))).ok()?;
+            b.add_term(term(out, p, Factor::None, 0.01 / f64::from(k)))
+                .ok()?;
         }
         for (px, py) in [(1, 1), (2, 1), (1, 2), (2, 2), (3, 1), (1, 3)] {
-            b.add_term(term(out, [px, py, 0], Factor::None, 1e-3)).ok()?;
+            b.add_term(term(out, [px, py, 0], Factor::None, 1e-3))
+                .ok()?;
         }
         b.add_term(term(out, [0; 3], Factor::Temp(0), 0.3)).ok()?;
         b.add_term(term(out, [0; 3], Factor::Temp(1), -0.2)).ok()?;
-        b.add_term(term(out, [1, 0, 0], Factor::Temp(out), 0.01)).ok()?;
-        b.add_term(term(out, [0, 1, 0], Factor::Temp(out), 0.02)).ok()?;
+        b.add_term(term(out, [1, 0, 0], Factor::Temp(out), 0.01))
+            .ok()?;
+        b.add_term(term(out, [0, 1, 0], Factor::Temp(out), 0.02))
+            .ok()?;
     }
     b.offset_um(0, 40.0).offset_um(1, 40.0).build().ok()
 }
@@ -120,7 +126,11 @@ fn main() -> ! {
     let (Some(m1), Some(m2)) = (model_1dof(), model_2dof()) else {
         panic!("bench models rejected by the builder");
     };
-    hprintln!("terms: 1-DoF {}, 2-DoF {}", m1.terms().len(), m2.terms().len());
+    hprintln!(
+        "terms: 1-DoF {}, 2-DoF {}",
+        m1.terms().len(),
+        m2.terms().len()
+    );
     let f1 = m1.fold(&slow(22.0));
     let f2 = m2.fold(&slow(22.0));
     let dir = [0i8; MAX_AXES];
@@ -141,7 +151,11 @@ fn main() -> ! {
 
     nanocal_bench_start(2);
     for i in 0..N {
-        let x = [black_box(i as f32 * 0.08), black_box(80.0 - i as f32 * 0.08), 0.0];
+        let x = [
+            black_box(i as f32 * 0.08),
+            black_box(80.0 - i as f32 * 0.08),
+            0.0,
+        ];
         acc += f2.correct(&x, &dir).q_um[1];
     }
     nanocal_bench_stop(2);
@@ -149,7 +163,12 @@ fn main() -> ! {
     let c1 = FoldCorrector::new(&m1, &slow(22.0));
     let mut proxy = Proxy::default();
     let mut out = Out::new();
-    let lines: [&[u8]; 4] = [b"MOV 1 123.456", b"MOV 1 7.25", b"MOV 1 300.0001", b"MOV 1 42"];
+    let lines: [&[u8]; 4] = [
+        b"MOV 1 123.456",
+        b"MOV 1 7.25",
+        b"MOV 1 300.0001",
+        b"MOV 1 42",
+    ];
     nanocal_bench_start(3);
     for i in 0..N {
         let r = proxy.host_line(Some(&c1), black_box(lines[(i % 4) as usize]), &mut out);

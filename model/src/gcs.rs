@@ -118,11 +118,11 @@ impl<const N: usize> LineBuf<N> {
         }
         self.extend(&tmp[i..])
     }
-    /// Append `v` with exactly `decimals` digits after the point (rounded half away from zero).
+    /// Append `v` with exactly `decimals` (≤ 9) digits after the point, rounded half away from
+    /// zero. One f64 multiply and one 64-bit division; the digits are produced in 32 bits.
     pub fn push_fixed(&mut self, v: f64, decimals: u32) -> Result<(), GcsError> {
-        let decimals = decimals.min(9);
-        let scale = POW10[decimals as usize];
-        let scaled = v * scale;
+        let decimals = decimals.min(9) as usize;
+        let scaled = v * POW10[decimals];
         if scaled.is_nan() || scaled.abs() >= 9.0e18 {
             return Err(GcsError::BadNumber);
         }
@@ -131,26 +131,71 @@ impl<const N: usize> LineBuf<N> {
         } else {
             (scaled - 0.5) as i64
         };
-        let neg = r < 0;
         let u = r.unsigned_abs();
-        let p = scale as u64;
-        if neg {
+        let p = POW10_U32[decimals];
+        let (int, frac) = if u < u64::from(u32::MAX) {
+            let u = u as u32;
+            (u64::from(u / p), u % p)
+        } else {
+            let int = u / u64::from(p);
+            (int, (u - int * u64::from(p)) as u32)
+        };
+        if r < 0 {
             self.push(b'-')?;
         }
-        self.push_int((u / p) as i64)?;
+        if let Ok(i) = u32::try_from(int) {
+            self.push_u32(i)?;
+        } else {
+            self.push_int(int as i64)?;
+        }
         if decimals > 0 {
             self.push(b'.')?;
-            let mut frac = u % p;
             let mut digits = [b'0'; 9];
-            for d in (0..decimals as usize).rev() {
-                digits[d] = b'0' + (frac % 10) as u8;
-                frac /= 10;
+            let mut f = frac;
+            for d in digits[..decimals].iter_mut().rev() {
+                *d = b'0' + (f % 10) as u8;
+                f /= 10;
             }
-            self.extend(&digits[..decimals as usize])?;
+            self.extend(&digits[..decimals])?;
         }
         Ok(())
     }
+
+    /// Append an unsigned 32-bit integer in decimal (hardware division only).
+    pub fn push_u32(&mut self, mut u: u32) -> Result<(), GcsError> {
+        let mut tmp = [0u8; 10];
+        let mut i = tmp.len();
+        loop {
+            i -= 1;
+            tmp[i] = b'0' + (u % 10) as u8;
+            u /= 10;
+            if u == 0 {
+                break;
+            }
+        }
+        self.extend(&tmp[i..])
+    }
 }
+
+const POW10_U32: [u32; 10] = [
+    1,
+    10,
+    100,
+    1_000,
+    10_000,
+    100_000,
+    1_000_000,
+    10_000_000,
+    100_000_000,
+    1_000_000_000,
+];
+
+/// 10^-k for k = 0..=22 (multiplying is far cheaper than dividing in soft-float f64; the error
+/// stays within two ulps).
+const NEG_POW10: [f64; 23] = [
+    1e0, 1e-1, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12, 1e-13, 1e-14,
+    1e-15, 1e-16, 1e-17, 1e-18, 1e-19, 1e-20, 1e-21, 1e-22,
+];
 
 const POW10: [f64; 23] = [
     1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15, 1e16,
@@ -213,7 +258,11 @@ pub fn parse_f64(s: &[u8]) -> Result<f64, GcsError> {
     if i != s.len() {
         return Err(GcsError::BadNumber);
     }
-    let m = mant as f64;
+    // mantissas below 2^32 convert with the cheaper 32-bit routine
+    let m = match u32::try_from(mant) {
+        Ok(m32) => f64::from(m32),
+        Err(_) => mant as f64,
+    };
     let v = if mant == 0 {
         0.0
     } else if exp10 >= 0 {
@@ -232,7 +281,7 @@ pub fn parse_f64(s: &[u8]) -> Result<f64, GcsError> {
                 m / POW10[POW10.len() - 1] / POW10[e2]
             }
         } else {
-            m / POW10[e]
+            m * NEG_POW10[e]
         }
     };
     Ok(if neg { -v } else { v })

@@ -4,6 +4,7 @@ pub use nanocal_model as model;
 
 pub mod cli;
 pub mod design;
+pub mod device;
 pub mod dwell;
 pub mod effects;
 pub mod fit;

@@ -24,6 +24,9 @@ enum Command {
     Demo(nanocal::cli::demo::DemoArgs),
     /// Run the digital twin and write a simulated recording (CSV).
     Simulate(nanocal::cli::simulate::SimulateArgs),
+    /// The inline compensator: upload a model, status, KMZ, bypass.
+    #[command(subcommand)]
+    Device(nanocal::cli::device::DeviceCommand),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -38,5 +41,6 @@ fn main() -> anyhow::Result<()> {
         Command::Report(a) => nanocal::cli::report::run(a),
         Command::Demo(a) => nanocal::cli::demo::run(a),
         Command::Simulate(a) => nanocal::cli::simulate::run(a),
+        Command::Device(cmd) => nanocal::cli::device::run(cmd),
     }
 }

@@ -1,5 +1,6 @@
 //! Command-line subcommands: one file each, a thin layer over the library.
 pub mod demo;
+pub mod device;
 pub mod fit;
 pub mod report;
 pub mod simulate;

@@ -8,3 +8,4 @@ pub mod twin;
 pub mod linalg;
 pub mod recording;
 pub mod published;
+pub mod explain;

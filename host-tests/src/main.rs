@@ -14,6 +14,8 @@ enum Command {
     Limits,
     /// Run the digital twin and write a simulated recording (CSV).
     Simulate(nanocal::cli::simulate::SimulateArgs),
+    /// Find, name and model the physics a model or simulation left out of a recording.
+    Explain(nanocal::cli::explain::ExplainArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -23,5 +25,6 @@ fn main() -> anyhow::Result<()> {
             Ok(())
         }
         Command::Simulate(a) => nanocal::cli::simulate::run(a),
+        Command::Explain(a) => nanocal::cli::explain::run(a),
     }
 }

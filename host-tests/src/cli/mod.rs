@@ -1,2 +1,3 @@
 //! Command-line subcommands: one file each, a thin layer over the library.
 pub mod simulate;
+pub mod explain;

@@ -69,7 +69,7 @@ impl super::Candidate for Candidate {
     }
     fn regressors(&self, d: &Data, ch: usize, theta: Option<f64>) -> Vec<Vec<f64>> {
         let p = theta.unwrap_or(HENE_HALF_WAVELENGTH_NM);
-        let m = &d.channels[ch].meas_um;
+        let m = &d.channels[ch].position_est_um;
         let ph: Vec<f64> = m.iter().map(|x| std::f64::consts::TAU * x * 1e3 / p).collect();
         vec![
             ph.iter().map(|v| v.sin()).collect(),

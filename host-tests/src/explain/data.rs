@@ -15,6 +15,11 @@ pub struct Channel {
     pub y_um: Vec<f64>,
     /// The reference measurement, µm.
     pub meas_um: Vec<f64>,
+    /// A noise-free estimate of the measured position, µm: the measurement minus the baseline
+    /// residual once explain has fitted the baseline (the measurement itself before). Effects
+    /// that depend on where the stage really is (periodic interferometer error) use it, so the
+    /// response's own noise never leaks into a regressor.
+    pub position_est_um: Vec<f64>,
     /// The command, µm, when the axis was commanded.
     pub cmd_um: Option<Vec<f64>>,
     /// Scaled command u ∈ [-1, 1] (centre and half range of the commanded travel).
@@ -141,7 +146,8 @@ impl Data {
                     }
                 }
             }
-            channels.push(Channel { name: axis, y_um, meas_um, cmd_um, u, half_range_um, dir, steps });
+            let position_est_um = meas_um.clone();
+            channels.push(Channel { name: axis, y_um, meas_um, position_est_um, cmd_um, u, half_range_um, dir, steps });
         }
         if channels.is_empty() {
             return Err(ExplainError::Input("expected at least one `meas_<axis>` column, found none".into()));

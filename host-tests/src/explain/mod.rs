@@ -237,11 +237,19 @@ fn theta_sigma(d: &Data, ch: usize, cand: &dyn Candidate, model: &Model, th: f64
 
 /// Explain one channel.
 pub fn explain_channel(d: &Data, ch: usize, settings: &Settings) -> Result<ChannelReport, ExplainError> {
-    let y = &d.channels[ch].y_um;
     let (base_cols, baseline) = baseline_columns(d, ch);
     let mut model = Model { cols: base_cols };
     let folds = fit::folds(d.rows());
-    let base_fit = fit::fit(&model.with(&[]), y)?;
+    let base_fit = fit::fit(&model.with(&[]), &d.channels[ch].y_um)?;
+    let mut d = d.clone();
+    {
+        let c = &mut d.channels[ch];
+        for ((p, m), r) in c.position_est_um.iter_mut().zip(&c.meas_um).zip(&base_fit.residuals) {
+            *p = if r.is_finite() { m - r } else { *m };
+        }
+    }
+    let d = &d;
+    let y = &d.channels[ch].y_um;
     let base_cv = fit::cross_validate(&model.with(&[]), y, &folds)?;
     let floor = locate::noise(d, ch, &base_fit.residuals);
     let located = locate::locate(d, ch, &base_fit.residuals, floor);

@@ -84,7 +84,7 @@ impl super::Candidate for Candidate {
         Some("knots")
     }
     fn theta_grid(&self, _d: &Data, _ch: usize) -> Vec<f64> {
-        vec![3.0, 5.0, 9.0, 14.0]
+        vec![3.0, 5.0, 9.0, 17.0, 33.0]
     }
     fn regressors(&self, d: &Data, _ch: usize, theta: Option<f64>) -> Vec<Vec<f64>> {
         hat_basis(&d.t_s, theta.unwrap_or(5.0) as usize)

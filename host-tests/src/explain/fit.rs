@@ -6,7 +6,7 @@ use crate::linalg::{lstsq, LeastSquares};
 use super::ExplainError;
 
 /// Number of contiguous time blocks the recording is cut into for cross-validation.
-pub const CV_BLOCKS: usize = 40;
+pub const CV_BLOCKS: usize = 80;
 /// Number of folds: block b belongs to fold b mod CV_FOLDS (interleaved, so every fold spans
 /// the whole recording and held-out blocks are short against slow structure).
 pub const CV_FOLDS: usize = 5;
@@ -62,6 +62,26 @@ pub fn effective_n(r: &[f64]) -> f64 {
     let bvar = bm.iter().map(|x| (x - bmm) * (x - bmm)).sum::<f64>() / (batches - 1) as f64;
     let tau = (b as f64 * bvar / var).max(1.0);
     (n as f64 / tau).clamp(10.0_f64.min(n as f64), n as f64)
+}
+
+/// Effective number of independent rows for comparing models in one naming round: from the
+/// lag-1 autocorrelation ρ of the current residual after removing its slow part (a centred
+/// moving average over 1/80 of the record), n(1−ρ)/(1+ρ), and at most `units` (the number of
+/// independent positioning events, e.g. dwells). The same value is used for every candidate of a
+/// round, so a candidate cannot win by whitening its own residual.
+pub fn round_effective_n(r: &[f64], units: usize) -> f64 {
+    let v: Vec<f64> = r.iter().copied().filter(|x| x.is_finite()).collect();
+    let n = v.len();
+    if n < 10 {
+        return n as f64;
+    }
+    let half = (n / 160).max(1);
+    let slow = crate::explain::data::centred_mean(&v, half);
+    let hp: Vec<f64> = v.iter().zip(&slow).map(|(a, b)| a - b).collect();
+    let c0: f64 = hp.iter().map(|x| x * x).sum();
+    let c1: f64 = hp.windows(2).map(|w| w[0] * w[1]).sum();
+    let rho = if c0 > 0.0 { (c1 / c0).clamp(0.0, 0.999) } else { 0.0 };
+    (n as f64 * (1.0 - rho) / (1.0 + rho)).min(units.max(10) as f64).max(10.0_f64.min(n as f64))
 }
 
 /// Bayesian information criterion with an effective sample size: n_eff ln(RSS/n) + k ln n_eff.

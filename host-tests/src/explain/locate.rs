@@ -40,6 +40,16 @@ fn units(d: &Data, ch: usize) -> Vec<(usize, usize)> {
     b.windows(2).filter(|w| w[1] > w[0]).map(|w| (w[0], w[1])).collect()
 }
 
+/// Effective number of independent positioning events (dwells weighted by their length:
+/// (Σ len)² / Σ len², so one long rest counts once, not as many rows) of a commanded channel,
+/// or rows.
+pub fn unit_count(d: &Data, ch: usize) -> usize {
+    let us = units(d, ch);
+    let s1: f64 = us.iter().map(|(a, b)| (b - a) as f64).sum();
+    let s2: f64 = us.iter().map(|(a, b)| ((b - a) as f64).powi(2)).sum();
+    if s2 > 0.0 { (s1 * s1 / s2).round() as usize } else { us.len() }
+}
+
 /// Estimate the noise floor of residual `r` on channel `ch`.
 pub fn noise(d: &Data, ch: usize, r: &[f64]) -> NoiseFloor {
     let sample_um = noise_floor(r);
@@ -176,9 +186,14 @@ pub fn locate(d: &Data, ch: usize, r: &[f64], floor: NoiseFloor) -> Vec<Finding>
             if vals.len() < 3 {
                 continue;
             }
-            let mut uids: Vec<usize> = rows.iter().map(|&i| unit_of[i]).collect();
-            uids.dedup();
-            let n_units = uids.len().max(1) as f64;
+            // effective number of units in the bin, each weighted by its rows in the bin
+            let mut counts: std::collections::HashMap<usize, f64> = std::collections::HashMap::new();
+            for &i in rows {
+                *counts.entry(unit_of[i]).or_default() += 1.0;
+            }
+            let s1: f64 = counts.values().sum();
+            let s2: f64 = counts.values().map(|c| c * c).sum();
+            let n_units = if s2 > 0.0 { (s1 * s1 / s2).max(1.0) } else { 1.0 };
             let mean = vals.iter().sum::<f64>() / vals.len() as f64;
             let z = mean.abs() / (sigma / n_units.sqrt());
             // structured: statistically clear AND at least the size of the noise floor

@@ -115,6 +115,7 @@ type Extension = (Option<f64>, Vec<Vec<f64>>, fit::Fit);
 
 /// The best candidate of a round so far.
 struct Best {
+    /// −ΔBIC of the candidate.
     gain: f64,
     cand: &'static dyn Candidate,
     theta: Option<f64>,
@@ -192,9 +193,8 @@ fn best_theta(
 }
 
 /// 1σ of a continuous θ from the RSS profile: where n_eff·ln(RSS/RSS_min) rises by 1.
-fn theta_sigma(d: &Data, ch: usize, cand: &dyn Candidate, model: &Model, th: f64, f: &fit::Fit) -> Result<f64, ExplainError> {
+fn theta_sigma(d: &Data, ch: usize, cand: &dyn Candidate, model: &Model, th: f64, f: &fit::Fit, n_eff: f64) -> Result<f64, ExplainError> {
     let y = &d.channels[ch].y_um;
-    let n_eff = f.n_eff;
     let rss0 = f.rss;
     let g = |lt: f64| -> Result<f64, ExplainError> {
         let regs = cand.regressors(d, ch, Some(lt.exp()));
@@ -260,7 +260,9 @@ pub fn explain_channel(d: &Data, ch: usize, settings: &Settings) -> Result<Chann
     let mut accepted: Vec<&'static str> = Vec::new();
     let k_base = model.cols.len() + 1;
     let mut k_cur = k_base;
+    let units = locate::unit_count(d, ch);
     for _round in 0..settings.max_effects {
+        let n_eff = fit::round_effective_n(&cur_fit.residuals, units);
         let mut best: Option<Best> = None;
         let mut trials = Vec::new();
         for cand in candidates() {
@@ -269,7 +271,6 @@ pub fn explain_channel(d: &Data, ch: usize, settings: &Settings) -> Result<Chann
             }
             let (theta, regs, f) = best_theta(d, ch, cand, &model)?;
             let k_new = k_cur + regs.len() + usize::from(theta.is_some());
-            let n_eff = f.n_eff;
             let delta_bic = fit::bic(f.rss, f.n, k_new, n_eff) - fit::bic(cur_fit.rss, cur_fit.n, k_cur, n_eff);
             let mut trial = Trial { name: cand.name(), theta, delta_bic, cv_rms_um: f64::NAN, folds_better: 0, passed: false };
             if delta_bic < -settings.min_bic_drop {
@@ -279,7 +280,9 @@ pub fn explain_channel(d: &Data, ch: usize, settings: &Settings) -> Result<Chann
                 trial.folds_better = folds_better;
                 trial.passed = folds_better >= settings.min_folds_better && cv.rms_um < cur_cv.rms_um * (1.0 - settings.min_rms_gain);
                 if trial.passed {
-                    let gain = cur_cv.rms_um - cv.rms_um;
+                    // among the candidates that predict held-out data better, the information
+                    // criterion picks the winner: the most evidence per parameter
+                    let gain = -delta_bic;
                     if best.as_ref().is_none_or(|b| gain > b.gain) {
                         best = Some(Best { gain, cand, theta, regs, fit: f, cv, trial: trial.clone() });
                     }
@@ -291,12 +294,13 @@ pub fn explain_channel(d: &Data, ch: usize, settings: &Settings) -> Result<Chann
         let Some(Best { cand, theta, regs, fit: f, cv, trial, .. }) = best else { break };
         // parameters
         let m = model.cols.len();
-        let infl = (f.n as f64 / f.n_eff.max(1.0)).sqrt();
+        let n_eff_after = fit::round_effective_n(&f.residuals, units);
+        let infl = (f.n as f64 / n_eff_after.max(1.0)).sqrt();
         let se_all = f.ls.std_errors();
         let coeffs: Vec<f64> = f.ls.coeffs[m..].to_vec();
         let se: Vec<f64> = se_all[m..].iter().map(|s| s * infl).collect();
         let th_sigma = match (theta, cand.continuous()) {
-            (Some(th), true) => theta_sigma(d, ch, cand, &model, th, &f)?,
+            (Some(th), true) => theta_sigma(d, ch, cand, &model, th, &f, n_eff_after)?,
             _ => f64::NAN,
         };
         let mut params: Vec<Estimate> = cand.params(d, ch, &Fitted { theta, theta_sigma: th_sigma, coeffs: &coeffs, se: &se });

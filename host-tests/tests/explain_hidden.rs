@@ -22,10 +22,7 @@ fn thermal_lag_is_named_and_tau_recovered() {
     for seed in SEEDS {
         let mut r = rng(seed);
         let tau_s = draw(&mut r, 600.0, 2400.0);
-        // a lively lab: HVAC ±0.05 °C, daily ±0.3 °C
-        let mut cfg = TwinConfig::published_1dof();
-        cfg.room.hvac_amplitude_c = 0.05;
-        cfg.room.daily_amplitude_c = 0.3;
+        let mut cfg = lively_fast_sensors();
         cfg.effects = vec![EffectSpec::ThermalLag(thermal_lag::Params { tau_s })];
         let rep = explain_columns(simulate(cfg, &Trajectory::published_training_1dof(60.0, 10), seed));
         assert_names(&rep, &["thermal_lag"], "hidden thermal_lag");

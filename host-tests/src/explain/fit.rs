@@ -81,7 +81,12 @@ pub fn round_effective_n(r: &[f64], units: usize) -> f64 {
     let c0: f64 = hp.iter().map(|x| x * x).sum();
     let c1: f64 = hp.windows(2).map(|w| w[0] * w[1]).sum();
     let rho = if c0 > 0.0 { (c1 / c0).clamp(0.0, 0.999) } else { 0.0 };
-    (n as f64 * (1.0 - rho) / (1.0 + rho)).min(units.max(10) as f64).max(10.0_f64.min(n as f64))
+    // Smooth real residuals (sensor-limited, ρ → 1) would drive n_eff to a handful; the
+    // blocked cross-validation already treats its 2·CV_BLOCKS half-blocks as independent, so
+    // that is the floor (never above the number of units).
+    let cap = units.max(10).min(n) as f64;
+    let floor = ((2 * CV_BLOCKS) as f64).min(cap);
+    (n as f64 * (1.0 - rho) / (1.0 + rho)).clamp(floor, cap)
 }
 
 /// Bayesian information criterion with an effective sample size: n_eff ln(RSS/n) + k ln n_eff.

@@ -308,6 +308,16 @@ pub fn explain_channel(d: &Data, ch: usize, settings: &Settings) -> Result<Chann
         let change: Vec<f64> = cur_fit.residuals.iter().zip(&f.residuals).map(|(a, b)| a - b).collect();
         params.push(Estimate::new("contribution_rms_nm", fit::rms(&change) * 1e3, f64::NAN));
         let rms_before_um = cur_cv.rms_um;
+        let grid = cand.theta_grid(d, ch);
+        let edge_note = match (theta, grid.first(), grid.last()) {
+            (Some(th), Some(_), Some(&hi)) if cand.continuous() && th >= hi * 0.99 => {
+                format!("; {} at the top of the searched range ({}): a lower bound", cand.theta_name().unwrap_or("θ"), sig3(hi))
+            }
+            (Some(th), Some(&lo), Some(_)) if cand.continuous() && th <= lo * 1.01 => {
+                format!("; {} at the bottom of the searched range ({}): an upper bound", cand.theta_name().unwrap_or("θ"), sig3(lo))
+            }
+            _ => String::new(),
+        };
         let evidence = format!(
             "held-out RMS {:.1} → {:.1} nm ({} of {} folds better), ΔBIC {:.0}, in-sample RMS {:.1} → {:.1} nm",
             rms_before_um * 1e3,
@@ -317,7 +327,7 @@ pub fn explain_channel(d: &Data, ch: usize, settings: &Settings) -> Result<Chann
             trial.delta_bic,
             fit::rms(&cur_fit.residuals) * 1e3,
             fit::rms(&f.residuals) * 1e3
-        );
+        ) + &edge_note;
         effects.push(EffectReport {
             name: cand.name(),
             channel: d.channels[ch].name.clone(),
@@ -364,6 +374,10 @@ pub fn explain_channel(d: &Data, ch: usize, settings: &Settings) -> Result<Chann
         residual_before_um: base_cv.residuals,
         residual_after_um: cur_cv.residuals,
     })
+}
+
+fn sig3(v: f64) -> String {
+    if v.abs() >= 1e4 { format!("{v:.0}") } else { format!("{v:.3}") }
 }
 
 /// Explain every measured channel of a recording.

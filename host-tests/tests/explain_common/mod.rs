@@ -85,3 +85,19 @@ pub fn assert_names(rep: &Report, expected: &[&str], what: &str) {
 pub fn assert_close(found: f64, truth: f64, rel: f64, abs: f64, what: &str) {
     assert!((found - truth).abs() <= rel * truth.abs() + abs, "{what}: found {found}, truth {truth} (tolerance {rel}·|truth| + {abs})");
 }
+
+/// A lively lab (HVAC ±0.05 °C, daily ±0.3 °C) read by three fast sensors (60–600 s behind the
+/// air), so that a slower structure is not already spanned by the sensors themselves.
+pub fn lively_fast_sensors() -> TwinConfig {
+    use nanocal::twin::SensorConfig;
+    let mut cfg = TwinConfig::published_1dof();
+    cfg.room.hvac_amplitude_c = 0.05;
+    cfg.room.daily_amplitude_c = 0.3;
+    cfg.sensors = vec![
+        SensorConfig::new("air", 0.0, 60.0, 1.0),
+        SensorConfig::new("stage", 0.2, 300.0, 1.0),
+        SensorConfig::new("base", 0.1, 600.0, 0.9),
+    ];
+    cfg.thermal_um_per_c = vec![vec![1.2, 1.0, 0.8]];
+    cfg
+}

@@ -7,6 +7,7 @@ pub mod design;
 pub mod device;
 pub mod dwell;
 pub mod effects;
+pub mod explain;
 pub mod fit;
 pub mod iso9283;
 pub mod linalg;

@@ -27,6 +27,8 @@ enum Command {
     /// The inline compensator: upload a model, status, KMZ, bypass.
     #[command(subcommand)]
     Device(nanocal::cli::device::DeviceCommand),
+    /// Find, name and model the physics a model or simulation left out of a recording.
+    Explain(nanocal::cli::explain::ExplainArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -42,5 +44,6 @@ fn main() -> anyhow::Result<()> {
         Command::Demo(a) => nanocal::cli::demo::run(a),
         Command::Simulate(a) => nanocal::cli::simulate::run(a),
         Command::Device(cmd) => nanocal::cli::device::run(cmd),
+        Command::Explain(a) => nanocal::cli::explain::run(a),
     }
 }

@@ -10,14 +10,24 @@ step "toolchain"
 rustup component add clippy rustfmt >/dev/null 2>&1 || true
 rustup target add thumbv7em-none-eabihf
 
+step "firmware: QEMU 10, both boards in release, clippy -D warnings, fmt"
+bash "$root/.ci/firmware.sh"
+
 step "host workspace: format and lints"
 cd "$root/host-tests"
 cargo fmt --all --check
 cargo clippy --all-targets -- -D warnings
 
+step "shared model builds for the firmware target (no_std, with and without defmt)"
+cargo clippy -p nanocal-model --target thumbv7em-none-eabihf -- -D warnings
+cargo clippy -p nanocal-model --target thumbv7em-none-eabihf --features defmt -- -D warnings
+
 step "fuzz target builds (run it with cargo +nightly fuzz run decode_blob in model/)"
 cd "$root/model/fuzz"
 cargo build --quiet --target "$(rustc -vV | sed -n 's/^host: //p')"
+
+step "host prerequisites (GNU Octave for the differential stepwise test)"
+bash "$root/.ci/host.sh"
 
 step "host tests"
 cd "$root/host-tests"

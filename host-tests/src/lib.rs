@@ -4,8 +4,10 @@ pub use nanocal_model as model;
 
 pub mod cli;
 pub mod design;
+pub mod device;
 pub mod dwell;
 pub mod effects;
+pub mod explain;
 pub mod fit;
 pub mod iso9283;
 pub mod linalg;

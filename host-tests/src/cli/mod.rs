@@ -1,5 +1,7 @@
 //! Command-line subcommands: one file each, a thin layer over the library.
 pub mod demo;
+pub mod device;
+pub mod explain;
 pub mod fit;
 pub mod report;
 pub mod simulate;

@@ -21,6 +21,22 @@ fn vm_hwm_bytes() -> Option<u64> {
     Some(kb * 1024)
 }
 
+/// CPU time (user + system) of this process so far, s (`/proc/self/stat`, 100 ticks/s).
+fn cpu_s() -> f64 {
+    let s = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let after = s.rsplit(')').next().unwrap_or("");
+    let f: Vec<&str> = after.split_whitespace().collect();
+    let tick = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (tick(11) + tick(12)) / 100.0
+}
+
+/// 1-minute load average (other processes competing for the cores).
+fn load_avg() -> String {
+    std::fs::read_to_string("/proc/loadavg").map_or("?".into(), |s| {
+        s.split_whitespace().next().unwrap_or("?").to_string()
+    })
+}
+
 struct Rng(u64);
 impl Rng {
     fn next_u64(&mut self) -> u64 {
@@ -94,15 +110,18 @@ fn main() {
 
     let xr: Vec<&[f64]> = x.iter().map(|c| c.as_slice()).collect();
     let t = Instant::now();
+    let c0 = cpu_s();
     let res = stepwise(&xr, &y, &StepwiseOptions::default()).expect("stepwise");
     let rust_s = t.elapsed().as_secs_f64();
+    let rust_cpu_s = cpu_s() - c0;
     let hwm = vm_hwm_bytes().unwrap_or(0);
     let selected: Vec<usize> = (0..p).filter(|&j| res.inmodel[j]).map(|j| j + 1).collect();
     println!(
-        "nanocal stepwise: {n} × {p}: {rust_s:.3} s, {} steps, {} selected, R² {:.6}",
+        "nanocal stepwise: {n} × {p}: {rust_s:.3} s wall, {rust_cpu_s:.2} s CPU, {} steps, {} selected, R² {:.6} (load average {})",
         res.history.len(),
         selected.len(),
-        res.r_squared
+        res.r_squared,
+        load_avg()
     );
     println!(
         "peak memory (VmHWM): {:.0} MB = {:.2} × design matrix ({:.0} MB); before generating data: {:.0} MB",

@@ -54,6 +54,7 @@ pub fn run(args: FitArgs) -> anyhow::Result<()> {
     } else {
         (DesignSpec::parse(&args.terms)?, args.fixed)
     };
+    let bar = crate::cli::validate::spinner(format!("reading {}", args.recording.display()));
     let rec = Recording::read_path(&args.recording)?;
     let selection = if fixed {
         Selection::Fixed
@@ -77,6 +78,7 @@ pub fn run(args: FitArgs) -> anyhow::Result<()> {
     };
     let rep =
         fit_dwells(&d, &opts).with_context(|| format!("fitting {}", args.recording.display()))?;
+    bar.finish_and_clear();
     print!("{}", summary(&rep));
     let bytes = encode_blob(&rep.model);
     std::fs::write(&args.output, &bytes)

@@ -43,7 +43,9 @@ pub struct StepwiseArgs {
 
 /// Runs `nanocal stepwise`.
 pub fn run(args: StepwiseArgs) -> anyhow::Result<()> {
+    let bar = crate::cli::validate::spinner(format!("reading {}", args.file.display()));
     let rec = Recording::read_path(&args.file)?;
+    bar.finish_and_clear();
     let y = rec.require(&args.response)?;
     for n in &args.exclude {
         rec.require(n).context("--exclude")?;
@@ -85,7 +87,13 @@ pub fn run(args: StepwiseArgs) -> anyhow::Result<()> {
         keep: index_of("keep", &args.keep)?,
         threads: None,
     };
+    let bar = crate::cli::validate::spinner(format!(
+        "stepwise over {} candidates, {} rows",
+        x.len(),
+        y.len()
+    ));
     let res = stepwise(&x, y, &opts)?;
+    bar.finish_and_clear();
     print!("{}", table(&names, &res, &opts));
     if let Some(path) = &args.json {
         let json = to_json(&names, &args.response, &res);

@@ -18,12 +18,12 @@ use crate::stepwise::StepwiseOptions;
 /// regression (MATLAB semantics) selects among them unless `--fixed`.
 #[derive(Args, Debug)]
 pub struct FitArgs {
-    /// Training recording (CSV: t, cmd_<axis>, meas_<axis>, temp_*, aux).
+    /// Training recording (CSV: t, `cmd_<axis>`, `meas_<axis>`, `temp_*`, aux).
     pub recording: PathBuf,
     /// Output model blob.
     #[arg(short, long)]
     pub output: PathBuf,
-    /// Candidate terms: poly=N, poly_<axis>=N, cross=N, temps, temp_x_pos, aux, direction,
+    /// Candidate terms: poly=N, `poly_<axis>=N`, cross=N, temps, temp_x_pos, aux, direction,
     /// lag=TAU_S (every temperature through a first-order lag), static (= poly=3 temps),
     /// adaptive (= poly=3).
     #[arg(long, default_value = "poly=5 temps temp_x_pos direction")]

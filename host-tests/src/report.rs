@@ -10,6 +10,15 @@ fn nm(v: f64) -> f64 {
     v * 1e3
 }
 
+/// Signed error (1-D) or error distance (n-D) of a visit, nm.
+fn err_nm(v: &crate::validate::Visit) -> f64 {
+    if v.error_um.len() == 1 {
+        nm(v.error_um[0])
+    } else {
+        nm(v.error_um.iter().map(|e| e * e).sum::<f64>().sqrt())
+    }
+}
+
 /// Writes the report plots for `reports` (e.g. no model, static, adaptive) into `dir`
 /// (created if needed); returns the files written.
 pub fn write_report(dir: &Path, reports: &[&ValidationReport]) -> Result<Vec<PathBuf>, PlotError> {
@@ -33,7 +42,7 @@ pub fn write_report(dir: &Path, reports: &[&ValidationReport]) -> Result<Vec<Pat
             let pts = counted(r)
                 .iter()
                 .filter(|v| v.dir.first().is_some_and(|d| d.signum() == sign))
-                .map(|v| (v.target_um[0], nm(v.error_um[0])))
+                .map(|v| (v.target_um[0], err_nm(v)))
                 .collect();
             series.push(Series {
                 name: format!("{} {label}", r.compensation.name()),
@@ -46,8 +55,8 @@ pub fn write_report(dir: &Path, reports: &[&ValidationReport]) -> Result<Vec<Pat
         &dir.join("error_vs_position"),
         &Chart {
             title: "Positioning error vs target (validation visits)".into(),
-            x_label: "target position (µm)".into(),
-            y_label: "error (nm)".into(),
+            x_label: "target position (µm; first axis for n-D)".into(),
+            y_label: "error (nm; distance for n-D)".into(),
             series,
         },
     )?);
@@ -59,7 +68,7 @@ pub fn write_report(dir: &Path, reports: &[&ValidationReport]) -> Result<Vec<Pat
             name: r.compensation.name().into(),
             points: counted(r)
                 .iter()
-                .map(|v| (v.mean_temp_c, nm(v.error_um[0])))
+                .map(|v| (v.mean_temp_c, err_nm(v)))
                 .collect(),
             style: Style::Points,
         })
@@ -69,7 +78,7 @@ pub fn write_report(dir: &Path, reports: &[&ValidationReport]) -> Result<Vec<Pat
         &Chart {
             title: "Error vs mean sensor temperature".into(),
             x_label: "mean temperature (°C)".into(),
-            y_label: "error (nm)".into(),
+            y_label: "error (nm; distance for n-D)".into(),
             series,
         },
     )?);
@@ -91,7 +100,7 @@ pub fn write_report(dir: &Path, reports: &[&ValidationReport]) -> Result<Vec<Pat
         &dir.join("accuracy_per_pose"),
         &Chart {
             title: "ISO 9283 accuracy per pose".into(),
-            x_label: "target position (µm)".into(),
+            x_label: "target position (µm; first axis for n-D)".into(),
             y_label: "accuracy (nm)".into(),
             series,
         },
@@ -109,7 +118,7 @@ pub fn write_report(dir: &Path, reports: &[&ValidationReport]) -> Result<Vec<Pat
             name: r.compensation.name().into(),
             points: counted(r)
                 .iter()
-                .map(|v| ((v.t_s - t0) / 3600.0, nm(v.error_um[0])))
+                .map(|v| ((v.t_s - t0) / 3600.0, err_nm(v)))
                 .collect(),
             style: Style::Points,
         })
@@ -119,7 +128,7 @@ pub fn write_report(dir: &Path, reports: &[&ValidationReport]) -> Result<Vec<Pat
         &Chart {
             title: "Error over time".into(),
             x_label: "time since start of validation (h)".into(),
-            y_label: "error (nm)".into(),
+            y_label: "error (nm; distance for n-D)".into(),
             series,
         },
     )?);

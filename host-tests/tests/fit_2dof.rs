@@ -65,4 +65,12 @@ fn coupled_2dof_fit_and_n_d_validation() {
         .iter()
         .all(|v| v.kmz_reference == t_ref.contains(&v.t_s)));
     assert_eq!(adap.inverse_failures, 0);
+    // the report plots n-D errors as distances
+    let dir = std::env::temp_dir().join(format!("nanocal-2dof-report-{}", std::process::id()));
+    let files = nanocal::report::write_report(&dir, &[&none, &stat, &adap]).unwrap();
+    assert_eq!(files.len(), 8);
+    assert!(files.iter().all(|f| std::fs::metadata(f)
+        .map(|m| m.len() > 1000)
+        .unwrap_or(false)));
+    std::fs::remove_dir_all(&dir).ok();
 }

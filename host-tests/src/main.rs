@@ -12,10 +12,23 @@ struct Cli {
 enum Command {
     /// Print the build's limits of the shared model (axes, temperatures, terms).
     Limits,
+    /// Stepwise regression (MATLAB stepwisefit semantics) on the columns of a CSV file.
+    Stepwise(nanocal::cli::stepwise::StepwiseArgs),
+    /// Fit a calibration model to a training recording and write the model blob.
+    Fit(nanocal::cli::fit::FitArgs),
+    /// Validate a model on a recording: no model / static / adaptive KMZ, ISO 9283 metrics.
+    Validate(nanocal::cli::validate::ValidateArgs),
+    /// Validate and write the report plots (PNG + SVG).
+    Report(nanocal::cli::report::ReportArgs),
+    /// The whole workflow on the bundled example: train, fit, validate, table, plots.
+    Demo(nanocal::cli::demo::DemoArgs),
     /// Run the digital twin and write a simulated recording (CSV).
     Simulate(nanocal::cli::simulate::SimulateArgs),
     /// Find, name and model the physics a model or simulation left out of a recording.
     Explain(nanocal::cli::explain::ExplainArgs),
+    /// The inline compensator: upload a model, status, KMZ, bypass.
+    #[command(subcommand)]
+    Device(nanocal::cli::device::DeviceCommand),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -24,7 +37,13 @@ fn main() -> anyhow::Result<()> {
             println!("nanocal-model {}", env!("CARGO_PKG_VERSION"));
             Ok(())
         }
+        Command::Stepwise(a) => nanocal::cli::stepwise::run(a),
+        Command::Fit(a) => nanocal::cli::fit::run(a),
+        Command::Validate(a) => nanocal::cli::validate::run(a),
+        Command::Report(a) => nanocal::cli::report::run(a),
+        Command::Demo(a) => nanocal::cli::demo::run(a),
         Command::Simulate(a) => nanocal::cli::simulate::run(a),
         Command::Explain(a) => nanocal::cli::explain::run(a),
+        Command::Device(cmd) => nanocal::cli::device::run(cmd),
     }
 }

@@ -75,20 +75,36 @@ pub fn parse_effect(s: &str) -> Result<EffectSpec> {
     let mut obj = serde_json::Map::new();
     obj.insert("name".into(), serde_json::Value::String(name.trim().into()));
     for kv in rest.split(',').filter(|kv| !kv.trim().is_empty()) {
-        let (k, v) = kv.split_once('=').with_context(|| format!("effect parameter `{kv}`: expected key=value"))?;
+        let (k, v) = kv
+            .split_once('=')
+            .with_context(|| format!("effect parameter `{kv}`: expected key=value"))?;
         let value: serde_json::Value = if v.contains(';') {
             serde_json::Value::Array(
-                v.split(';').map(|x| x.trim().parse::<f64>().map(serde_json::Value::from)).collect::<Result<_, _>>()
-                    .with_context(|| format!("effect parameter `{kv}`: expected numbers separated by `;`"))?,
+                v.split(';')
+                    .map(|x| x.trim().parse::<f64>().map(serde_json::Value::from))
+                    .collect::<Result<_, _>>()
+                    .with_context(|| {
+                        format!("effect parameter `{kv}`: expected numbers separated by `;`")
+                    })?,
             )
         } else {
-            let f: f64 = v.trim().parse().with_context(|| format!("effect parameter `{kv}`: expected a number"))?;
-            if k.trim() == "axis" || k.trim().ends_with("_axis") { serde_json::Value::from(f as u64) } else { serde_json::Value::from(f) }
+            let f: f64 = v
+                .trim()
+                .parse()
+                .with_context(|| format!("effect parameter `{kv}`: expected a number"))?;
+            if k.trim() == "axis" || k.trim().ends_with("_axis") {
+                serde_json::Value::from(f as u64)
+            } else {
+                serde_json::Value::from(f)
+            }
         };
         obj.insert(k.trim().into(), value);
     }
     serde_json::from_value(serde_json::Value::Object(obj)).with_context(|| {
-        format!("effect `{s}`: expected one of {:?} with all its parameters", crate::effects::NAMES)
+        format!(
+            "effect `{s}`: expected one of {:?} with all its parameters",
+            crate::effects::NAMES
+        )
     })
 }
 
@@ -96,18 +112,23 @@ pub fn parse_effect(s: &str) -> Result<EffectSpec> {
 pub fn run(args: SimulateArgs) -> Result<()> {
     if let TrajectoryKind::PublishedExample = args.trajectory {
         let (train, val) = examples::published_1dof(args.seed);
-        std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+        std::fs::create_dir_all(&args.out)
+            .with_context(|| format!("creating {}", args.out.display()))?;
         for (name, rec) in [("training.csv", train), ("validation.csv", val)] {
             let p = args.out.join(name);
-            let f = std::io::BufWriter::new(std::fs::File::create(&p).with_context(|| format!("creating {}", p.display()))?);
+            let f = std::io::BufWriter::new(
+                std::fs::File::create(&p).with_context(|| format!("creating {}", p.display()))?,
+            );
             rec.write_csv(f)?;
             println!("wrote {} ({} rows)", p.display(), rec.rows());
         }
         return Ok(());
     }
     let mut cfg = match &args.config {
-        Some(p) => serde_json::from_str(&std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?)
-            .with_context(|| format!("{}: not a twin configuration", p.display()))?,
+        Some(p) => serde_json::from_str(
+            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+        )
+        .with_context(|| format!("{}: not a twin configuration", p.display()))?,
         None => match args.preset {
             Preset::Published1dof => TwinConfig::published_1dof(),
             Preset::Published2dof => TwinConfig::published_2dof(),
@@ -128,17 +149,37 @@ pub fn run(args: SimulateArgs) -> Result<()> {
         bail!("axes: expected 1 to 3, found {}", cfg.axes);
     }
     let traj = match (args.trajectory, cfg.axes) {
-        (TrajectoryKind::Training, 1) => Trajectory::published_training_1dof(args.dwell_s, args.cycles),
+        (TrajectoryKind::Training, 1) => {
+            Trajectory::published_training_1dof(args.dwell_s, args.cycles)
+        }
         (TrajectoryKind::Training, _) => Trajectory::published_grid_2dof(args.dwell_s, args.cycles),
-        (TrajectoryKind::Validation, 1) => Trajectory::published_validation_1dof(args.dwell_s, args.cycles, 3600.0 - 13.0 * args.dwell_s),
-        (TrajectoryKind::Validation, _) => Trajectory::published_validation_2dof(args.dwell_s, args.cycles, 3600.0 - 6.0 * args.dwell_s),
-        (TrajectoryKind::Standstill, n) => Trajectory::standstill(vec![0.0; n], args.cycles as f64 * 3600.0),
+        (TrajectoryKind::Validation, 1) => Trajectory::published_validation_1dof(
+            args.dwell_s,
+            args.cycles,
+            3600.0 - 13.0 * args.dwell_s,
+        ),
+        (TrajectoryKind::Validation, _) => Trajectory::published_validation_2dof(
+            args.dwell_s,
+            args.cycles,
+            3600.0 - 6.0 * args.dwell_s,
+        ),
+        (TrajectoryKind::Standstill, n) => {
+            Trajectory::standstill(vec![0.0; n], args.cycles as f64 * 3600.0)
+        }
         (TrajectoryKind::PublishedExample, _) => unreachable!(),
     };
     let twin = Twin::new(cfg, traj.duration_s() + 2.0 * 86_400.0, args.seed);
     let rec = twin.simulate(&traj, examples::TRAINING_START_S, 1);
-    let f = std::io::BufWriter::new(std::fs::File::create(&args.out).with_context(|| format!("creating {}", args.out.display()))?);
+    let f = std::io::BufWriter::new(
+        std::fs::File::create(&args.out)
+            .with_context(|| format!("creating {}", args.out.display()))?,
+    );
     rec.write_csv(f)?;
-    println!("wrote {} ({} rows, {} columns)", args.out.display(), rec.rows(), rec.columns.len());
+    println!(
+        "wrote {} ({} rows, {} columns)",
+        args.out.display(),
+        rec.rows(),
+        rec.columns.len()
+    );
     Ok(())
 }

@@ -31,8 +31,9 @@ impl Params {
         let c = 0.5 * (lo + hi);
         for k in 0..ctx.t_s.len() {
             let u = ctx.u[self.from_axis][k];
-            out[self.to_axis][k] =
-                (self.nm_per_um * (ctx.cmd_um[self.from_axis][k] - c) + self.quadratic_nm * u * u) * 1e-3;
+            out[self.to_axis][k] = (self.nm_per_um * (ctx.cmd_um[self.from_axis][k] - c)
+                + self.quadratic_nm * u * u)
+                * 1e-3;
         }
         out
     }

@@ -26,7 +26,11 @@ pub fn creep_basis(t_s: &[f64], steps: &[(usize, f64)], t0_s: f64) -> Vec<f64> {
     let mut out = vec![0.0; t_s.len()];
     for &(k0, dq) in steps {
         // The move happens between samples k0-1 and k0: take the midpoint as the step time.
-        let ts = if k0 > 0 { 0.5 * (t_s[k0 - 1] + t_s[k0]) } else { t_s[0] };
+        let ts = if k0 > 0 {
+            0.5 * (t_s[k0 - 1] + t_s[k0])
+        } else {
+            t_s[0]
+        };
         for k in k0..t_s.len() {
             out[k] += dq * (1.0 + (t_s[k] - ts) / t0_s).ln();
         }

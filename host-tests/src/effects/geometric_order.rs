@@ -26,7 +26,13 @@ impl Params {
         let a = self.axis;
         for k in 0..ctx.t_s.len() {
             let u = ctx.u[a][k];
-            out[a][k] = self.coeffs_nm.iter().enumerate().map(|(j, c)| c * u.powi(4 + j as i32)).sum::<f64>() * 1e-3;
+            out[a][k] = self
+                .coeffs_nm
+                .iter()
+                .enumerate()
+                .map(|(j, c)| c * u.powi(4 + j as i32))
+                .sum::<f64>()
+                * 1e-3;
         }
         out
     }

@@ -105,7 +105,11 @@ pub fn lag_series(t_s: &[f64], x: &[f64], tau_s: f64, y0: Option<f64>) -> Vec<f6
         if k > 0 {
             let dt = t_s[k] - t_s[k - 1];
             if dt != last_dt {
-                a = if tau_s > 0.0 { 1.0 - (-dt / tau_s).exp() } else { 1.0 };
+                a = if tau_s > 0.0 {
+                    1.0 - (-dt / tau_s).exp()
+                } else {
+                    1.0
+                };
                 last_dt = dt;
             }
             y += a * (x[k] - y);

@@ -33,7 +33,9 @@ impl Params {
         let a = self.axis;
         for k in 0..ctx.t_s.len() {
             let ph = std::f64::consts::TAU * ctx.pos_um[a][k] * 1e3 / HENE_HALF_WAVELENGTH_NM;
-            out[a][k] = (self.amplitude_nm * (ph + self.phase_rad).sin() + self.second_harmonic_nm * (2.0 * ph).sin()) * 1e-3;
+            out[a][k] = (self.amplitude_nm * (ph + self.phase_rad).sin()
+                + self.second_harmonic_nm * (2.0 * ph).sin())
+                * 1e-3;
         }
         out
     }

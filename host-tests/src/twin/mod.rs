@@ -148,7 +148,10 @@ impl Columns {
 
     /// The values of a column by name.
     pub fn get(&self, name: &str) -> Option<&[f64]> {
-        self.columns.iter().find(|c| c.0 == name).map(|c| c.1.as_slice())
+        self.columns
+            .iter()
+            .find(|c| c.0 == name)
+            .map(|c| c.1.as_slice())
     }
 
     /// Write as CSV in the shared layout.
@@ -174,7 +177,11 @@ impl Columns {
 fn fmt_num(v: f64) -> String {
     let s = format!("{v:.6}");
     let s = s.trim_end_matches('0').trim_end_matches('.');
-    if s == "-0" { "0".into() } else { s.into() }
+    if s == "-0" {
+        "0".into()
+    } else {
+        s.into()
+    }
 }
 
 /// The twin: a configuration and a realised room, simulating recordings at any absolute time.
@@ -204,7 +211,8 @@ impl Twin {
     pub fn simulate(&self, traj: &Trajectory, start_s: f64, stream: u64) -> Columns {
         let cfg = &self.cfg;
         assert_eq!(traj.axes(), cfg.axes, "trajectory axes must match the twin");
-        let mut rng = ChaCha8Rng::seed_from_u64(self.seed ^ stream.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        let mut rng =
+            ChaCha8Rng::seed_from_u64(self.seed ^ stream.wrapping_mul(0x9E37_79B9_7F4A_7C15));
         let (t_s, cmd_um) = traj.sample(cfg.sample_period_s);
         let n = t_s.len();
         let t_abs_s: Vec<f64> = t_s.iter().map(|t| t + start_s).collect();
@@ -246,7 +254,10 @@ impl Twin {
             .map(|s| {
                 let y0 = warm_start(s);
                 let lagged = lag_series(&t_s, &air, s.tau_s, Some(y0));
-                lagged.iter().map(|&v| cfg.room.mean_c + s.offset_c + s.gain * (v - cfg.room.mean_c)).collect()
+                lagged
+                    .iter()
+                    .map(|&v| cfg.room.mean_c + s.offset_c + s.gain * (v - cfg.room.mean_c))
+                    .collect()
             })
             .collect();
         let pressure_hpa: Vec<f64> = t_abs_s.iter().map(|&t| self.room.pressure_hpa(t)).collect();
@@ -307,7 +318,10 @@ impl Twin {
         let res_um = cfg.interferometer_resolution_nm * 1e-3;
         for m in meas_um.iter_mut() {
             for v in m.iter_mut() {
-                *v = room::quantize(*v + cfg.interferometer_noise_nm * 1e-3 * normal(&mut rng), res_um);
+                *v = room::quantize(
+                    *v + cfg.interferometer_noise_nm * 1e-3 * normal(&mut rng),
+                    res_um,
+                );
             }
         }
 
@@ -319,7 +333,10 @@ impl Twin {
             columns.push((format!("meas_{}", AXIS_NAMES[a]), m));
         }
         for (s, spot) in cfg.sensors.iter().zip(&ctx.spot_c) {
-            let read = spot.iter().map(|&v| room::quantize(v + s.noise_c * normal(&mut rng), s.resolution_c)).collect();
+            let read = spot
+                .iter()
+                .map(|&v| room::quantize(v + s.noise_c * normal(&mut rng), s.resolution_c))
+                .collect();
             columns.push((format!("temp_{}", s.name), read));
         }
         if cfg.record_pressure {

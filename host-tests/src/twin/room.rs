@@ -66,7 +66,14 @@ pub struct SensorConfig {
 impl SensorConfig {
     /// A sensor with typical noise (2 mK) and resolution (1 mK).
     pub fn new(name: &str, offset_c: f64, tau_s: f64, gain: f64) -> Self {
-        Self { name: name.into(), offset_c, tau_s, gain, noise_c: 0.002, resolution_c: 0.001 }
+        Self {
+            name: name.into(),
+            offset_c,
+            tau_s,
+            gain,
+            noise_c: 0.002,
+            resolution_c: 0.001,
+        }
     }
 }
 
@@ -92,18 +99,33 @@ impl Room {
         let weather = (0..3)
             .map(|k| {
                 let period_s = 86_400.0 * (1.5 + 2.0 * k as f64) * rng.gen_range(0.8..1.2);
-                (period_s, rng.gen_range(0.0..std::f64::consts::TAU), cfg.pressure_amplitude_hpa / (k + 1) as f64)
+                (
+                    period_s,
+                    rng.gen_range(0.0..std::f64::consts::TAU),
+                    cfg.pressure_amplitude_hpa / (k + 1) as f64,
+                )
             })
             .collect();
-        Self { cfg: cfg.clone(), daily_phase, hvac_phase, steps, weather }
+        Self {
+            cfg: cfg.clone(),
+            daily_phase,
+            hvac_phase,
+            steps,
+            weather,
+        }
     }
 
     /// Air temperature at absolute time `t_s`, °C.
     pub fn air_c(&self, t_s: f64) -> f64 {
         let c = &self.cfg;
-        let daily = c.daily_amplitude_c * (std::f64::consts::TAU * t_s / 86_400.0 + self.daily_phase).sin();
+        let daily =
+            c.daily_amplitude_c * (std::f64::consts::TAU * t_s / 86_400.0 + self.daily_phase).sin();
         let ph = (t_s / c.hvac_period_s + self.hvac_phase).fract();
-        let tri = if ph < 0.5 { 4.0 * ph - 1.0 } else { 3.0 - 4.0 * ph };
+        let tri = if ph < 0.5 {
+            4.0 * ph - 1.0
+        } else {
+            3.0 - 4.0 * ph
+        };
         let hvac = c.hvac_amplitude_c * tri;
         let steps: f64 = self.steps.iter().filter(|s| s.0 <= t_s).map(|s| s.1).sum();
         c.mean_c + daily + hvac + steps + c.trend_c_per_day * t_s / 86_400.0

@@ -80,10 +80,16 @@ impl Trajectory {
         let mut dwells = Vec::new();
         for _ in 0..cycles {
             for &p in poses_um.iter().chain(poses_um.iter().rev()) {
-                dwells.push(Dwell { cmd_um: vec![p], dwell_s });
+                dwells.push(Dwell {
+                    cmd_um: vec![p],
+                    dwell_s,
+                });
             }
             if rest_s > 0.0 {
-                dwells.push(Dwell { cmd_um: vec![poses_um[0]], dwell_s: rest_s });
+                dwells.push(Dwell {
+                    cmd_um: vec![poses_um[0]],
+                    dwell_s: rest_s,
+                });
             }
         }
         Self::merged(dwells)
@@ -108,7 +114,10 @@ impl Trajectory {
             for iy in 0..=8 {
                 for k in 0..=8 {
                     let ix = if (iy + c) % 2 == 0 { k } else { 8 - k };
-                    dwells.push(Dwell { cmd_um: vec![10.0 * ix as f64, 10.0 * iy as f64], dwell_s });
+                    dwells.push(Dwell {
+                        cmd_um: vec![10.0 * ix as f64, 10.0 * iy as f64],
+                        dwell_s,
+                    });
                 }
             }
         }
@@ -117,14 +126,27 @@ impl Trajectory {
 
     /// Published 2-DoF validation points (0,0), (45,45), (75,15), (75,75), (15,75), (15,15).
     pub fn published_validation_2dof(dwell_s: f64, cycles: usize, rest_s: f64) -> Self {
-        let pts = [(0.0, 0.0), (45.0, 45.0), (75.0, 15.0), (75.0, 75.0), (15.0, 75.0), (15.0, 15.0)];
+        let pts = [
+            (0.0, 0.0),
+            (45.0, 45.0),
+            (75.0, 15.0),
+            (75.0, 75.0),
+            (15.0, 75.0),
+            (15.0, 15.0),
+        ];
         let mut dwells = Vec::new();
         for _ in 0..cycles {
             for &(x, y) in &pts {
-                dwells.push(Dwell { cmd_um: vec![x, y], dwell_s });
+                dwells.push(Dwell {
+                    cmd_um: vec![x, y],
+                    dwell_s,
+                });
             }
             if rest_s > 0.0 {
-                dwells.push(Dwell { cmd_um: vec![0.0, 0.0], dwell_s: rest_s });
+                dwells.push(Dwell {
+                    cmd_um: vec![0.0, 0.0],
+                    dwell_s: rest_s,
+                });
             }
         }
         Self::merged(dwells)
@@ -132,6 +154,11 @@ impl Trajectory {
 
     /// A stage that stands still at `cmd_um` for `duration_s` (thermal-only recordings).
     pub fn standstill(cmd_um: Vec<f64>, duration_s: f64) -> Self {
-        Self { dwells: vec![Dwell { cmd_um, dwell_s: duration_s }] }
+        Self {
+            dwells: vec![Dwell {
+                cmd_um,
+                dwell_s: duration_s,
+            }],
+        }
     }
 }

@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# Firmware: install what the build and the QEMU end-to-end test need (fresh Debian bookworm, as
+# root or with sudo), build both boards in release, clippy both with warnings as errors, fmt.
+# The e2e test itself runs with the host tests (cd host-tests && cargo test); it builds the QEMU
+# image on its own, so it also works without this script having run first.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+as_root() { if [ "$(id -u)" = 0 ]; then "$@"; else sudo "$@"; fi; }
+
+rustup target add thumbv7em-none-eabihf
+rustup component add clippy rustfmt
+
+qemu_major() { qemu-system-arm --version 2>/dev/null | sed -n 's/.*version \([0-9]*\)\..*/\1/p' | head -n1; }
+if [ "$(qemu_major || true)" = "" ] || [ "$(qemu_major)" -lt 10 ]; then
+    if ! grep -rqs "bookworm-backports" /etc/apt/sources.list /etc/apt/sources.list.d/; then
+        echo "deb http://deb.debian.org/debian bookworm-backports main" |
+            as_root tee /etc/apt/sources.list.d/bookworm-backports.list >/dev/null
+    fi
+    as_root apt-get update
+    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -t bookworm-backports qemu-system-arm
+fi
+qemu-system-arm --version | head -n1
+
+# STM32 board (default features) and QEMU board.
+cargo build --release
+cargo build --release --no-default-features --features qemu
+cargo clippy --release -- -D warnings
+cargo clippy --release --no-default-features --features qemu -- -D warnings
+cargo fmt --check
+
+# Image sizes (text = flash, data + bss = static RAM), when a size tool is at hand.
+SIZE="$(command -v arm-none-eabi-size || find "$(rustc --print sysroot)" -name llvm-size -type f 2>/dev/null | head -n1 || true)"
+if [ -n "$SIZE" ]; then
+    "$SIZE" target/thumbv7em-none-eabihf/release/nanocal-fw target/thumbv7em-none-eabihf/release/nanocal-fw-qemu
+fi

@@ -1,0 +1,267 @@
+//! End to end: the QEMU firmware between a host and a simulated stage controller.
+//!
+//! Builds the QEMU image (`cargo build --release --no-default-features --features qemu` at the
+//! repository root), starts `qemu-system-arm -M mps2-an386` with four TCP serial ports on free
+//! 127.0.0.1 ports, plays a GCS stage controller on serial1 and MAX31856 sensors on serial2,
+//! uploads a model with `nanocal device upload` (serial3), then checks MOV/MVR/POS? against the
+//! host's f64 evaluation, rejected uploads, and the sensor fault policy.
+//!
+//! Without qemu-system-arm the test is skipped with a loud message, except in CI (`CI` set),
+//! where it fails.
+
+mod fw_sim;
+
+use fw_sim::{Qemu, SensorSim, StageSim};
+use nanocal::device::DeviceError;
+use nanocal::published::published_1dof;
+use nanocal_model::mgmt::flags;
+use nanocal_model::sensor::max31856;
+use nanocal_model::{blob, SlowInputs, MAX_AXES};
+use std::time::{Duration, Instant};
+
+/// Temperatures the simulated sensors report (exact in MAX31856 LSBs), inside 21–23 °C.
+const TEMPS_C: [f32; 4] = [22.0, 22.125, 21.875, 22.25];
+
+fn slow() -> SlowInputs {
+    let mut s = SlowInputs::default();
+    for (i, t) in TEMPS_C.iter().enumerate() {
+        s.temps_c[i] = f64::from(*t);
+    }
+    s
+}
+
+fn wait_until<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<T>) -> T {
+    let deadline = Instant::now() + timeout;
+    loop {
+        if let Some(v) = f() {
+            return v;
+        }
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn e2e_compensator_under_qemu() {
+    let Some(mut q) = Qemu::start_or_skip("e2e_compensator_under_qemu") else {
+        return;
+    };
+    let stage = StageSim::start(q.connect(1), 1);
+    let sensors = SensorSim::start(q.connect(2), &TEMPS_C);
+    let mut host = q.gcs_host();
+
+    // the device answers on its management port
+    let mut c = q.client();
+    let (proto, format, _) = c.hello().expect("hello");
+    assert_eq!(format, blob::FORMAT_VERSION);
+    assert_eq!(proto, nanocal_model::mgmt::PROTOCOL);
+    let s = c.status().unwrap();
+    assert_eq!(s.flags & flags::MODEL, 0, "no model before the upload");
+    drop(c);
+
+    // without a model, moves are refused (and nothing reaches the controller)
+    host.send("MOV 1 10");
+    assert_eq!(host.ask("ERR?"), "9003");
+
+    // upload with the CLI, exactly as a user would
+    let model = published_1dof().unwrap();
+    let mut b = vec![0u8; blob::MAX_BLOB_LEN];
+    let n = blob::encode(&model, &mut b).unwrap();
+    let path = std::env::temp_dir().join(format!("nanocal-e2e-{}.blob", std::process::id()));
+    std::fs::write(&path, &b[..n]).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_nanocal"))
+        .args(["device", "upload", "--port", &q.mgmt_spec()])
+        .arg(&path)
+        .output()
+        .unwrap();
+    let _ = std::fs::remove_file(&path);
+    assert!(
+        out.status.success(),
+        "nanocal device upload failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("in service"));
+
+    let mut c = q.client();
+    let s = wait_until(
+        "sensors read and model folded",
+        Duration::from_secs(20),
+        || {
+            let s = c.status().ok()?;
+            let ok = s.flags & flags::MODEL != 0
+                && s.flags & flags::SENSOR_BLOCK == 0
+                && s.sensor_bits[..4].iter().all(|&b| b == 0)
+                && s.folds >= 2;
+            ok.then_some(s)
+        },
+    );
+    assert_eq!(s.model_id, model.id());
+    for (i, t) in TEMPS_C.iter().enumerate() {
+        assert_eq!(s.temps_c[i], *t);
+    }
+
+    // MOV: the forwarded command equals the host's f64 evaluation within 0.1 nm
+    let dir0 = [0i8; MAX_AXES];
+    let check = |got: f64, x: f64, dir: [i8; MAX_AXES]| {
+        let want = model.eval_f64(&[x, 0.0, 0.0], &dir, &slow())[0];
+        assert!(
+            (got - want).abs() <= 1e-4,
+            "x = {x} µm: forwarded {got}, f64 reference {want} (Δ = {} nm)",
+            (got - want) * 1e3
+        );
+    };
+    host.send("MOV 1 100");
+    let fwd = stage.next_line(Duration::from_secs(10));
+    check(stage_value(&fwd, "1"), 100.0, dir0);
+
+    // MVR becomes an absolute MOV
+    host.send("MVR 1 12.5");
+    let fwd = stage.next_line(Duration::from_secs(10));
+    check(stage_value(&fwd, "1"), 112.5, [1, 0, 0]);
+
+    // POS? maps back to calibrated coordinates
+    let reply = host.ask("POS? 1");
+    let x = reply.strip_prefix("1=").unwrap().parse::<f64>().unwrap();
+    assert!((x - 112.5).abs() <= 2e-4, "POS? mapped to {x}");
+    let reply = host.ask("MOV?");
+    let x = reply.strip_prefix("1=").unwrap().parse::<f64>().unwrap();
+    assert!((x - 112.5).abs() <= 2e-4, "MOV? mapped to {x}");
+    assert_eq!(
+        stage.drain(),
+        ["POS? 1", "MOV?"],
+        "queries forwarded untouched"
+    );
+
+    // many targets, both directions
+    let mut prev = 112.5;
+    for k in 0..40 {
+        let x = ((k * 7919) % 4800) as f64 / 10.0 + 0.0123;
+        host.send(&format!("MOV 1 {x:.4}"));
+        let fwd = stage.next_line(Duration::from_secs(10));
+        let dir = if x > prev { 1 } else { -1 };
+        check(stage_value(&fwd, "1"), x, [dir, 0, 0]);
+        prev = x;
+    }
+    assert_eq!(
+        host.ask("ERR?"),
+        "0",
+        "no error so far (the controller answers)"
+    );
+    assert_eq!(stage.drain(), ["ERR?"]);
+
+    // other commands pass untouched; single-character commands too
+    host.send("VEL 1 10");
+    assert_eq!(stage.next_line(Duration::from_secs(10)), "VEL 1 10");
+    host.send_raw(&[0x05]);
+    assert_eq!(stage.next_line(Duration::from_secs(10)), "#5");
+    assert_eq!(host.read_line(Duration::from_secs(10)), "0");
+    assert!(host.ask("*IDN?").contains("E-727"));
+    assert_eq!(stage.drain(), ["*IDN?"]);
+
+    // outside the envelope: GCS error, nothing moves
+    host.send("MOV 1 500");
+    assert_eq!(host.ask("ERR?"), "9001");
+    host.send("SVO 1 1");
+    assert_eq!(
+        stage.next_line(Duration::from_secs(10)),
+        "SVO 1 1",
+        "MOV 500 was not forwarded"
+    );
+
+    // corrupt and truncated uploads are rejected; the old model stays in service
+    let mut bad = b[..n].to_vec();
+    bad[24] ^= 0x10;
+    let e = c
+        .upload_raw(
+            &bad,
+            n as u32,
+            blob::crc32(&bad),
+            blob::FORMAT_VERSION,
+            true,
+        )
+        .unwrap_err();
+    assert!(matches!(e, DeviceError::Refused { code: 9, .. }), "{e}");
+    let e = c
+        .upload_raw(
+            &b[..n / 2],
+            n as u32,
+            blob::crc32(&b[..n]),
+            blob::FORMAT_VERSION,
+            true,
+        )
+        .unwrap_err();
+    assert!(matches!(e, DeviceError::Refused { code: 7, .. }), "{e}");
+    let e = c
+        .upload_raw(
+            &b[..n],
+            n as u32,
+            blob::crc32(&b[..n]) ^ 1,
+            blob::FORMAT_VERSION,
+            true,
+        )
+        .unwrap_err();
+    assert!(matches!(e, DeviceError::Refused { code: 8, .. }), "{e}");
+    let s = c.status().unwrap();
+    assert_eq!(s.model_id, model.id());
+    assert_eq!(s.uploads_rejected, 3);
+    assert_eq!(s.uploads_ok, 1);
+    host.send("MOV 1 200");
+    let fwd = stage.next_line(Duration::from_secs(10));
+    check(
+        stage_value(&fwd, "1"),
+        200.0,
+        [if prev < 200.0 { 1 } else { -1 }, 0, 0],
+    );
+
+    // a sensor fault: held for the hold time, then shown in status and blocking moves
+    sensors.set_status(1, max31856::SR_OPEN);
+    let s = wait_until(
+        "sensor fault to block moves",
+        Duration::from_secs(30),
+        || {
+            let s = c.status().ok()?;
+            (s.flags & flags::SENSOR_BLOCK != 0).then_some(s)
+        },
+    );
+    assert_eq!(s.sensor_bits[1] & 0x0F, 2, "sensor 1 failed");
+    assert_eq!(s.sensor_bits[1] >> 4, 1, "open thermocouple");
+    host.send("MOV 1 250");
+    assert_eq!(host.ask("ERR?"), "9002");
+    host.send("SVO 1 1");
+    assert_eq!(
+        stage.next_line(Duration::from_secs(10)),
+        "SVO 1 1",
+        "blocked MOV not forwarded"
+    );
+    // recovery
+    sensors.set_status(1, 0);
+    wait_until("sensor recovery", Duration::from_secs(30), || {
+        let s = c.status().ok()?;
+        (s.flags & flags::SENSOR_BLOCK == 0).then_some(())
+    });
+    host.send("MOV 1 250");
+    let fwd = stage.next_line(Duration::from_secs(10));
+    check(stage_value(&fwd, "1"), 250.0, [1, 0, 0]);
+
+    // bypass forwards untouched
+    c.bypass(true).unwrap();
+    host.send("MOV 1 42");
+    assert_eq!(stage.next_line(Duration::from_secs(10)), "MOV 1 42");
+    c.bypass(false).unwrap();
+
+    // KMZ from a reference: the model now maps the measured position to the command sent
+    let kmz = c.set_kmz([250.0, 0.0, 0.0], [249.9, 0.0, 0.0]).unwrap();
+    assert!(kmz[0].abs() > 1e-3);
+    let s = c.status().unwrap();
+    assert_eq!(s.kmz_um[0], kmz[0]);
+}
+
+fn stage_value(line: &str, axis: &str) -> f64 {
+    let t: Vec<&str> = line.split_whitespace().collect();
+    assert_eq!(t.first(), Some(&"MOV"), "forwarded line {line:?}");
+    let i = t
+        .iter()
+        .position(|a| *a == axis)
+        .unwrap_or_else(|| panic!("axis {axis} in {line:?}"));
+    t[i + 1].parse().unwrap()
+}

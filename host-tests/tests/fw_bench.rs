@@ -1,0 +1,205 @@
+//! Firmware benchmarks (ignored by default; the figures go to BENCHMARKS.md):
+//!
+//! ```text
+//! cd host-tests && cargo test --release --test fw_bench -- --ignored --nocapture --test-threads 1
+//! ```
+//! - guest instructions per fast-path correction, per MOV line through the proxy, per inverse
+//!   and per fold, counted under QEMU by the TCG plugin in tools/qemu-plugin (built with gcc);
+//! - latency the proxy adds to a MOV line and sustained MOV lines per second (QEMU board);
+//! - flash and static RAM of both images.
+
+mod fw_sim;
+
+use fw_sim::{bench_elf, have_qemu, qemu_elf, repo_root, Elf, Qemu, SensorSim, StageSim};
+use nanocal::published::published_1dof;
+use nanocal_model::blob;
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+fn require_qemu(test: &str) -> bool {
+    if have_qemu() {
+        return true;
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "{test}: qemu-system-arm missing in CI"
+    );
+    eprintln!("\n********** {test}: SKIPPED — qemu-system-arm not found **********\n");
+    false
+}
+
+const REGIONS: [&str; 7] = [
+    "empty loop (overhead, subtracted)",
+    "`Fold::correct`, 1-DoF, 8 terms",
+    "`Fold::correct`, 2-DoF, 40 terms",
+    "`MOV` line through the proxy (parse, correct, format), 1-DoF",
+    "`Model::eval_f64`, 1-DoF (soft-float f64 reference)",
+    "`Fold::inverse`, 1-DoF (POS?/MOV? replies)",
+    "`Model::fold`, 2-DoF, 40 terms (slow path; N/10 iterations)",
+];
+
+#[test]
+#[ignore = "benchmark: run with --ignored --nocapture"]
+fn fw_bench_instructions() {
+    if !require_qemu("fw_bench_instructions") {
+        return;
+    }
+    let _ = qemu_elf();
+    let elf_path = bench_elf();
+    let elf = Elf::read(&elf_path);
+    let dir = std::env::temp_dir().join(format!("nanocal-plugin-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let so = dir.join("libinsn_count.so");
+    let st = Command::new("gcc")
+        .args(["-shared", "-fPIC", "-O2", "-o"])
+        .arg(&so)
+        .arg(repo_root().join("tools/qemu-plugin/insn_count.c"))
+        .status()
+        .expect("gcc (needed to build the TCG plugin)");
+    assert!(st.success(), "building the TCG plugin failed");
+    let counts = dir.join("counts.txt");
+    let mut runs = vec![];
+    for _ in 0..2 {
+        let out = Command::new("qemu-system-arm")
+            .args([
+                "-M",
+                "mps2-an386",
+                "-display",
+                "none",
+                "-monitor",
+                "none",
+                "-serial",
+                "null",
+            ])
+            .args(["-semihosting-config", "enable=on,target=native"])
+            .arg("-plugin")
+            .arg(format!(
+                "{},start={:#x},stop={:#x},out={}",
+                so.display(),
+                elf.symbol("nanocal_bench_start"),
+                elf.symbol("nanocal_bench_stop"),
+                counts.display()
+            ))
+            .arg("-kernel")
+            .arg(&elf_path)
+            .output()
+            .expect("run qemu");
+        assert!(
+            out.status.success(),
+            "bench image failed: {}",
+            String::from_utf8_lossy(&out.stdout)
+        );
+        let text = std::fs::read_to_string(&counts).unwrap();
+        let c: Vec<u64> = text
+            .lines()
+            .map(|l| l.rsplit(' ').next().unwrap().parse().unwrap())
+            .collect();
+        assert_eq!(c.len(), REGIONS.len(), "{text}");
+        runs.push(c);
+    }
+    assert_eq!(runs[0], runs[1], "instruction counts are deterministic");
+    let c = &runs[0];
+    let n = 1000.0;
+    let overhead = c[0] as f64 / n;
+    println!("\n| region | guest instructions per call |\n|---|---:|");
+    for (i, name) in REGIONS.iter().enumerate() {
+        let iters = if i == 6 { n / 10.0 } else { n };
+        let per = c[i] as f64 / iters - if i == 0 { 0.0 } else { overhead };
+        println!("| {name} | {per:.0} |");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+#[ignore = "benchmark: run with --ignored --nocapture"]
+fn fw_bench_sizes() {
+    let root = repo_root();
+    let cargo = option_env!("CARGO").unwrap_or("cargo");
+    let st = Command::new(cargo)
+        .current_dir(&root)
+        .args(["build", "--release"])
+        .env_remove("CARGO_TARGET_DIR")
+        .env_remove("CARGO_BUILD_TARGET")
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let _ = qemu_elf();
+    println!("\n| image | flash (bytes) | static RAM (bytes) |\n|---|---:|---:|");
+    for name in ["nanocal-fw", "nanocal-fw-qemu"] {
+        let e = Elf::read(&root.join("target/thumbv7em-none-eabihf/release").join(name));
+        let (flash, ram) = e.flash_ram();
+        println!("| {name} | {flash} | {ram} |");
+        if name == "nanocal-fw" {
+            assert!(flash <= 128 * 1024, "STM32 flash {flash} B > 128 KiB");
+            assert!(ram <= 32 * 1024, "STM32 RAM {ram} B > 32 KiB");
+        }
+    }
+}
+
+fn median_p99(mut v: Vec<f64>) -> (f64, f64) {
+    v.sort_by(f64::total_cmp);
+    (v[v.len() / 2], v[(v.len() * 99) / 100])
+}
+
+#[test]
+#[ignore = "benchmark: run with --ignored --nocapture"]
+fn fw_bench_latency_throughput() {
+    if !require_qemu("fw_bench_latency_throughput") {
+        return;
+    }
+    let mut q = Qemu::start(&[]);
+    let stage = StageSim::start(q.connect(1), 1);
+    let _sensors = SensorSim::start(q.connect(2), &[22.0, 22.125, 21.875, 22.25]);
+    let mut host = q.gcs_host();
+    let mut c = q.client();
+    let model = published_1dof().unwrap();
+    let mut b = vec![0u8; blob::MAX_BLOB_LEN];
+    let n = blob::encode(&model, &mut b).unwrap();
+    c.upload(&b[..n]).unwrap();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while c.status().unwrap().flags & nanocal_model::mgmt::flags::SENSOR_BLOCK != 0
+        || c.status().unwrap().folds < 2
+    {
+        assert!(Instant::now() < deadline, "sensors never became ready");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+
+    let one_way = |host: &mut fw_sim::GcsHost, k: usize| {
+        let t = Instant::now();
+        host.send(&format!("MOV 1 {}", 10.0 + (k % 400) as f64));
+        let l = stage.next_line(Duration::from_secs(10));
+        assert!(l.starts_with("MOV 1 "), "{l}");
+        t.elapsed().as_secs_f64() * 1e6
+    };
+    let samples = 300;
+    let on: Vec<f64> = (0..samples).map(|k| one_way(&mut host, k)).collect();
+    c.bypass(true).unwrap();
+    let off: Vec<f64> = (0..samples).map(|k| one_way(&mut host, k)).collect();
+    c.bypass(false).unwrap();
+    let (on_med, on_p99) = median_p99(on);
+    let (off_med, off_p99) = median_p99(off);
+    println!("\n| MOV line host → stage (QEMU, µs) | median | p99 |\n|---|---:|---:|");
+    println!("| compensating | {on_med:.0} | {on_p99:.0} |");
+    println!("| bypass (relay only) | {off_med:.0} | {off_p99:.0} |");
+    println!("| added by the correction | {:.0} | |", on_med - off_med);
+
+    // sustained rate: many lines back to back, every one must arrive, corrected
+    let lines = 2000;
+    let mut burst = String::new();
+    for k in 0..lines {
+        burst += &format!("MOV 1 {:.3}\n", 1.0 + (k % 470) as f64 + 0.001 * k as f64);
+    }
+    let t = Instant::now();
+    host.send_raw(burst.as_bytes());
+    for k in 0..lines {
+        let l = stage.next_line(Duration::from_secs(60));
+        assert!(l.starts_with("MOV 1 "), "line {k}: {l}");
+    }
+    let secs = t.elapsed().as_secs_f64();
+    let s = c.status().unwrap();
+    assert_eq!(s.refused, 0, "no move refused or dropped");
+    println!(
+        "\nsustained: {lines} MOV lines in {secs:.2} s = {:.0} lines/s, none dropped",
+        lines as f64 / secs
+    );
+}

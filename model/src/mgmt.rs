@@ -1,0 +1,441 @@
+//! Management protocol: binary frames on a channel separate from the GCS stream (a second USB
+//! CDC-ACM interface on the STM32 board, serial3 on the QEMU board).
+//!
+//! ```text
+//! frame:  0xA7 0x5C | kind u8 | seq u8 | len u16 LE | payload (len ≤ MAX_PAYLOAD) | crc32 u32 LE
+//!         crc32 (IEEE, as the blob's) covers kind, seq, len and payload
+//! ```
+//! The host sends a request; the device answers with `kind | 0x80`, the same `seq`, and a
+//! payload whose first byte is a result code ([`RESULT_OK`] or an error code), then data.
+//!
+//! | kind | request payload | reply data |
+//! |---|---|---|
+//! | `HELLO` 0x01 | – | protocol u16, blob format u16, max chunk u16 |
+//! | `STATUS` 0x02 | – | [`Status`] |
+//! | `UPLOAD_BEGIN` 0x10 | total_len u32, crc32 u32, format u16 | – |
+//! | `UPLOAD_CHUNK` 0x11 | offset u32, bytes | received u32 |
+//! | `UPLOAD_COMMIT` 0x12 | – | model id u32, slot u8, seq u32 |
+//! | `UPLOAD_ABORT` 0x13 | – | – |
+//! | `SET_KMZ` 0x20 | q_cmd f64×3, x_meas f64×3 | kmz f64×3 |
+//! | `BYPASS` 0x21 | on u8 | – |
+//!
+//! Result codes: 0 ok; 1..=9 [`crate::upload::UploadError::code`]; [`RESULT_STORAGE`];
+//! [`RESULT_NO_MODEL`]; [`RESULT_BAD_REQUEST`]; [`RESULT_UNKNOWN_KIND`].
+
+use crate::blob;
+use core::fmt;
+
+/// Protocol version.
+pub const PROTOCOL: u16 = 1;
+/// Frame sync bytes.
+pub const SYNC: [u8; 2] = [0xA7, 0x5C];
+/// Largest payload.
+pub const MAX_PAYLOAD: usize = 320;
+/// Largest upload chunk (payload minus the offset).
+pub const MAX_CHUNK: usize = 256;
+/// Bytes around the payload (sync, kind, seq, len, crc).
+pub const OVERHEAD: usize = 2 + 1 + 1 + 2 + 4;
+/// Largest frame on the wire.
+pub const MAX_FRAME: usize = MAX_PAYLOAD + OVERHEAD;
+
+/// Request kinds.
+pub mod kind {
+    /// Identify.
+    pub const HELLO: u8 = 0x01;
+    /// Status report.
+    pub const STATUS: u8 = 0x02;
+    /// Start an upload.
+    pub const UPLOAD_BEGIN: u8 = 0x10;
+    /// One chunk of an upload.
+    pub const UPLOAD_CHUNK: u8 = 0x11;
+    /// Verify, store and activate the upload.
+    pub const UPLOAD_COMMIT: u8 = 0x12;
+    /// Drop the upload.
+    pub const UPLOAD_ABORT: u8 = 0x13;
+    /// Set λ_KMZ from a measured reference.
+    pub const SET_KMZ: u8 = 0x20;
+    /// Bypass (1) or enable (0) compensation.
+    pub const BYPASS: u8 = 0x21;
+    /// Bit set in reply kinds.
+    pub const REPLY: u8 = 0x80;
+}
+
+/// Result: success.
+pub const RESULT_OK: u8 = 0;
+/// Result: storage failure (the old model stays in service).
+pub const RESULT_STORAGE: u8 = 20;
+/// Result: the request needs a model and none is loaded.
+pub const RESULT_NO_MODEL: u8 = 21;
+/// Result: malformed request payload.
+pub const RESULT_BAD_REQUEST: u8 = 22;
+/// Result: unknown request kind.
+pub const RESULT_UNKNOWN_KIND: u8 = 23;
+
+/// Framing errors.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum FrameError {
+    /// The frame's CRC did not match (the decoder resynchronises).
+    BadCrc,
+    /// The length field exceeds [`MAX_PAYLOAD`].
+    TooLong,
+    /// A payload was too short for its kind.
+    Short,
+    /// The output buffer is too small.
+    OutputFull,
+}
+
+impl fmt::Display for FrameError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            FrameError::BadCrc => "management frame CRC mismatch",
+            FrameError::TooLong => "management frame longer than the maximum payload",
+            FrameError::Short => "management payload too short for its kind",
+            FrameError::OutputFull => "output buffer too small for the frame",
+        })
+    }
+}
+
+/// A decoded frame (payload borrowed from the decoder).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Frame<'a> {
+    /// Kind.
+    pub kind: u8,
+    /// Sequence number (echoed in the reply).
+    pub seq: u8,
+    /// Payload.
+    pub payload: &'a [u8],
+}
+
+/// Encode a frame into `out`; returns its length.
+pub fn encode(kind: u8, seq: u8, payload: &[u8], out: &mut [u8]) -> Result<usize, FrameError> {
+    if payload.len() > MAX_PAYLOAD {
+        return Err(FrameError::TooLong);
+    }
+    let n = payload.len() + OVERHEAD;
+    if out.len() < n {
+        return Err(FrameError::OutputFull);
+    }
+    out[0..2].copy_from_slice(&SYNC);
+    out[2] = kind;
+    out[3] = seq;
+    out[4..6].copy_from_slice(&(payload.len() as u16).to_le_bytes());
+    out[6..6 + payload.len()].copy_from_slice(payload);
+    let crc = blob::crc32(&out[2..6 + payload.len()]);
+    out[6 + payload.len()..n].copy_from_slice(&crc.to_le_bytes());
+    Ok(n)
+}
+
+/// Byte-wise frame decoder with resynchronisation on the sync bytes.
+pub struct Decoder {
+    buf: [u8; MAX_FRAME],
+    len: usize,
+}
+
+impl Default for Decoder {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Decoder {
+    /// Empty decoder.
+    pub const fn new() -> Self {
+        Self {
+            buf: [0; MAX_FRAME],
+            len: 0,
+        }
+    }
+
+    /// Feed one byte. `Some(Ok(()))` when a frame is complete: read it with [`Decoder::frame`]
+    /// before the next `feed`. `Some(Err(_))` for a corrupt frame (already discarded).
+    pub fn feed(&mut self, b: u8) -> Option<Result<(), FrameError>> {
+        if self.len >= 6 && self.len == self.frame_len() {
+            self.len = 0; // the previous frame was consumed
+        }
+        match self.len {
+            0 if b != SYNC[0] => return None,
+            1 if b != SYNC[1] => {
+                self.len = usize::from(b == SYNC[0]);
+                return None;
+            }
+            _ => {}
+        }
+        self.buf[self.len] = b;
+        self.len += 1;
+        if self.len == 6 && self.payload_len() > MAX_PAYLOAD {
+            self.len = 0;
+            return Some(Err(FrameError::TooLong));
+        }
+        if self.len >= 6 && self.len == self.frame_len() {
+            let n = self.len;
+            let crc = u32::from_le_bytes([
+                self.buf[n - 4],
+                self.buf[n - 3],
+                self.buf[n - 2],
+                self.buf[n - 1],
+            ]);
+            if blob::crc32(&self.buf[2..n - 4]) != crc {
+                self.len = 0;
+                return Some(Err(FrameError::BadCrc));
+            }
+            return Some(Ok(()));
+        }
+        None
+    }
+
+    fn payload_len(&self) -> usize {
+        usize::from(u16::from_le_bytes([self.buf[4], self.buf[5]]))
+    }
+
+    fn frame_len(&self) -> usize {
+        self.payload_len() + OVERHEAD
+    }
+
+    /// The frame completed by the last `feed`.
+    pub fn frame(&self) -> Frame<'_> {
+        let n = self.payload_len().min(MAX_PAYLOAD);
+        Frame {
+            kind: self.buf[2],
+            seq: self.buf[3],
+            payload: &self.buf[6..6 + n],
+        }
+    }
+}
+
+/// Little-endian reader over a payload.
+pub struct Reader<'a> {
+    b: &'a [u8],
+}
+
+impl<'a> Reader<'a> {
+    /// Read from `b`.
+    pub fn new(b: &'a [u8]) -> Self {
+        Self { b }
+    }
+    /// Take `n` bytes.
+    pub fn bytes(&mut self, n: usize) -> Result<&'a [u8], FrameError> {
+        if self.b.len() < n {
+            return Err(FrameError::Short);
+        }
+        let (h, t) = self.b.split_at(n);
+        self.b = t;
+        Ok(h)
+    }
+    /// The rest.
+    pub fn rest(&mut self) -> &'a [u8] {
+        core::mem::take(&mut self.b)
+    }
+    /// A u8.
+    pub fn u8(&mut self) -> Result<u8, FrameError> {
+        Ok(self.bytes(1)?[0])
+    }
+    /// A u16.
+    pub fn u16(&mut self) -> Result<u16, FrameError> {
+        let b = self.bytes(2)?;
+        Ok(u16::from_le_bytes([b[0], b[1]]))
+    }
+    /// A u32.
+    pub fn u32(&mut self) -> Result<u32, FrameError> {
+        let b = self.bytes(4)?;
+        Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    }
+    /// An i32.
+    pub fn i32(&mut self) -> Result<i32, FrameError> {
+        Ok(self.u32()? as i32)
+    }
+    /// An f32.
+    pub fn f32(&mut self) -> Result<f32, FrameError> {
+        Ok(f32::from_bits(self.u32()?))
+    }
+    /// An f64.
+    pub fn f64(&mut self) -> Result<f64, FrameError> {
+        let b = self.bytes(8)?;
+        let mut a = [0u8; 8];
+        a.copy_from_slice(b);
+        Ok(f64::from_le_bytes(a))
+    }
+}
+
+/// Little-endian writer into a buffer.
+pub struct Writer<'a> {
+    b: &'a mut [u8],
+    n: usize,
+}
+
+impl<'a> Writer<'a> {
+    /// Write into `b`.
+    pub fn new(b: &'a mut [u8]) -> Self {
+        Self { b, n: 0 }
+    }
+    /// Bytes written.
+    pub fn len(&self) -> usize {
+        self.n
+    }
+    /// True when nothing was written.
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+    /// Append bytes.
+    pub fn bytes(&mut self, v: &[u8]) -> Result<(), FrameError> {
+        let end = self.n + v.len();
+        if end > self.b.len() {
+            return Err(FrameError::OutputFull);
+        }
+        self.b[self.n..end].copy_from_slice(v);
+        self.n = end;
+        Ok(())
+    }
+    /// Append a u8.
+    pub fn u8(&mut self, v: u8) -> Result<(), FrameError> {
+        self.bytes(&[v])
+    }
+    /// Append a u16.
+    pub fn u16(&mut self, v: u16) -> Result<(), FrameError> {
+        self.bytes(&v.to_le_bytes())
+    }
+    /// Append a u32.
+    pub fn u32(&mut self, v: u32) -> Result<(), FrameError> {
+        self.bytes(&v.to_le_bytes())
+    }
+    /// Append an i32.
+    pub fn i32(&mut self, v: i32) -> Result<(), FrameError> {
+        self.bytes(&v.to_le_bytes())
+    }
+    /// Append an f32.
+    pub fn f32(&mut self, v: f32) -> Result<(), FrameError> {
+        self.bytes(&v.to_le_bytes())
+    }
+    /// Append an f64.
+    pub fn f64(&mut self, v: f64) -> Result<(), FrameError> {
+        self.bytes(&v.to_le_bytes())
+    }
+}
+
+/// Sensors in a status report.
+pub const STATUS_SENSORS: usize = 8;
+
+/// Status flags (bit set = condition present).
+pub mod flags {
+    /// A model is loaded.
+    pub const MODEL: u16 = 1 << 0;
+    /// Compensation is bypassed.
+    pub const BYPASS: u16 = 1 << 1;
+    /// Moves are refused because a sensor failed.
+    pub const SENSOR_BLOCK: u16 = 1 << 2;
+    /// A temperature/aux input is outside the training envelope (extrapolation).
+    pub const EXTRAPOLATING: u16 = 1 << 3;
+    /// An upload is in progress.
+    pub const UPLOADING: u16 = 1 << 4;
+}
+
+/// The device's status report.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Status {
+    /// Flags, see [`flags`].
+    pub flags: u16,
+    /// Model id (0 without a model).
+    pub model_id: u32,
+    /// Storage slot of the model in service (0xFF = none).
+    pub slot: u8,
+    /// Commit sequence number of that slot.
+    pub slot_seq: u32,
+    /// Temperatures in use, °C (NaN when unusable).
+    pub temps_c: [f32; STATUS_SENSORS],
+    /// Per-sensor status bits ([`crate::fault::Channel::status_bits`]).
+    pub sensor_bits: [u8; STATUS_SENSORS],
+    /// Sensors configured.
+    pub sensors: u8,
+    /// Slow inputs outside the training envelope at the last fold (model input bits).
+    pub slow_outside: u16,
+    /// λ_KMZ per axis, µm.
+    pub kmz_um: [f64; 3],
+    /// Host lines seen.
+    pub host_lines: u32,
+    /// Moves corrected and forwarded.
+    pub moves: u32,
+    /// Moves refused.
+    pub refused: u32,
+    /// Replies mapped through the inverse.
+    pub mapped_replies: u32,
+    /// Uploads accepted.
+    pub uploads_ok: u32,
+    /// Uploads rejected.
+    pub uploads_rejected: u32,
+    /// Folds computed (slow path runs).
+    pub folds: u32,
+    /// Error waiting for the host's next `ERR?` (0 = none).
+    pub pending_error: i32,
+    /// Result code of the last rejected upload (0 = none).
+    pub last_upload_error: u8,
+    /// Uptime, ms.
+    pub uptime_ms: u32,
+}
+
+impl Status {
+    /// Encoded length.
+    pub const LEN: usize =
+        2 + 4 + 1 + 4 + 4 * STATUS_SENSORS + STATUS_SENSORS + 1 + 2 + 24 + 7 * 4 + 4 + 1 + 4;
+
+    /// Encode.
+    pub fn encode(&self, w: &mut Writer<'_>) -> Result<(), FrameError> {
+        w.u16(self.flags)?;
+        w.u32(self.model_id)?;
+        w.u8(self.slot)?;
+        w.u32(self.slot_seq)?;
+        for t in self.temps_c {
+            w.f32(t)?;
+        }
+        w.bytes(&self.sensor_bits)?;
+        w.u8(self.sensors)?;
+        w.u16(self.slow_outside)?;
+        for k in self.kmz_um {
+            w.f64(k)?;
+        }
+        for c in [
+            self.host_lines,
+            self.moves,
+            self.refused,
+            self.mapped_replies,
+            self.uploads_ok,
+            self.uploads_rejected,
+            self.folds,
+        ] {
+            w.u32(c)?;
+        }
+        w.i32(self.pending_error)?;
+        w.u8(self.last_upload_error)?;
+        w.u32(self.uptime_ms)
+    }
+
+    /// Decode.
+    pub fn decode(r: &mut Reader<'_>) -> Result<Self, FrameError> {
+        let mut s = Status {
+            flags: r.u16()?,
+            model_id: r.u32()?,
+            slot: r.u8()?,
+            slot_seq: r.u32()?,
+            ..Default::default()
+        };
+        for t in s.temps_c.iter_mut() {
+            *t = r.f32()?;
+        }
+        s.sensor_bits.copy_from_slice(r.bytes(STATUS_SENSORS)?);
+        s.sensors = r.u8()?;
+        s.slow_outside = r.u16()?;
+        for k in s.kmz_um.iter_mut() {
+            *k = r.f64()?;
+        }
+        s.host_lines = r.u32()?;
+        s.moves = r.u32()?;
+        s.refused = r.u32()?;
+        s.mapped_replies = r.u32()?;
+        s.uploads_ok = r.u32()?;
+        s.uploads_rejected = r.u32()?;
+        s.folds = r.u32()?;
+        s.pending_error = r.i32()?;
+        s.last_upload_error = r.u8()?;
+        s.uptime_ms = r.u32()?;
+        Ok(s)
+    }
+}

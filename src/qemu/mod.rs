@@ -1,0 +1,14 @@
+//! The QEMU `mps2-an386` board's drivers (Cortex-M4F, 25 MHz): CMSDK APB UARTs and a SysTick
+//! time driver at 10 kHz. Only what the compensator needs; no third-party HAL exists for it.
+
+pub mod sensor_bus;
+pub mod time;
+pub mod uart;
+
+/// CPU clock of the emulated board, Hz.
+pub const SYSCLK_HZ: u32 = 25_000_000;
+
+/// Dispatch a device interrupt (call from `DefaultHandler`).
+pub fn on_interrupt(irqn: i16) {
+    uart::on_interrupt(irqn);
+}

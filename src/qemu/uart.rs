@@ -1,0 +1,157 @@
+//! CMSDK APB UART (QEMU `cmsdk-apb-uart`) with interrupt-driven receive, as
+//! `embedded-io-async` Read/Write halves.
+//!
+//! Registers: DATA 0x00, STATE 0x04 (bit0 TX full, bit1 RX full), CTRL 0x08 (bit0 TX enable,
+//! bit1 RX enable, bit3 RX interrupt enable), INTSTATUS/INTCLEAR 0x0C (bit1 RX), BAUDDIV 0x10.
+//! On `mps2-an386`, UART n (n = 0..=3) sits at 0x4000_4000 + n·0x1000, serial port n of QEMU's
+//! command line, with its RX interrupt at IRQ 0, 2, 4, 18.
+
+use core::convert::Infallible;
+use core::future::poll_fn;
+use core::ptr::{read_volatile, write_volatile};
+use core::task::Poll;
+use cortex_m::peripheral::NVIC;
+use embassy_sync::waitqueue::AtomicWaker;
+
+const DATA: usize = 0x00;
+const STATE: usize = 0x04;
+const CTRL: usize = 0x08;
+const INTCLEAR: usize = 0x0C;
+const BAUDDIV: usize = 0x10;
+
+const STATE_TX_FULL: u32 = 1 << 0;
+const STATE_RX_FULL: u32 = 1 << 1;
+const CTRL_TX_EN: u32 = 1 << 0;
+const CTRL_RX_EN: u32 = 1 << 1;
+const CTRL_RX_INT: u32 = 1 << 3;
+const INT_RX: u32 = 1 << 1;
+
+/// UARTs the board uses.
+pub const COUNT: usize = 4;
+const BASES: [usize; COUNT] = [0x4000_4000, 0x4000_5000, 0x4000_6000, 0x4000_7000];
+const RX_IRQS: [u16; COUNT] = [0, 2, 4, 18];
+
+static WAKERS: [AtomicWaker; COUNT] = [const { AtomicWaker::new() }; COUNT];
+
+#[derive(Clone, Copy)]
+struct Irq(u16);
+// SAFETY: the numbers are device interrupt lines of the mps2-an386 NVIC.
+unsafe impl cortex_m::interrupt::InterruptNumber for Irq {
+    fn number(self) -> u16 {
+        self.0
+    }
+}
+
+fn reg(n: usize, off: usize) -> *mut u32 {
+    (BASES[n] + off) as *mut u32
+}
+
+fn read(n: usize, off: usize) -> u32 {
+    // SAFETY: an MMIO register of a UART this driver owns.
+    unsafe { read_volatile(reg(n, off)) }
+}
+
+fn write(n: usize, off: usize, v: u32) {
+    // SAFETY: as above; 32-bit access as the peripheral expects.
+    unsafe { write_volatile(reg(n, off), v) }
+}
+
+/// One UART, taken once per index.
+pub struct Uart {
+    n: usize,
+}
+
+impl Uart {
+    /// Enable UART `n` (0..=3) at `baud` (QEMU ignores the rate) and its RX interrupt line.
+    ///
+    /// # Safety
+    /// Call at most once per `n`: the halves assume exclusive use of the registers.
+    pub unsafe fn new(n: usize, baud: u32) -> Self {
+        assert!(n < COUNT);
+        write(n, BAUDDIV, (super::SYSCLK_HZ / baud.max(1)).max(16));
+        write(n, CTRL, CTRL_TX_EN | CTRL_RX_EN);
+        // SAFETY: the handler only wakes a waker; no mask-based critical section relies on it.
+        unsafe { NVIC::unmask(Irq(RX_IRQS[n])) };
+        Self { n }
+    }
+
+    /// Split into receive and transmit halves.
+    pub fn split(self) -> (UartRx, UartTx) {
+        (UartRx { n: self.n }, UartTx { n: self.n })
+    }
+}
+
+/// Receive half.
+pub struct UartRx {
+    n: usize,
+}
+
+/// Transmit half.
+pub struct UartTx {
+    n: usize,
+}
+
+/// Call from `DefaultHandler`: wakes the reader of the UART whose RX line fired.
+pub fn on_interrupt(irqn: i16) {
+    for (n, &irq) in RX_IRQS.iter().enumerate() {
+        if irqn == irq as i16 {
+            // mask further RX interrupts until the reader re-arms; clear the pending one
+            cortex_m::interrupt::free(|_| {
+                write(n, CTRL, read(n, CTRL) & !CTRL_RX_INT);
+            });
+            write(n, INTCLEAR, INT_RX);
+            WAKERS[n].wake();
+        }
+    }
+}
+
+impl embedded_io_async::ErrorType for UartRx {
+    type Error = Infallible;
+}
+
+impl embedded_io_async::ErrorType for UartTx {
+    type Error = Infallible;
+}
+
+impl embedded_io_async::Read for UartRx {
+    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
+        if buf.is_empty() {
+            return Ok(0);
+        }
+        let n = self.n;
+        poll_fn(|cx| {
+            let mut got = 0;
+            while got < buf.len() && read(n, STATE) & STATE_RX_FULL != 0 {
+                buf[got] = read(n, DATA) as u8;
+                got += 1;
+            }
+            if got > 0 {
+                return Poll::Ready(Ok(got));
+            }
+            WAKERS[n].register(cx.waker());
+            cortex_m::interrupt::free(|_| write(n, CTRL, read(n, CTRL) | CTRL_RX_INT));
+            // a byte may have arrived between the check and arming the interrupt
+            if read(n, STATE) & STATE_RX_FULL != 0 {
+                cx.waker().wake_by_ref();
+            }
+            Poll::Pending
+        })
+        .await
+    }
+}
+
+impl embedded_io_async::Write for UartTx {
+    async fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
+        for &b in buf {
+            while read(self.n, STATE) & STATE_TX_FULL != 0 {
+                embassy_futures::yield_now().await;
+            }
+            write(self.n, DATA, u32::from(b));
+        }
+        Ok(buf.len())
+    }
+
+    async fn flush(&mut self) -> Result<(), Infallible> {
+        Ok(())
+    }
+}

@@ -43,7 +43,9 @@ impl Params {
 pub struct Candidate;
 
 fn others(d: &Data, ch: usize) -> Vec<usize> {
-    (0..d.channels.len()).filter(|&b| b != ch && d.channels[b].u.is_some()).collect()
+    (0..d.channels.len())
+        .filter(|&b| b != ch && d.channels[b].u.is_some())
+        .collect()
 }
 
 impl super::Candidate for Candidate {

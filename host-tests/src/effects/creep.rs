@@ -55,7 +55,9 @@ fn basis(d: &Data, steps: &[(usize, f64)], t0_s: f64) -> Vec<f64> {
     match d.uniform_dt_s {
         Some(dt) => {
             let n = d.rows();
-            let table: Vec<f64> = (0..n).map(|j| (1.0 + (j as f64 + 0.5) * dt / t0_s).ln()).collect();
+            let table: Vec<f64> = (0..n)
+                .map(|j| (1.0 + (j as f64 + 0.5) * dt / t0_s).ln())
+                .collect();
             let mut out = vec![0.0; n];
             for &(k0, dq) in steps {
                 for (o, l) in out[k0..].iter_mut().zip(&table) {
@@ -101,7 +103,11 @@ impl super::Candidate for Candidate {
         vec![
             super::Estimate::new("gamma", f.coeffs[0], f.se[0]),
             super::Estimate::new("t0_s", f.theta.unwrap_or(f64::NAN), f.theta_sigma),
-            super::Estimate::new("nm_per_um_per_decade", f.coeffs[0] * std::f64::consts::LN_10 * 1e3, f.se[0] * std::f64::consts::LN_10 * 1e3),
+            super::Estimate::new(
+                "nm_per_um_per_decade",
+                f.coeffs[0] * std::f64::consts::LN_10 * 1e3,
+                f.se[0] * std::f64::consts::LN_10 * 1e3,
+            ),
         ]
     }
 }

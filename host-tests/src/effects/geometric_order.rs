@@ -42,7 +42,9 @@ impl Params {
 pub struct Candidate;
 
 fn distinct_poses(d: &Data, ch: usize) -> usize {
-    let mut v: Vec<i64> = d.channels[ch].u.as_ref().map_or(Vec::new(), |u| u.iter().map(|x| (x * 1e6).round() as i64).collect());
+    let mut v: Vec<i64> = d.channels[ch].u.as_ref().map_or(Vec::new(), |u| {
+        u.iter().map(|x| (x * 1e6).round() as i64).collect()
+    });
     v.sort_unstable();
     v.dedup();
     v.len()
@@ -64,7 +66,9 @@ impl super::Candidate for Candidate {
     fn regressors(&self, d: &Data, ch: usize, _theta: Option<f64>) -> Vec<Vec<f64>> {
         let u = d.channels[ch].u.as_ref().unwrap();
         let top = if distinct_poses(d, ch) >= 9 { 6 } else { 5 };
-        (4..=top).map(|p| u.iter().map(|x| x.powi(p)).collect()).collect()
+        (4..=top)
+            .map(|p| u.iter().map(|x| x.powi(p)).collect())
+            .collect()
     }
     fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
         f.coeffs

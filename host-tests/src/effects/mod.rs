@@ -139,7 +139,11 @@ pub struct Estimate {
 impl Estimate {
     /// A named estimate.
     pub fn new(name: &str, value: f64, sigma: f64) -> Self {
-        Self { name: name.into(), value, sigma }
+        Self {
+            name: name.into(),
+            value,
+            sigma,
+        }
     }
 }
 
@@ -204,7 +208,9 @@ pub fn log_grid(lo: f64, hi: f64, k: usize) -> Vec<f64> {
     if !(hi > lo && lo > 0.0) || k < 2 {
         return vec![lo.max(hi)];
     }
-    (0..k).map(|i| lo * (hi / lo).powf(i as f64 / (k - 1) as f64)).collect()
+    (0..k)
+        .map(|i| lo * (hi / lo).powf(i as f64 / (k - 1) as f64))
+        .collect()
 }
 
 /// Lag every column of a series set with the shared model's filter (the firmware's code).

@@ -72,7 +72,10 @@ impl super::Candidate for Candidate {
     fn regressors(&self, d: &Data, ch: usize, theta: Option<f64>) -> Vec<Vec<f64>> {
         let p = theta.unwrap_or(HENE_HALF_WAVELENGTH_NM);
         let m = &d.channels[ch].position_est_um;
-        let ph: Vec<f64> = m.iter().map(|x| std::f64::consts::TAU * x * 1e3 / p).collect();
+        let ph: Vec<f64> = m
+            .iter()
+            .map(|x| std::f64::consts::TAU * x * 1e3 / p)
+            .collect();
         vec![
             ph.iter().map(|v| v.sin()).collect(),
             ph.iter().map(|v| v.cos()).collect(),
@@ -89,7 +92,11 @@ impl super::Candidate for Candidate {
         vec![
             super::Estimate::new("period_nm", f.theta.unwrap_or(HENE_HALF_WAVELENGTH_NM), 0.0),
             super::Estimate::new("amplitude_nm", a1, s1),
-            super::Estimate::new("phase_rad", c[1].atan2(c[0]), if a1 > 0.0 { s1 / a1 } else { f64::NAN }),
+            super::Estimate::new(
+                "phase_rad",
+                c[1].atan2(c[0]),
+                if a1 > 0.0 { s1 / a1 } else { f64::NAN },
+            ),
             super::Estimate::new("second_harmonic_nm", a2, s2),
         ]
     }

@@ -55,16 +55,27 @@ impl super::Candidate for Candidate {
     }
     fn theta_grid(&self, d: &Data, _ch: usize) -> Vec<f64> {
         let dt = d.duration_s() / d.rows().max(2) as f64;
-        super::log_grid((3.0 * dt).max(5.0), (d.duration_s() / 3.0).max(10.0 * dt), 16)
+        super::log_grid(
+            (3.0 * dt).max(5.0),
+            (d.duration_s() / 3.0).max(10.0 * dt),
+            16,
+        )
     }
     fn continuous(&self) -> bool {
         true
     }
     fn regressors(&self, d: &Data, _ch: usize, theta: Option<f64>) -> Vec<Vec<f64>> {
         let tau = theta.unwrap_or(1.0);
-        d.temps.iter().map(|(_, x)| super::lag_columns(&d.t_s, x, tau)).collect()
+        d.temps
+            .iter()
+            .map(|(_, x)| super::lag_columns(&d.t_s, x, tau))
+            .collect()
     }
     fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
-        vec![super::Estimate::new("tau_s", f.theta.unwrap_or(f64::NAN), f.theta_sigma)]
+        vec![super::Estimate::new(
+            "tau_s",
+            f.theta.unwrap_or(f64::NAN),
+            f.theta_sigma,
+        )]
     }
 }

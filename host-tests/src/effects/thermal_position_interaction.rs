@@ -39,7 +39,9 @@ pub struct Candidate;
 
 fn mean_temp(d: &Data) -> Vec<f64> {
     let m = d.temps.len() as f64;
-    (0..d.rows()).map(|k| d.temps.iter().map(|(_, x)| x[k]).sum::<f64>() / m).collect()
+    (0..d.rows())
+        .map(|k| d.temps.iter().map(|(_, x)| x[k]).sum::<f64>() / m)
+        .collect()
 }
 
 impl super::Candidate for Candidate {
@@ -59,7 +61,11 @@ impl super::Candidate for Candidate {
         let u = d.channels[ch].u.as_ref().unwrap();
         let tm = mean_temp(d);
         let t0 = tm.iter().sum::<f64>() / tm.len() as f64;
-        let mut out = vec![u.iter().zip(&tm).map(|(u, t)| u * (t - t0)).collect::<Vec<f64>>()];
+        let mut out = vec![u
+            .iter()
+            .zip(&tm)
+            .map(|(u, t)| u * (t - t0))
+            .collect::<Vec<f64>>()];
         for (_, x) in d.temps.iter().take(d.temps.len().saturating_sub(1)) {
             out.push((0..d.rows()).map(|k| u[k] * (x[k] - tm[k])).collect());
         }
@@ -67,6 +73,10 @@ impl super::Candidate for Candidate {
     }
     fn params(&self, d: &Data, ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
         let h = d.channels[ch].half_range_um;
-        vec![super::Estimate::new("alpha_ppm_per_c", f.coeffs[0] / h * 1e6, f.se[0] / h * 1e6)]
+        vec![super::Estimate::new(
+            "alpha_ppm_per_c",
+            f.coeffs[0] / h * 1e6,
+            f.se[0] / h * 1e6,
+        )]
     }
 }

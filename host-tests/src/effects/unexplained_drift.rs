@@ -63,7 +63,11 @@ pub fn hat_basis(t_s: &[f64], k: usize) -> Vec<Vec<f64>> {
     let span = (t_s.last().copied().unwrap_or(1.0) - t0).max(1e-9);
     let h = span / (k - 1) as f64;
     (0..k)
-        .map(|j| t_s.iter().map(|&t| (1.0 - ((t - t0) / h - j as f64).abs()).max(0.0)).collect())
+        .map(|j| {
+            t_s.iter()
+                .map(|&t| (1.0 - ((t - t0) / h - j as f64).abs()).max(0.0))
+                .collect()
+        })
         .collect()
 }
 
@@ -91,6 +95,10 @@ impl super::Candidate for Candidate {
     }
     fn params(&self, d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
         let k = f.theta.unwrap_or(5.0);
-        vec![super::Estimate::new("time_scale_h", d.duration_s() / (k - 1.0) / 3600.0, f64::NAN)]
+        vec![super::Estimate::new(
+            "time_scale_h",
+            d.duration_s() / (k - 1.0) / 3600.0,
+            f64::NAN,
+        )]
     }
 }

@@ -78,11 +78,15 @@ impl Data {
     pub fn from_recording(rec: &Recording, sim: Option<&Recording>) -> Result<Self, ExplainError> {
         let n = rec.rows();
         if n < 20 {
-            return Err(ExplainError::Input(format!("expected at least 20 rows, found {n}")));
+            return Err(ExplainError::Input(format!(
+                "expected at least 20 rows, found {n}"
+            )));
         }
         let t_s = rec
             .time_s()
-            .ok_or_else(|| ExplainError::Input("expected a time column `t` (s), found none".into()))?
+            .ok_or_else(|| {
+                ExplainError::Input("expected a time column `t` (s), found none".into())
+            })?
             .to_vec();
         if let Some(s) = sim {
             if s.rows() != n {
@@ -94,13 +98,17 @@ impl Data {
         }
         let mut channels = Vec::new();
         for axis in rec.axes() {
-            let Some(meas) = rec.meas(&axis) else { continue };
+            let Some(meas) = rec.meas(&axis) else {
+                continue;
+            };
             let meas_um = meas.to_vec();
             let cmd_um = rec.cmd(&axis).map(|c| c.to_vec());
             let y_um: Vec<f64> = match (sim, &cmd_um) {
                 (Some(s), _) => {
                     let sm = s.meas(&axis).ok_or_else(|| {
-                        ExplainError::Input(format!("simulation: expected column `meas_{axis}`, found none"))
+                        ExplainError::Input(format!(
+                            "simulation: expected column `meas_{axis}`, found none"
+                        ))
                     })?;
                     meas_um.iter().zip(sm).map(|(a, b)| a - b).collect()
                 }
@@ -114,7 +122,11 @@ impl Data {
                 if hi > lo {
                     let centre = 0.5 * (lo + hi);
                     half_range_um = 0.5 * (hi - lo);
-                    u = Some(c.iter().map(|v| (v - centre) / half_range_um).collect::<Vec<f64>>());
+                    u = Some(
+                        c.iter()
+                            .map(|v| (v - centre) / half_range_um)
+                            .collect::<Vec<f64>>(),
+                    );
                     let tol = 1e-9 * half_range_um.max(1.0);
                     let mut d = vec![0.0; n];
                     let mut cur = 0.0;
@@ -147,35 +159,82 @@ impl Data {
                 }
             }
             let position_est_um = meas_um.clone();
-            channels.push(Channel { name: axis, y_um, meas_um, position_est_um, cmd_um, u, half_range_um, dir, steps });
+            channels.push(Channel {
+                name: axis,
+                y_um,
+                meas_um,
+                position_est_um,
+                cmd_um,
+                u,
+                half_range_um,
+                dir,
+                steps,
+            });
         }
         if channels.is_empty() {
-            return Err(ExplainError::Input("expected at least one `meas_<axis>` column, found none".into()));
+            return Err(ExplainError::Input(
+                "expected at least one `meas_<axis>` column, found none".into(),
+            ));
         }
-        let temps: Vec<(String, Vec<f64>)> =
-            rec.temp_columns().iter().map(|&c| (c.to_string(), rec.column(c).unwrap_or_default().to_vec())).collect();
-        let aux: Vec<(String, Vec<f64>)> =
-            rec.aux_columns().iter().map(|&c| (c.to_string(), rec.column(c).unwrap_or_default().to_vec())).collect();
+        let temps: Vec<(String, Vec<f64>)> = rec
+            .temp_columns()
+            .iter()
+            .map(|&c| (c.to_string(), rec.column(c).unwrap_or_default().to_vec()))
+            .collect();
+        let aux: Vec<(String, Vec<f64>)> = rec
+            .aux_columns()
+            .iter()
+            .map(|&c| (c.to_string(), rec.column(c).unwrap_or_default().to_vec()))
+            .collect();
         let pressure_hpa: Option<(String, Vec<f64>)> = aux.iter().find_map(|(name, v)| {
             let l = name.to_ascii_lowercase();
-            if !(l.contains("press") || l.ends_with("_hpa") || l.ends_with("_pa") || l.ends_with("_mbar") || l == "p") {
+            if !(l.contains("press")
+                || l.ends_with("_hpa")
+                || l.ends_with("_pa")
+                || l.ends_with("_mbar")
+                || l == "p")
+            {
                 return None;
             }
             let mean = v.iter().sum::<f64>() / v.len() as f64;
-            let scale = if l.ends_with("_pa") || mean > 20_000.0 { 0.01 } else { 1.0 };
-            Some((name.clone(), v.iter().map(|x| x * scale).collect::<Vec<f64>>()))
+            let scale = if l.ends_with("_pa") || mean > 20_000.0 {
+                0.01
+            } else {
+                1.0
+            };
+            Some((
+                name.clone(),
+                v.iter().map(|x| x * scale).collect::<Vec<f64>>(),
+            ))
         });
         let dts: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
         let mut sorted = dts.clone();
         sorted.sort_by(f64::total_cmp);
         let med = sorted[sorted.len() / 2];
-        let uniform_dt_s = (med > 0.0 && dts.iter().all(|d| (d - med).abs() <= 1e-6 * med.max(1.0))).then_some(med);
+        let uniform_dt_s = (med > 0.0
+            && dts.iter().all(|d| (d - med).abs() <= 1e-6 * med.max(1.0)))
+        .then_some(med);
         // Sensor noise in a regressor would let any low-pass (a short "lag") look like physics:
         // denoise the slow inputs without delay (centred moving average) before anything is fitted.
-        let half = if med > 0.0 { ((SMOOTH_HALF_WINDOW_S / med).round() as usize).min(n / 50) } else { 0 };
-        let temps = temps.into_iter().map(|(c, v)| (c, centred_mean(&v, half))).collect();
+        let half = if med > 0.0 {
+            ((SMOOTH_HALF_WINDOW_S / med).round() as usize).min(n / 50)
+        } else {
+            0
+        };
+        let temps = temps
+            .into_iter()
+            .map(|(c, v)| (c, centred_mean(&v, half)))
+            .collect();
         let pressure_hpa = pressure_hpa.map(|(c, v)| (c, centred_mean(&v, half)));
-        Ok(Self { t_s, channels, temps, aux, pressure_hpa, against_simulation: sim.is_some(), uniform_dt_s })
+        Ok(Self {
+            t_s,
+            channels,
+            temps,
+            aux,
+            pressure_hpa,
+            against_simulation: sim.is_some(),
+            uniform_dt_s,
+        })
     }
 
     /// Number of samples.

@@ -33,12 +33,23 @@ pub fn fit(cols: &[&[f64]], y: &[f64]) -> Result<Fit, ExplainError> {
     let n = residuals.iter().filter(|v| v.is_finite()).count();
     let rss = ls.rss;
     let n_eff = effective_n(&residuals);
-    Ok(Fit { ls, residuals, rss, n, n_eff })
+    Ok(Fit {
+        ls,
+        residuals,
+        rss,
+        n,
+        n_eff,
+    })
 }
 
 /// Prediction of a fitted model at row `i`.
 pub fn predict(ls: &LeastSquares, cols: &[&[f64]], i: usize) -> f64 {
-    ls.intercept + cols.iter().zip(&ls.coeffs).map(|(c, b)| if *b != 0.0 { b * c[i] } else { 0.0 }).sum::<f64>()
+    ls.intercept
+        + cols
+            .iter()
+            .zip(&ls.coeffs)
+            .map(|(c, b)| if *b != 0.0 { b * c[i] } else { 0.0 })
+            .sum::<f64>()
 }
 
 /// Effective number of independent rows of a residual `r` (NaN skipped): n / τ_int, with the
@@ -57,7 +68,9 @@ pub fn effective_n(r: &[f64]) -> f64 {
     }
     let batches = 40;
     let b = n / batches;
-    let bm: Vec<f64> = (0..batches).map(|k| v[k * b..(k + 1) * b].iter().sum::<f64>() / b as f64).collect();
+    let bm: Vec<f64> = (0..batches)
+        .map(|k| v[k * b..(k + 1) * b].iter().sum::<f64>() / b as f64)
+        .collect();
     let bmm = bm.iter().sum::<f64>() / batches as f64;
     let bvar = bm.iter().map(|x| (x - bmm) * (x - bmm)).sum::<f64>() / (batches - 1) as f64;
     let tau = (b as f64 * bvar / var).max(1.0);
@@ -80,7 +93,11 @@ pub fn round_effective_n(r: &[f64], units: usize) -> f64 {
     let hp: Vec<f64> = v.iter().zip(&slow).map(|(a, b)| a - b).collect();
     let c0: f64 = hp.iter().map(|x| x * x).sum();
     let c1: f64 = hp.windows(2).map(|w| w[0] * w[1]).sum();
-    let rho = if c0 > 0.0 { (c1 / c0).clamp(0.0, 0.999) } else { 0.0 };
+    let rho = if c0 > 0.0 {
+        (c1 / c0).clamp(0.0, 0.999)
+    } else {
+        0.0
+    };
     // Smooth real residuals (sensor-limited, ρ → 1) would drive n_eff to a handful; the
     // blocked cross-validation already treats its 2·CV_BLOCKS half-blocks as independent, so
     // that is the floor (never above the number of units).
@@ -96,7 +113,9 @@ pub fn bic(rss: f64, n: usize, k: usize, n_eff: f64) -> f64 {
 
 /// The fold of each row: interleaved contiguous blocks.
 pub fn folds(n: usize) -> Vec<u8> {
-    (0..n).map(|i| ((i * CV_BLOCKS / n.max(1)) % CV_FOLDS) as u8).collect()
+    (0..n)
+        .map(|i| ((i * CV_BLOCKS / n.max(1)) % CV_FOLDS) as u8)
+        .collect()
 }
 
 /// Held-out result of blocked cross-validation.
@@ -133,19 +152,34 @@ pub fn cross_validate(cols: &[&[f64]], y: &[f64], fold_of: &[u8]) -> Result<Cv, 
         fold_mse[f as usize] = if c > 0 { s / c as f64 } else { f64::NAN };
     }
     let rms_um = rms(&residuals);
-    Ok(Cv { residuals, fold_mse, rms_um })
+    Ok(Cv {
+        residuals,
+        fold_mse,
+        rms_um,
+    })
 }
 
 /// RMS of the finite values.
 pub fn rms(v: &[f64]) -> f64 {
-    let (s, c) = v.iter().filter(|x| x.is_finite()).fold((0.0, 0usize), |(s, c), x| (s + x * x, c + 1));
-    if c == 0 { f64::NAN } else { (s / c as f64).sqrt() }
+    let (s, c) = v
+        .iter()
+        .filter(|x| x.is_finite())
+        .fold((0.0, 0usize), |(s, c), x| (s + x * x, c + 1));
+    if c == 0 {
+        f64::NAN
+    } else {
+        (s / c as f64).sqrt()
+    }
 }
 
 /// Noise floor from the data: the high-frequency scatter of `r` (robust: 1.4826·MAD of first
 /// differences / √2), µm.
 pub fn noise_floor(r: &[f64]) -> f64 {
-    let mut d: Vec<f64> = r.windows(2).map(|w| w[1] - w[0]).filter(|x| x.is_finite()).collect();
+    let mut d: Vec<f64> = r
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|x| x.is_finite())
+        .collect();
     if d.is_empty() {
         return f64::NAN;
     }

@@ -37,7 +37,10 @@ fn units(d: &Data, ch: usize) -> Vec<(usize, usize)> {
     let mut b: Vec<usize> = vec![0];
     b.extend(c.steps.iter().map(|s| s.0));
     b.push(d.rows());
-    b.windows(2).filter(|w| w[1] > w[0]).map(|w| (w[0], w[1])).collect()
+    b.windows(2)
+        .filter(|w| w[1] > w[0])
+        .map(|w| (w[0], w[1]))
+        .collect()
 }
 
 /// Effective number of independent positioning events (dwells weighted by their length:
@@ -47,7 +50,11 @@ pub fn unit_count(d: &Data, ch: usize) -> usize {
     let us = units(d, ch);
     let s1: f64 = us.iter().map(|(a, b)| (b - a) as f64).sum();
     let s2: f64 = us.iter().map(|(a, b)| ((b - a) as f64).powi(2)).sum();
-    if s2 > 0.0 { (s1 * s1 / s2).round() as usize } else { us.len() }
+    if s2 > 0.0 {
+        (s1 * s1 / s2).round() as usize
+    } else {
+        us.len()
+    }
 }
 
 /// Estimate the noise floor of residual `r` on channel `ch`.
@@ -55,18 +62,39 @@ pub fn noise(d: &Data, ch: usize, r: &[f64]) -> NoiseFloor {
     let sample_um = noise_floor(r);
     let us = units(d, ch);
     if us.len() == d.rows() {
-        return NoiseFloor { sample_um, unit_um: sample_um };
+        return NoiseFloor {
+            sample_um,
+            unit_um: sample_um,
+        };
     }
     // dwell means: scatter of consecutive dwell means (robust), minus nothing: an upper bound of
     // the per-move positioning scatter plus averaged sample noise
-    let means: Vec<f64> = us.iter().map(|&(a, b)| unit_mean(r, a, b)).filter(|v| v.is_finite()).collect();
-    let unit_um = if means.len() >= 4 { noise_floor(&means) } else { sample_um };
-    NoiseFloor { sample_um, unit_um: unit_um.max(sample_um / 10.0) }
+    let means: Vec<f64> = us
+        .iter()
+        .map(|&(a, b)| unit_mean(r, a, b))
+        .filter(|v| v.is_finite())
+        .collect();
+    let unit_um = if means.len() >= 4 {
+        noise_floor(&means)
+    } else {
+        sample_um
+    };
+    NoiseFloor {
+        sample_um,
+        unit_um: unit_um.max(sample_um / 10.0),
+    }
 }
 
 fn unit_mean(r: &[f64], a: usize, b: usize) -> f64 {
-    let (s, c) = r[a..b].iter().filter(|x| x.is_finite()).fold((0.0, 0), |(s, c), x| (s + x, c + 1));
-    if c == 0 { f64::NAN } else { s / c as f64 }
+    let (s, c) = r[a..b]
+        .iter()
+        .filter(|x| x.is_finite())
+        .fold((0.0, 0), |(s, c), x| (s + x, c + 1));
+    if c == 0 {
+        f64::NAN
+    } else {
+        s / c as f64
+    }
 }
 
 /// Bins of a key over the rows: (label, row indices).
@@ -97,7 +125,9 @@ fn value_bins(key: &[f64], max_bins: usize, fmt: impl Fn(f64) -> String) -> Opti
     Some(
         vals.iter()
             .map(|&v| {
-                let rows = (0..key.len()).filter(|&i| (key[i] * 1e3).round() as i64 == v).collect();
+                let rows = (0..key.len())
+                    .filter(|&i| (key[i] * 1e3).round() as i64 == v)
+                    .collect();
                 (fmt(v as f64 / 1e3), rows)
             })
             .collect(),
@@ -111,14 +141,20 @@ fn temperature_rate(d: &Data) -> Option<Vec<f64>> {
     }
     let n = d.rows();
     let m = d.temps.len() as f64;
-    let tm: Vec<f64> = (0..n).map(|k| d.temps.iter().map(|(_, x)| x[k]).sum::<f64>() / m).collect();
+    let tm: Vec<f64> = (0..n)
+        .map(|k| d.temps.iter().map(|(_, x)| x[k]).sum::<f64>() / m)
+        .collect();
     let dt = d.duration_s() / n.max(2) as f64;
     let h = ((300.0 / dt.max(1e-9)).round() as usize).clamp(1, n / 4);
     Some(
         (0..n)
             .map(|k| {
                 let (a, b) = (k.saturating_sub(h), (k + h).min(n - 1));
-                if b > a { (tm[b] - tm[a]) / (d.t_s[b] - d.t_s[a]) * 3600.0 } else { 0.0 }
+                if b > a {
+                    (tm[b] - tm[a]) / (d.t_s[b] - d.t_s[a]) * 3600.0
+                } else {
+                    0.0
+                }
             })
             .collect(),
     )
@@ -142,8 +178,13 @@ pub fn locate(d: &Data, ch: usize, r: &[f64], floor: NoiseFloor) -> Vec<Finding>
     let time_key: Vec<f64> = d.t_s.iter().map(|t| (t - t0) / 3600.0).collect();
     let tb: Bins = (0..nb)
         .map(|b| {
-            let (lo, hi) = (hours * b as f64 / nb as f64, hours * (b + 1) as f64 / nb as f64);
-            let rows = (0..d.rows()).filter(|&i| time_key[i] >= lo && (time_key[i] < hi || b == nb - 1)).collect();
+            let (lo, hi) = (
+                hours * b as f64 / nb as f64,
+                hours * (b + 1) as f64 / nb as f64,
+            );
+            let rows = (0..d.rows())
+                .filter(|&i| time_key[i] >= lo && (time_key[i] < hi || b == nb - 1))
+                .collect();
             (format!("time {lo:.1}–{hi:.1} h"), rows)
         })
         .collect();
@@ -156,24 +197,45 @@ pub fn locate(d: &Data, ch: usize, r: &[f64], floor: NoiseFloor) -> Vec<Finding>
     if let Some(dir) = &c.dir {
         let fwd = (0..d.rows()).filter(|&i| dir[i] > 0.0).collect();
         let bwd = (0..d.rows()).filter(|&i| dir[i] < 0.0).collect();
-        dims.push(("direction".into(), vec![("forward approach".into(), fwd), ("backward approach".into(), bwd)]));
+        dims.push((
+            "direction".into(),
+            vec![
+                ("forward approach".into(), fwd),
+                ("backward approach".into(), bwd),
+            ],
+        ));
     }
     for (b, other) in d.channels.iter().enumerate() {
         if b != ch {
             if let Some(cmd) = &other.cmd_um {
                 let name = other.name.clone();
                 let bins = value_bins(cmd, 40, |v| format!("{name} axis at {v:.1} µm"))
-                    .unwrap_or_else(|| quantile_bins(cmd, 8, |a, z| format!("{name} axis at {a:.1}–{z:.1} µm")));
+                    .unwrap_or_else(|| {
+                        quantile_bins(cmd, 8, |a, z| format!("{name} axis at {a:.1}–{z:.1} µm"))
+                    });
                 dims.push((format!("axis {}", other.name), bins));
             }
         }
     }
     if let Some(rate) = temperature_rate(d) {
-        dims.push(("temperature rate".into(), quantile_bins(&rate, 5, |a, b| format!("temperature changing {a:+.3}…{b:+.3} °C/h"))));
+        dims.push((
+            "temperature rate".into(),
+            quantile_bins(&rate, 5, |a, b| {
+                format!("temperature changing {a:+.3}…{b:+.3} °C/h")
+            }),
+        ));
     }
     for (name, x) in &d.aux {
         let n = name.clone();
-        let bins = value_bins(x, 8, |v| format!("{n} = {v}")).unwrap_or_else(|| quantile_bins(x, 5, |a, b| if a == b { format!("{n} = {a}") } else { format!("{n} {a}…{b}") }));
+        let bins = value_bins(x, 8, |v| format!("{n} = {v}")).unwrap_or_else(|| {
+            quantile_bins(x, 5, |a, b| {
+                if a == b {
+                    format!("{n} = {a}")
+                } else {
+                    format!("{n} {a}…{b}")
+                }
+            })
+        });
         dims.push((name.clone(), bins));
     }
 
@@ -182,18 +244,27 @@ pub fn locate(d: &Data, ch: usize, r: &[f64], floor: NoiseFloor) -> Vec<Finding>
     for (dim, bins) in dims {
         let mut flagged: Vec<(String, f64, f64, f64)> = Vec::new();
         for (label, rows) in &bins {
-            let vals: Vec<f64> = rows.iter().map(|&i| r[i]).filter(|v| v.is_finite()).collect();
+            let vals: Vec<f64> = rows
+                .iter()
+                .map(|&i| r[i])
+                .filter(|v| v.is_finite())
+                .collect();
             if vals.len() < 3 {
                 continue;
             }
             // effective number of units in the bin, each weighted by its rows in the bin
-            let mut counts: std::collections::HashMap<usize, f64> = std::collections::HashMap::new();
+            let mut counts: std::collections::HashMap<usize, f64> =
+                std::collections::HashMap::new();
             for &i in rows {
                 *counts.entry(unit_of[i]).or_default() += 1.0;
             }
             let s1: f64 = counts.values().sum();
             let s2: f64 = counts.values().map(|c| c * c).sum();
-            let n_units = if s2 > 0.0 { (s1 * s1 / s2).max(1.0) } else { 1.0 };
+            let n_units = if s2 > 0.0 {
+                (s1 * s1 / s2).max(1.0)
+            } else {
+                1.0
+            };
             let mean = vals.iter().sum::<f64>() / vals.len() as f64;
             let z = mean.abs() / (sigma / n_units.sqrt());
             // structured: statistically clear AND at least the size of the noise floor
@@ -209,7 +280,8 @@ pub fn locate(d: &Data, ch: usize, r: &[f64], floor: NoiseFloor) -> Vec<Finding>
         if dim == "time" && flagged.len() > 1 {
             let lo = flagged[0].0.clone();
             let hi = flagged[flagged.len() - 1].0.clone();
-            let rms = (flagged.iter().map(|f| f.1 * f.1).sum::<f64>() / flagged.len() as f64).sqrt();
+            let rms =
+                (flagged.iter().map(|f| f.1 * f.1).sum::<f64>() / flagged.len() as f64).sqrt();
             let mut means: Vec<f64> = flagged.iter().map(|f| f.2).collect();
             let zmax = flagged.iter().map(|f| f.3).fold(0.0, f64::max);
             let place = if flagged.len() == bins.len() {
@@ -218,14 +290,31 @@ pub fn locate(d: &Data, ch: usize, r: &[f64], floor: NoiseFloor) -> Vec<Finding>
                 format!(
                     "{} time spans between {} and {}",
                     flagged.len(),
-                    lo.split(' ').nth(1).unwrap_or("").split('–').next().unwrap_or(""),
+                    lo.split(' ')
+                        .nth(1)
+                        .unwrap_or("")
+                        .split('–')
+                        .next()
+                        .unwrap_or(""),
                     hi.split('–').nth(1).unwrap_or("")
                 )
             };
-            out.push(Finding { place, dimension: dim, rms_nm: rms * 1e3, mean_nm: median(&mut means) * 1e3, z: zmax });
+            out.push(Finding {
+                place,
+                dimension: dim,
+                rms_nm: rms * 1e3,
+                mean_nm: median(&mut means) * 1e3,
+                z: zmax,
+            });
         } else {
             for (label, rms, mean, z) in flagged.into_iter().take(4) {
-                out.push(Finding { place: label, dimension: dim.clone(), rms_nm: rms * 1e3, mean_nm: mean * 1e3, z });
+                out.push(Finding {
+                    place: label,
+                    dimension: dim.clone(),
+                    rms_nm: rms * 1e3,
+                    mean_nm: mean * 1e3,
+                    z,
+                });
             }
         }
     }

@@ -57,7 +57,12 @@ pub struct Settings {
 
 impl Default for Settings {
     fn default() -> Self {
-        Self { min_bic_drop: 10.0, min_rms_gain: 0.01, min_folds_better: 4, max_effects: 4 }
+        Self {
+            min_bic_drop: 10.0,
+            min_rms_gain: 0.01,
+            min_folds_better: 4,
+            max_effects: 4,
+        }
     }
 }
 
@@ -84,7 +89,11 @@ struct Model {
 
 impl Model {
     fn with<'a>(&'a self, extra: &'a [Vec<f64>]) -> Vec<&'a [f64]> {
-        self.cols.iter().chain(extra.iter()).map(|c| c.as_slice()).collect()
+        self.cols
+            .iter()
+            .chain(extra.iter())
+            .map(|c| c.as_slice())
+            .collect()
     }
 }
 
@@ -107,7 +116,10 @@ fn baseline_columns(d: &Data, ch: usize) -> (Vec<Vec<f64>>, String) {
         words.push(format!("linear in {} temperature(s)", d.temps.len()));
     }
     words.push("an offset".into());
-    (cols, format!("published static model: {}", words.join(", ")))
+    (
+        cols,
+        format!("published static model: {}", words.join(", ")),
+    )
 }
 
 /// A fitted extension: (θ, regressors, fit).
@@ -193,7 +205,15 @@ fn best_theta(
 }
 
 /// 1σ of a continuous θ from the RSS profile: where n_eff·ln(RSS/RSS_min) rises by 1.
-fn theta_sigma(d: &Data, ch: usize, cand: &dyn Candidate, model: &Model, th: f64, f: &fit::Fit, n_eff: f64) -> Result<f64, ExplainError> {
+fn theta_sigma(
+    d: &Data,
+    ch: usize,
+    cand: &dyn Candidate,
+    model: &Model,
+    th: f64,
+    f: &fit::Fit,
+    n_eff: f64,
+) -> Result<f64, ExplainError> {
     let y = &d.channels[ch].y_um;
     let rss0 = f.rss;
     let g = |lt: f64| -> Result<f64, ExplainError> {
@@ -236,7 +256,11 @@ fn theta_sigma(d: &Data, ch: usize, cand: &dyn Candidate, model: &Model, th: f64
 }
 
 /// Explain one channel.
-pub fn explain_channel(d: &Data, ch: usize, settings: &Settings) -> Result<ChannelReport, ExplainError> {
+pub fn explain_channel(
+    d: &Data,
+    ch: usize,
+    settings: &Settings,
+) -> Result<ChannelReport, ExplainError> {
     let (base_cols, baseline) = baseline_columns(d, ch);
     let mut model = Model { cols: base_cols };
     let folds = fit::folds(d.rows());
@@ -244,7 +268,12 @@ pub fn explain_channel(d: &Data, ch: usize, settings: &Settings) -> Result<Chann
     let mut d = d.clone();
     {
         let c = &mut d.channels[ch];
-        for ((p, m), r) in c.position_est_um.iter_mut().zip(&c.meas_um).zip(&base_fit.residuals) {
+        for ((p, m), r) in c
+            .position_est_um
+            .iter_mut()
+            .zip(&c.meas_um)
+            .zip(&base_fit.residuals)
+        {
             *p = if r.is_finite() { m - r } else { *m };
         }
     }
@@ -271,27 +300,60 @@ pub fn explain_channel(d: &Data, ch: usize, settings: &Settings) -> Result<Chann
             }
             let (theta, regs, f) = best_theta(d, ch, cand, &model)?;
             let k_new = k_cur + regs.len() + usize::from(theta.is_some());
-            let delta_bic = fit::bic(f.rss, f.n, k_new, n_eff) - fit::bic(cur_fit.rss, cur_fit.n, k_cur, n_eff);
-            let mut trial = Trial { name: cand.name(), theta, delta_bic, cv_rms_um: f64::NAN, folds_better: 0, passed: false };
+            let delta_bic =
+                fit::bic(f.rss, f.n, k_new, n_eff) - fit::bic(cur_fit.rss, cur_fit.n, k_cur, n_eff);
+            let mut trial = Trial {
+                name: cand.name(),
+                theta,
+                delta_bic,
+                cv_rms_um: f64::NAN,
+                folds_better: 0,
+                passed: false,
+            };
             if delta_bic < -settings.min_bic_drop {
                 let cv = fit::cross_validate(&model.with(&regs), y, &folds)?;
-                let folds_better = cv.fold_mse.iter().zip(&cur_cv.fold_mse).filter(|(a, b)| a < b).count();
+                let folds_better = cv
+                    .fold_mse
+                    .iter()
+                    .zip(&cur_cv.fold_mse)
+                    .filter(|(a, b)| a < b)
+                    .count();
                 trial.cv_rms_um = cv.rms_um;
                 trial.folds_better = folds_better;
-                trial.passed = folds_better >= settings.min_folds_better && cv.rms_um < cur_cv.rms_um * (1.0 - settings.min_rms_gain);
+                trial.passed = folds_better >= settings.min_folds_better
+                    && cv.rms_um < cur_cv.rms_um * (1.0 - settings.min_rms_gain);
                 if trial.passed {
                     // among the candidates that predict held-out data better, the information
                     // criterion picks the winner: the most evidence per parameter
                     let gain = -delta_bic;
                     if best.as_ref().is_none_or(|b| gain > b.gain) {
-                        best = Some(Best { gain, cand, theta, regs, fit: f, cv, trial: trial.clone() });
+                        best = Some(Best {
+                            gain,
+                            cand,
+                            theta,
+                            regs,
+                            fit: f,
+                            cv,
+                            trial: trial.clone(),
+                        });
                     }
                 }
             }
             trials.push(trial);
         }
         trials_all.push(trials);
-        let Some(Best { cand, theta, regs, fit: f, cv, trial, .. }) = best else { break };
+        let Some(Best {
+            cand,
+            theta,
+            regs,
+            fit: f,
+            cv,
+            trial,
+            ..
+        }) = best
+        else {
+            break;
+        };
         // parameters
         let m = model.cols.len();
         let n_eff_after = fit::round_effective_n(&f.residuals, units);
@@ -303,18 +365,44 @@ pub fn explain_channel(d: &Data, ch: usize, settings: &Settings) -> Result<Chann
             (Some(th), true) => theta_sigma(d, ch, cand, &model, th, &f, n_eff_after)?,
             _ => f64::NAN,
         };
-        let mut params: Vec<Estimate> = cand.params(d, ch, &Fitted { theta, theta_sigma: th_sigma, coeffs: &coeffs, se: &se });
+        let mut params: Vec<Estimate> = cand.params(
+            d,
+            ch,
+            &Fitted {
+                theta,
+                theta_sigma: th_sigma,
+                coeffs: &coeffs,
+                se: &se,
+            },
+        );
         // how much the model's prediction changed by adding the effect
-        let change: Vec<f64> = cur_fit.residuals.iter().zip(&f.residuals).map(|(a, b)| a - b).collect();
-        params.push(Estimate::new("contribution_rms_nm", fit::rms(&change) * 1e3, f64::NAN));
+        let change: Vec<f64> = cur_fit
+            .residuals
+            .iter()
+            .zip(&f.residuals)
+            .map(|(a, b)| a - b)
+            .collect();
+        params.push(Estimate::new(
+            "contribution_rms_nm",
+            fit::rms(&change) * 1e3,
+            f64::NAN,
+        ));
         let rms_before_um = cur_cv.rms_um;
         let grid = cand.theta_grid(d, ch);
         let edge_note = match (theta, grid.first(), grid.last()) {
             (Some(th), Some(_), Some(&hi)) if cand.continuous() && th >= hi * 0.99 => {
-                format!("; {} at the top of the searched range ({}): a lower bound", cand.theta_name().unwrap_or("θ"), sig3(hi))
+                format!(
+                    "; {} at the top of the searched range ({}): a lower bound",
+                    cand.theta_name().unwrap_or("θ"),
+                    sig3(hi)
+                )
             }
             (Some(th), Some(&lo), Some(_)) if cand.continuous() && th <= lo * 1.01 => {
-                format!("; {} at the bottom of the searched range ({}): an upper bound", cand.theta_name().unwrap_or("θ"), sig3(lo))
+                format!(
+                    "; {} at the bottom of the searched range ({}): an upper bound",
+                    cand.theta_name().unwrap_or("θ"),
+                    sig3(lo)
+                )
             }
             _ => String::new(),
         };
@@ -348,7 +436,10 @@ pub fn explain_channel(d: &Data, ch: usize, settings: &Settings) -> Result<Chann
     let mut unexplained = locate::locate(d, ch, &cur_cv.residuals, final_floor);
     // everything left well above the noise floor without a place: say so
     let final_rms = cur_cv.rms_um;
-    if unexplained.is_empty() && final_rms > 3.0 * final_floor.unit_um.max(final_floor.sample_um) && final_rms > 0.0 {
+    if unexplained.is_empty()
+        && final_rms > 3.0 * final_floor.unit_um.max(final_floor.sample_um)
+        && final_rms > 0.0
+    {
         unexplained.push(Finding {
             place: "throughout the recording (no single place)".into(),
             dimension: "all".into(),
@@ -377,11 +468,17 @@ pub fn explain_channel(d: &Data, ch: usize, settings: &Settings) -> Result<Chann
 }
 
 fn sig3(v: f64) -> String {
-    if v.abs() >= 1e4 { format!("{v:.0}") } else { format!("{v:.3}") }
+    if v.abs() >= 1e4 {
+        format!("{v:.0}")
+    } else {
+        format!("{v:.3}")
+    }
 }
 
 /// Explain every measured channel of a recording.
 pub fn explain(d: &Data, settings: &Settings) -> Result<Report, ExplainError> {
-    let channels = (0..d.channels.len()).map(|ch| explain_channel(d, ch, settings)).collect::<Result<Vec<_>, _>>()?;
+    let channels = (0..d.channels.len())
+        .map(|ch| explain_channel(d, ch, settings))
+        .collect::<Result<Vec<_>, _>>()?;
     Ok(Report { channels })
 }

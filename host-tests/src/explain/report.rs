@@ -143,7 +143,10 @@ pub fn iso_accuracy(d: &Data, ch: usize, r: &[f64]) -> Option<IsoAccuracy> {
         }
         let m = vals.iter().sum::<f64>() / vals.len() as f64;
         let dir = c.dir.as_ref().map_or(0, |dv| dv[a] as i8);
-        groups.entry(((cmd[a] * 1e3).round() as i64, dir)).or_default().push(m);
+        groups
+            .entry(((cmd[a] * 1e3).round() as i64, dir))
+            .or_default()
+            .push(m);
     }
     let (mut acc, mut rep) = (0.0f64, 0.0f64);
     for v in groups.values() {
@@ -155,14 +158,24 @@ pub fn iso_accuracy(d: &Data, ch: usize, r: &[f64]) -> Option<IsoAccuracy> {
             rep = rep.max(mad + 3.0 * sd);
         }
     }
-    Some(IsoAccuracy { max_accuracy_nm: acc * 1e3, max_repeatability_nm: rep * 1e3, poses: groups.len() })
+    Some(IsoAccuracy {
+        max_accuracy_nm: acc * 1e3,
+        max_repeatability_nm: rep * 1e3,
+        poses: groups.len(),
+    })
 }
 
 impl Report {
     /// Held-out baseline RMS over all channels, nm.
     pub fn baseline_rms_nm(&self) -> f64 {
         let n = self.channels.len().max(1) as f64;
-        (self.channels.iter().map(|c| c.baseline_rms_nm.powi(2)).sum::<f64>() / n).sqrt()
+        (self
+            .channels
+            .iter()
+            .map(|c| c.baseline_rms_nm.powi(2))
+            .sum::<f64>()
+            / n)
+            .sqrt()
     }
 
     /// All named effects over all channels.
@@ -197,12 +210,19 @@ impl Report {
             .iter()
             .flat_map(|c| {
                 c.unexplained.iter().map(move |f| JsonUnexplained {
-                    place: format!("{}: {} ({}, mean {:+.1} nm)", c.channel, f.place, f.dimension, f.mean_nm),
+                    place: format!(
+                        "{}: {} ({}, mean {:+.1} nm)",
+                        c.channel, f.place, f.dimension, f.mean_nm
+                    ),
                     rms_nm: finite(f.rms_nm),
                 })
             })
             .collect();
-        JsonReport { baseline_rms_nm: finite(self.baseline_rms_nm()), effects, unexplained }
+        JsonReport {
+            baseline_rms_nm: finite(self.baseline_rms_nm()),
+            effects,
+            unexplained,
+        }
     }
 
     /// The report for a person.
@@ -217,13 +237,21 @@ impl Report {
                 c.noise_floor.sample_um * 1e3,
                 c.noise_floor.unit_um * 1e3
             );
-            let _ = writeln!(s, "  baseline RMS: {:.1} nm held-out ({:.1} nm in-sample)", c.baseline_rms_nm, c.baseline_in_sample_rms_nm);
+            let _ = writeln!(
+                s,
+                "  baseline RMS: {:.1} nm held-out ({:.1} nm in-sample)",
+                c.baseline_rms_nm, c.baseline_in_sample_rms_nm
+            );
             if c.located.is_empty() {
                 let _ = writeln!(s, "  locate: no structure above the noise floor");
             } else {
                 let _ = writeln!(s, "  locate: structured residual");
                 for f in c.located.iter().take(10) {
-                    let _ = writeln!(s, "    - {} [{}]: mean {:+.1} nm, RMS {:.1} nm ({:.0}σ)", f.place, f.dimension, f.mean_nm, f.rms_nm, f.z);
+                    let _ = writeln!(
+                        s,
+                        "    - {} [{}]: mean {:+.1} nm, RMS {:.1} nm ({:.0}σ)",
+                        f.place, f.dimension, f.mean_nm, f.rms_nm, f.z
+                    );
                 }
             }
             if c.effects.is_empty() {
@@ -234,7 +262,13 @@ impl Report {
                 let ps: Vec<String> = e
                     .params
                     .iter()
-                    .map(|p| if p.sigma.is_finite() && p.sigma > 0.0 { format!("{} = {} ± {}", p.name, sig(p.value), sig(p.sigma)) } else { format!("{} = {}", p.name, sig(p.value)) })
+                    .map(|p| {
+                        if p.sigma.is_finite() && p.sigma > 0.0 {
+                            format!("{} = {} ± {}", p.name, sig(p.value), sig(p.sigma))
+                        } else {
+                            format!("{} = {}", p.name, sig(p.value))
+                        }
+                    })
                     .collect();
                 let _ = writeln!(s, "    parameters: {}", ps.join(", "));
                 let _ = writeln!(s, "    evidence: {}", e.evidence);
@@ -246,7 +280,13 @@ impl Report {
                     .filter(|t| !t.passed)
                     .map(|t| {
                         if t.cv_rms_um.is_finite() {
-                            format!("{} (ΔBIC {:.0}, held-out {:.1} nm, {}/5 folds)", t.name, t.delta_bic, t.cv_rms_um * 1e3, t.folds_better)
+                            format!(
+                                "{} (ΔBIC {:.0}, held-out {:.1} nm, {}/5 folds)",
+                                t.name,
+                                t.delta_bic,
+                                t.cv_rms_um * 1e3,
+                                t.folds_better
+                            )
                         } else {
                             format!("{} (ΔBIC {:+.0})", t.name, t.delta_bic)
                         }
@@ -256,7 +296,11 @@ impl Report {
                     let _ = writeln!(s, "  not supported by the data: {}", rejected.join("; "));
                 }
             }
-            let _ = writeln!(s, "  RMS held-out: before {:.1} nm → after {:.1} nm", c.baseline_rms_nm, c.final_rms_nm);
+            let _ = writeln!(
+                s,
+                "  RMS held-out: before {:.1} nm → after {:.1} nm",
+                c.baseline_rms_nm, c.final_rms_nm
+            );
             if let (Some(b), Some(a)) = (c.iso_before, c.iso_after) {
                 let _ = writeln!(
                     s,
@@ -269,7 +313,11 @@ impl Report {
             } else {
                 let _ = writeln!(s, "  unexplained (no candidate explains it):");
                 for f in &c.unexplained {
-                    let _ = writeln!(s, "    - {} [{}]: RMS {:.1} nm, mean {:+.1} nm", f.place, f.dimension, f.rms_nm, f.mean_nm);
+                    let _ = writeln!(
+                        s,
+                        "    - {} [{}]: RMS {:.1} nm, mean {:+.1} nm",
+                        f.place, f.dimension, f.rms_nm, f.mean_nm
+                    );
                 }
             }
         }
@@ -278,7 +326,11 @@ impl Report {
 }
 
 fn finite(v: f64) -> f64 {
-    if v.is_finite() { v } else { 0.0 }
+    if v.is_finite() {
+        v
+    } else {
+        0.0
+    }
 }
 
 fn sig(v: f64) -> String {

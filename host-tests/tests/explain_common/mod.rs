@@ -20,7 +20,11 @@ pub fn draw(r: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
 
 /// Random sign.
 pub fn sign(r: &mut ChaCha8Rng) -> f64 {
-    if r.gen_bool(0.5) { 1.0 } else { -1.0 }
+    if r.gen_bool(0.5) {
+        1.0
+    } else {
+        -1.0
+    }
 }
 
 /// Simulate `traj` on a twin with `cfg` (room realised from `seed`).
@@ -48,12 +52,19 @@ pub fn effect<'a>(rep: &'a Report, ch: &str, name: &str) -> Option<&'a EffectRep
 
 /// A parameter value of an effect.
 pub fn param(e: &EffectReport, name: &str) -> f64 {
-    e.params.iter().find(|p| p.name == name).unwrap_or_else(|| panic!("{} has no parameter {name}", e.name)).value
+    e.params
+        .iter()
+        .find(|p| p.name == name)
+        .unwrap_or_else(|| panic!("{} has no parameter {name}", e.name))
+        .value
 }
 
 /// The channel report for `ch`.
 pub fn channel<'a>(rep: &'a Report, ch: &str) -> &'a ChannelReport {
-    rep.channels.iter().find(|c| c.channel == ch).expect("channel exists")
+    rep.channels
+        .iter()
+        .find(|c| c.channel == ch)
+        .expect("channel exists")
 }
 
 /// Standard 1-DoF training recording (published trajectory, 60 s dwells, `cycles` cycles).
@@ -61,7 +72,11 @@ pub fn training_1dof(effects: Vec<EffectSpec>, cycles: usize, seed: u64) -> Colu
     let mut cfg = TwinConfig::published_1dof();
     cfg.record_pressure = true;
     cfg.effects = effects;
-    simulate(cfg, &Trajectory::published_training_1dof(60.0, cycles), seed)
+    simulate(
+        cfg,
+        &Trajectory::published_training_1dof(60.0, cycles),
+        seed,
+    )
 }
 
 /// 2-DoF grid recording (20 s dwells, 3 cycles).
@@ -78,12 +93,20 @@ pub fn assert_names(rep: &Report, expected: &[&str], what: &str) {
     got.dedup();
     let mut want = expected.to_vec();
     want.sort_unstable();
-    assert_eq!(got, want, "{what}: named {got:?}, expected {want:?}\n{}", rep.to_text());
+    assert_eq!(
+        got,
+        want,
+        "{what}: named {got:?}, expected {want:?}\n{}",
+        rep.to_text()
+    );
 }
 
 /// Assert |found − truth| ≤ rel·|truth| + abs.
 pub fn assert_close(found: f64, truth: f64, rel: f64, abs: f64, what: &str) {
-    assert!((found - truth).abs() <= rel * truth.abs() + abs, "{what}: found {found}, truth {truth} (tolerance {rel}·|truth| + {abs})");
+    assert!(
+        (found - truth).abs() <= rel * truth.abs() + abs,
+        "{what}: found {found}, truth {truth} (tolerance {rel}·|truth| + {abs})"
+    );
 }
 
 /// A lively lab (HVAC ±0.05 °C, daily ±0.3 °C) read by three fast sensors (60–600 s behind the

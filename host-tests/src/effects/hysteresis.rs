@@ -60,4 +60,23 @@ impl super::Candidate for Candidate {
             super::Estimate::new("slope_nm", f.coeffs[1] * 1e3, f.se[1] * 1e3),
         ]
     }
+    fn blob_terms(
+        &self,
+        ctx: &super::BlobContext,
+        _theta: Option<f64>,
+    ) -> Option<super::BlobTerms> {
+        let dir = ctx.output + 1;
+        Some(super::BlobTerms {
+            lags: Vec::new(),
+            terms: vec![
+                super::term(ctx.output, [0; 3], nanocal_model::Factor::None, dir),
+                super::term(
+                    ctx.output,
+                    super::powers(ctx.output, 1),
+                    nanocal_model::Factor::None,
+                    dir,
+                ),
+            ],
+        })
+    }
 }

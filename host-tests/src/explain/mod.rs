@@ -421,6 +421,7 @@ pub fn explain_channel(
             channel: d.channels[ch].name.clone(),
             description: cand.description(),
             deploy: cand.deploy(),
+            blob: cand.blob_terms(&blob_context(d, ch), theta),
             params,
             rms_before_nm: rms_before_um * 1e3,
             rms_after_nm: cv.rms_um * 1e3,
@@ -472,6 +473,20 @@ fn sig3(v: f64) -> String {
         format!("{v:.0}")
     } else {
         format!("{v:.3}")
+    }
+}
+
+/// Where channel `ch` sits in a shared model built from this recording.
+pub fn blob_context(d: &Data, ch: usize) -> crate::effects::BlobContext {
+    crate::effects::BlobContext {
+        output: ch as u8,
+        axes: d.channels.len() as u8,
+        temps: d.temps.len().min(nanocal_model::MAX_TEMPS) as u8,
+        pressure_aux: d
+            .pressure_hpa
+            .as_ref()
+            .and_then(|(name, _)| d.aux.iter().position(|a| &a.0 == name))
+            .map(|i| i as u8),
     }
 }
 

@@ -21,6 +21,8 @@ pub struct EffectReport {
     pub description: &'static str,
     /// Where the compensator can run it.
     pub deploy: &'static str,
+    /// The shared-model terms (and lag filters) that carry it into the blob, if deployable.
+    pub blob: Option<crate::effects::BlobTerms>,
     /// Physical parameters with 1σ.
     pub params: Vec<Estimate>,
     /// Held-out RMS before adding the effect, nm.
@@ -273,6 +275,14 @@ impl Report {
                 let _ = writeln!(s, "    parameters: {}", ps.join(", "));
                 let _ = writeln!(s, "    evidence: {}", e.evidence);
                 let _ = writeln!(s, "    compensator: {}", e.deploy);
+                if let Some(b) = &e.blob {
+                    let _ = writeln!(
+                        s,
+                        "    blob: {} term shape(s), {} lag filter(s) to fit into the shared model",
+                        b.terms.len(),
+                        b.lags.len()
+                    );
+                }
             }
             if let Some(last) = c.trials.last() {
                 let rejected: Vec<String> = last

@@ -51,6 +51,8 @@ fn a_defect_at_one_position_is_unexplained_and_located() {
             }
         }
         let rep = explain_columns(cols);
+        // not forced into a name
+        assert_names(&rep, &[], "defect at one pose");
         let c = channel(&rep, "x");
         assert!(
             c.unexplained.iter().any(|f| f.place.contains("240")),

@@ -23,7 +23,7 @@ pub struct ExplainArgs {
     #[arg(long)]
     pub plots: Option<PathBuf>,
     /// Minimum BIC drop for an effect to be named.
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = 20.0)]
     pub min_bic_drop: f64,
 }
 

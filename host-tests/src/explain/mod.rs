@@ -58,7 +58,7 @@ pub struct Settings {
 impl Default for Settings {
     fn default() -> Self {
         Self {
-            min_bic_drop: 10.0,
+            min_bic_drop: 20.0,
             min_rms_gain: 0.01,
             min_folds_better: 4,
             max_effects: 4,

@@ -95,6 +95,26 @@ impl Data {
                 ExplainError::Input("expected a time column `t` (s), found none".into())
             })?
             .to_vec();
+        for name in rec.names() {
+            if let Some(i) = rec
+                .column(name)
+                .and_then(|c| c.iter().position(|v| !v.is_finite()))
+            {
+                return Err(ExplainError::Input(format!(
+                    "column `{name}`, data row {}: expected a finite number, found {}",
+                    i + 1,
+                    rec.column(name).map_or(f64::NAN, |c| c[i])
+                )));
+            }
+        }
+        if let Some(i) = t_s.windows(2).position(|w| w[1] <= w[0]) {
+            return Err(ExplainError::Input(format!(
+                "column `t`, data row {}: expected time to increase, found {} after {}",
+                i + 2,
+                t_s[i + 1],
+                t_s[i]
+            )));
+        }
         if let Some(s) = sim {
             if s.rows() != n {
                 return Err(ExplainError::Input(format!(

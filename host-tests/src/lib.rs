@@ -4,4 +4,10 @@ pub use nanocal_model as model;
 
 pub mod cli;
 pub mod device;
+pub mod effects;
+pub mod linalg;
 pub mod published;
+pub mod recording;
+pub mod stats;
+pub mod stepwise;
+pub mod twin;

@@ -12,6 +12,10 @@ struct Cli {
 enum Command {
     /// Print the build's limits of the shared model (axes, temperatures, terms).
     Limits,
+    /// Stepwise regression (MATLAB stepwisefit semantics) on the columns of a CSV file.
+    Stepwise(nanocal::cli::stepwise::StepwiseArgs),
+    /// Run the digital twin and write a simulated recording (CSV).
+    Simulate(nanocal::cli::simulate::SimulateArgs),
     /// The inline compensator: upload a model, status, KMZ, bypass.
     #[command(subcommand)]
     Device(nanocal::cli::device::DeviceCommand),
@@ -23,6 +27,8 @@ fn main() -> anyhow::Result<()> {
             println!("nanocal-model {}", env!("CARGO_PKG_VERSION"));
             Ok(())
         }
+        Command::Stepwise(a) => nanocal::cli::stepwise::run(a),
+        Command::Simulate(a) => nanocal::cli::simulate::run(a),
         Command::Device(cmd) => nanocal::cli::device::run(cmd),
     }
 }

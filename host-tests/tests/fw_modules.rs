@@ -39,7 +39,10 @@ fn numbers_parse_like_gcs_writes_them() {
         ("0.000100", 1e-4),
     ] {
         let got = gcs::parse_f64(s.as_bytes()).unwrap();
-        assert!((got - v).abs() <= 4.0 * f64::EPSILON * v.abs(), "{s}: {got}");
+        assert!(
+            (got - v).abs() <= 4.0 * f64::EPSILON * v.abs(),
+            "{s}: {got}"
+        );
     }
     for s in ["", "-", "1.2.3", "abc", "1e", "1e1234", "--1", "1 "] {
         assert!(gcs::parse_f64(s.as_bytes()).is_err(), "{s}");

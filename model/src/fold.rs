@@ -34,6 +34,9 @@ pub struct Fold {
     envelope_min_um: [f32; MAX_AXES],
     envelope_max_um: [f32; MAX_AXES],
     max_power: [u8; MAX_AXES],
+    /// Constant part of δ per axis, added after the small terms: summing those onto a large
+    /// constant would round each partial sum at the constant's magnitude.
+    constant_um: [f32; MAX_AXES],
     terms: [FastTerm; FAST_CAPACITY],
     n_terms: u16,
     slow_flags: u16,
@@ -83,8 +86,9 @@ impl Model {
             envelope_min_um: [f32::NEG_INFINITY; MAX_AXES],
             envelope_max_um: [f32::INFINITY; MAX_AXES],
             max_power: [0; MAX_AXES],
+            constant_um: [0.0; MAX_AXES],
             terms: acc.terms,
-            n_terms: acc.len as u16,
+            n_terms: 0,
             slow_flags: self.slow_envelope_flags(slow).0,
         };
         for a in 0..self.axes() {
@@ -95,7 +99,13 @@ impl Model {
             fold.envelope_min_um[a] = min as f32;
             fold.envelope_max_um[a] = max as f32;
         }
-        for t in &fold.terms[..acc.len] {
+        for (i, t) in acc.terms[..acc.len].iter().enumerate() {
+            if t.powers == [0; MAX_AXES] && t.direction == 0 {
+                fold.constant_um[t.output as usize] = acc.coeffs[i] as f32;
+                continue;
+            }
+            fold.terms[fold.n_terms as usize] = *t;
+            fold.n_terms += 1;
             for a in 0..MAX_AXES {
                 fold.max_power[a] = fold.max_power[a].max(t.powers[a]);
             }
@@ -166,7 +176,7 @@ impl Fold {
         self.slow_flags
     }
 
-    /// Number of monomials the fast path evaluates.
+    /// Number of non-constant monomials the fast path evaluates.
     pub fn fast_terms(&self) -> usize {
         self.n_terms as usize
     }
@@ -188,7 +198,7 @@ impl Fold {
                 t.coeff * monomial(&pows, t.powers) * sign_of(&sign, t.direction);
         }
         for a in 0..self.axes() {
-            q_um[a] += x_um[a];
+            q_um[a] = (q_um[a] + self.constant_um[a]) + x_um[a];
         }
         Correction {
             q_um,
@@ -214,7 +224,7 @@ impl Fold {
             let mut residual = [0.0f32; MAX_AXES];
             let mut jacobian = [[0.0f32; MAX_AXES]; MAX_AXES];
             for a in 0..n {
-                residual[a] = x[a] - q_um[a];
+                residual[a] = (x[a] - q_um[a]) + self.constant_um[a];
                 jacobian[a][a] = 1.0;
             }
             for t in &self.terms[..self.n_terms as usize] {

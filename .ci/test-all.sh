@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# Every test nanocal has, from a fresh Debian machine with rustup: installs what it needs,
+# builds the firmware, lints both workspaces, runs the host tests (model, blob, host tools).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+root=$(pwd)
+step() { printf '\n==> %s\n' "$*"; }
+
+step "toolchain"
+rustup component add clippy rustfmt >/dev/null 2>&1 || true
+rustup target add thumbv7em-none-eabihf
+
+step "host workspace: format and lints"
+cd "$root/host-tests"
+cargo fmt --all --check
+cargo clippy --all-targets -- -D warnings
+
+step "shared model builds for the firmware target (no_std, with and without defmt)"
+cargo clippy -p nanocal-model --target thumbv7em-none-eabihf -- -D warnings
+cargo clippy -p nanocal-model --target thumbv7em-none-eabihf --features defmt -- -D warnings
+
+step "fuzz target builds (run it with cargo +nightly fuzz run decode_blob in model/)"
+cd "$root/model/fuzz"
+cargo build --quiet --target "$(rustc -vV | sed -n 's/^host: //p')"
+
+step "host prerequisites (GNU Octave for the differential stepwise test)"
+bash "$root/.ci/host.sh"
+
+step "host tests"
+cd "$root/host-tests"
+cargo test --no-fail-fast

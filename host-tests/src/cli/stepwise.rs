@@ -1,0 +1,193 @@
+//! `nanocal stepwise`: MATLAB-semantics stepwise regression on the columns of a CSV file.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context};
+use clap::Args;
+
+use crate::recording::Recording;
+use crate::stepwise::{stepwise, Action, StepwiseOptions, StepwiseResult};
+
+/// Stepwise linear regression with MATLAB `stepwisefit` semantics: every numeric column other
+/// than the response (and `t`, unless `--with-time`) is a candidate term; the intercept is
+/// always in the model.
+#[derive(Args, Debug)]
+pub struct StepwiseArgs {
+    /// CSV file (header row, one row per sample).
+    pub file: PathBuf,
+    /// Name of the response column.
+    #[arg(long)]
+    pub response: String,
+    /// p-value to enter a term (MATLAB default 0.05).
+    #[arg(long)]
+    pub penter: Option<f64>,
+    /// p-value to remove a term (default max(penter, 0.10)).
+    #[arg(long)]
+    pub premove: Option<f64>,
+    /// Maximum number of steps.
+    #[arg(long)]
+    pub maxiter: Option<usize>,
+    /// Columns in the initial model (names, comma separated).
+    #[arg(long, value_delimiter = ',')]
+    pub inmodel: Vec<String>,
+    /// Columns whose status never changes (names, comma separated).
+    #[arg(long, value_delimiter = ',')]
+    pub keep: Vec<String>,
+    /// Also use the time column `t` as a candidate.
+    #[arg(long)]
+    pub with_time: bool,
+    /// Write the full result (b, se, pval, inmodel, history, ...) as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+/// Runs `nanocal stepwise`.
+pub fn run(args: StepwiseArgs) -> anyhow::Result<()> {
+    let rec = Recording::read_path(&args.file)?;
+    let y = rec.require(&args.response)?;
+    let names: Vec<String> = rec
+        .names()
+        .iter()
+        .filter(|n| **n != args.response && (args.with_time || n.as_str() != "t"))
+        .cloned()
+        .collect();
+    if names.is_empty() {
+        bail!(
+            "{}: expected at least one candidate column besides `{}`",
+            args.file.display(),
+            args.response
+        );
+    }
+    let x: Vec<&[f64]> = names
+        .iter()
+        .map(|n| rec.column(n).expect("listed"))
+        .collect();
+    let index_of = |what: &str, list: &[String]| -> anyhow::Result<Vec<usize>> {
+        list.iter()
+            .map(|n| {
+                names.iter().position(|c| c == n).with_context(|| {
+                    format!(
+                        "--{what}: column `{n}` is not a candidate; candidates: {}",
+                        names.join(", ")
+                    )
+                })
+            })
+            .collect()
+    };
+    let opts = StepwiseOptions {
+        penter: args.penter,
+        premove: args.premove,
+        maxiter: args.maxiter,
+        inmodel: index_of("inmodel", &args.inmodel)?,
+        keep: index_of("keep", &args.keep)?,
+        threads: None,
+    };
+    let res = stepwise(&x, y, &opts)?;
+    print!("{}", table(&names, &res, &opts));
+    if let Some(path) = &args.json {
+        let json = to_json(&names, &args.response, &res);
+        std::fs::write(path, serde_json::to_string_pretty(&json)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
+}
+
+fn listed(names: &[String], mask: &[bool]) -> String {
+    let v: Vec<&str> = names
+        .iter()
+        .zip(mask)
+        .filter(|(_, m)| **m)
+        .map(|(n, _)| n.as_str())
+        .collect();
+    if v.is_empty() {
+        "none".into()
+    } else {
+        v.join(" ")
+    }
+}
+
+/// The MATLAB-like report: steps, then the coefficient table and the model statistics.
+#[allow(clippy::needless_range_loop)]
+pub fn table(names: &[String], res: &StepwiseResult, opts: &StepwiseOptions) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let mut init = vec![false; names.len()];
+    opts.inmodel.iter().for_each(|&i| init[i] = true);
+    let _ = writeln!(s, "Initial columns included: {}", listed(names, &init));
+    for (k, st) in res.history.iter().enumerate() {
+        let (what, j) = match st.action {
+            Action::Added(j) => ("added", j),
+            Action::Removed(j) => ("removed", j),
+        };
+        let _ = writeln!(
+            s,
+            "Step {}, {what} column {} ({}), p={:.6e}",
+            k + 1,
+            j + 1,
+            names[j],
+            st.p
+        );
+    }
+    let _ = writeln!(s, "Final columns included: {}", listed(names, &res.inmodel));
+    let w = names.iter().map(|n| n.len()).max().unwrap_or(6).max(6);
+    let _ = writeln!(
+        s,
+        "{:>w$} {:>14} {:>14} {:>6} {:>14}",
+        "", "Coeff", "Std.Err.", "Status", "P"
+    );
+    for j in 0..names.len() {
+        let _ = writeln!(
+            s,
+            "{:>w$} {:>14.6e} {:>14.6e} {:>6} {:>14.6e}",
+            names[j],
+            res.b[j],
+            res.se[j],
+            if res.inmodel[j] { "In" } else { "Out" },
+            res.pval[j]
+        );
+    }
+    let _ = writeln!(
+        s,
+        "intercept {:.6}  RMSE {:.6}  R² {:.6}  F {:.6} (p {:.4e})  dfe {}  n {}",
+        res.intercept, res.rmse, res.r_squared, res.fstat, res.fpval, res.dfe, res.rows_used
+    );
+    s
+}
+
+fn num(v: f64) -> serde_json::Value {
+    if v.is_finite() {
+        serde_json::json!(v)
+    } else {
+        serde_json::Value::Null
+    }
+}
+
+/// The result as JSON (NaN/∞ as null; column indices 1-based as in the Octave oracle).
+pub fn to_json(names: &[String], response: &str, res: &StepwiseResult) -> serde_json::Value {
+    let nums = |v: &[f64]| serde_json::Value::Array(v.iter().map(|&x| num(x)).collect());
+    let history: Vec<serde_json::Value> = res
+        .history
+        .iter()
+        .enumerate()
+        .map(|(k, st)| {
+            let (act, j) = match st.action {
+                Action::Added(j) => ("add", j),
+                Action::Removed(j) => ("remove", j),
+            };
+            serde_json::json!({"step": k + 1, "action": act, "idx": j + 1, "name": names[j], "p": num(st.p),
+                "rmse": num(st.rmse), "df0": st.df0,
+                "inmodel_idx": (0..names.len()).filter(|&i| st.inmodel[i]).map(|i| i + 1).collect::<Vec<_>>()})
+        })
+        .collect();
+    serde_json::json!({
+        "header": names, "response": response, "n_used": res.rows_used,
+        "inmodel": res.inmodel,
+        "selected": names.iter().zip(&res.inmodel).filter(|(_, m)| **m).map(|(n, _)| n.clone()).collect::<Vec<_>>(),
+        "selected_idx": (0..names.len()).filter(|&i| res.inmodel[i]).map(|i| i + 1).collect::<Vec<_>>(),
+        "b": nums(&res.b), "se": nums(&res.se), "pval": nums(&res.pval), "tstat": nums(&res.tstat),
+        "intercept": num(res.intercept), "rmse": num(res.rmse), "r2": num(res.r_squared),
+        "fstat": num(res.fstat), "model_pval": num(res.fpval), "dfe": res.dfe, "df0": res.df0,
+        "SStotal": num(res.ss_total), "SSresid": num(res.ss_resid),
+        "nextstep": res.nextstep.map_or(0, |j| j + 1), "history": history,
+    })
+}

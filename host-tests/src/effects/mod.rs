@@ -1,0 +1,125 @@
+#![allow(clippy::needless_range_loop)] // index loops over several parallel series read clearer here
+//! The effect library: each physical effect defined once, in one file, with everything that
+//! belongs to it — how the digital twin produces it, which regressors and nonlinear parameters
+//! explain it, its plain-words name and description, and which shared-model terms carry it into
+//! the blob where the firmware can run it. Adding an effect is adding one file and one entry in
+//! [`EffectSpec`] and [`candidates`].
+
+pub mod air_refraction;
+pub mod axis_coupling;
+pub mod creep;
+pub mod geometric_order;
+pub mod hysteresis;
+pub mod periodic_nonlinearity;
+pub mod thermal_lag;
+pub mod thermal_position_interaction;
+pub mod unexplained_drift;
+
+use serde::{Deserialize, Serialize};
+
+use crate::twin::SimContext;
+
+/// The names of the nine effects, as reports and JSON spell them.
+pub const NAMES: [&str; 9] = [
+    thermal_lag::NAME,
+    hysteresis::NAME,
+    creep::NAME,
+    thermal_position_interaction::NAME,
+    air_refraction::NAME,
+    geometric_order::NAME,
+    axis_coupling::NAME,
+    periodic_nonlinearity::NAME,
+    unexplained_drift::NAME,
+];
+
+/// A switched-on effect with its physical parameters, as the twin produces it.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(tag = "name", rename_all = "snake_case")]
+pub enum EffectSpec {
+    /// See [`thermal_lag`].
+    ThermalLag(thermal_lag::Params),
+    /// See [`hysteresis`].
+    Hysteresis(hysteresis::Params),
+    /// See [`creep`].
+    Creep(creep::Params),
+    /// See [`thermal_position_interaction`].
+    ThermalPositionInteraction(thermal_position_interaction::Params),
+    /// See [`air_refraction`].
+    AirRefraction(air_refraction::Params),
+    /// See [`geometric_order`].
+    GeometricOrder(geometric_order::Params),
+    /// See [`axis_coupling`].
+    AxisCoupling(axis_coupling::Params),
+    /// See [`periodic_nonlinearity`].
+    PeriodicNonlinearity(periodic_nonlinearity::Params),
+    /// See [`unexplained_drift`].
+    UnexplainedDrift(unexplained_drift::Params),
+}
+
+impl EffectSpec {
+    /// The effect's name (one of [`NAMES`]).
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::ThermalLag(_) => thermal_lag::NAME,
+            Self::Hysteresis(_) => hysteresis::NAME,
+            Self::Creep(_) => creep::NAME,
+            Self::ThermalPositionInteraction(_) => thermal_position_interaction::NAME,
+            Self::AirRefraction(_) => air_refraction::NAME,
+            Self::GeometricOrder(_) => geometric_order::NAME,
+            Self::AxisCoupling(_) => axis_coupling::NAME,
+            Self::PeriodicNonlinearity(_) => periodic_nonlinearity::NAME,
+            Self::UnexplainedDrift(_) => unexplained_drift::NAME,
+        }
+    }
+
+    /// True when the effect acts on the interferometer reading rather than on the stage.
+    pub fn is_interferometer(&self) -> bool {
+        matches!(self, Self::AirRefraction(_) | Self::PeriodicNonlinearity(_))
+    }
+
+    /// The twin's production: an additive error per axis and sample, µm.
+    pub fn produce(&self, ctx: &SimContext) -> Vec<Vec<f64>> {
+        match self {
+            Self::ThermalLag(p) => p.produce(ctx),
+            Self::Hysteresis(p) => p.produce(ctx),
+            Self::Creep(p) => p.produce(ctx),
+            Self::ThermalPositionInteraction(p) => p.produce(ctx),
+            Self::AirRefraction(p) => p.produce(ctx),
+            Self::GeometricOrder(p) => p.produce(ctx),
+            Self::AxisCoupling(p) => p.produce(ctx),
+            Self::PeriodicNonlinearity(p) => p.produce(ctx),
+            Self::UnexplainedDrift(p) => p.produce(ctx),
+        }
+    }
+}
+
+/// First-order lag (time constant `tau_s`) of a sampled series, exact for a held input between
+/// samples; starts at `y0` (or the first sample).
+pub fn lag_series(t_s: &[f64], x: &[f64], tau_s: f64, y0: Option<f64>) -> Vec<f64> {
+    let mut out = Vec::with_capacity(x.len());
+    let mut y = y0.unwrap_or_else(|| x.first().copied().unwrap_or(0.0));
+    let mut last_dt = f64::NAN;
+    let mut a = 0.0;
+    for k in 0..x.len() {
+        if k > 0 {
+            let dt = t_s[k] - t_s[k - 1];
+            if dt != last_dt {
+                a = if tau_s > 0.0 {
+                    1.0 - (-dt / tau_s).exp()
+                } else {
+                    1.0
+                };
+                last_dt = dt;
+            }
+            y += a * (x[k] - y);
+        } else if tau_s <= 0.0 {
+            y = x[0];
+        }
+        out.push(y);
+    }
+    out
+}
+
+pub(crate) fn zeros(ctx: &SimContext) -> Vec<Vec<f64>> {
+    vec![vec![0.0; ctx.t_s.len()]; ctx.cfg.axes]
+}

@@ -1,0 +1,585 @@
+//! Recordings in the shared CSV layout (`../shared/README.md`).
+//!
+//! A recording is a header row followed by one row per sample. Columns are recognised by their
+//! name prefix ([`ColumnRole`]): `t` (time, s), `cmd_<axis>` (command sent to the stage, µm),
+//! `meas_<axis>` (external reference measurement, µm), `temp_<name>` (°C) and anything else as
+//! an auxiliary channel. Extra columns are always accepted.
+//!
+//! Storage is columnar (`Vec<f64>` per column). The reader is a hand-written, allocation-light
+//! parser (exact decimal → `f64` conversion through a fast path for short decimals, falling back
+//! to the standard library otherwise) and reports a missing or non-numeric value with its line
+//! (1-based, counting the header as line 1) and column (1-based, with the column's name).
+//!
+//! ```
+//! use nanocal::recording::Recording;
+//! let rec = Recording::parse(b"t,cmd_x,meas_x,temp_a\n0,0,0.1,22.0\n1,30,30.2,22.1\n").unwrap();
+//! assert_eq!(rec.rows(), 2);
+//! assert_eq!(rec.axes(), vec!["x".to_string()]);
+//! assert_eq!(rec.meas("x").unwrap(), &[0.1, 30.2]);
+//! ```
+
+use std::fmt::Write as _;
+use std::io::{self, Write};
+use std::path::{Path, PathBuf};
+
+/// Errors reading or building a recording.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordingError {
+    /// The file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The underlying error.
+        source: io::Error,
+    },
+    /// The input has no header row.
+    #[error("line 1: expected a header row with column names, found an empty file")]
+    Empty,
+    /// A header name is empty or repeated.
+    #[error("line 1, column {column}: {problem}")]
+    BadHeader {
+        /// 1-based column.
+        column: usize,
+        /// What is wrong.
+        problem: String,
+    },
+    /// A row has fewer values than the header has columns, or an empty value.
+    #[error("line {line}, column {column} (`{name}`): expected a number, found nothing")]
+    MissingValue {
+        /// 1-based line (the header is line 1).
+        line: usize,
+        /// 1-based column.
+        column: usize,
+        /// The column's name.
+        name: String,
+    },
+    /// A value is not a number.
+    #[error("line {line}, column {column} (`{name}`): expected a number, found `{found}`")]
+    NotNumeric {
+        /// 1-based line (the header is line 1).
+        line: usize,
+        /// 1-based column.
+        column: usize,
+        /// The column's name.
+        name: String,
+        /// The offending text (truncated to 40 characters).
+        found: String,
+    },
+    /// A row has more values than the header has columns.
+    #[error("line {line}: expected {expected} values as in the header, found more")]
+    TooManyValues {
+        /// 1-based line.
+        line: usize,
+        /// Number of header columns.
+        expected: usize,
+    },
+    /// A column the caller needs is not in the recording.
+    #[error("column `{name}` not found; the recording has: {available}")]
+    MissingColumn {
+        /// The requested column.
+        name: String,
+        /// Comma-separated list of the columns present.
+        available: String,
+    },
+    /// Columns of different lengths were given to [`Recording::from_columns`].
+    #[error("column `{name}` has {found} rows, expected {expected}")]
+    LengthMismatch {
+        /// The column.
+        name: String,
+        /// Rows of the first column.
+        expected: usize,
+        /// Rows of this column.
+        found: usize,
+    },
+}
+
+/// What a column means, from its name (shared recording layout).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ColumnRole {
+    /// `t`: time since start, s.
+    Time,
+    /// `cmd_<axis>`: the command sent to the stage controller, µm.
+    Cmd(String),
+    /// `meas_<axis>`: the external reference measurement, µm.
+    Meas(String),
+    /// `temp_<name>`: a temperature sensor, °C.
+    Temp(String),
+    /// Anything else: an auxiliary channel.
+    Aux(String),
+}
+
+impl ColumnRole {
+    /// The role of a column with this name.
+    pub fn of(name: &str) -> ColumnRole {
+        if name == "t" {
+            ColumnRole::Time
+        } else if let Some(a) = name.strip_prefix("cmd_") {
+            ColumnRole::Cmd(a.to_string())
+        } else if let Some(a) = name.strip_prefix("meas_") {
+            ColumnRole::Meas(a.to_string())
+        } else if let Some(a) = name.strip_prefix("temp_") {
+            ColumnRole::Temp(a.to_string())
+        } else {
+            ColumnRole::Aux(name.to_string())
+        }
+    }
+}
+
+/// A recording: named columns of equal length, stored column by column.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Recording {
+    names: Vec<String>,
+    columns: Vec<Vec<f64>>,
+    rows: usize,
+}
+
+impl Recording {
+    /// An empty recording with no columns and no rows.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Builds a recording from named columns, which must all have the same length and unique names.
+    pub fn from_columns(columns: Vec<(String, Vec<f64>)>) -> Result<Self, RecordingError> {
+        let mut rec = Recording::new();
+        for (name, data) in columns {
+            rec.push_column(name, data)?;
+        }
+        Ok(rec)
+    }
+
+    /// Appends a column (same length as the others, unique name).
+    pub fn push_column(
+        &mut self,
+        name: impl Into<String>,
+        data: Vec<f64>,
+    ) -> Result<(), RecordingError> {
+        let name = name.into();
+        if name.is_empty() || self.names.contains(&name) {
+            return Err(RecordingError::BadHeader {
+                column: self.names.len() + 1,
+                problem: format!("column name `{name}` is empty or repeated"),
+            });
+        }
+        if self.columns.is_empty() {
+            self.rows = data.len();
+        } else if data.len() != self.rows {
+            return Err(RecordingError::LengthMismatch {
+                name,
+                expected: self.rows,
+                found: data.len(),
+            });
+        }
+        self.names.push(name);
+        self.columns.push(data);
+        Ok(())
+    }
+
+    /// Reads a CSV file in the shared layout.
+    pub fn read_path(path: impl AsRef<Path>) -> Result<Self, RecordingError> {
+        let path = path.as_ref();
+        let bytes = std::fs::read(path).map_err(|source| RecordingError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::parse(&bytes)
+    }
+
+    /// Parses CSV bytes in the shared layout (header row, comma separated, `\n` or `\r\n` line ends;
+    /// blank lines are skipped; spaces around values are ignored).
+    pub fn parse(bytes: &[u8]) -> Result<Self, RecordingError> {
+        let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
+        // header
+        let mut pos = 0;
+        let mut line_no = 1usize;
+        let header_end = memchr_nl(bytes, 0);
+        let header = trim_cr(&bytes[..header_end]);
+        if header.iter().all(|b| b.is_ascii_whitespace()) {
+            return Err(RecordingError::Empty);
+        }
+        let mut names: Vec<String> = Vec::new();
+        for (i, field) in header.split(|&b| b == b',').enumerate() {
+            let name = String::from_utf8_lossy(trim(field)).into_owned();
+            let name = name.trim_matches('"').to_string();
+            if name.is_empty() || names.contains(&name) {
+                return Err(RecordingError::BadHeader {
+                    column: i + 1,
+                    problem: if name.is_empty() {
+                        "expected a column name, found nothing".into()
+                    } else {
+                        format!("column name `{name}` is repeated")
+                    },
+                });
+            }
+            names.push(name);
+        }
+        pos = pos.max(header_end + 1);
+        let ncol = names.len();
+        // estimate rows to reserve
+        let est_rows = if header_end > 0 {
+            (bytes.len() / (header_end + 1)).max(16)
+        } else {
+            16
+        };
+        let mut columns: Vec<Vec<f64>> = (0..ncol).map(|_| Vec::with_capacity(est_rows)).collect();
+        while pos < bytes.len() {
+            line_no += 1;
+            let end = memchr_nl(bytes, pos);
+            let line = trim_cr(&bytes[pos..end]);
+            pos = end + 1;
+            if line.iter().all(|&b| b == b' ' || b == b'\t') {
+                continue;
+            }
+            let mut start = 0;
+            for (c, col) in columns.iter_mut().enumerate() {
+                if start > line.len() {
+                    return Err(RecordingError::MissingValue {
+                        line: line_no,
+                        column: c + 1,
+                        name: names[c].clone(),
+                    });
+                }
+                let rest = &line[start..];
+                let len = rest.iter().position(|&b| b == b',').unwrap_or(rest.len());
+                let field = &rest[..len];
+                start += len + 1;
+                match parse_f64(field) {
+                    Some(v) => col.push(v),
+                    None => {
+                        let t = trim(field);
+                        return Err(if t.is_empty() {
+                            RecordingError::MissingValue {
+                                line: line_no,
+                                column: c + 1,
+                                name: names[c].clone(),
+                            }
+                        } else {
+                            let mut found = String::from_utf8_lossy(t).into_owned();
+                            if found.len() > 40 {
+                                let mut cut = 40;
+                                while !found.is_char_boundary(cut) {
+                                    cut -= 1;
+                                }
+                                found.truncate(cut);
+                            }
+                            RecordingError::NotNumeric {
+                                line: line_no,
+                                column: c + 1,
+                                name: names[c].clone(),
+                                found,
+                            }
+                        });
+                    }
+                }
+            }
+            if start <= line.len() {
+                return Err(RecordingError::TooManyValues {
+                    line: line_no,
+                    expected: ncol,
+                });
+            }
+        }
+        let rows = columns.first().map_or(0, |c| c.len());
+        Ok(Recording {
+            names,
+            columns,
+            rows,
+        })
+    }
+
+    /// Writes the recording as CSV (header row; values with the shortest representation that
+    /// round-trips exactly).
+    pub fn write<W: Write>(&self, mut w: W) -> io::Result<()> {
+        let mut line = String::with_capacity(32 * self.names.len().max(1));
+        line.push_str(&self.names.join(","));
+        line.push('\n');
+        w.write_all(line.as_bytes())?;
+        for r in 0..self.rows {
+            line.clear();
+            for (c, col) in self.columns.iter().enumerate() {
+                if c > 0 {
+                    line.push(',');
+                }
+                let _ = write!(line, "{}", col[r]);
+            }
+            line.push('\n');
+            w.write_all(line.as_bytes())?;
+        }
+        Ok(())
+    }
+
+    /// Writes the recording to a CSV file.
+    pub fn write_path(&self, path: impl AsRef<Path>) -> Result<(), RecordingError> {
+        let path = path.as_ref();
+        let io_err = |source| RecordingError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let f = std::fs::File::create(path).map_err(io_err)?;
+        let mut w = io::BufWriter::new(f);
+        self.write(&mut w).map_err(io_err)?;
+        w.flush().map_err(io_err)
+    }
+
+    /// Number of rows (samples).
+    pub fn rows(&self) -> usize {
+        self.rows
+    }
+
+    /// Column names in file order.
+    pub fn names(&self) -> &[String] {
+        &self.names
+    }
+
+    /// Index of a column by name.
+    pub fn index(&self, name: &str) -> Option<usize> {
+        self.names.iter().position(|n| n == name)
+    }
+
+    /// A column by name, if present.
+    pub fn column(&self, name: &str) -> Option<&[f64]> {
+        self.index(name).map(|i| self.columns[i].as_slice())
+    }
+
+    /// A column by index.
+    pub fn column_at(&self, index: usize) -> &[f64] {
+        &self.columns[index]
+    }
+
+    /// A column by name, or an error listing the columns that are present.
+    pub fn require(&self, name: &str) -> Result<&[f64], RecordingError> {
+        self.column(name)
+            .ok_or_else(|| RecordingError::MissingColumn {
+                name: name.to_string(),
+                available: self.names.join(", "),
+            })
+    }
+
+    /// The time column `t` in s, if present.
+    pub fn time_s(&self) -> Option<&[f64]> {
+        self.column("t")
+    }
+
+    /// The command column `cmd_<axis>` in µm, if present.
+    pub fn cmd(&self, axis: &str) -> Option<&[f64]> {
+        self.column(&format!("cmd_{axis}"))
+    }
+
+    /// The measurement column `meas_<axis>` in µm, if present.
+    pub fn meas(&self, axis: &str) -> Option<&[f64]> {
+        self.column(&format!("meas_{axis}"))
+    }
+
+    /// Axis names that have a `cmd_` or `meas_` column, in order of first appearance.
+    pub fn axes(&self) -> Vec<String> {
+        let mut out: Vec<String> = Vec::new();
+        for n in &self.names {
+            if let ColumnRole::Cmd(a) | ColumnRole::Meas(a) = ColumnRole::of(n) {
+                if !out.contains(&a) {
+                    out.push(a);
+                }
+            }
+        }
+        out
+    }
+
+    /// Column names with the given role predicate, in file order.
+    fn names_where(&self, f: impl Fn(&ColumnRole) -> bool) -> Vec<&str> {
+        self.names
+            .iter()
+            .filter(|n| f(&ColumnRole::of(n)))
+            .map(|s| s.as_str())
+            .collect()
+    }
+
+    /// Full names of the temperature columns (`temp_*`), in file order.
+    pub fn temp_columns(&self) -> Vec<&str> {
+        self.names_where(|r| matches!(r, ColumnRole::Temp(_)))
+    }
+
+    /// Full names of the auxiliary columns (not `t`, `cmd_`, `meas_`, `temp_`), in file order.
+    pub fn aux_columns(&self) -> Vec<&str> {
+        self.names_where(|r| matches!(r, ColumnRole::Aux(_)))
+    }
+
+    /// A new recording holding only the rows for which `keep(row)` is true.
+    pub fn filter_rows(&self, keep: impl Fn(usize) -> bool) -> Recording {
+        let idx: Vec<usize> = (0..self.rows).filter(|&r| keep(r)).collect();
+        let columns = self
+            .columns
+            .iter()
+            .map(|c| idx.iter().map(|&r| c[r]).collect())
+            .collect();
+        Recording {
+            names: self.names.clone(),
+            columns,
+            rows: idx.len(),
+        }
+    }
+}
+
+#[inline]
+fn memchr_nl(bytes: &[u8], from: usize) -> usize {
+    bytes[from..]
+        .iter()
+        .position(|&b| b == b'\n')
+        .map_or(bytes.len(), |p| from + p)
+}
+
+#[inline]
+fn trim_cr(line: &[u8]) -> &[u8] {
+    line.strip_suffix(b"\r").unwrap_or(line)
+}
+
+#[inline]
+fn trim(mut s: &[u8]) -> &[u8] {
+    while let [b' ' | b'\t', rest @ ..] = s {
+        s = rest;
+    }
+    while let [rest @ .., b' ' | b'\t'] = s {
+        s = rest;
+    }
+    s
+}
+
+/// Exact powers of ten representable in f64.
+const POW10: [f64; 23] = [
+    1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15, 1e16,
+    1e17, 1e18, 1e19, 1e20, 1e21, 1e22,
+];
+
+/// Parses a decimal number exactly (correctly rounded). Fast path (Clinger): at most 19
+/// significant digits whose value fits in 2^53 and a decimal exponent within ±22 — one exact
+/// multiplication or division. Anything else goes through `str::parse::<f64>`, which also
+/// accepts `NaN` and `inf`. Returns `None` for an empty or non-numeric field.
+#[inline]
+pub fn parse_f64(field: &[u8]) -> Option<f64> {
+    let s = trim(field);
+    if s.is_empty() {
+        return None;
+    }
+    let mut i = 0;
+    let neg = match s[0] {
+        b'-' => {
+            i = 1;
+            true
+        }
+        b'+' => {
+            i = 1;
+            false
+        }
+        _ => false,
+    };
+    let mut mant: u64 = 0;
+    let mut digits = 0u32;
+    let mut exp10: i32 = 0;
+    let mut any = false;
+    while i < s.len() && s[i].is_ascii_digit() {
+        if digits < 19 {
+            mant = mant * 10 + (s[i] - b'0') as u64;
+            if mant != 0 {
+                digits += 1;
+            }
+        } else {
+            return slow_parse(s);
+        }
+        any = true;
+        i += 1;
+    }
+    if i < s.len() && s[i] == b'.' {
+        i += 1;
+        while i < s.len() && s[i].is_ascii_digit() {
+            if digits < 19 {
+                mant = mant * 10 + (s[i] - b'0') as u64;
+                if mant != 0 {
+                    digits += 1;
+                }
+                exp10 -= 1;
+            } else {
+                return slow_parse(s);
+            }
+            any = true;
+            i += 1;
+        }
+    }
+    if !any {
+        return slow_parse(s);
+    }
+    if i < s.len() && (s[i] == b'e' || s[i] == b'E') {
+        i += 1;
+        let mut eneg = false;
+        if i < s.len() && (s[i] == b'-' || s[i] == b'+') {
+            eneg = s[i] == b'-';
+            i += 1;
+        }
+        let mut e: i32 = 0;
+        let mut edig = false;
+        while i < s.len() && s[i].is_ascii_digit() {
+            e = e.saturating_mul(10).saturating_add((s[i] - b'0') as i32);
+            edig = true;
+            i += 1;
+        }
+        if !edig {
+            return None;
+        }
+        exp10 = exp10.saturating_add(if eneg { -e } else { e });
+    }
+    if i != s.len() {
+        return slow_parse(s);
+    }
+    if mant < (1u64 << 53) && (-22..=22).contains(&exp10) {
+        let m = mant as f64;
+        let v = if exp10 >= 0 {
+            m * POW10[exp10 as usize]
+        } else {
+            m / POW10[(-exp10) as usize]
+        };
+        return Some(if neg { -v } else { v });
+    }
+    slow_parse(s)
+}
+
+#[cold]
+fn slow_parse(s: &[u8]) -> Option<f64> {
+    std::str::from_utf8(s).ok()?.parse::<f64>().ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fast_parse_matches_std() {
+        for s in [
+            "0",
+            "-0",
+            "1",
+            "-1.5",
+            "22.125",
+            "0.1",
+            "3.14159265358979",
+            "1e-7",
+            "-2.5E+3",
+            "123456789012345678",
+            "1234567890123456789012",
+            "0.30000000000000004",
+            "4.9e-324",
+            "1.7976931348623157e308",
+            "+7",
+            ".5",
+            "5.",
+            "1e400",
+        ] {
+            let want: f64 = s.parse().unwrap();
+            let got = parse_f64(s.as_bytes()).unwrap();
+            assert_eq!(got.to_bits(), want.to_bits(), "{s}");
+        }
+        assert!(parse_f64(b"NaN").unwrap().is_nan());
+        assert_eq!(parse_f64(b"abc"), None);
+        assert_eq!(parse_f64(b"1.2.3"), None);
+        assert_eq!(parse_f64(b"1e"), None);
+        assert_eq!(parse_f64(b""), None);
+        assert_eq!(parse_f64(b" 2 "), Some(2.0));
+    }
+}

@@ -1,0 +1,152 @@
+//! The room a stage stands in: air temperature (daily swing, HVAC cycling, steps, trend),
+//! barometric pressure (weather), and the temperature sensors that read it.
+
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use super::normal;
+
+/// The air temperature and pressure of a room, as functions of absolute time.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct RoomConfig {
+    /// Mean air temperature, °C.
+    pub mean_c: f64,
+    /// Half peak-to-peak of the daily swing, °C.
+    pub daily_amplitude_c: f64,
+    /// Half peak-to-peak of the HVAC on/off cycling (triangle wave), °C.
+    pub hvac_amplitude_c: f64,
+    /// Period of the HVAC cycling, s.
+    pub hvac_period_s: f64,
+    /// Expected number of set-point steps (doors, people, machines) per day.
+    pub steps_per_day: f64,
+    /// Standard deviation of one step, °C.
+    pub step_sigma_c: f64,
+    /// Slow linear trend, °C per day (makes a later recording leave the training range).
+    pub trend_c_per_day: f64,
+    /// Mean barometric pressure, hPa.
+    pub pressure_mean_hpa: f64,
+    /// Amplitude of weather pressure changes, hPa.
+    pub pressure_amplitude_hpa: f64,
+}
+
+impl Default for RoomConfig {
+    fn default() -> Self {
+        Self {
+            mean_c: 20.0,
+            daily_amplitude_c: 0.12,
+            hvac_amplitude_c: 0.02,
+            hvac_period_s: 1500.0,
+            steps_per_day: 4.0,
+            step_sigma_c: 0.04,
+            trend_c_per_day: 0.0,
+            pressure_mean_hpa: 1013.25,
+            pressure_amplitude_hpa: 6.0,
+        }
+    }
+}
+
+/// One temperature sensor: where it sits (how fast it follows the room air) and how it reads.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SensorConfig {
+    /// Column name without the `temp_` prefix.
+    pub name: String,
+    /// Constant offset of this spot from the room mean, °C.
+    pub offset_c: f64,
+    /// First-order time constant with which this spot follows the room air, s.
+    pub tau_s: f64,
+    /// Gain with which this spot sees the room's variation (1 = fully).
+    pub gain: f64,
+    /// White reading noise, °C (1 σ).
+    pub noise_c: f64,
+    /// Reading resolution, °C (0 = none).
+    pub resolution_c: f64,
+}
+
+impl SensorConfig {
+    /// A sensor with typical noise (2 mK) and resolution (1 mK).
+    pub fn new(name: &str, offset_c: f64, tau_s: f64, gain: f64) -> Self {
+        Self {
+            name: name.into(),
+            offset_c,
+            tau_s,
+            gain,
+            noise_c: 0.002,
+            resolution_c: 0.001,
+        }
+    }
+}
+
+/// A realised room: random events drawn once from a seed, evaluated at any absolute time.
+#[derive(Clone, Debug)]
+pub struct Room {
+    cfg: RoomConfig,
+    daily_phase: f64,
+    hvac_phase: f64,
+    steps: Vec<(f64, f64)>,
+    weather: Vec<(f64, f64, f64)>,
+}
+
+impl Room {
+    /// Draw the random parts (phases, steps, weather) for `span_s` seconds of absolute time.
+    pub fn new(cfg: &RoomConfig, span_s: f64, rng: &mut ChaCha8Rng) -> Self {
+        let daily_phase = rng.gen_range(0.0..std::f64::consts::TAU);
+        let hvac_phase = rng.gen_range(0.0..1.0);
+        let n_steps = (cfg.steps_per_day * span_s / 86_400.0).round() as usize;
+        let steps = (0..n_steps)
+            .map(|_| (rng.gen_range(0.0..span_s), cfg.step_sigma_c * normal(rng)))
+            .collect();
+        let weather = (0..3)
+            .map(|k| {
+                let period_s = 86_400.0 * (1.5 + 2.0 * k as f64) * rng.gen_range(0.8..1.2);
+                (
+                    period_s,
+                    rng.gen_range(0.0..std::f64::consts::TAU),
+                    cfg.pressure_amplitude_hpa / (k + 1) as f64,
+                )
+            })
+            .collect();
+        Self {
+            cfg: cfg.clone(),
+            daily_phase,
+            hvac_phase,
+            steps,
+            weather,
+        }
+    }
+
+    /// Air temperature at absolute time `t_s`, °C.
+    pub fn air_c(&self, t_s: f64) -> f64 {
+        let c = &self.cfg;
+        let daily =
+            c.daily_amplitude_c * (std::f64::consts::TAU * t_s / 86_400.0 + self.daily_phase).sin();
+        let ph = (t_s / c.hvac_period_s + self.hvac_phase).fract();
+        let tri = if ph < 0.5 {
+            4.0 * ph - 1.0
+        } else {
+            3.0 - 4.0 * ph
+        };
+        let hvac = c.hvac_amplitude_c * tri;
+        let steps: f64 = self.steps.iter().filter(|s| s.0 <= t_s).map(|s| s.1).sum();
+        c.mean_c + daily + hvac + steps + c.trend_c_per_day * t_s / 86_400.0
+    }
+
+    /// Barometric pressure at absolute time `t_s`, hPa.
+    pub fn pressure_hpa(&self, t_s: f64) -> f64 {
+        let w: f64 = self
+            .weather
+            .iter()
+            .map(|(p, ph, a)| a * (std::f64::consts::TAU * t_s / p + ph).sin())
+            .sum();
+        self.cfg.pressure_mean_hpa + w
+    }
+}
+
+/// Round `x` to a multiple of `resolution` (no rounding when `resolution` is 0).
+pub fn quantize(x: f64, resolution: f64) -> f64 {
+    if resolution > 0.0 {
+        (x / resolution).round() * resolution
+    } else {
+        x
+    }
+}

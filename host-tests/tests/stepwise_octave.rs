@@ -1,0 +1,333 @@
+//! Differential test: nanocal's stepwise against the independent Octave implementation of MATLAB
+//! `stepwisefit` semantics (`../shared/peers/octave-stepwise/`) on random designs.
+//!
+//! Needs `octave-cli` (install: `.ci/host.sh`). Without it the test fails when `CI=true` and
+//! is skipped loudly otherwise.
+#![allow(clippy::needless_range_loop)]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use nanocal::recording::Recording;
+use nanocal::stepwise::{stepwise, Action, StepwiseOptions};
+
+fn oracle() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/peers/octave-stepwise/stepwise_oracle.sh")
+}
+
+fn octave_available() -> bool {
+    Command::new("octave-cli")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success())
+}
+
+struct Lcg(u64);
+impl Lcg {
+    fn uniform(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((self.0 >> 11) as f64) / ((1u64 << 53) as f64)
+    }
+    fn normal(&mut self) -> f64 {
+        let (u, v) = (self.uniform().max(1e-300), self.uniform());
+        (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * v).cos()
+    }
+}
+
+/// A random design: columns with different scales and offsets, some correlated, and a response
+/// that depends on a random subset with effects of varied strength.
+fn design(seed: u64, n: usize, p: usize, noise: f64) -> (Vec<Vec<f64>>, Vec<f64>) {
+    let mut r = Lcg(seed);
+    let mut x: Vec<Vec<f64>> = Vec::new();
+    for j in 0..p {
+        let scale = 10f64.powf(3.0 * r.uniform() - 1.0);
+        let offset = 100.0 * r.uniform();
+        let col: Vec<f64> = if j >= 2 && r.uniform() < 0.3 {
+            // correlated with an earlier column
+            let src = (r.uniform() * j as f64) as usize;
+            let mix = 0.5 + 0.5 * r.uniform();
+            (0..n)
+                .map(|i| mix * x[src][i] + scale * 0.3 * r.normal())
+                .collect()
+        } else {
+            (0..n).map(|_| offset + scale * r.normal()).collect()
+        };
+        x.push(col);
+    }
+    let mut y = vec![0.0; n];
+    for col in &x {
+        if r.uniform() < 0.4 {
+            let sd = (col.iter().map(|v| v * v).sum::<f64>() / n as f64)
+                .sqrt()
+                .max(1e-9);
+            let effect = (r.uniform() - 0.5) * 1.0 / sd * 10f64.powf(-1.5 * r.uniform());
+            for i in 0..n {
+                y[i] += effect * col[i];
+            }
+        }
+    }
+    for v in y.iter_mut() {
+        *v += noise * r.normal() + 5.0;
+    }
+    (x, y)
+}
+
+struct Case {
+    seed: u64,
+    noise: f64,
+    n: usize,
+    p: usize,
+    opts: StepwiseOptions,
+    args: Vec<String>,
+}
+
+fn cases() -> Vec<Case> {
+    let mut v = Vec::new();
+    let shapes = [
+        (25, 4),
+        (40, 8),
+        (60, 12),
+        (200, 6),
+        (500, 15),
+        (3000, 20),
+        (30, 10),
+        (100, 25),
+    ];
+    for (k, &(n, p)) in shapes.iter().enumerate() {
+        for variant in 0..3u64 {
+            let seed = 1000 + 17 * k as u64 + variant;
+            let (opts, args) = match variant {
+                0 => (StepwiseOptions::default(), vec![]),
+                1 => (
+                    StepwiseOptions {
+                        penter: Some(0.1),
+                        premove: Some(0.15),
+                        ..Default::default()
+                    },
+                    vec![
+                        "penter".into(),
+                        "0.1".into(),
+                        "premove".into(),
+                        "0.15".into(),
+                    ],
+                ),
+                _ => {
+                    // start from a given model, keep one column, cap the steps
+                    let inm: Vec<usize> = (0..p).filter(|j| j % 3 == 0).collect();
+                    let keep = vec![p - 1];
+                    let s = |v: &[usize]| {
+                        v.iter()
+                            .map(|j| (j + 1).to_string())
+                            .collect::<Vec<_>>()
+                            .join(",")
+                    };
+                    (
+                        StepwiseOptions {
+                            inmodel: inm.clone(),
+                            keep: keep.clone(),
+                            maxiter: Some(6),
+                            ..Default::default()
+                        },
+                        vec![
+                            "inmodel".into(),
+                            s(&inm),
+                            "keep".into(),
+                            s(&keep),
+                            "maxiter".into(),
+                            "6".into(),
+                        ],
+                    )
+                }
+            };
+            v.push(Case {
+                seed,
+                noise: 0.2,
+                n,
+                p,
+                opts,
+                args,
+            });
+        }
+    }
+    // large data with strong effects: several p-values underflow to exactly 0 and tie; MATLAB's
+    // `min` takes the lowest index (ranking by |t| would take another path)
+    for (k, &(n, p)) in [(20000, 8), (50000, 12)].iter().enumerate() {
+        v.push(Case {
+            seed: 7000 + k as u64,
+            noise: 1e-4,
+            n,
+            p,
+            opts: StepwiseOptions::default(),
+            args: vec![],
+        });
+    }
+    v
+}
+
+fn close(a: f64, b: f64, rel: f64, scale: f64) -> bool {
+    (a - b).abs() <= rel * a.abs().max(b.abs()).max(scale)
+}
+
+fn nums(v: &serde_json::Value) -> Vec<f64> {
+    match v {
+        serde_json::Value::Array(a) => a.iter().map(|x| x.as_f64().unwrap_or(f64::NAN)).collect(),
+        x => vec![x.as_f64().unwrap_or(f64::NAN)],
+    }
+}
+
+#[test]
+fn stepwise_matches_octave_oracle_on_random_designs() {
+    if !octave_available() {
+        if std::env::var("CI").is_ok_and(|v| v == "true") {
+            panic!("octave-cli is missing in CI: run .ci/host.sh to install octave + octave-statistics");
+        }
+        eprintln!("\n\n*** SKIPPED stepwise_matches_octave_oracle_on_random_designs: octave-cli not found ***");
+        eprintln!(
+            "*** install it with .ci/host.sh (apt-get install octave octave-statistics) ***\n\n"
+        );
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("nanocal-stepwise-oracle-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let cases = cases();
+    let mut total_steps = 0;
+    let mut removals = 0;
+    let mut zero_p_steps = 0;
+    for (ci, case) in cases.iter().enumerate() {
+        let (x, y) = design(case.seed, case.n, case.p, case.noise);
+        let mut cols: Vec<(String, Vec<f64>)> = x
+            .iter()
+            .enumerate()
+            .map(|(j, c)| (format!("c{}", j + 1), c.clone()))
+            .collect();
+        cols.push(("y".into(), y.clone()));
+        let rec = Recording::from_columns(cols).unwrap();
+        let csv = dir.join(format!("case{ci}.csv"));
+        let json = dir.join(format!("case{ci}.json"));
+        rec.write_path(&csv).unwrap();
+        let out = Command::new("sh")
+            .arg(oracle())
+            .arg(&csv)
+            .arg(&json)
+            .args(&case.args)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "oracle failed: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let want: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+
+        let xr: Vec<&[f64]> = x.iter().map(|c| c.as_slice()).collect();
+        let got = stepwise(&xr, &y, &case.opts).unwrap();
+        let ctx = format!(
+            "case {ci} (seed {}, n {}, p {}, args {:?})",
+            case.seed, case.n, case.p, case.args
+        );
+
+        let inm: Vec<bool> = want["inmodel"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|b| b.as_bool().unwrap())
+            .collect();
+        assert_eq!(got.inmodel, inm, "selected set differs: {ctx}");
+        let hist = want["history"].as_array().unwrap();
+        assert_eq!(
+            got.history.len(),
+            hist.len(),
+            "number of steps differs: {ctx}"
+        );
+        for (s, h) in got.history.iter().zip(hist) {
+            let idx = h["idx"].as_u64().unwrap() as usize - 1;
+            let want_action = if h["action"] == "add" {
+                Action::Added(idx)
+            } else {
+                Action::Removed(idx)
+            };
+            assert_eq!(s.action, want_action, "path differs: {ctx}");
+            if matches!(s.action, Action::Removed(_)) {
+                removals += 1;
+            }
+            total_steps += 1;
+            if s.p == 0.0 {
+                zero_p_steps += 1;
+            }
+        }
+        let bw = nums(&want["b"]);
+        let sew = nums(&want["se"]);
+        let bscale = bw.iter().fold(0.0f64, |a, v| a.max(v.abs())) * 1e-6;
+        for j in 0..case.p {
+            assert!(
+                close(got.b[j], bw[j], 1e-9, bscale),
+                "b[{j}] {} vs {}: {ctx}",
+                got.b[j],
+                bw[j]
+            );
+            assert!(
+                close(got.se[j], sew[j], 1e-9, 0.0),
+                "se[{j}] {} vs {}: {ctx}",
+                got.se[j],
+                sew[j]
+            );
+        }
+        let pw = nums(&want["pval"]);
+        for j in 0..case.p {
+            assert!(
+                close(got.pval[j], pw[j], 1e-7, 1e-300),
+                "pval[{j}] {} vs {}: {ctx}",
+                got.pval[j],
+                pw[j]
+            );
+        }
+        let icpt = want["intercept"].as_f64().unwrap();
+        assert!(
+            close(got.intercept, icpt, 1e-9, 0.0),
+            "intercept {} vs {icpt}: {ctx}",
+            got.intercept
+        );
+        let rmse = want["rmse"].as_f64().unwrap();
+        assert!(
+            close(got.rmse, rmse, 1e-9, 0.0),
+            "rmse {} vs {rmse}: {ctx}",
+            got.rmse
+        );
+        let r2 = want["r2"].as_f64().unwrap();
+        assert!(
+            close(got.r_squared, r2, 1e-9, 1.0),
+            "R² {} vs {r2}: {ctx}",
+            got.r_squared
+        );
+        let f = want["fstat"].as_f64().unwrap_or(f64::NAN);
+        if f.is_finite() {
+            assert!(
+                close(got.fstat, f, 1e-8, 0.0),
+                "F {} vs {f}: {ctx}",
+                got.fstat
+            );
+        }
+        assert_eq!(got.dfe as u64, want["dfe"].as_u64().unwrap(), "{ctx}");
+    }
+    // the random designs must exercise real paths, including removals
+    assert!(
+        total_steps >= 2 * cases.len(),
+        "only {total_steps} steps over {} cases",
+        cases.len()
+    );
+    assert!(removals > 0, "no case removed a term");
+    assert!(
+        zero_p_steps >= 2,
+        "no steps with p-values underflowing to 0 (ties)"
+    );
+    eprintln!(
+        "{} cases, {total_steps} steps, {removals} removals, {zero_p_steps} steps at p = 0",
+        cases.len()
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

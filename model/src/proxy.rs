@@ -5,7 +5,8 @@
 //! everything else passes untouched. When a move is refused (outside the model's envelope or
 //! the stage travel, a failed sensor, no model) nothing is forwarded and the error is kept for
 //! the host's next `ERR?`, which the proxy then answers itself (PIPython asks `ERR?` after
-//! every command). Controller → host: replies to `POS?` and `MOV?` are mapped back through the
+//! every command; the controller's own error, if it has one too, stays for the following
+//! `ERR?`). Controller → host: replies to `POS?` and `MOV?` are mapped back through the
 //! inverse so the host sees calibrated coordinates; all other replies are relayed.
 //!
 //! The proxy is generic over a [`Corrector`] (the firmware's current thermal fold) so that it is

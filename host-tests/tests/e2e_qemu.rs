@@ -261,7 +261,10 @@ fn e2e_compensator_under_qemu() {
     let shifted = model.eval_f64(&[250.0, 0.0, 0.0], &[0; MAX_AXES], &slow())[0] + kmz[0];
     host.send("MOV 1 250");
     let got = stage_value(&stage.next_line(Duration::from_secs(10)), "1");
-    assert!((got - shifted).abs() <= 1e-4, "after KMZ: {got} vs {shifted}");
+    assert!(
+        (got - shifted).abs() <= 1e-4,
+        "after KMZ: {got} vs {shifted}"
+    );
 }
 
 fn stage_value(line: &str, axis: &str) -> f64 {

@@ -274,6 +274,18 @@ fn pos_and_mov_replies_map_back_through_the_inverse() {
         "{reply}"
     );
     assert_eq!(p.counters.mapped_replies, 1);
+
+    // a query the controller never answers (invalid: it only sets its error) does not shift
+    // the attribution of the next reply
+    assert_eq!(host(&mut p, Some(&c), "FOO?").0, Route::Stage);
+    assert_eq!(host(&mut p, Some(&c), "POS? 1").0, Route::Stage);
+    let (r, reply) = stage(&mut p, Some(&c), &format!("1={:.6}", fwd[0].1));
+    assert_eq!(r, Route::Host);
+    assert!(
+        reply.starts_with("1=49.99") || reply.starts_with("1=50.00"),
+        "{reply}"
+    );
+    assert_eq!(p.counters.mapped_replies, 2);
 }
 
 // ---------------------------------------------------------------- sensors and faults

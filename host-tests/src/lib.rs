@@ -3,11 +3,19 @@
 pub use nanocal_model as model;
 
 pub mod cli;
+pub mod design;
 pub mod device;
+pub mod dwell;
 pub mod effects;
+pub mod explain;
+pub mod fit;
+pub mod iso9283;
 pub mod linalg;
+pub mod plot;
 pub mod published;
 pub mod recording;
+pub mod report;
 pub mod stats;
 pub mod stepwise;
 pub mod twin;
+pub mod validate;

@@ -14,11 +14,21 @@ enum Command {
     Limits,
     /// Stepwise regression (MATLAB stepwisefit semantics) on the columns of a CSV file.
     Stepwise(nanocal::cli::stepwise::StepwiseArgs),
+    /// Fit a calibration model to a training recording and write the model blob.
+    Fit(nanocal::cli::fit::FitArgs),
+    /// Validate a model on a recording: no model / static / adaptive KMZ, ISO 9283 metrics.
+    Validate(nanocal::cli::validate::ValidateArgs),
+    /// Validate and write the report plots (PNG + SVG).
+    Report(nanocal::cli::report::ReportArgs),
+    /// The whole workflow on the bundled example: train, fit, validate, table, plots.
+    Demo(nanocal::cli::demo::DemoArgs),
     /// Run the digital twin and write a simulated recording (CSV).
     Simulate(nanocal::cli::simulate::SimulateArgs),
     /// The inline compensator: upload a model, status, KMZ, bypass.
     #[command(subcommand)]
     Device(nanocal::cli::device::DeviceCommand),
+    /// Find, name and model the physics a model or simulation left out of a recording.
+    Explain(nanocal::cli::explain::ExplainArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -28,7 +38,12 @@ fn main() -> anyhow::Result<()> {
             Ok(())
         }
         Command::Stepwise(a) => nanocal::cli::stepwise::run(a),
+        Command::Fit(a) => nanocal::cli::fit::run(a),
+        Command::Validate(a) => nanocal::cli::validate::run(a),
+        Command::Report(a) => nanocal::cli::report::run(a),
+        Command::Demo(a) => nanocal::cli::demo::run(a),
         Command::Simulate(a) => nanocal::cli::simulate::run(a),
         Command::Device(cmd) => nanocal::cli::device::run(cmd),
+        Command::Explain(a) => nanocal::cli::explain::run(a),
     }
 }

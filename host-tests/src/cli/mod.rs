@@ -1,4 +1,9 @@
 //! Command-line subcommands: one file each, a thin layer over the library.
+pub mod demo;
 pub mod device;
+pub mod explain;
+pub mod fit;
+pub mod report;
 pub mod simulate;
 pub mod stepwise;
+pub mod validate;

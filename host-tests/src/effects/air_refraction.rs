@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
+use crate::explain::data::Data;
 use crate::twin::SimContext;
 
 /// The effect's name.
@@ -33,5 +34,50 @@ impl Params {
             out[a][k] = path_um * DN_DP_PER_HPA * (ctx.pressure_hpa[k] - p0);
         }
         out
+    }
+}
+
+/// The explain candidate: Δp and u × Δp; dead path from the Edlén sensitivity.
+pub struct Candidate;
+
+impl super::Candidate for Candidate {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+    fn description(&self) -> &'static str {
+        "the interferometer reading changes with barometric pressure (refractive index of air, Edlén), ∝ (dead path + x) × Δp"
+    }
+    fn deploy(&self) -> &'static str {
+        "in the blob: a pressure term (Factor::Aux(pressure)) and position × pressure (u¹ with Factor::Aux)"
+    }
+    fn applies(&self, d: &Data, _ch: usize) -> bool {
+        d.pressure_hpa.as_ref().is_some_and(|(_, p)| {
+            let lo = p.iter().cloned().fold(f64::INFINITY, f64::min);
+            let hi = p.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+            hi - lo > 0.2
+        })
+    }
+    fn regressors(&self, d: &Data, ch: usize, _theta: Option<f64>) -> Vec<Vec<f64>> {
+        let p = &d.pressure_hpa.as_ref().unwrap().1;
+        let m = p.iter().sum::<f64>() / p.len() as f64;
+        let dp: Vec<f64> = p.iter().map(|v| v - m).collect();
+        let mut out = vec![dp.clone()];
+        if let Some(u) = &d.channels[ch].u {
+            out.push(u.iter().zip(&dp).map(|(u, p)| u * p).collect());
+        }
+        out
+    }
+    fn params(&self, d: &Data, ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+        let c = &d.channels[ch];
+        let centre = c.cmd_um.as_ref().map_or(0.0, |cmd| {
+            let lo = cmd.iter().cloned().fold(f64::INFINITY, f64::min);
+            let hi = cmd.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+            0.5 * (lo + hi)
+        });
+        let l_mm = (f.coeffs[0] / DN_DP_PER_HPA - centre) * 1e-3;
+        vec![
+            super::Estimate::new("sensitivity_nm_per_hpa", f.coeffs[0] * 1e3, f.se[0] * 1e3),
+            super::Estimate::new("dead_path_mm", l_mm, f.se[0] / DN_DP_PER_HPA * 1e-3),
+        ]
     }
 }

@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
+use crate::explain::data::Data;
 use crate::twin::SimContext;
 
 /// The effect's name.
@@ -35,5 +36,50 @@ impl Params {
                 * 1e-3;
         }
         out
+    }
+}
+
+/// The explain candidate: the other commanded axes' u, u², and u × own u.
+pub struct Candidate;
+
+fn others(d: &Data, ch: usize) -> Vec<usize> {
+    (0..d.channels.len())
+        .filter(|&b| b != ch && d.channels[b].u.is_some())
+        .collect()
+}
+
+impl super::Candidate for Candidate {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+    fn description(&self) -> &'static str {
+        "this axis' reading depends on where another axis is (crosstalk, non-orthogonality or parasitic motion)"
+    }
+    fn deploy(&self) -> &'static str {
+        "in the blob: cross-axis position monomials (powers on the other axis, Factor::None)"
+    }
+    fn applies(&self, d: &Data, ch: usize) -> bool {
+        d.channels[ch].u.is_some() && !others(d, ch).is_empty()
+    }
+    fn regressors(&self, d: &Data, ch: usize, _theta: Option<f64>) -> Vec<Vec<f64>> {
+        let ua = d.channels[ch].u.as_ref().unwrap();
+        let mut out = Vec::new();
+        for b in others(d, ch) {
+            let ub = d.channels[b].u.as_ref().unwrap();
+            out.push(ub.clone());
+            out.push(ub.iter().map(|x| x * x).collect());
+            out.push(ub.iter().zip(ua).map(|(x, y)| x * y).collect());
+        }
+        out
+    }
+    fn params(&self, d: &Data, ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+        let b = others(d, ch)[0];
+        let h = d.channels[b].half_range_um;
+        vec![
+            super::Estimate::new("from_axis", b as f64, 0.0),
+            super::Estimate::new("nm_per_um", f.coeffs[0] / h * 1e3, f.se[0] / h * 1e3),
+            super::Estimate::new("quadratic_nm", f.coeffs[1] * 1e3, f.se[1] * 1e3),
+            super::Estimate::new("cross_nm", f.coeffs[2] * 1e3, f.se[2] * 1e3),
+        ]
     }
 }

@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
+use crate::explain::data::Data;
 use crate::twin::SimContext;
 
 /// The effect's name.
@@ -46,5 +47,67 @@ impl Params {
             *o = self.gamma * v;
         }
         out
+    }
+}
+
+/// Creep basis on the recording's own time base; O(n·steps) additions for even sampling.
+fn basis(d: &Data, steps: &[(usize, f64)], t0_s: f64) -> Vec<f64> {
+    match d.uniform_dt_s {
+        Some(dt) => {
+            let n = d.rows();
+            let table: Vec<f64> = (0..n)
+                .map(|j| (1.0 + (j as f64 + 0.5) * dt / t0_s).ln())
+                .collect();
+            let mut out = vec![0.0; n];
+            for &(k0, dq) in steps {
+                for (o, l) in out[k0..].iter_mut().zip(&table) {
+                    *o += dq * l;
+                }
+            }
+            out
+        }
+        None => creep_basis(&d.t_s, steps, t0_s),
+    }
+}
+
+/// The explain candidate: Σ step × log(1 + t/t0) over past moves, t0 searched.
+pub struct Candidate;
+
+impl super::Candidate for Candidate {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+    fn description(&self) -> &'static str {
+        "after each move the stage keeps creeping in the direction of the move, slower and slower (∝ step × log(1 + t/t0))"
+    }
+    fn deploy(&self) -> &'static str {
+        "not in the blob: it needs the history of moves; shorten dwells before reading, or let the adaptive KMZ offset absorb it"
+    }
+    fn applies(&self, d: &Data, ch: usize) -> bool {
+        let c = &d.channels[ch];
+        c.u.is_some() && c.steps.len() >= 3 && c.steps.len() <= 20_000
+    }
+    fn theta_name(&self) -> Option<&'static str> {
+        Some("t0_s")
+    }
+    fn theta_grid(&self, _d: &Data, _ch: usize) -> Vec<f64> {
+        super::log_grid(0.1, 100.0, 7)
+    }
+    fn continuous(&self) -> bool {
+        true
+    }
+    fn regressors(&self, d: &Data, ch: usize, theta: Option<f64>) -> Vec<Vec<f64>> {
+        vec![basis(d, &d.channels[ch].steps, theta.unwrap_or(1.0))]
+    }
+    fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+        vec![
+            super::Estimate::new("gamma", f.coeffs[0], f.se[0]),
+            super::Estimate::new("t0_s", f.theta.unwrap_or(f64::NAN), f.theta_sigma),
+            super::Estimate::new(
+                "nm_per_um_per_decade",
+                f.coeffs[0] * std::f64::consts::LN_10 * 1e3,
+                f.se[0] * std::f64::consts::LN_10 * 1e3,
+            ),
+        ]
     }
 }

@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
+use crate::explain::data::Data;
 use crate::twin::SimContext;
 
 /// The effect's name.
@@ -34,5 +35,47 @@ impl Params {
                 * 1e-3;
         }
         out
+    }
+}
+
+/// The explain candidate: u⁴, u⁵ (and u⁶ with enough distinct poses).
+pub struct Candidate;
+
+fn distinct_poses(d: &Data, ch: usize) -> usize {
+    let mut v: Vec<i64> = d.channels[ch].u.as_ref().map_or(Vec::new(), |u| {
+        u.iter().map(|x| (x * 1e6).round() as i64).collect()
+    });
+    v.sort_unstable();
+    v.dedup();
+    v.len()
+}
+
+impl super::Candidate for Candidate {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+    fn description(&self) -> &'static str {
+        "the geometric error has more wiggles along the travel than the cubic polynomial can follow (higher-order terms in position)"
+    }
+    fn deploy(&self) -> &'static str {
+        "in the blob: position monomials of higher order (powers u⁴, u⁵, …, Factor::None)"
+    }
+    fn applies(&self, d: &Data, ch: usize) -> bool {
+        d.channels[ch].u.is_some() && !d.against_simulation && distinct_poses(d, ch) >= 7
+    }
+    fn regressors(&self, d: &Data, ch: usize, _theta: Option<f64>) -> Vec<Vec<f64>> {
+        let u = d.channels[ch].u.as_ref().unwrap();
+        let top = if distinct_poses(d, ch) >= 9 { 6 } else { 5 };
+        (4..=top)
+            .map(|p| u.iter().map(|x| x.powi(p)).collect())
+            .collect()
+    }
+    fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+        f.coeffs
+            .iter()
+            .zip(f.se)
+            .enumerate()
+            .map(|(j, (c, s))| super::Estimate::new(&format!("u{}_nm", 4 + j), c * 1e3, s * 1e3))
+            .collect()
     }
 }

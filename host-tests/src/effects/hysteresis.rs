@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
+use crate::explain::data::Data;
 use crate::twin::SimContext;
 
 /// The effect's name.
@@ -29,5 +30,34 @@ impl Params {
             out[a][k] = ctx.dir[a][k] * (self.half_width_nm + self.slope_nm * ctx.u[a][k]) * 1e-3;
         }
         out
+    }
+}
+
+/// The explain candidate: sign of approach, and sign × position.
+pub struct Candidate;
+
+impl super::Candidate for Candidate {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+    fn description(&self) -> &'static str {
+        "the stage stops at a different place depending on the direction it came from (forward vs backward approach)"
+    }
+    fn deploy(&self) -> &'static str {
+        "in the blob: direction-dependent terms (Term.direction = axis + 1) on u⁰ and u¹"
+    }
+    fn applies(&self, d: &Data, ch: usize) -> bool {
+        d.channels[ch].dir.is_some() && d.channels[ch].u.is_some()
+    }
+    fn regressors(&self, d: &Data, ch: usize, _theta: Option<f64>) -> Vec<Vec<f64>> {
+        let c = &d.channels[ch];
+        let (dir, u) = (c.dir.as_ref().unwrap(), c.u.as_ref().unwrap());
+        vec![dir.clone(), dir.iter().zip(u).map(|(a, b)| a * b).collect()]
+    }
+    fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+        vec![
+            super::Estimate::new("half_width_nm", f.coeffs[0] * 1e3, f.se[0] * 1e3),
+            super::Estimate::new("slope_nm", f.coeffs[1] * 1e3, f.se[1] * 1e3),
+        ]
     }
 }

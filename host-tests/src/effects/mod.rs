@@ -17,6 +17,7 @@ pub mod unexplained_drift;
 
 use serde::{Deserialize, Serialize};
 
+use crate::explain::data::Data;
 use crate::twin::SimContext;
 
 /// The names of the nine effects, as reports and JSON spell them.
@@ -122,4 +123,106 @@ pub fn lag_series(t_s: &[f64], x: &[f64], tau_s: f64, y0: Option<f64>) -> Vec<f6
 
 pub(crate) fn zeros(ctx: &SimContext) -> Vec<Vec<f64>> {
     vec![vec![0.0; ctx.t_s.len()]; ctx.cfg.axes]
+}
+
+/// A parameter estimate with its 1σ uncertainty (NaN when not known).
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct Estimate {
+    /// Name with unit suffix (`tau_s`, `half_width_nm`, …).
+    pub name: String,
+    /// Value.
+    pub value: f64,
+    /// 1σ uncertainty.
+    pub sigma: f64,
+}
+
+impl Estimate {
+    /// A named estimate.
+    pub fn new(name: &str, value: f64, sigma: f64) -> Self {
+        Self {
+            name: name.into(),
+            value,
+            sigma,
+        }
+    }
+}
+
+/// What a candidate's parameter report can look at after its extension was fitted.
+#[derive(Clone, Debug)]
+pub struct Fitted<'a> {
+    /// The nonlinear parameter (τ, t0, period, …) if the candidate has one.
+    pub theta: Option<f64>,
+    /// Its 1σ uncertainty from the profile of the residual sum of squares (NaN if unknown).
+    pub theta_sigma: f64,
+    /// Coefficients of the candidate's regressors, µm per unit of the regressor.
+    pub coeffs: &'a [f64],
+    /// Their standard errors (inflated for autocorrelated residuals).
+    pub se: &'a [f64],
+}
+
+/// An effect as explain tests it: a model extension with physical parameters.
+pub trait Candidate: Sync {
+    /// One of [`NAMES`].
+    fn name(&self) -> &'static str;
+    /// What the effect is, in plain words, for a person.
+    fn description(&self) -> &'static str;
+    /// Where the compensator can run it: which shared-model terms carry it into the blob, or why not.
+    fn deploy(&self) -> &'static str;
+    /// Whether the recording can show this effect on channel `ch`.
+    fn applies(&self, d: &Data, ch: usize) -> bool;
+    /// Name of the nonlinear parameter, if any.
+    fn theta_name(&self) -> Option<&'static str> {
+        None
+    }
+    /// Grid of the nonlinear parameter to search (empty: the extension is linear).
+    fn theta_grid(&self, _d: &Data, _ch: usize) -> Vec<f64> {
+        Vec::new()
+    }
+    /// Whether the nonlinear parameter is continuous (refined between grid points on a log scale).
+    fn continuous(&self) -> bool {
+        false
+    }
+    /// The extension's regressor columns (the model adds them to the baseline, with free coefficients).
+    fn regressors(&self, d: &Data, ch: usize, theta: Option<f64>) -> Vec<Vec<f64>>;
+    /// The physical parameters from the fitted coefficients.
+    fn params(&self, d: &Data, ch: usize, f: &Fitted) -> Vec<Estimate>;
+}
+
+/// The library of candidates explain tests, in a fixed order.
+pub fn candidates() -> Vec<&'static dyn Candidate> {
+    vec![
+        &thermal_lag::Candidate,
+        &hysteresis::Candidate,
+        &creep::Candidate,
+        &thermal_position_interaction::Candidate,
+        &air_refraction::Candidate,
+        &geometric_order::Candidate,
+        &axis_coupling::Candidate,
+        &periodic_nonlinearity::Candidate,
+        &unexplained_drift::Candidate,
+    ]
+}
+
+/// Log-spaced grid of `k` values from `lo` to `hi`.
+pub fn log_grid(lo: f64, hi: f64, k: usize) -> Vec<f64> {
+    if !(hi > lo && lo > 0.0) || k < 2 {
+        return vec![lo.max(hi)];
+    }
+    (0..k)
+        .map(|i| lo * (hi / lo).powf(i as f64 / (k - 1) as f64))
+        .collect()
+}
+
+/// Lag every column of a series set with the shared model's filter (the firmware's code).
+pub fn lag_columns(t_s: &[f64], x: &[f64], tau_s: f64) -> Vec<f64> {
+    let mut f = nanocal_model::LagFilter::new(tau_s);
+    let mut prev = f64::NAN;
+    x.iter()
+        .zip(t_s)
+        .map(|(&v, &t)| {
+            let dt = t - prev;
+            prev = t;
+            f.update(v, dt)
+        })
+        .collect()
 }

@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
+use crate::explain::data::Data;
 use crate::twin::SimContext;
 
 /// The effect's name.
@@ -37,5 +38,66 @@ impl Params {
                 * 1e-3;
         }
         out
+    }
+}
+
+/// Fringe periods (λ/2) of common interferometer lasers, nm: HeNe 632.8, 532, 780, 1550 nm.
+pub const PERIODS_NM: [f64; 4] = [HENE_HALF_WAVELENGTH_NM, 266.0, 390.0, 775.0];
+
+/// The explain candidate: sin/cos of 2πx/P and 4πx/P of the measured position, P from a short list.
+pub struct Candidate;
+
+impl super::Candidate for Candidate {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+    fn description(&self) -> &'static str {
+        "the interferometer's error repeats every fringe (λ/2, 316.4 nm for HeNe) and its half: polarisation mixing / ghost reflections"
+    }
+    fn deploy(&self) -> &'static str {
+        "not in the blob (no periodic term in the shared model): correct in the interferometer's electronics (Heydemann) or note it in the uncertainty budget"
+    }
+    fn applies(&self, d: &Data, ch: usize) -> bool {
+        let m = &d.channels[ch].meas_um;
+        let lo = m.iter().cloned().fold(f64::INFINITY, f64::min);
+        let hi = m.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+        (hi - lo) * 1e3 > 3.0 * HENE_HALF_WAVELENGTH_NM * 2.0
+    }
+    fn theta_name(&self) -> Option<&'static str> {
+        Some("period_nm")
+    }
+    fn theta_grid(&self, _d: &Data, _ch: usize) -> Vec<f64> {
+        PERIODS_NM.to_vec()
+    }
+    fn regressors(&self, d: &Data, ch: usize, theta: Option<f64>) -> Vec<Vec<f64>> {
+        let p = theta.unwrap_or(HENE_HALF_WAVELENGTH_NM);
+        let m = &d.channels[ch].position_est_um;
+        let ph: Vec<f64> = m
+            .iter()
+            .map(|x| std::f64::consts::TAU * x * 1e3 / p)
+            .collect();
+        vec![
+            ph.iter().map(|v| v.sin()).collect(),
+            ph.iter().map(|v| v.cos()).collect(),
+            ph.iter().map(|v| (2.0 * v).sin()).collect(),
+            ph.iter().map(|v| (2.0 * v).cos()).collect(),
+        ]
+    }
+    fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+        let c = f.coeffs;
+        let a1 = c[0].hypot(c[1]) * 1e3;
+        let a2 = c[2].hypot(c[3]) * 1e3;
+        let s1 = 0.5 * (f.se[0] + f.se[1]) * 1e3;
+        let s2 = 0.5 * (f.se[2] + f.se[3]) * 1e3;
+        vec![
+            super::Estimate::new("period_nm", f.theta.unwrap_or(HENE_HALF_WAVELENGTH_NM), 0.0),
+            super::Estimate::new("amplitude_nm", a1, s1),
+            super::Estimate::new(
+                "phase_rad",
+                c[1].atan2(c[0]),
+                if a1 > 0.0 { s1 / a1 } else { f64::NAN },
+            ),
+            super::Estimate::new("second_harmonic_nm", a2, s2),
+        ]
     }
 }

@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::{lag_series, zeros};
+use crate::explain::data::Data;
 use crate::twin::SimContext;
 
 /// The effect's name.
@@ -30,5 +31,51 @@ impl Params {
             }
         }
         out
+    }
+}
+
+/// The explain candidate: lagged copies of every temperature, one common τ.
+pub struct Candidate;
+
+impl super::Candidate for Candidate {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+    fn description(&self) -> &'static str {
+        "the measured displacement follows the temperatures with a delay: the structure warms and cools more slowly than its sensors (a first-order lag with time constant τ)"
+    }
+    fn deploy(&self) -> &'static str {
+        "in the blob: one lag filter per sensor (LagSpec{sensor, tau_s}) and terms with Factor::Lagged(k); the firmware runs the same LagFilter"
+    }
+    fn applies(&self, d: &Data, _ch: usize) -> bool {
+        !d.temps.is_empty() && d.rows() >= 50
+    }
+    fn theta_name(&self) -> Option<&'static str> {
+        Some("tau_s")
+    }
+    fn theta_grid(&self, d: &Data, _ch: usize) -> Vec<f64> {
+        let dt = d.duration_s() / d.rows().max(2) as f64;
+        super::log_grid(
+            (3.0 * dt).max(5.0),
+            (d.duration_s() / 3.0).max(10.0 * dt),
+            16,
+        )
+    }
+    fn continuous(&self) -> bool {
+        true
+    }
+    fn regressors(&self, d: &Data, _ch: usize, theta: Option<f64>) -> Vec<Vec<f64>> {
+        let tau = theta.unwrap_or(1.0);
+        d.temps
+            .iter()
+            .map(|(_, x)| super::lag_columns(&d.t_s, x, tau))
+            .collect()
+    }
+    fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+        vec![super::Estimate::new(
+            "tau_s",
+            f.theta.unwrap_or(f64::NAN),
+            f.theta_sigma,
+        )]
     }
 }

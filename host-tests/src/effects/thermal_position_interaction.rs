@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
+use crate::explain::data::Data;
 use crate::twin::SimContext;
 
 /// The effect's name.
@@ -30,5 +31,52 @@ impl Params {
             out[a][k] = self.alpha_ppm_per_c * 1e-6 * (ctx.cmd_um[a][k] - lo) * dt;
         }
         out
+    }
+}
+
+/// The explain candidate: u × mean temperature, and u × each sensor's deviation from the mean.
+pub struct Candidate;
+
+fn mean_temp(d: &Data) -> Vec<f64> {
+    let m = d.temps.len() as f64;
+    (0..d.rows())
+        .map(|k| d.temps.iter().map(|(_, x)| x[k]).sum::<f64>() / m)
+        .collect()
+}
+
+impl super::Candidate for Candidate {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+    fn description(&self) -> &'static str {
+        "the thermal error grows with position: the moving part expands (or the actuator's gain changes) with temperature, ∝ x × ΔT"
+    }
+    fn deploy(&self) -> &'static str {
+        "in the blob: position × temperature terms (powers u¹ with Factor::Temp(i))"
+    }
+    fn applies(&self, d: &Data, ch: usize) -> bool {
+        d.channels[ch].u.is_some() && !d.temps.is_empty()
+    }
+    fn regressors(&self, d: &Data, ch: usize, _theta: Option<f64>) -> Vec<Vec<f64>> {
+        let u = d.channels[ch].u.as_ref().unwrap();
+        let tm = mean_temp(d);
+        let t0 = tm.iter().sum::<f64>() / tm.len() as f64;
+        let mut out = vec![u
+            .iter()
+            .zip(&tm)
+            .map(|(u, t)| u * (t - t0))
+            .collect::<Vec<f64>>()];
+        for (_, x) in d.temps.iter().take(d.temps.len().saturating_sub(1)) {
+            out.push((0..d.rows()).map(|k| u[k] * (x[k] - tm[k])).collect());
+        }
+        out
+    }
+    fn params(&self, d: &Data, ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+        let h = d.channels[ch].half_range_um;
+        vec![super::Estimate::new(
+            "alpha_ppm_per_c",
+            f.coeffs[0] / h * 1e6,
+            f.se[0] / h * 1e6,
+        )]
     }
 }

@@ -6,6 +6,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::{lag_series, zeros};
+use crate::explain::data::Data;
 use crate::twin::SimContext;
 
 /// The effect's name.
@@ -49,5 +50,55 @@ impl Params {
             *o = self.amplitude_nm * 1e-3 * h;
         }
         out
+    }
+}
+
+/// The explain candidate: a smooth function of time (piecewise linear, K knots) that no
+/// recorded channel provides.
+pub struct Candidate;
+
+/// Piecewise-linear hat functions over the recording's time with `k` evenly spaced knots.
+pub fn hat_basis(t_s: &[f64], k: usize) -> Vec<Vec<f64>> {
+    let t0 = t_s.first().copied().unwrap_or(0.0);
+    let span = (t_s.last().copied().unwrap_or(1.0) - t0).max(1e-9);
+    let h = span / (k - 1) as f64;
+    (0..k)
+        .map(|j| {
+            t_s.iter()
+                .map(|&t| (1.0 - ((t - t0) / h - j as f64).abs()).max(0.0))
+                .collect()
+        })
+        .collect()
+}
+
+impl super::Candidate for Candidate {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+    fn description(&self) -> &'static str {
+        "a slow drift that no recorded channel explains: a heat source or disturbance without a sensor"
+    }
+    fn deploy(&self) -> &'static str {
+        "not in the blob (no channel sees it): the adaptive KMZ offset (reference pose revisited) follows it; add a sensor where the source is"
+    }
+    fn applies(&self, d: &Data, _ch: usize) -> bool {
+        d.rows() >= 100
+    }
+    fn theta_name(&self) -> Option<&'static str> {
+        Some("knots")
+    }
+    fn theta_grid(&self, _d: &Data, _ch: usize) -> Vec<f64> {
+        vec![3.0, 5.0, 9.0, 17.0, 33.0]
+    }
+    fn regressors(&self, d: &Data, _ch: usize, theta: Option<f64>) -> Vec<Vec<f64>> {
+        hat_basis(&d.t_s, theta.unwrap_or(5.0) as usize)
+    }
+    fn params(&self, d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+        let k = f.theta.unwrap_or(5.0);
+        vec![super::Estimate::new(
+            "time_scale_h",
+            d.duration_s() / (k - 1.0) / 3600.0,
+            f64::NAN,
+        )]
     }
 }

@@ -1,0 +1,144 @@
+//! `nanocal fit`: fit a calibration model to a training recording and write the blob.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::Args;
+
+use crate::design::DesignSpec;
+use crate::dwell::{dwell_average, DwellOptions};
+use crate::fit::{encode_blob, fit_dwells, FitOptions, FitReport, Selection};
+use crate::recording::Recording;
+use crate::stepwise::StepwiseOptions;
+
+/// Fit a calibration model (command as a function of measured position, temperatures, …) to a
+/// training recording in the shared layout, and write it as a model blob.
+///
+/// Each dwell is averaged over its last seconds; candidate terms come from `--terms`; stepwise
+/// regression (MATLAB semantics) selects among them unless `--fixed`.
+#[derive(Args, Debug)]
+pub struct FitArgs {
+    /// Training recording (CSV: t, cmd_<axis>, meas_<axis>, temp_*, aux).
+    pub recording: PathBuf,
+    /// Output model blob.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Candidate terms: poly=N, poly_<axis>=N, cross=N, temps, temp_x_pos, aux, direction,
+    /// static (= poly=3 temps), adaptive (= poly=3).
+    #[arg(long, default_value = "poly=5 temps temp_x_pos direction")]
+    pub terms: String,
+    /// Take every candidate term instead of selecting stepwise.
+    #[arg(long)]
+    pub fixed: bool,
+    /// The published static model: cubic + every temperature, fixed (same as `--terms static --fixed`).
+    #[arg(long)]
+    pub published_static: bool,
+    /// Stepwise p-value to enter.
+    #[arg(long)]
+    pub penter: Option<f64>,
+    /// Stepwise p-value to remove.
+    #[arg(long)]
+    pub premove: Option<f64>,
+    /// Average the last this many seconds of each dwell.
+    #[arg(long, default_value_t = 10.0)]
+    pub average_last_s: f64,
+    /// Model identifier stored in the blob.
+    #[arg(long, default_value_t = 0x0003_0001)]
+    pub id: u32,
+}
+
+/// Runs `nanocal fit`.
+pub fn run(args: FitArgs) -> anyhow::Result<()> {
+    let rec = Recording::read_path(&args.recording)?;
+    let (spec, fixed) = if args.published_static {
+        (DesignSpec::published_static(), true)
+    } else {
+        (DesignSpec::parse(&args.terms)?, args.fixed)
+    };
+    let selection = if fixed {
+        Selection::Fixed
+    } else {
+        Selection::Stepwise(StepwiseOptions {
+            penter: args.penter,
+            premove: args.premove,
+            ..Default::default()
+        })
+    };
+    let dwell = DwellOptions {
+        average_last_s: args.average_last_s,
+        ..Default::default()
+    };
+    let d = dwell_average(&rec, &dwell)?;
+    let opts = FitOptions {
+        spec,
+        selection,
+        dwell,
+        id: args.id,
+    };
+    let rep =
+        fit_dwells(&d, &opts).with_context(|| format!("fitting {}", args.recording.display()))?;
+    print!("{}", summary(&rep));
+    let bytes = encode_blob(&rep.model);
+    std::fs::write(&args.output, &bytes)
+        .with_context(|| format!("writing {}", args.output.display()))?;
+    println!(
+        "wrote {} ({} bytes, {} terms)",
+        args.output.display(),
+        bytes.len(),
+        rep.model.terms().len()
+    );
+    Ok(())
+}
+
+/// A readable summary of a fit: per axis the selected terms with coefficients ± standard
+/// errors (scaled inputs, µm), λ, RMS and R², and the training envelope.
+pub fn summary(rep: &FitReport) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let _ = writeln!(s, "{} training dwells", rep.dwells);
+    for ax in &rep.axes {
+        let _ = writeln!(
+            s,
+            "axis {}: {} of {} candidate terms, λ = {:.6} µm, RMS {:.1} nm, R² {:.9}",
+            ax.axis,
+            ax.selected.iter().filter(|x| **x).count(),
+            ax.candidates.len(),
+            ax.offset_um,
+            ax.rmse_um * 1e3,
+            ax.r_squared
+        );
+        for (j, c) in ax.candidates.iter().enumerate() {
+            if ax.selected[j] {
+                let _ = writeln!(
+                    s,
+                    "  {:<20} {:>+14.6e} ± {:.2e} µm",
+                    c.name, ax.coeff_um[j], ax.se_um[j]
+                );
+            }
+        }
+        let left: Vec<&str> = ax
+            .candidates
+            .iter()
+            .zip(&ax.selected)
+            .filter(|(_, s)| !**s)
+            .map(|(c, _)| c.name.as_str())
+            .collect();
+        if !left.is_empty() {
+            let _ = writeln!(s, "  not selected: {}", left.join(", "));
+        }
+    }
+    let m = &rep.model;
+    for (a, name) in rep.frame.axes.iter().enumerate() {
+        let (lo, hi) = m.envelope(nanocal_model::Input::Axis(a as u8));
+        let _ = writeln!(s, "envelope meas_{name}: {lo:.3} … {hi:.3} µm");
+    }
+    for (t, name) in rep.frame.temps.iter().enumerate() {
+        let (lo, hi) = m.envelope(nanocal_model::Input::Temp(t as u8));
+        let _ = writeln!(s, "envelope {name}: {lo:.3} … {hi:.3} °C (model Temp {t})");
+    }
+    for (n, name) in rep.frame.aux.iter().enumerate() {
+        let (lo, hi) = m.envelope(nanocal_model::Input::Aux(n as u8));
+        let _ = writeln!(s, "envelope {name}: {lo:.3} … {hi:.3} (model Aux {n})");
+    }
+    s
+}

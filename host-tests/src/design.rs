@@ -1,0 +1,451 @@
+//! Candidate design: a readable spec of which terms may enter the model, mapped 1:1 onto the
+//! shared model's [`Term`]s.
+//!
+//! Regressors are computed by the model crate itself: a skeleton [`Model`] carries the scalings
+//! (from the training envelope), [`Model::scale`] turns raw inputs into [`ScaledInputs`], and
+//! [`Term::value`] evaluates each candidate. A fitted coefficient is therefore exactly the
+//! coefficient stored in the blob, and the fitted intercept is the offset λ — nothing is written
+//! twice.
+//!
+//! Spec syntax (tokens separated by spaces or commas):
+//!
+//! | token | meaning |
+//! |---|---|
+//! | `poly=N` | own-axis polynomial `u, u², …, u^N` on every axis |
+//! | `poly_<axis>=N` | the same for one axis (e.g. `poly_x=5`) |
+//! | `cross=N` | monomials of total degree ≤ N that involve another axis (coupling and mixed terms) |
+//! | `temps` | linear in every temperature (`temp_*` columns, file order = model Temp index) |
+//! | `temp_x_pos` | every temperature × own-axis position (thermal expansion of the moving part) |
+//! | `aux` | linear in every auxiliary channel (file order = model Aux index) |
+//! | `direction` | a constant step with the sign of approach of the own axis (hysteresis) |
+//! | `static` | shorthand for the published static model: `poly=3 temps` |
+//! | `adaptive` | shorthand for the published adaptive model: `poly=3` (offset re-measured by KMZ) |
+
+use nanocal_model::{
+    Factor, Input, Model, ModelBuilder, ModelError, ScaledInputs, SlowInputs, Term, MAX_AUX,
+    MAX_AXES, MAX_TEMPS,
+};
+
+use crate::dwell::Dwells;
+
+/// Errors building a design.
+#[derive(Debug, thiserror::Error)]
+pub enum DesignError {
+    /// The spec text could not be read.
+    #[error("design spec: expected one of poly=N, poly_<axis>=N, cross=N, temps, temp_x_pos, aux, direction, static, adaptive; found `{0}`")]
+    BadToken(String),
+    /// An axis named in the spec is not in the data.
+    #[error("design spec names axis `{0}`, but the data has axes: {1}")]
+    UnknownAxis(String, String),
+    /// More inputs than the model can hold.
+    #[error("too many {what}: the data has {found}, the shared model holds at most {max}")]
+    TooMany {
+        /// Which inputs.
+        what: &'static str,
+        /// Found.
+        found: usize,
+        /// Maximum.
+        max: usize,
+    },
+    /// The data lack something the design needs.
+    #[error("{0}")]
+    Data(String),
+    /// The model crate rejected the skeleton.
+    #[error("model: {0:?}")]
+    Model(ModelError),
+}
+
+/// Which candidate terms a fit may use (see the module doc for the text form).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct DesignSpec {
+    /// Own-axis polynomial order for all axes.
+    pub poly_order: u8,
+    /// Per-axis overrides of the own-axis order.
+    pub poly_order_axis: Vec<(String, u8)>,
+    /// Maximum total degree of terms that involve another axis (0: none).
+    pub cross_order: u8,
+    /// Linear temperature terms.
+    pub temps: bool,
+    /// Temperature × own position terms.
+    pub temp_x_position: bool,
+    /// Linear auxiliary terms.
+    pub aux: bool,
+    /// Direction-of-approach step per axis.
+    pub direction: bool,
+}
+
+impl DesignSpec {
+    /// The published static model: cubic in position, linear in every temperature.
+    pub fn published_static() -> Self {
+        DesignSpec {
+            poly_order: 3,
+            temps: true,
+            ..Default::default()
+        }
+    }
+    /// The published adaptive model: cubic in position (the offset comes from KMZ).
+    pub fn published_adaptive() -> Self {
+        DesignSpec {
+            poly_order: 3,
+            ..Default::default()
+        }
+    }
+
+    /// Parses the text form.
+    pub fn parse(text: &str) -> Result<Self, DesignError> {
+        let mut s = DesignSpec::default();
+        for tok in text
+            .split(|c: char| c.is_whitespace() || c == ',')
+            .filter(|t| !t.is_empty())
+        {
+            let bad = || DesignError::BadToken(tok.to_string());
+            match tok {
+                "temps" => s.temps = true,
+                "temp_x_pos" => s.temp_x_position = true,
+                "aux" => s.aux = true,
+                "direction" => s.direction = true,
+                "static" => {
+                    s.poly_order = s.poly_order.max(3);
+                    s.temps = true;
+                }
+                "adaptive" => s.poly_order = s.poly_order.max(3),
+                _ => {
+                    let (k, v) = tok.split_once('=').ok_or_else(bad)?;
+                    let n: u8 = v.parse().map_err(|_| bad())?;
+                    if n > 9 {
+                        return Err(bad());
+                    }
+                    if k == "poly" {
+                        s.poly_order = n;
+                    } else if k == "cross" {
+                        s.cross_order = n;
+                    } else if let Some(axis) = k.strip_prefix("poly_") {
+                        s.poly_order_axis.push((axis.to_string(), n));
+                    } else {
+                        return Err(bad());
+                    }
+                }
+            }
+        }
+        Ok(s)
+    }
+
+    /// Own-axis order of an axis.
+    pub fn order_of(&self, axis: &str) -> u8 {
+        self.poly_order_axis
+            .iter()
+            .rev()
+            .find(|(a, _)| a == axis)
+            .map_or(self.poly_order, |x| x.1)
+    }
+}
+
+/// A candidate term: the model term (coefficient 0) and a readable name.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Candidate {
+    /// The term; only its coefficient is left to fit.
+    pub term: Term,
+    /// A readable name, e.g. `x^3`, `x*y`, `temp_base`, `x*temp_base`, `sign_x`.
+    pub name: String,
+}
+
+/// The inputs of a design: axes, temperature and aux channels, and the skeleton model with
+/// their scalings and training envelope.
+#[derive(Debug, Clone)]
+pub struct DesignFrame {
+    /// Axis names.
+    pub axes: Vec<String>,
+    /// Temperature columns (model Temp index = position here).
+    pub temps: Vec<String>,
+    /// Aux columns (model Aux index = position here).
+    pub aux: Vec<String>,
+    skeleton: Model,
+}
+
+fn range(v: &[f64]) -> (f64, f64) {
+    v.iter()
+        .filter(|x| x.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &x| {
+            (lo.min(x), hi.max(x))
+        })
+}
+
+impl DesignFrame {
+    /// The frame of training dwells: axis scalings from the measured positions, temperature
+    /// and aux scalings from their ranges; travel from the commands ± 5 %. Temperatures and aux
+    /// channels are declared only when `spec` uses them.
+    pub fn from_dwells(d: &Dwells, spec: &DesignSpec) -> Result<Self, DesignError> {
+        for (a, _) in &spec.poly_order_axis {
+            if !d.axes.contains(a) {
+                return Err(DesignError::UnknownAxis(a.clone(), d.axes.join(", ")));
+            }
+        }
+        if d.axes.len() > MAX_AXES {
+            return Err(DesignError::TooMany {
+                what: "axes",
+                found: d.axes.len(),
+                max: MAX_AXES,
+            });
+        }
+        let use_temps = spec.temps || spec.temp_x_position;
+        let temps: Vec<String> = if use_temps {
+            d.channels
+                .iter()
+                .map(|c| c.0.clone())
+                .filter(|n| n.starts_with("temp_"))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let aux: Vec<String> = if spec.aux {
+            d.channels
+                .iter()
+                .map(|c| c.0.clone())
+                .filter(|n| !n.starts_with("temp_"))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        if temps.len() > MAX_TEMPS {
+            return Err(DesignError::TooMany {
+                what: "temperature channels",
+                found: temps.len(),
+                max: MAX_TEMPS,
+            });
+        }
+        if aux.len() > MAX_AUX {
+            return Err(DesignError::TooMany {
+                what: "auxiliary channels",
+                found: aux.len(),
+                max: MAX_AUX,
+            });
+        }
+        if use_temps && temps.is_empty() {
+            return Err(DesignError::Data(
+                "the design uses temperatures, but the data has no temp_* column".into(),
+            ));
+        }
+        let mut b =
+            ModelBuilder::new(d.axes.len(), temps.len(), aux.len()).map_err(DesignError::Model)?;
+        for a in 0..d.axes.len() {
+            let (lo, hi) = range(&d.meas_um[a]);
+            if !lo.is_finite() {
+                return Err(DesignError::Data(format!(
+                    "no finite meas_{} value to fit",
+                    d.axes[a]
+                )));
+            }
+            let (clo, chi) = range(&d.cmd_um[a]);
+            let margin = 0.05 * (chi - clo).max(1.0);
+            b = b.trained_range(Input::Axis(a as u8), lo, hi).travel_um(
+                a,
+                clo - margin,
+                chi + margin,
+            );
+        }
+        for (i, name) in temps.iter().enumerate() {
+            let (lo, hi) = range(d.channel(name).expect("listed"));
+            b = b.trained_range(Input::Temp(i as u8), lo, hi);
+        }
+        for (i, name) in aux.iter().enumerate() {
+            let (lo, hi) = range(d.channel(name).expect("listed"));
+            b = b.trained_range(Input::Aux(i as u8), lo, hi);
+        }
+        let skeleton = b.build().map_err(DesignError::Model)?;
+        Ok(DesignFrame {
+            axes: d.axes.clone(),
+            temps,
+            aux,
+            skeleton,
+        })
+    }
+
+    /// The skeleton model (scalings, envelope, travel; no terms).
+    pub fn skeleton(&self) -> &Model {
+        &self.skeleton
+    }
+
+    /// A builder with the frame's scalings, envelope and travel, to receive fitted terms.
+    pub fn builder(&self) -> ModelBuilder {
+        let m = &self.skeleton;
+        let mut b = ModelBuilder::new(m.axes(), m.temps(), m.aux()).expect("skeleton is valid");
+        let inputs = (0..m.axes())
+            .map(|a| Input::Axis(a as u8))
+            .chain((0..m.temps()).map(|t| Input::Temp(t as u8)))
+            .chain((0..m.aux()).map(|n| Input::Aux(n as u8)));
+        for input in inputs {
+            let (lo, hi) = m.envelope(input);
+            b = b.scaling(input, m.scaling(input)).envelope(input, lo, hi);
+        }
+        for a in 0..m.axes() {
+            let (lo, hi) = m.travel_um(a);
+            b = b.travel_um(a, lo, hi);
+        }
+        b
+    }
+
+    /// Candidate terms for output axis `output` under `spec`, in a fixed order: own polynomial
+    /// by degree, cross terms by total degree, direction, temperatures, temperature × position,
+    /// aux.
+    pub fn candidates(&self, spec: &DesignSpec, output: usize) -> Vec<Candidate> {
+        let k = self.axes.len();
+        let mut out = Vec::new();
+        let term = |powers: [u8; MAX_AXES], factor: Factor, direction: u8| Term {
+            output: output as u8,
+            powers,
+            factor,
+            direction,
+            coeff: 0.0,
+        };
+        let mono_name = |powers: &[u8; MAX_AXES]| -> String {
+            let parts: Vec<String> = (0..k)
+                .filter(|&a| powers[a] > 0)
+                .map(|a| {
+                    if powers[a] == 1 {
+                        self.axes[a].clone()
+                    } else {
+                        format!("{}^{}", self.axes[a], powers[a])
+                    }
+                })
+                .collect();
+            parts.join("*")
+        };
+        let own = self.axes[output].as_str();
+        for p in 1..=spec.order_of(own) {
+            let mut powers = [0u8; MAX_AXES];
+            powers[output] = p;
+            out.push(Candidate {
+                term: term(powers, Factor::None, 0),
+                name: mono_name(&powers),
+            });
+        }
+        if spec.cross_order > 0 && k > 1 {
+            for deg in 1..=spec.cross_order {
+                for powers in monomials(k, deg) {
+                    if (0..k).any(|a| a != output && powers[a] > 0) {
+                        out.push(Candidate {
+                            term: term(powers, Factor::None, 0),
+                            name: mono_name(&powers),
+                        });
+                    }
+                }
+            }
+        }
+        if spec.direction {
+            out.push(Candidate {
+                term: term([0; MAX_AXES], Factor::None, output as u8 + 1),
+                name: format!("sign_{own}"),
+            });
+        }
+        if spec.temps {
+            for (i, name) in self.temps.iter().enumerate() {
+                out.push(Candidate {
+                    term: term([0; MAX_AXES], Factor::Temp(i as u8), 0),
+                    name: name.clone(),
+                });
+            }
+        }
+        if spec.temp_x_position {
+            let mut powers = [0u8; MAX_AXES];
+            powers[output] = 1;
+            for (i, name) in self.temps.iter().enumerate() {
+                out.push(Candidate {
+                    term: term(powers, Factor::Temp(i as u8), 0),
+                    name: format!("{own}*{name}"),
+                });
+            }
+        }
+        if spec.aux {
+            for (i, name) in self.aux.iter().enumerate() {
+                out.push(Candidate {
+                    term: term([0; MAX_AXES], Factor::Aux(i as u8), 0),
+                    name: name.clone(),
+                });
+            }
+        }
+        out
+    }
+
+    /// Slow inputs of dwell `i` (temperatures and aux in model index order).
+    pub fn slow_inputs(&self, d: &Dwells, i: usize) -> SlowInputs {
+        let mut s = SlowInputs::default();
+        for (t, name) in self.temps.iter().enumerate() {
+            s.temps_c[t] = d.channel(name).map_or(f64::NAN, |c| c[i]);
+        }
+        for (n, name) in self.aux.iter().enumerate() {
+            s.aux[n] = d.channel(name).map_or(f64::NAN, |c| c[i]);
+        }
+        s
+    }
+
+    /// Scaled inputs of every dwell, at the measured (calibrated) positions, by the model's
+    /// own scaling.
+    pub fn scaled_inputs(&self, d: &Dwells) -> Vec<ScaledInputs> {
+        (0..d.len())
+            .map(|i| {
+                let mut x = [0.0; MAX_AXES];
+                let mut dir = [0i8; MAX_AXES];
+                for a in 0..self.axes.len() {
+                    x[a] = d.meas_um[a][i];
+                    dir[a] = d.dir[a][i];
+                }
+                self.skeleton.scale(&x, &dir, &self.slow_inputs(d, i))
+            })
+            .collect()
+    }
+}
+
+/// Regressor columns of `candidates` at `inputs`, by the model's own [`Term::value`].
+pub fn regressors(candidates: &[Candidate], inputs: &[ScaledInputs]) -> Vec<Vec<f64>> {
+    candidates
+        .iter()
+        .map(|c| inputs.iter().map(|s| c.term.value(s)).collect())
+        .collect()
+}
+
+/// All exponent vectors over `k` axes with total degree `deg`, in lexicographic order.
+fn monomials(k: usize, deg: u8) -> Vec<[u8; MAX_AXES]> {
+    let mut out = Vec::new();
+    let mut p = [0u8; MAX_AXES];
+    fn rec(a: usize, k: usize, left: u8, p: &mut [u8; MAX_AXES], out: &mut Vec<[u8; MAX_AXES]>) {
+        if a == k - 1 {
+            p[a] = left;
+            out.push(*p);
+            return;
+        }
+        for v in (0..=left).rev() {
+            p[a] = v;
+            rec(a + 1, k, left - v, p, out);
+        }
+        p[a] = 0;
+    }
+    rec(0, k, deg, &mut p, &mut out);
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spec_parses_and_rejects() {
+        let s = DesignSpec::parse("poly=3, temps temp_x_pos cross=2 poly_y=5 direction").unwrap();
+        assert_eq!(s.poly_order, 3);
+        assert_eq!(s.order_of("y"), 5);
+        assert_eq!(s.order_of("x"), 3);
+        assert!(s.temps && s.temp_x_position && s.direction && !s.aux);
+        assert_eq!(s.cross_order, 2);
+        assert_eq!(
+            DesignSpec::parse("static").unwrap(),
+            DesignSpec::published_static()
+        );
+        assert!(DesignSpec::parse("poly=x").is_err());
+        assert!(DesignSpec::parse("cubic").is_err());
+    }
+
+    #[test]
+    fn monomials_of_two_axes() {
+        let m = monomials(2, 2);
+        assert_eq!(m, vec![[2, 0, 0], [1, 1, 0], [0, 2, 0]]);
+    }
+}

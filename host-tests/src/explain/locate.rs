@@ -1,0 +1,322 @@
+//! Locate: where a residual is structured — time spans, positions, direction, other axes,
+//! temperature rate, auxiliary channels — against a noise floor estimated from the data.
+
+use super::data::Data;
+use super::fit::{median, noise_floor};
+
+/// A place where the residual is larger than its noise allows.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Finding {
+    /// What the place is, in words (`time 3.0–5.5 h`, `position 450–480 µm backward`, …).
+    pub place: String,
+    /// Which dimension (`time`, `position`, `direction`, `temperature rate`, an aux name, …).
+    pub dimension: String,
+    /// RMS of the residual there, nm.
+    pub rms_nm: f64,
+    /// Mean of the residual there, nm.
+    pub mean_nm: f64,
+    /// Largest |bin mean| / its noise standard error.
+    pub z: f64,
+}
+
+/// The noise a residual would have with nothing left to explain.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NoiseFloor {
+    /// High-frequency (sample-to-sample) scatter, µm.
+    pub sample_um: f64,
+    /// Scatter of independent units (dwell means for commanded axes, samples otherwise), µm.
+    pub unit_um: f64,
+}
+
+/// Segments between moves (dwells) of a commanded channel, or single samples.
+fn units(d: &Data, ch: usize) -> Vec<(usize, usize)> {
+    let c = &d.channels[ch];
+    if c.steps.is_empty() {
+        return (0..d.rows()).map(|i| (i, i + 1)).collect();
+    }
+    let mut b: Vec<usize> = vec![0];
+    b.extend(c.steps.iter().map(|s| s.0));
+    b.push(d.rows());
+    b.windows(2)
+        .filter(|w| w[1] > w[0])
+        .map(|w| (w[0], w[1]))
+        .collect()
+}
+
+/// Effective number of independent positioning events (dwells weighted by their length:
+/// (Σ len)² / Σ len², so one long rest counts once, not as many rows) of a commanded channel,
+/// or rows.
+pub fn unit_count(d: &Data, ch: usize) -> usize {
+    let us = units(d, ch);
+    let s1: f64 = us.iter().map(|(a, b)| (b - a) as f64).sum();
+    let s2: f64 = us.iter().map(|(a, b)| ((b - a) as f64).powi(2)).sum();
+    if s2 > 0.0 {
+        (s1 * s1 / s2).round() as usize
+    } else {
+        us.len()
+    }
+}
+
+/// Estimate the noise floor of residual `r` on channel `ch`.
+pub fn noise(d: &Data, ch: usize, r: &[f64]) -> NoiseFloor {
+    let sample_um = noise_floor(r);
+    let us = units(d, ch);
+    if us.len() == d.rows() {
+        return NoiseFloor {
+            sample_um,
+            unit_um: sample_um,
+        };
+    }
+    // dwell means: scatter of consecutive dwell means (robust), minus nothing: an upper bound of
+    // the per-move positioning scatter plus averaged sample noise
+    let means: Vec<f64> = us
+        .iter()
+        .map(|&(a, b)| unit_mean(r, a, b))
+        .filter(|v| v.is_finite())
+        .collect();
+    let unit_um = if means.len() >= 4 {
+        noise_floor(&means)
+    } else {
+        sample_um
+    };
+    NoiseFloor {
+        sample_um,
+        unit_um: unit_um.max(sample_um / 10.0),
+    }
+}
+
+fn unit_mean(r: &[f64], a: usize, b: usize) -> f64 {
+    let (s, c) = r[a..b]
+        .iter()
+        .filter(|x| x.is_finite())
+        .fold((0.0, 0), |(s, c), x| (s + x, c + 1));
+    if c == 0 {
+        f64::NAN
+    } else {
+        s / c as f64
+    }
+}
+
+/// Bins of a key over the rows: (label, row indices).
+type Bins = Vec<(String, Vec<usize>)>;
+
+fn quantile_bins(key: &[f64], k: usize, fmt: impl Fn(f64, f64) -> String) -> Bins {
+    let mut idx: Vec<usize> = (0..key.len()).filter(|&i| key[i].is_finite()).collect();
+    idx.sort_by(|&a, &b| key[a].total_cmp(&key[b]));
+    let n = idx.len();
+    if n < k * 5 {
+        return Vec::new();
+    }
+    (0..k)
+        .map(|b| {
+            let s = &idx[b * n / k..(b + 1) * n / k];
+            (fmt(key[s[0]], key[s[s.len() - 1]]), s.to_vec())
+        })
+        .collect()
+}
+
+fn value_bins(key: &[f64], max_bins: usize, fmt: impl Fn(f64) -> String) -> Option<Bins> {
+    let mut vals: Vec<i64> = key.iter().map(|v| (v * 1e3).round() as i64).collect();
+    vals.sort_unstable();
+    vals.dedup();
+    if vals.len() > max_bins || vals.len() < 2 {
+        return None;
+    }
+    Some(
+        vals.iter()
+            .map(|&v| {
+                let rows = (0..key.len())
+                    .filter(|&i| (key[i] * 1e3).round() as i64 == v)
+                    .collect();
+                (fmt(v as f64 / 1e3), rows)
+            })
+            .collect(),
+    )
+}
+
+/// Rate of the mean temperature, °C/h, smoothed over ~10 minutes.
+fn temperature_rate(d: &Data) -> Option<Vec<f64>> {
+    if d.temps.is_empty() {
+        return None;
+    }
+    let n = d.rows();
+    let m = d.temps.len() as f64;
+    let tm: Vec<f64> = (0..n)
+        .map(|k| d.temps.iter().map(|(_, x)| x[k]).sum::<f64>() / m)
+        .collect();
+    let dt = d.duration_s() / n.max(2) as f64;
+    let h = ((300.0 / dt.max(1e-9)).round() as usize).clamp(1, n / 4);
+    Some(
+        (0..n)
+            .map(|k| {
+                let (a, b) = (k.saturating_sub(h), (k + h).min(n - 1));
+                if b > a {
+                    (tm[b] - tm[a]) / (d.t_s[b] - d.t_s[a]) * 3600.0
+                } else {
+                    0.0
+                }
+            })
+            .collect(),
+    )
+}
+
+/// Find where residual `r` (µm) of channel `ch` is structured beyond the noise floor.
+pub fn locate(d: &Data, ch: usize, r: &[f64], floor: NoiseFloor) -> Vec<Finding> {
+    let c = &d.channels[ch];
+    let us = units(d, ch);
+    // unit index of each row, for counting independent units per bin
+    let mut unit_of = vec![0usize; d.rows()];
+    for (j, &(a, b)) in us.iter().enumerate() {
+        for u in unit_of[a..b].iter_mut() {
+            *u = j;
+        }
+    }
+    let mut dims: Vec<(String, Bins)> = Vec::new();
+    let hours = d.duration_s() / 3600.0;
+    let t0 = d.t_s[0];
+    let nb = (d.rows() / 200).clamp(4, 24);
+    let time_key: Vec<f64> = d.t_s.iter().map(|t| (t - t0) / 3600.0).collect();
+    let tb: Bins = (0..nb)
+        .map(|b| {
+            let (lo, hi) = (
+                hours * b as f64 / nb as f64,
+                hours * (b + 1) as f64 / nb as f64,
+            );
+            let rows = (0..d.rows())
+                .filter(|&i| time_key[i] >= lo && (time_key[i] < hi || b == nb - 1))
+                .collect();
+            (format!("time {lo:.1}–{hi:.1} h"), rows)
+        })
+        .collect();
+    dims.push(("time".into(), tb));
+    if let Some(cmd) = &c.cmd_um {
+        let pb = value_bins(cmd, 40, |v| format!("position {v:.1} µm"))
+            .unwrap_or_else(|| quantile_bins(cmd, 10, |a, b| format!("position {a:.1}–{b:.1} µm")));
+        dims.push(("position".into(), pb));
+    }
+    if let Some(dir) = &c.dir {
+        let fwd = (0..d.rows()).filter(|&i| dir[i] > 0.0).collect();
+        let bwd = (0..d.rows()).filter(|&i| dir[i] < 0.0).collect();
+        dims.push((
+            "direction".into(),
+            vec![
+                ("forward approach".into(), fwd),
+                ("backward approach".into(), bwd),
+            ],
+        ));
+    }
+    for (b, other) in d.channels.iter().enumerate() {
+        if b != ch {
+            if let Some(cmd) = &other.cmd_um {
+                let name = other.name.clone();
+                let bins = value_bins(cmd, 40, |v| format!("{name} axis at {v:.1} µm"))
+                    .unwrap_or_else(|| {
+                        quantile_bins(cmd, 8, |a, z| format!("{name} axis at {a:.1}–{z:.1} µm"))
+                    });
+                dims.push((format!("axis {}", other.name), bins));
+            }
+        }
+    }
+    if let Some(rate) = temperature_rate(d) {
+        dims.push((
+            "temperature rate".into(),
+            quantile_bins(&rate, 5, |a, b| {
+                format!("temperature changing {a:+.3}…{b:+.3} °C/h")
+            }),
+        ));
+    }
+    for (name, x) in &d.aux {
+        let n = name.clone();
+        let bins = value_bins(x, 8, |v| format!("{n} = {v}")).unwrap_or_else(|| {
+            quantile_bins(x, 5, |a, b| {
+                if a == b {
+                    format!("{n} = {a}")
+                } else {
+                    format!("{n} {a}…{b}")
+                }
+            })
+        });
+        dims.push((name.clone(), bins));
+    }
+
+    let sigma = floor.unit_um.max(1e-12);
+    let mut out = Vec::new();
+    for (dim, bins) in dims {
+        let mut flagged: Vec<(String, f64, f64, f64)> = Vec::new();
+        for (label, rows) in &bins {
+            let vals: Vec<f64> = rows
+                .iter()
+                .map(|&i| r[i])
+                .filter(|v| v.is_finite())
+                .collect();
+            if vals.len() < 3 {
+                continue;
+            }
+            // effective number of units in the bin, each weighted by its rows in the bin
+            let mut counts: std::collections::HashMap<usize, f64> =
+                std::collections::HashMap::new();
+            for &i in rows {
+                *counts.entry(unit_of[i]).or_default() += 1.0;
+            }
+            let s1: f64 = counts.values().sum();
+            let s2: f64 = counts.values().map(|c| c * c).sum();
+            let n_units = if s2 > 0.0 {
+                (s1 * s1 / s2).max(1.0)
+            } else {
+                1.0
+            };
+            let mean = vals.iter().sum::<f64>() / vals.len() as f64;
+            let z = mean.abs() / (sigma / n_units.sqrt());
+            // structured: statistically clear AND at least the size of the noise floor
+            if z > 5.0 && mean.abs() > sigma.max(floor.sample_um) {
+                let rms = (vals.iter().map(|v| v * v).sum::<f64>() / vals.len() as f64).sqrt();
+                flagged.push((label.clone(), rms, mean, z));
+            }
+        }
+        if flagged.is_empty() {
+            continue;
+        }
+        // merge consecutive time spans into one place
+        if dim == "time" && flagged.len() > 1 {
+            let lo = flagged[0].0.clone();
+            let hi = flagged[flagged.len() - 1].0.clone();
+            let rms =
+                (flagged.iter().map(|f| f.1 * f.1).sum::<f64>() / flagged.len() as f64).sqrt();
+            let mut means: Vec<f64> = flagged.iter().map(|f| f.2).collect();
+            let zmax = flagged.iter().map(|f| f.3).fold(0.0, f64::max);
+            let place = if flagged.len() == bins.len() {
+                "throughout the recording (slowly varying)".to_string()
+            } else {
+                format!(
+                    "{} time spans between {} and {}",
+                    flagged.len(),
+                    lo.split(' ')
+                        .nth(1)
+                        .unwrap_or("")
+                        .split('–')
+                        .next()
+                        .unwrap_or(""),
+                    hi.split('–').nth(1).unwrap_or("")
+                )
+            };
+            out.push(Finding {
+                place,
+                dimension: dim,
+                rms_nm: rms * 1e3,
+                mean_nm: median(&mut means) * 1e3,
+                z: zmax,
+            });
+        } else {
+            for (label, rms, mean, z) in flagged.into_iter().take(4) {
+                out.push(Finding {
+                    place: label,
+                    dimension: dim.clone(),
+                    rms_nm: rms * 1e3,
+                    mean_nm: mean * 1e3,
+                    z,
+                });
+            }
+        }
+    }
+    out
+}

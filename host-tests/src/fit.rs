@@ -1,0 +1,227 @@
+//! Fitting a calibration model: dwell averages → candidate design → stepwise selection (or a
+//! fixed term set) → shared [`Model`] with its training envelope.
+//!
+//! The model maps a calibrated target position `x` to the command `q` to send, so each output
+//! axis regresses the command `cmd_<axis>` on the candidate terms evaluated at the measured
+//! position `meas_*` (and temperatures, aux, direction of approach). The regressors are the
+//! model's own term values on scaled inputs ([`crate::design`]): the fitted coefficients go into
+//! the blob unchanged and the intercept is the offset λ.
+
+use nanocal_model::{Model, ModelError, MAX_AXES};
+
+use crate::design::{regressors, Candidate, DesignError, DesignFrame, DesignSpec};
+use crate::dwell::{dwell_average, DwellError, DwellOptions, Dwells};
+use crate::linalg::{lstsq, LinalgError};
+use crate::recording::Recording;
+use crate::stepwise::{stepwise, StepwiseError, StepwiseOptions, StepwiseResult};
+
+/// Errors of a fit.
+#[derive(Debug, thiserror::Error)]
+pub enum FitError {
+    /// Dwell averaging failed.
+    #[error(transparent)]
+    Dwell(#[from] DwellError),
+    /// The design could not be built.
+    #[error(transparent)]
+    Design(#[from] DesignError),
+    /// Stepwise failed.
+    #[error(transparent)]
+    Stepwise(#[from] StepwiseError),
+    /// Least squares failed.
+    #[error(transparent)]
+    Linalg(#[from] LinalgError),
+    /// The model crate rejected the fitted model.
+    #[error("model: {0:?}")]
+    Model(ModelError),
+    /// Too few dwells for the number of candidates.
+    #[error("expected more dwells than candidate terms + 1 for axis {axis}: {dwells} dwells, {candidates} candidates")]
+    TooFewDwells {
+        /// Axis.
+        axis: String,
+        /// Dwells available.
+        dwells: usize,
+        /// Candidates.
+        candidates: usize,
+    },
+}
+
+/// How the terms are chosen.
+#[derive(Debug, Clone)]
+pub enum Selection {
+    /// Stepwise selection (MATLAB semantics) among the candidates.
+    Stepwise(StepwiseOptions),
+    /// Every candidate (e.g. the published static model: cubic + every temperature).
+    Fixed,
+}
+
+/// Options of a fit.
+#[derive(Debug, Clone)]
+pub struct FitOptions {
+    /// Candidate terms.
+    pub spec: DesignSpec,
+    /// Selection.
+    pub selection: Selection,
+    /// Dwell averaging.
+    pub dwell: DwellOptions,
+    /// Model identifier written into the blob.
+    pub id: u32,
+}
+
+impl Default for FitOptions {
+    fn default() -> Self {
+        FitOptions {
+            spec: DesignSpec::published_static(),
+            selection: Selection::Fixed,
+            dwell: DwellOptions::default(),
+            id: 0x0003_0001,
+        }
+    }
+}
+
+/// What was fitted on one output axis.
+#[derive(Debug, Clone)]
+pub struct AxisFit {
+    /// Axis name.
+    pub axis: String,
+    /// The candidates offered.
+    pub candidates: Vec<Candidate>,
+    /// Which candidates are in the model.
+    pub selected: Vec<bool>,
+    /// Coefficient per candidate (0 if not selected), µm.
+    pub coeff_um: Vec<f64>,
+    /// Standard error per selected candidate (0 if not selected), µm.
+    pub se_um: Vec<f64>,
+    /// Offset λ (intercept), µm.
+    pub offset_um: f64,
+    /// Residual RMS on the training dwells, µm.
+    pub rmse_um: f64,
+    /// R² on the training dwells.
+    pub r_squared: f64,
+    /// The stepwise run, when stepwise selection was used.
+    pub stepwise: Option<StepwiseResult>,
+}
+
+/// A fitted model and how it was obtained.
+#[derive(Debug, Clone)]
+pub struct FitReport {
+    /// The model (ready for the blob).
+    pub model: Model,
+    /// The design frame (axes, channel order).
+    pub frame: DesignFrame,
+    /// Per output axis.
+    pub axes: Vec<AxisFit>,
+    /// Number of training dwells.
+    pub dwells: usize,
+}
+
+/// Fits a model on a raw recording (dwell averaging first).
+pub fn fit_recording(rec: &Recording, opts: &FitOptions) -> Result<FitReport, FitError> {
+    let d = dwell_average(rec, &opts.dwell)?;
+    fit_dwells(&d, opts)
+}
+
+/// Fits a model on per-dwell samples.
+pub fn fit_dwells(d: &Dwells, opts: &FitOptions) -> Result<FitReport, FitError> {
+    let frame = DesignFrame::from_dwells(d, &opts.spec)?;
+    let inputs = frame.scaled_inputs(d);
+    let mut builder = frame.builder().id(opts.id);
+    let mut axes = Vec::new();
+    for (a, axis) in frame.axes.iter().enumerate() {
+        let candidates = frame.candidates(&opts.spec, a);
+        if d.len() <= candidates.len() + 1 {
+            return Err(FitError::TooFewDwells {
+                axis: axis.clone(),
+                dwells: d.len(),
+                candidates: candidates.len(),
+            });
+        }
+        let x = regressors(&candidates, &inputs);
+        let xr: Vec<&[f64]> = x.iter().map(|c| c.as_slice()).collect();
+        let y = &d.cmd_um[a];
+        let fit = match &opts.selection {
+            Selection::Fixed => {
+                let ls = lstsq(&xr, y, true)?;
+                let se = ls.std_errors();
+                let ss_tot = {
+                    let m = y.iter().sum::<f64>() / y.len() as f64;
+                    y.iter().map(|v| (v - m).powi(2)).sum::<f64>()
+                };
+                AxisFit {
+                    axis: axis.clone(),
+                    selected: ls.used.clone(),
+                    coeff_um: ls.coeffs.clone(),
+                    se_um: se,
+                    offset_um: ls.intercept,
+                    rmse_um: ls.rmse(),
+                    r_squared: 1.0 - ls.rss / ss_tot,
+                    candidates,
+                    stepwise: None,
+                }
+            }
+            Selection::Stepwise(sopts) => {
+                let res = stepwise(&xr, y, sopts)?;
+                AxisFit {
+                    axis: axis.clone(),
+                    selected: res.inmodel.clone(),
+                    coeff_um: res
+                        .b
+                        .iter()
+                        .zip(&res.inmodel)
+                        .map(|(b, &i)| if i { *b } else { 0.0 })
+                        .collect(),
+                    se_um: res
+                        .se
+                        .iter()
+                        .zip(&res.inmodel)
+                        .map(|(s, &i)| if i { *s } else { 0.0 })
+                        .collect(),
+                    offset_um: res.intercept,
+                    rmse_um: res.rmse,
+                    r_squared: res.r_squared,
+                    candidates,
+                    stepwise: Some(res),
+                }
+            }
+        };
+        for (c, (&sel, &coeff)) in fit
+            .candidates
+            .iter()
+            .zip(fit.selected.iter().zip(&fit.coeff_um))
+        {
+            if sel {
+                let mut t = c.term;
+                t.coeff = coeff;
+                builder.add_term(t).map_err(FitError::Model)?;
+            }
+        }
+        builder = builder.offset_um(a, fit.offset_um);
+        axes.push(fit);
+    }
+    let model = builder.build().map_err(FitError::Model)?;
+    Ok(FitReport {
+        model,
+        frame,
+        axes,
+        dwells: d.len(),
+    })
+}
+
+/// Writes a model as a blob file.
+pub fn encode_blob(model: &Model) -> Vec<u8> {
+    let mut buf = vec![0u8; nanocal_model::blob::MAX_BLOB_LEN];
+    let n =
+        nanocal_model::blob::encode(model, &mut buf).expect("MAX_BLOB_LEN holds any valid model");
+    buf.truncate(n);
+    buf
+}
+
+/// The fitted command for dwell `i` of `d`, by the model's reference f64 evaluation (for checks).
+pub fn predict(model: &Model, frame: &DesignFrame, d: &Dwells, i: usize) -> [f64; MAX_AXES] {
+    let mut x = [0.0; MAX_AXES];
+    let mut dir = [0i8; MAX_AXES];
+    for a in 0..frame.axes.len() {
+        x[a] = d.meas_um[a][i];
+        dir[a] = d.dir[a][i];
+    }
+    model.eval_f64(&x, &dir, &frame.slow_inputs(d, i))
+}

@@ -1,0 +1,126 @@
+//! Shared helpers of the explain proof tests: simulate with the twin, explain, look up results.
+#![allow(dead_code)]
+
+use nanocal::effects::EffectSpec;
+use nanocal::explain::{explain, ChannelReport, Data, EffectReport, Report, Settings};
+use nanocal::recording::Recording;
+use nanocal::twin::{Columns, Trajectory, Twin, TwinConfig};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// A seeded generator for the hidden parameters.
+pub fn rng(seed: u64) -> ChaCha8Rng {
+    ChaCha8Rng::seed_from_u64(seed.wrapping_mul(7919).wrapping_add(17))
+}
+
+/// Uniform draw in [lo, hi].
+pub fn draw(r: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
+    r.gen_range(lo..=hi)
+}
+
+/// Random sign.
+pub fn sign(r: &mut ChaCha8Rng) -> f64 {
+    if r.gen_bool(0.5) {
+        1.0
+    } else {
+        -1.0
+    }
+}
+
+/// Simulate `traj` on a twin with `cfg` (room realised from `seed`).
+pub fn simulate(cfg: TwinConfig, traj: &Trajectory, seed: u64) -> Columns {
+    let span = traj.duration_s() + 2.0 * 86_400.0;
+    Twin::new(cfg, span, seed).simulate(traj, 8.0 * 3600.0, 1)
+}
+
+/// Explain simulated columns.
+pub fn explain_columns(cols: Columns) -> Report {
+    let rec = Recording::from_columns(cols.columns).expect("twin columns form a recording");
+    let data = Data::from_recording(&rec, None).expect("recording is usable");
+    explain(&data, &Settings::default()).expect("explain runs")
+}
+
+/// Names of all effects found.
+pub fn names(rep: &Report) -> Vec<&'static str> {
+    rep.effects().map(|e| e.name).collect()
+}
+
+/// The effect `name` on channel `ch`, if named.
+pub fn effect<'a>(rep: &'a Report, ch: &str, name: &str) -> Option<&'a EffectReport> {
+    rep.effects().find(|e| e.name == name && e.channel == ch)
+}
+
+/// A parameter value of an effect.
+pub fn param(e: &EffectReport, name: &str) -> f64 {
+    e.params
+        .iter()
+        .find(|p| p.name == name)
+        .unwrap_or_else(|| panic!("{} has no parameter {name}", e.name))
+        .value
+}
+
+/// The channel report for `ch`.
+pub fn channel<'a>(rep: &'a Report, ch: &str) -> &'a ChannelReport {
+    rep.channels
+        .iter()
+        .find(|c| c.channel == ch)
+        .expect("channel exists")
+}
+
+/// Standard 1-DoF training recording (published trajectory, 60 s dwells, `cycles` cycles).
+pub fn training_1dof(effects: Vec<EffectSpec>, cycles: usize, seed: u64) -> Columns {
+    let mut cfg = TwinConfig::published_1dof();
+    cfg.record_pressure = true;
+    cfg.effects = effects;
+    simulate(
+        cfg,
+        &Trajectory::published_training_1dof(60.0, cycles),
+        seed,
+    )
+}
+
+/// 2-DoF grid recording (20 s dwells, 3 cycles).
+pub fn grid_2dof(effects: Vec<EffectSpec>, seed: u64) -> Columns {
+    let mut cfg = TwinConfig::published_2dof();
+    cfg.effects = effects;
+    simulate(cfg, &Trajectory::published_grid_2dof(20.0, 3), seed)
+}
+
+/// Assert the report names exactly `expected` (as a set) and print the report on failure.
+pub fn assert_names(rep: &Report, expected: &[&str], what: &str) {
+    let mut got = names(rep);
+    got.sort_unstable();
+    got.dedup();
+    let mut want = expected.to_vec();
+    want.sort_unstable();
+    assert_eq!(
+        got,
+        want,
+        "{what}: named {got:?}, expected {want:?}\n{}",
+        rep.to_text()
+    );
+}
+
+/// Assert |found − truth| ≤ rel·|truth| + abs.
+pub fn assert_close(found: f64, truth: f64, rel: f64, abs: f64, what: &str) {
+    assert!(
+        (found - truth).abs() <= rel * truth.abs() + abs,
+        "{what}: found {found}, truth {truth} (tolerance {rel}·|truth| + {abs})"
+    );
+}
+
+/// A lively lab (HVAC ±0.05 °C, daily ±0.3 °C) read by three fast sensors (60–600 s behind the
+/// air), so that a slower structure is not already spanned by the sensors themselves.
+pub fn lively_fast_sensors() -> TwinConfig {
+    use nanocal::twin::SensorConfig;
+    let mut cfg = TwinConfig::published_1dof();
+    cfg.room.hvac_amplitude_c = 0.05;
+    cfg.room.daily_amplitude_c = 0.3;
+    cfg.sensors = vec![
+        SensorConfig::new("air", 0.0, 60.0, 1.0),
+        SensorConfig::new("stage", 0.2, 300.0, 1.0),
+        SensorConfig::new("base", 0.1, 600.0, 0.9),
+    ];
+    cfg.thermal_um_per_c = vec![vec![1.2, 1.0, 0.8]];
+    cfg
+}

@@ -1,0 +1,127 @@
+//! Fitting recovers a known model: data generated from the published 1-DoF model (raw units).
+use nanocal::design::DesignSpec;
+use nanocal::dwell::{dwell_average, DwellOptions};
+use nanocal::fit::{encode_blob, fit_recording, predict, FitOptions, Selection};
+use nanocal::published::published_1dof_raw;
+use nanocal::recording::Recording;
+use nanocal::stepwise::StepwiseOptions;
+use nanocal_model::{blob, MAX_TEMPS};
+
+struct Lcg(u64);
+impl Lcg {
+    fn next(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((self.0 >> 11) as f64) / ((1u64 << 53) as f64)
+    }
+}
+
+/// 1 Hz recording, 10 s dwells at 0:30:480 forward/backward, 3 cycles; the stage reaches x and
+/// the command is the published model's q(x, T) (+ optional noise on the measurement).
+fn recording(noise_um: f64) -> Recording {
+    let mut r = Lcg(42);
+    let poses: Vec<f64> = (0..=16).map(|k| 30.0 * k as f64).collect();
+    let mut cols: Vec<Vec<f64>> = vec![Vec::new(); 7];
+    let mut t = 0.0;
+    for _ in 0..3 {
+        for &p in poses.iter().chain(poses.iter().rev()) {
+            let temps: [f64; 4] = [
+                21.0 + 2.0 * r.next(),
+                21.0 + 2.0 * r.next(),
+                21.0 + 2.0 * r.next(),
+                21.0 + 2.0 * r.next(),
+            ];
+            let x = p + 0.5 * (r.next() - 0.5);
+            let mut tt = [0.0; MAX_TEMPS];
+            tt[..4].copy_from_slice(&temps);
+            let q = published_1dof_raw(x, &tt);
+            for _ in 0..10 {
+                cols[0].push(t);
+                cols[1].push(q);
+                cols[2].push(x + noise_um * (r.next() - 0.5));
+                for k in 0..4 {
+                    cols[3 + k].push(temps[k]);
+                }
+                t += 1.0;
+            }
+        }
+    }
+    let names = [
+        "t", "cmd_x", "meas_x", "temp_a", "temp_b", "temp_c", "temp_d",
+    ];
+    Recording::from_columns(names.iter().map(|s| s.to_string()).zip(cols).collect()).unwrap()
+}
+
+#[test]
+fn fixed_static_fit_reproduces_the_published_model() {
+    let rec = recording(0.0);
+    let opts = FitOptions {
+        spec: DesignSpec::published_static(),
+        selection: Selection::Fixed,
+        ..Default::default()
+    };
+    let rep = fit_recording(&rec, &opts).unwrap();
+    assert_eq!(rep.axes[0].candidates.len(), 7);
+    assert!(rep.axes[0].rmse_um < 1e-9, "rmse {}", rep.axes[0].rmse_um);
+    // the blob's model evaluates like the published formula across the envelope
+    let model = blob::decode(&encode_blob(&rep.model)).unwrap();
+    let mut r = Lcg(7);
+    for _ in 0..200 {
+        let x = 480.0 * r.next();
+        let mut temps = [0.0; MAX_TEMPS];
+        for t in temps.iter_mut().take(4) {
+            *t = 21.0 + 2.0 * r.next();
+        }
+        let slow = nanocal_model::SlowInputs {
+            temps_c: temps,
+            ..Default::default()
+        };
+        let q = model.eval_f64(&[x, 0.0, 0.0], &[1, 0, 0], &slow)[0];
+        let want = published_1dof_raw(x, &temps);
+        assert!((q - want).abs() < 1e-8, "x {x}: {q} vs {want}");
+    }
+}
+
+#[test]
+fn stepwise_fit_selects_the_true_terms_and_predictions_match_regression() {
+    let rec = recording(0.002);
+    let spec = DesignSpec::parse("poly=5 temps temp_x_pos direction").unwrap();
+    let opts = FitOptions {
+        spec,
+        selection: Selection::Stepwise(StepwiseOptions::default()),
+        ..Default::default()
+    };
+    let rep = fit_recording(&rec, &opts).unwrap();
+    let ax = &rep.axes[0];
+    let names: Vec<&str> = ax
+        .candidates
+        .iter()
+        .zip(&ax.selected)
+        .filter(|(_, s)| **s)
+        .map(|(c, _)| c.name.as_str())
+        .collect();
+    for must in ["x", "x^2", "x^3", "temp_a", "temp_b", "temp_c", "temp_d"] {
+        assert!(names.contains(&must), "{must} not selected: {names:?}");
+    }
+    assert!(ax.rmse_um < 0.01, "rmse {}", ax.rmse_um);
+    // the fitted value of each dwell IS the model's evaluation (coefficients not rewritten)
+    let d = dwell_average(&rec, &DwellOptions::default()).unwrap();
+    let st = ax.stepwise.as_ref().unwrap();
+    let x: Vec<Vec<f64>> =
+        nanocal::design::regressors(&ax.candidates, &rep.frame.scaled_inputs(&d));
+    for i in 0..d.len() {
+        let mut yhat = st.intercept;
+        for (j, col) in x.iter().enumerate() {
+            if st.inmodel[j] {
+                yhat += st.b[j] * col[i];
+            }
+        }
+        let q = predict(&rep.model, &rep.frame, &d, i)[0];
+        assert!(
+            (q - yhat).abs() < 1e-9,
+            "dwell {i}: model {q} vs regression {yhat}"
+        );
+    }
+}

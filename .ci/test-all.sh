@@ -10,6 +10,9 @@ step "toolchain"
 rustup component add clippy rustfmt >/dev/null 2>&1 || true
 rustup target add thumbv7em-none-eabihf
 
+step "firmware: QEMU 10, both boards in release, clippy -D warnings, fmt"
+bash "$root/.ci/firmware.sh"
+
 step "host workspace: format and lints"
 cd "$root/host-tests"
 cargo fmt --all --check

@@ -24,11 +24,11 @@ enum Command {
     Demo(nanocal::cli::demo::DemoArgs),
     /// Run the digital twin and write a simulated recording (CSV).
     Simulate(nanocal::cli::simulate::SimulateArgs),
-    /// Find, name and model the physics a model or simulation left out of a recording.
-    Explain(nanocal::cli::explain::ExplainArgs),
     /// The inline compensator: upload a model, status, KMZ, bypass.
     #[command(subcommand)]
     Device(nanocal::cli::device::DeviceCommand),
+    /// Find, name and model the physics a model or simulation left out of a recording.
+    Explain(nanocal::cli::explain::ExplainArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -43,7 +43,7 @@ fn main() -> anyhow::Result<()> {
         Command::Report(a) => nanocal::cli::report::run(a),
         Command::Demo(a) => nanocal::cli::demo::run(a),
         Command::Simulate(a) => nanocal::cli::simulate::run(a),
-        Command::Explain(a) => nanocal::cli::explain::run(a),
         Command::Device(cmd) => nanocal::cli::device::run(cmd),
+        Command::Explain(a) => nanocal::cli::explain::run(a),
     }
 }

@@ -90,7 +90,7 @@ fn e2e_compensator_under_qemu() {
             let s = c.status().ok()?;
             let ok = s.flags & flags::MODEL != 0
                 && s.flags & flags::SENSOR_BLOCK == 0
-                && s.sensor_bits[..4].iter().all(|&b| b == 0)
+                && s.sensor_bits[..4].iter().all(|&b| b & 0x0F == 0)
                 && s.folds >= 2;
             ok.then_some(s)
         },
@@ -250,10 +250,37 @@ fn e2e_compensator_under_qemu() {
     c.bypass(false).unwrap();
 
     // KMZ from a reference: the model now maps the measured position to the command sent
+    let before = c.status().unwrap();
     let kmz = c.set_kmz([250.0, 0.0, 0.0], [249.9, 0.0, 0.0]).unwrap();
     assert!(kmz[0].abs() > 1e-3);
     let s = c.status().unwrap();
     assert_eq!(s.kmz_um[0], kmz[0]);
+    assert_eq!(s.slot_seq, before.slot_seq + 1, "the KMZ change was stored");
+    assert_ne!(s.slot, before.slot, "in the other slot");
+    // and it is in service: the same target now gets a command shifted by Δλ_KMZ
+    let shifted = model.eval_f64(&[250.0, 0.0, 0.0], &[0; MAX_AXES], &slow())[0] + kmz[0];
+    host.send("MOV 1 250");
+    let got = stage_value(&stage.next_line(Duration::from_secs(10)), "1");
+    assert!(
+        (got - shifted).abs() <= 1e-4,
+        "after KMZ: {got} vs {shifted}"
+    );
+
+    // the CLI's status report
+    drop(c);
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_nanocal"))
+        .args(["device", "status", "--port", &q.mgmt_spec()])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains("model: 0x00010001"), "{text}");
+    assert!(text.contains("sensor 1:"), "{text}");
+    assert!(text.contains("uploads ok 1  rejected 3"), "{text}");
 }
 
 fn stage_value(line: &str, axis: &str) -> f64 {

@@ -16,7 +16,7 @@
 //! | `UPLOAD_CHUNK` 0x11 | offset u32, bytes | received u32 |
 //! | `UPLOAD_COMMIT` 0x12 | – | model id u32, slot u8, seq u32 |
 //! | `UPLOAD_ABORT` 0x13 | – | – |
-//! | `SET_KMZ` 0x20 | q_cmd f64×3, x_meas f64×3 | kmz f64×3 |
+//! | `SET_KMZ` 0x20 | q_cmd f64×3, x_meas f64×3 | kmz f64×3, stored u8 (model re-committed) |
 //! | `BYPASS` 0x21 | on u8 | – |
 //!
 //! Result codes: 0 ok; 1..=9 [`crate::upload::UploadError::code`]; [`RESULT_STORAGE`];

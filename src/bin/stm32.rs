@@ -190,8 +190,10 @@ async fn main(spawner: Spawner) {
 
     // USB: two CDC-ACM interfaces (GCS host link, management), composite with IADs.
     static EP_OUT: StaticCell<[u8; 256]> = StaticCell::new();
+    // No VBUS sensing: the board is powered from the same host through its ST-LINK port, and
+    // this works whether or not PA9 is wired to the OTG connector's VBUS.
     let mut usb_config = usb::Config::default();
-    usb_config.vbus_detection = true;
+    usb_config.vbus_detection = false;
     let driver = usb::Driver::new_fs(
         p.USB_OTG_FS,
         Irqs,

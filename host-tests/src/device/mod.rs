@@ -268,7 +268,8 @@ impl Client {
     }
 
     /// Set λ_KMZ so that the model maps the measured reference `x_meas_um` to the command
-    /// `q_cmd_um` that was sent. Returns the new λ_KMZ per axis.
+    /// `q_cmd_um` that was sent; the device stores the changed model in its other flash slot.
+    /// Returns the new λ_KMZ per axis.
     pub fn set_kmz(
         &mut self,
         q_cmd_um: [f64; MAX_AXES],

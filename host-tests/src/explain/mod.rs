@@ -472,6 +472,9 @@ pub fn explain_channel(
     }
     let final_floor = locate::noise(d, ch, &cur_fit.residuals);
     let mut unexplained = locate::locate(d, ch, &cur_cv.residuals, final_floor);
+    // the clearest places first, at most eight per channel
+    unexplained.sort_by(|a, b| b.z.total_cmp(&a.z));
+    unexplained.truncate(8);
     // everything left well above the noise floor without a place: say so
     let final_rms = cur_cv.rms_um;
     if unexplained.is_empty()

@@ -150,6 +150,9 @@ fn baseline_columns(d: &Data, ch: usize) -> (Vec<Vec<f64>>, String) {
     )
 }
 
+/// Most rows used while searching a nonlinear parameter.
+pub const SEARCH_ROWS: usize = 100_000;
+
 /// A fitted extension: (θ, regressors, fit).
 type Extension = (Option<f64>, Vec<Vec<f64>>, fit::Fit);
 
@@ -179,9 +182,21 @@ fn best_theta(
         let f = fit::fit(&model.with(&regs), y)?;
         return Ok((None, regs, f));
     }
+    // Long recordings: search θ on every k-th row (≤ SEARCH_ROWS rows; the regressors, e.g.
+    // lag filters, still run over every sample), then refit the best θ on all rows.
+    let k = d.rows().div_ceil(SEARCH_ROWS).max(1);
+    let y_search: Vec<f64> = if k > 1 {
+        y.iter()
+            .enumerate()
+            .map(|(i, &v)| if i % k == 0 { v } else { f64::NAN })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let ys: &[f64] = if k > 1 { &y_search } else { y };
     let eval = |th: f64| -> Result<(f64, Vec<Vec<f64>>, fit::Fit), ExplainError> {
         let regs = cand.regressors(d, ch, Some(th));
-        let f = fit::fit(&model.with(&regs), y)?;
+        let f = fit::fit(&model.with(&regs), ys)?;
         Ok((f.rss, regs, f))
     };
     let mut best: Option<(usize, f64, Vec<Vec<f64>>, fit::Fit)> = None;
@@ -229,6 +244,10 @@ fn best_theta(
         }
     }
     let _ = brss;
+    if k > 1 {
+        bregs = cand.regressors(d, ch, Some(bth));
+        bfit = fit::fit(&model.with(&bregs), y)?;
+    }
     Ok((Some(bth), bregs, bfit))
 }
 

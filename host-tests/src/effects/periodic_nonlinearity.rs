@@ -65,10 +65,11 @@ impl super::Candidate for Candidate {
     }
     fn theta_grid(&self, d: &Data, ch: usize) -> Vec<f64> {
         let range_nm = within_pose_range_nm(d, ch);
+        let spacing_nm = fine_pose_spacing_nm(d, ch);
         PERIODS_NM
             .iter()
             .copied()
-            .filter(|p| range_nm >= 0.5 * p)
+            .filter(|p| range_nm >= 0.5 * p || spacing_nm <= p / 3.0)
             .collect()
     }
     fn regressors(&self, d: &Data, ch: usize, theta: Option<f64>) -> Vec<Vec<f64>> {
@@ -133,4 +134,22 @@ fn within_pose_range_nm(d: &Data, ch: usize) -> f64 {
     }
     ranges.sort_by(f64::total_cmp);
     ranges[ranges.len() / 2]
+}
+
+/// Median spacing between neighbouring distinct commanded poses of this axis when there are at
+/// least 20 of them (a fine scan samples a fringe at many phases even without drift), nm;
+/// infinite otherwise.
+fn fine_pose_spacing_nm(d: &Data, ch: usize) -> f64 {
+    let Some(cmd) = &d.channels[ch].cmd_um else {
+        return f64::INFINITY;
+    };
+    let mut poses: Vec<i64> = cmd.iter().map(|c| (c * 1e3).round() as i64).collect();
+    poses.sort_unstable();
+    poses.dedup();
+    if poses.len() < 20 {
+        return f64::INFINITY;
+    }
+    let mut gaps: Vec<i64> = poses.windows(2).map(|w| w[1] - w[0]).collect();
+    gaps.sort_unstable();
+    gaps[gaps.len() / 2] as f64
 }

@@ -14,15 +14,49 @@ use crate::model::Model;
 
 const FAST_CAPACITY: usize = MAX_TERMS + 2 * MAX_AXES;
 const POWERS: usize = MAX_POWER as usize + 1;
+/// Flat power table: axis `a`'s power `p` sits at `a·POWERS + p`; a power of two in size so a
+/// masked index needs no bounds check on the fast path.
+const TABLE: usize = 32;
+const TABLE_MASK: usize = TABLE - 1;
 const MAX_NEWTON_STEPS: usize = 24;
 
-/// One monomial of the folded deviation polynomial.
+// The flat power table must hold every axis' powers.
+const _: () = assert!(MAX_AXES * POWERS <= TABLE);
+
+/// One monomial of the folded deviation polynomial, laid out for the fast path: its
+/// coefficient, where its three powers sit in the flat power table, and which sign multiplies
+/// it (slot 0 holds 1, slot 1 + a the sign of approach of axis a).
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct FastTerm {
-    output: u8,
-    powers: [u8; MAX_AXES],
-    direction: u8,
     coeff: f32,
+    index: [u8; 4],
+}
+
+impl FastTerm {
+    fn new(powers: [u8; MAX_AXES], direction: u8, coeff: f32) -> Self {
+        let mut index = [0u8; 4];
+        for a in 0..MAX_AXES {
+            index[a] = (a * POWERS) as u8 + powers[a];
+        }
+        index[3] = direction;
+        FastTerm { coeff, index }
+    }
+
+    fn power(&self, axis: usize) -> usize {
+        self.index[axis] as usize - axis * POWERS
+    }
+
+    #[inline(always)]
+    fn monomial(&self, pows: &PowerTable) -> f32 {
+        pows[self.index[0] as usize & TABLE_MASK]
+            * pows[self.index[1] as usize & TABLE_MASK]
+            * pows[self.index[2] as usize & TABLE_MASK]
+    }
+
+    #[inline(always)]
+    fn sign(&self, signs: &[f32; 4]) -> f32 {
+        signs[self.index[3] as usize & 3]
+    }
 }
 
 /// A model with its slow inputs folded in: a pure f32 polynomial in position.
@@ -37,8 +71,10 @@ pub struct Fold {
     /// Constant part of δ per axis, added after the small terms: summing those onto a large
     /// constant would round each partial sum at the constant's magnitude.
     constant_um: [f32; MAX_AXES],
+    /// Non-constant monomials, grouped by output axis: output `o` owns
+    /// `terms[output_end[o−1]..output_end[o]]`.
     terms: [FastTerm; FAST_CAPACITY],
-    n_terms: u16,
+    output_end: [u16; MAX_AXES],
     slow_flags: u16,
 }
 
@@ -87,8 +123,11 @@ impl Model {
             envelope_max_um: [f32::INFINITY; MAX_AXES],
             max_power: [0; MAX_AXES],
             constant_um: [0.0; MAX_AXES],
-            terms: acc.terms,
-            n_terms: 0,
+            terms: [FastTerm {
+                coeff: 0.0,
+                index: [0; 4],
+            }; FAST_CAPACITY],
+            output_end: [0; MAX_AXES],
             slow_flags: self.slow_envelope_flags(slow).0,
         };
         for a in 0..self.axes() {
@@ -99,39 +138,53 @@ impl Model {
             fold.envelope_min_um[a] = min as f32;
             fold.envelope_max_um[a] = max as f32;
         }
-        for (i, t) in acc.terms[..acc.len].iter().enumerate() {
-            if t.powers == [0; MAX_AXES] && t.direction == 0 {
-                fold.constant_um[t.output as usize] = acc.coeffs[i] as f32;
-                continue;
+        let mut n = 0;
+        for output in 0..MAX_AXES as u8 {
+            for (shape, &coeff) in acc.shapes[..acc.len].iter().zip(&acc.coeffs) {
+                if shape.output != output {
+                    continue;
+                }
+                if shape.powers == [0; MAX_AXES] && shape.direction == 0 {
+                    fold.constant_um[output as usize] = coeff as f32;
+                    continue;
+                }
+                fold.terms[n] = FastTerm::new(shape.powers, shape.direction, coeff as f32);
+                n += 1;
+                for a in 0..MAX_AXES {
+                    fold.max_power[a] = fold.max_power[a].max(shape.powers[a]);
+                }
             }
-            fold.terms[fold.n_terms as usize] = *t;
-            fold.n_terms += 1;
-            for a in 0..MAX_AXES {
-                fold.max_power[a] = fold.max_power[a].max(t.powers[a]);
-            }
+            fold.output_end[output as usize] = n as u16;
         }
         fold
     }
 }
 
-/// Merges folded coefficients of equal monomials (f64 until stored).
+/// Shape of a folded monomial: output axis, powers, direction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Shape {
+    output: u8,
+    powers: [u8; MAX_AXES],
+    direction: u8,
+}
+
+/// Merges folded coefficients of equal monomials, in f64 until stored.
 struct FoldAccumulator {
     coeffs: [f64; FAST_CAPACITY],
-    terms: [FastTerm; FAST_CAPACITY],
+    shapes: [Shape; FAST_CAPACITY],
     len: usize,
 }
 
 impl Default for FoldAccumulator {
     fn default() -> Self {
-        let empty = FastTerm {
+        let empty = Shape {
             output: 0,
             powers: [0; MAX_AXES],
             direction: 0,
-            coeff: 0.0,
         };
         FoldAccumulator {
             coeffs: [0.0; FAST_CAPACITY],
-            terms: [empty; FAST_CAPACITY],
+            shapes: [empty; FAST_CAPACITY],
             len: 0,
         }
     }
@@ -139,30 +192,27 @@ impl Default for FoldAccumulator {
 
 impl FoldAccumulator {
     fn add(&mut self, output: u8, powers: [u8; MAX_AXES], direction: u8, coeff: f64) {
-        let shape =
-            |t: &FastTerm| t.output == output && t.powers == powers && t.direction == direction;
-        let slot = match self.terms[..self.len].iter().position(shape) {
+        let shape = Shape {
+            output,
+            powers,
+            direction,
+        };
+        let slot = match self.shapes[..self.len].iter().position(|s| *s == shape) {
             Some(i) => i,
             // A validated model has at most MAX_TERMS shapes plus the 2·axes identity ones.
             None if self.len < FAST_CAPACITY => {
-                self.terms[self.len] = FastTerm {
-                    output,
-                    powers,
-                    direction,
-                    coeff: 0.0,
-                };
+                self.shapes[self.len] = shape;
                 self.len += 1;
                 self.len - 1
             }
             None => return,
         };
         self.coeffs[slot] += coeff;
-        self.terms[slot].coeff = self.coeffs[slot] as f32;
     }
 }
 
-/// Powers 0..=MAX_POWER of each scaled axis position.
-type PowerTable = [[f32; POWERS]; MAX_AXES];
+/// Powers 0..=MAX_POWER of each scaled axis position, flat (see [`TABLE`]).
+type PowerTable = [f32; TABLE];
 
 impl Fold {
     /// Number of axes.
@@ -178,7 +228,7 @@ impl Fold {
 
     /// Number of non-constant monomials the fast path evaluates.
     pub fn fast_terms(&self) -> usize {
-        self.n_terms as usize
+        self.output_end[MAX_AXES - 1] as usize
     }
 
     /// Fast path: commands for calibrated targets `x_um`, approached in direction `dir`
@@ -191,14 +241,17 @@ impl Fold {
             }
         }
         let pows = self.power_table(x_um);
-        let sign = signs(dir);
+        let signs = signs(dir);
         let mut q_um = [0.0f32; MAX_AXES];
-        for t in &self.terms[..self.n_terms as usize] {
-            q_um[t.output as usize] +=
-                t.coeff * monomial(&pows, t.powers) * sign_of(&sign, t.direction);
-        }
-        for a in 0..self.axes() {
-            q_um[a] = (q_um[a] + self.constant_um[a]) + x_um[a];
+        let mut start = 0;
+        for o in 0..self.axes() {
+            let end = self.output_end[o] as usize;
+            let mut delta = 0.0f32;
+            for t in self.terms.get(start..end).unwrap_or(&[]) {
+                delta += t.coeff * t.monomial(&pows) * t.sign(&signs);
+            }
+            q_um[o] = (delta + self.constant_um[o]) + x_um[o];
+            start = end;
         }
         Correction {
             q_um,
@@ -217,29 +270,32 @@ impl Fold {
         if q_um[..n].iter().any(|v| !v.is_finite()) {
             return Err(InverseError::NonFinite);
         }
-        let sign = signs(dir);
+        let signs = signs(dir);
         let mut x = *q_um;
         for _ in 0..MAX_NEWTON_STEPS {
             let pows = self.power_table(&x);
             let mut residual = [0.0f32; MAX_AXES];
             let mut jacobian = [[0.0f32; MAX_AXES]; MAX_AXES];
-            for a in 0..n {
-                residual[a] = (x[a] - q_um[a]) + self.constant_um[a];
-                jacobian[a][a] = 1.0;
-            }
-            for t in &self.terms[..self.n_terms as usize] {
-                let c = t.coeff * sign_of(&sign, t.direction);
-                let o = t.output as usize;
-                residual[o] += c * monomial(&pows, t.powers);
-                for a in 0..n {
-                    let p = t.powers[a];
-                    if p > 0 {
-                        let mut lowered = t.powers;
-                        lowered[a] -= 1;
-                        let d = p as f32 * monomial(&pows, lowered) * self.inv_half_range[a];
-                        jacobian[o][a] += c * d;
+            let mut start = 0;
+            for o in 0..n {
+                residual[o] = (x[o] - q_um[o]) + self.constant_um[o];
+                jacobian[o][o] = 1.0;
+                let end = self.output_end[o] as usize;
+                for t in self.terms.get(start..end).unwrap_or(&[]) {
+                    let c = t.coeff * t.sign(&signs);
+                    residual[o] += c * t.monomial(&pows);
+                    for a in 0..n {
+                        let p = t.power(a);
+                        if p > 0 {
+                            // d/du_a of u_a^p is p·u_a^(p−1); the other axes' powers stay.
+                            let mut lowered = *t;
+                            lowered.index[a] -= 1;
+                            let d = p as f32 * lowered.monomial(&pows) * self.inv_half_range[a];
+                            jacobian[o][a] += c * d;
+                        }
                     }
                 }
+                start = end;
             }
             let step = solve(jacobian, residual, n)?;
             let mut converged = true;
@@ -258,39 +314,27 @@ impl Fold {
         Err(InverseError::NotConverged)
     }
 
+    #[inline(always)]
     fn power_table(&self, x_um: &[f32; MAX_AXES]) -> PowerTable {
-        let mut pows = [[0.0f32; POWERS]; MAX_AXES];
-        for a in 0..MAX_AXES {
-            pows[a][0] = 1.0;
-            if a < self.axes() {
-                let u = (x_um[a] - self.centre_um[a]) * self.inv_half_range[a];
-                for k in 1..=self.max_power[a] as usize {
-                    pows[a][k] = pows[a][k - 1] * u;
-                }
+        let mut pows = [1.0f32; TABLE];
+        for a in 0..self.axes() {
+            let u = (x_um[a] - self.centre_um[a]) * self.inv_half_range[a];
+            let base = a * POWERS;
+            for k in 1..=self.max_power[a] as usize {
+                pows[(base + k) & TABLE_MASK] = pows[(base + k - 1) & TABLE_MASK] * u;
             }
         }
         pows
     }
 }
 
-#[inline]
-fn monomial(pows: &PowerTable, powers: [u8; MAX_AXES]) -> f32 {
-    pows[0][powers[0] as usize] * pows[1][powers[1] as usize] * pows[2][powers[2] as usize]
-}
-
-#[inline]
-fn signs(dir: &[i8; MAX_AXES]) -> [f32; MAX_AXES + 1] {
-    let mut s = [1.0f32; MAX_AXES + 1];
+#[inline(always)]
+fn signs(dir: &[i8; MAX_AXES]) -> [f32; 4] {
+    let mut s = [1.0f32; 4];
     for a in 0..MAX_AXES {
         s[a + 1] = crate::term::approach_sign(dir[a]) as f32;
     }
     s
-}
-
-/// Factor of a term's direction field: 1 for none, else the sign of that axis (index 0 is 1).
-#[inline]
-fn sign_of(signs: &[f32; MAX_AXES + 1], direction: u8) -> f32 {
-    signs[(direction as usize).min(MAX_AXES)]
 }
 
 /// Solves `J·s = r` for n ≤ 3 by Gaussian elimination with partial pivoting.

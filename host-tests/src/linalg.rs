@@ -168,41 +168,28 @@ impl RAccumulator {
     /// Absorbs a block of `b` rows given column-major (`block.len() == b * k`); the block is
     /// overwritten (it holds the Householder vectors afterwards). Computes the QR of `[R; B]`
     /// exploiting that `R` is triangular: reflector j touches `R[j, j..]` and `B[:, j..]` only.
+    /// Uses AVX2 + FMA kernels when the CPU has them (detected at run time).
     pub fn push_block(&mut self, block: &mut [f64], b: usize) {
-        let k = self.k;
         assert_eq!(
             block.len(),
-            b * k,
+            b * self.k,
             "RAccumulator::push_block: wrong block size"
         );
         if b == 0 {
             return;
         }
         self.rows += b;
-        for j in 0..k {
-            let (head, tail) = block.split_at_mut((j + 1) * b);
-            let x = &mut head[j * b..];
-            let alpha = self.r.get(j, j);
-            let xnorm2 = dot(x, x);
-            if xnorm2 == 0.0 {
-                continue; // already triangular in this column: H = I
-            }
-            let norm = (alpha * alpha + xnorm2).sqrt();
-            let beta = if alpha >= 0.0 { -norm } else { norm };
-            let tau = (beta - alpha) / beta;
-            let scale = 1.0 / (alpha - beta);
-            for v in x.iter_mut() {
-                *v *= scale;
-            }
-            self.r.set(j, j, beta);
-            let x: &[f64] = x;
-            for c in (j + 1)..k {
-                let col = &mut tail[(c - j - 1) * b..(c - j) * b];
-                let w = tau * (self.r.get(j, c) + dot(x, col));
-                self.r.set(j, c, self.r.get(j, c) - w);
-                axpy(-w, x, col);
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
+                // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+                unsafe { push_block_avx2(&mut self.r, block, b, self.k) };
+                return;
             }
         }
+        push_block_kernel::<false>(&mut self.r, block, b, self.k);
     }
 
     /// Merges another accumulator (QR of the two stacked triangular factors).
@@ -223,6 +210,75 @@ impl RAccumulator {
     pub fn into_r(self) -> Mat {
         self.r
     }
+}
+
+#[inline(always)]
+fn dot_k<const FMA: bool>(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut s = [0.0f64; 8];
+    let mut ca = a.chunks_exact(8);
+    let mut cb = b.chunks_exact(8);
+    for (x, y) in (&mut ca).zip(&mut cb) {
+        for i in 0..8 {
+            s[i] = if FMA {
+                x[i].mul_add(y[i], s[i])
+            } else {
+                s[i] + x[i] * y[i]
+            };
+        }
+    }
+    let mut t = ((s[0] + s[4]) + (s[1] + s[5])) + ((s[2] + s[6]) + (s[3] + s[7]));
+    for (x, y) in ca.remainder().iter().zip(cb.remainder()) {
+        t += x * y;
+    }
+    t
+}
+
+#[inline(always)]
+fn axpy_k<const FMA: bool>(alpha: f64, x: &[f64], y: &mut [f64]) {
+    for (yi, xi) in y.iter_mut().zip(x) {
+        *yi = if FMA {
+            alpha.mul_add(*xi, *yi)
+        } else {
+            *yi + alpha * xi
+        };
+    }
+}
+
+/// QR of `[R; B]` (see [`RAccumulator::push_block`]); `FMA` selects fused multiply-add.
+#[inline(always)]
+fn push_block_kernel<const FMA: bool>(r: &mut Mat, block: &mut [f64], b: usize, k: usize) {
+    for j in 0..k {
+        let (head, tail) = block.split_at_mut((j + 1) * b);
+        let x = &mut head[j * b..];
+        let alpha = r.get(j, j);
+        let xnorm2 = dot_k::<FMA>(x, x);
+        if xnorm2 == 0.0 {
+            continue; // already triangular in this column: H = I
+        }
+        let norm = (alpha * alpha + xnorm2).sqrt();
+        let beta = if alpha >= 0.0 { -norm } else { norm };
+        let tau = (beta - alpha) / beta;
+        let scale = 1.0 / (alpha - beta);
+        for v in x.iter_mut() {
+            *v *= scale;
+        }
+        r.set(j, j, beta);
+        let x: &[f64] = x;
+        for c in (j + 1)..k {
+            let col = &mut tail[(c - j - 1) * b..(c - j) * b];
+            let w = tau * (r.get(j, c) + dot_k::<FMA>(x, col));
+            r.set(j, c, r.get(j, c) - w);
+            axpy_k::<FMA>(-w, x, col);
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn push_block_avx2(r: &mut Mat, block: &mut [f64], b: usize, k: usize) {
+    push_block_kernel::<true>(r, block, b, k)
 }
 
 /// Result of [`compress`].

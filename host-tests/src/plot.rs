@@ -1,4 +1,8 @@
 //! Plot helpers: one chart, written as PNG and SVG (via `plotters`).
+//!
+//! Text in PNGs is drawn with a TrueType font read at run time (no native font libraries at
+//! build time): `$NANOCAL_FONT` if set, else DejaVu Sans or Liberation Sans from the usual
+//! system folders (Debian: `apt-get install fonts-dejavu-core`).
 
 use std::path::{Path, PathBuf};
 
@@ -51,6 +55,41 @@ pub struct Chart {
     pub y_label: String,
     /// The series.
     pub series: Vec<Series>,
+}
+
+/// Font files tried in order when `$NANOCAL_FONT` is not set.
+const FONT_PATHS: [&str; 5] = [
+    "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+    "/usr/share/fonts/TTF/DejaVuSans.ttf",
+    "/usr/share/fonts/dejavu/DejaVuSans.ttf",
+    "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
+    "/usr/share/fonts/liberation-sans/LiberationSans-Regular.ttf",
+];
+
+/// Registers the "sans-serif" font once; the error says what to install.
+fn ensure_font() -> Result<(), String> {
+    static FONT: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+    FONT.get_or_init(|| {
+        let candidates: Vec<PathBuf> = std::env::var_os("NANOCAL_FONT")
+            .map(PathBuf::from)
+            .into_iter()
+            .chain(FONT_PATHS.iter().map(PathBuf::from))
+            .collect();
+        for path in &candidates {
+            if let Ok(bytes) = std::fs::read(path) {
+                let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+                if plotters::style::register_font("sans-serif", FontStyle::Normal, bytes).is_ok() {
+                    return Ok(());
+                }
+            }
+        }
+        Err(format!(
+            "expected a TrueType font for PNG text, found none (tried $NANOCAL_FONT and {}); \
+             install one, e.g. `apt-get install fonts-dejavu-core`, or set NANOCAL_FONT",
+            FONT_PATHS.join(", ")
+        ))
+    })
+    .clone()
 }
 
 const COLORS: [RGBColor; 6] = [
@@ -150,6 +189,10 @@ where
 pub fn write_chart(stem: &Path, chart: &Chart) -> Result<Vec<PathBuf>, PlotError> {
     let png = stem.with_extension("png");
     let svg = stem.with_extension("svg");
+    ensure_font().map_err(|message| PlotError::Backend {
+        path: png.clone(),
+        message,
+    })?;
     draw(
         BitMapBackend::new(&png, (960, 600)).into_drawing_area(),
         chart,

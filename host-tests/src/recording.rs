@@ -191,8 +191,8 @@ impl Recording {
     pub fn parse(bytes: &[u8]) -> Result<Self, RecordingError> {
         let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
         // header
-        let mut pos = 0;
-        let mut line_no = 1usize;
+        let pos = 0;
+        let line_no = 1usize;
         let header_end = memchr_nl(bytes, 0);
         let header = trim_cr(&bytes[..header_end]);
         if header.iter().all(|b| b.is_ascii_whitespace()) {
@@ -214,72 +214,8 @@ impl Recording {
             }
             names.push(name);
         }
-        pos = pos.max(header_end + 1);
-        let ncol = names.len();
-        // estimate rows to reserve
-        let est_rows = if header_end > 0 {
-            (bytes.len() / (header_end + 1)).max(16)
-        } else {
-            16
-        };
-        let mut columns: Vec<Vec<f64>> = (0..ncol).map(|_| Vec::with_capacity(est_rows)).collect();
-        while pos < bytes.len() {
-            line_no += 1;
-            let end = memchr_nl(bytes, pos);
-            let line = trim_cr(&bytes[pos..end]);
-            pos = end + 1;
-            if line.iter().all(|&b| b == b' ' || b == b'\t') {
-                continue;
-            }
-            let mut start = 0;
-            for (c, col) in columns.iter_mut().enumerate() {
-                if start > line.len() {
-                    return Err(RecordingError::MissingValue {
-                        line: line_no,
-                        column: c + 1,
-                        name: names[c].clone(),
-                    });
-                }
-                let rest = &line[start..];
-                let len = rest.iter().position(|&b| b == b',').unwrap_or(rest.len());
-                let field = &rest[..len];
-                start += len + 1;
-                match parse_f64(field) {
-                    Some(v) => col.push(v),
-                    None => {
-                        let t = trim(field);
-                        return Err(if t.is_empty() {
-                            RecordingError::MissingValue {
-                                line: line_no,
-                                column: c + 1,
-                                name: names[c].clone(),
-                            }
-                        } else {
-                            let mut found = String::from_utf8_lossy(t).into_owned();
-                            if found.len() > 40 {
-                                let mut cut = 40;
-                                while !found.is_char_boundary(cut) {
-                                    cut -= 1;
-                                }
-                                found.truncate(cut);
-                            }
-                            RecordingError::NotNumeric {
-                                line: line_no,
-                                column: c + 1,
-                                name: names[c].clone(),
-                                found,
-                            }
-                        });
-                    }
-                }
-            }
-            if start <= line.len() {
-                return Err(RecordingError::TooManyValues {
-                    line: line_no,
-                    expected: ncol,
-                });
-            }
-        }
+        let body = &bytes[(pos + header_end + 1).min(bytes.len())..];
+        let columns = parse_body_parallel(body, &names, line_no)?;
         let rows = columns.first().map_or(0, |c| c.len());
         Ok(Recording {
             names,
@@ -419,6 +355,266 @@ impl Recording {
     }
 }
 
+/// Parses the rows after the header, splitting large inputs at line boundaries across threads.
+/// `header_line` is the line number of the header (rows start on the next line).
+fn parse_body_parallel(
+    body: &[u8],
+    names: &[String],
+    header_line: usize,
+) -> Result<Vec<Vec<f64>>, RecordingError> {
+    let threads = std::thread::available_parallelism()
+        .map_or(1, |t| t.get())
+        .min(8);
+    if threads < 2 || body.len() < (1 << 20) {
+        return parse_body(body, names, header_line);
+    }
+    // chunk boundaries just after a newline
+    let mut bounds = vec![0usize];
+    for t in 1..threads {
+        let guess = body.len() * t / threads;
+        let b = memchr_nl(body, guess.max(*bounds.last().expect("non-empty")));
+        bounds.push((b + 1).min(body.len()));
+    }
+    bounds.push(body.len());
+    bounds.dedup();
+    let parts: Vec<Result<Vec<Vec<f64>>, RecordingError>> = std::thread::scope(|s| {
+        let handles: Vec<_> = bounds
+            .windows(2)
+            .map(|w| {
+                let chunk = &body[w[0]..w[1]];
+                s.spawn(move || parse_body(chunk, names, 0))
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().expect("parser thread panicked"))
+            .collect()
+    });
+    let mut columns: Vec<Vec<f64>> = Vec::new();
+    for (k, part) in parts.into_iter().enumerate() {
+        match part {
+            Ok(cols) => {
+                if columns.is_empty() {
+                    columns = cols;
+                } else {
+                    for (dst, src) in columns.iter_mut().zip(cols) {
+                        dst.extend_from_slice(&src);
+                    }
+                }
+            }
+            Err(e) => {
+                // local line numbers: add the lines of the earlier chunks and the header
+                let before =
+                    header_line + body[..bounds[k]].iter().filter(|&&b| b == b'\n').count();
+                return Err(shift_line(e, before));
+            }
+        }
+    }
+    Ok(columns)
+}
+
+fn shift_line(e: RecordingError, by: usize) -> RecordingError {
+    match e {
+        RecordingError::MissingValue { line, column, name } => RecordingError::MissingValue {
+            line: line + by,
+            column,
+            name,
+        },
+        RecordingError::NotNumeric {
+            line,
+            column,
+            name,
+            found,
+        } => RecordingError::NotNumeric {
+            line: line + by,
+            column,
+            name,
+            found,
+        },
+        RecordingError::TooManyValues { line, expected } => RecordingError::TooManyValues {
+            line: line + by,
+            expected,
+        },
+        other => other,
+    }
+}
+
+/// Parses rows; line numbers in errors are `line_before + 1` for the first row.
+fn parse_body(
+    bytes: &[u8],
+    names: &[String],
+    line_before: usize,
+) -> Result<Vec<Vec<f64>>, RecordingError> {
+    let ncol = names.len();
+    let est_rows = bytes.len() / (4 * ncol).max(1) + 1;
+    let mut columns: Vec<Vec<f64>> = (0..ncol)
+        .map(|_| Vec::with_capacity(est_rows.min(1 << 24)))
+        .collect();
+    let n = bytes.len();
+    let mut pos = 0usize;
+    let mut line_no = line_before;
+    let missing = |line: usize, c: usize| RecordingError::MissingValue {
+        line,
+        column: c + 1,
+        name: names[c].clone(),
+    };
+    while pos < n {
+        line_no += 1;
+        // blank (or whitespace-only) line?
+        let mut q = pos;
+        while q < n && (bytes[q] == b' ' || bytes[q] == b'\t' || bytes[q] == b'\r') {
+            q += 1;
+        }
+        if q >= n || bytes[q] == b'\n' {
+            pos = q + 1;
+            continue;
+        }
+        for (c, col) in columns.iter_mut().enumerate() {
+            let (value, end) = match scan_number(bytes, pos) {
+                Some((v, e)) => (v, e),
+                None => {
+                    // slow path: the whole field, exact parse or a precise error
+                    let e = bytes[pos..]
+                        .iter()
+                        .position(|&b| b == b',' || b == b'\n')
+                        .map_or(n, |k| pos + k);
+                    let field = trim(trim_cr(&bytes[pos..e]));
+                    if field.is_empty() {
+                        return Err(missing(line_no, c));
+                    }
+                    match slow_parse(field) {
+                        Some(v) => (v, e),
+                        None => {
+                            let mut found = String::from_utf8_lossy(field).into_owned();
+                            if found.len() > 40 {
+                                let mut cut = 40;
+                                while !found.is_char_boundary(cut) {
+                                    cut -= 1;
+                                }
+                                found.truncate(cut);
+                            }
+                            return Err(RecordingError::NotNumeric {
+                                line: line_no,
+                                column: c + 1,
+                                name: names[c].clone(),
+                                found,
+                            });
+                        }
+                    }
+                }
+            };
+            col.push(value);
+            let last = c + 1 == ncol;
+            // end is at a delimiter: ',' or '\n' (after an optional '\r') or the end of input
+            let mut e = end;
+            if e < n && bytes[e] == b'\r' {
+                e += 1;
+            }
+            if e >= n || bytes[e] == b'\n' {
+                if !last {
+                    return Err(missing(line_no, c + 1));
+                }
+                pos = e + 1;
+            } else if bytes[e] == b',' {
+                if last {
+                    return Err(RecordingError::TooManyValues {
+                        line: line_no,
+                        expected: ncol,
+                    });
+                }
+                pos = e + 1;
+            } else {
+                unreachable!("scan_number and the slow path stop at a delimiter");
+            }
+        }
+    }
+    Ok(columns)
+}
+
+/// Fast path for one field starting at `pos`: optional spaces, a decimal number with at most
+/// 19 significant digits and a small exponent, optional spaces, then a delimiter (`,`, `\r`,
+/// `\n` or end of input). Returns the value and the delimiter's index, or `None` when the field
+/// needs the slow path (or is empty / not a number).
+#[inline(always)]
+fn scan_number(b: &[u8], mut i: usize) -> Option<(f64, usize)> {
+    let n = b.len();
+    while i < n && (b[i] == b' ' || b[i] == b'\t') {
+        i += 1;
+    }
+    let mut neg = false;
+    if i < n && (b[i] == b'-' || b[i] == b'+') {
+        neg = b[i] == b'-';
+        i += 1;
+    }
+    let mut mant: u64 = 0;
+    let mut digits = 0u32;
+    let mut exp10: i32 = 0;
+    let mut any = false;
+    while i < n {
+        let d = b[i].wrapping_sub(b'0');
+        if d > 9 {
+            break;
+        }
+        mant = mant.wrapping_mul(10).wrapping_add(d as u64);
+        digits += (mant != 0) as u32;
+        any = true;
+        i += 1;
+    }
+    if i < n && b[i] == b'.' {
+        i += 1;
+        while i < n {
+            let d = b[i].wrapping_sub(b'0');
+            if d > 9 {
+                break;
+            }
+            mant = mant.wrapping_mul(10).wrapping_add(d as u64);
+            digits += (mant != 0) as u32;
+            exp10 -= 1;
+            any = true;
+            i += 1;
+        }
+    }
+    if !any || digits > 19 {
+        return None;
+    }
+    if i < n && (b[i] == b'e' || b[i] == b'E') {
+        i += 1;
+        let mut eneg = false;
+        if i < n && (b[i] == b'-' || b[i] == b'+') {
+            eneg = b[i] == b'-';
+            i += 1;
+        }
+        let mut e: i32 = 0;
+        let mut edig = false;
+        while i < n && b[i].is_ascii_digit() && e < 10_000 {
+            e = e * 10 + (b[i] - b'0') as i32;
+            edig = true;
+            i += 1;
+        }
+        if !edig {
+            return None;
+        }
+        exp10 += if eneg { -e } else { e };
+    }
+    while i < n && (b[i] == b' ' || b[i] == b'\t') {
+        i += 1;
+    }
+    if i < n && !matches!(b[i], b',' | b'\n' | b'\r') {
+        return None;
+    }
+    if mant >= (1u64 << 53) || !(-22..=22).contains(&exp10) {
+        let v = exact_decimal(mant, exp10)?;
+        return Some((if neg { -v } else { v }, i));
+    }
+    let m = mant as f64;
+    let v = if exp10 >= 0 {
+        m * POW10[exp10 as usize]
+    } else {
+        m / POW10[(-exp10) as usize]
+    };
+    Some((if neg { -v } else { v }, i))
+}
+
 #[inline]
 fn memchr_nl(bytes: &[u8], from: usize) -> usize {
     bytes[from..]
@@ -537,7 +733,67 @@ pub fn parse_f64(field: &[u8]) -> Option<f64> {
         };
         return Some(if neg { -v } else { v });
     }
+    if let Some(v) = exact_decimal(mant, exp10) {
+        return Some(if neg { -v } else { v });
+    }
     slow_parse(s)
+}
+
+/// Exact powers of ten as integers, 10^0 ..= 10^22.
+const POW10_U128: [u128; 23] = {
+    let mut t = [1u128; 23];
+    let mut i = 1;
+    while i < 23 {
+        t[i] = t[i - 1] * 10;
+        i += 1;
+    }
+    t
+};
+
+/// `mant × 10^exp10` correctly rounded (round half to even) for `|exp10| ≤ 22`, by exact
+/// 128-bit integer arithmetic: the 17–19 digit decimals that the Clinger fast path cannot
+/// take. `None` when the integer quotient would keep fewer than 54 bits (then the caller
+/// falls back to the standard library).
+#[inline]
+fn exact_decimal(mant: u64, exp10: i32) -> Option<f64> {
+    if mant == 0 {
+        return Some(0.0);
+    }
+    if !(-22..=22).contains(&exp10) {
+        return None;
+    }
+    // value = q · 2^e2, with `sticky` telling whether anything below q's last bit is non-zero
+    let (q, e2, sticky): (u128, i32, bool) = if exp10 >= 0 {
+        let p = POW10_U128[exp10 as usize];
+        let q = (mant as u128).checked_mul(p)?;
+        (q, 0, false)
+    } else {
+        let d = POW10_U128[(-exp10) as usize];
+        let num = (mant as u128) << 64;
+        (num / d, -64, !num.is_multiple_of(d))
+    };
+    let bits = 128 - q.leading_zeros() as i32;
+    if bits < 54 {
+        return if sticky || exp10 < 0 {
+            None
+        } else {
+            Some(q as f64)
+        };
+    }
+    let drop = bits - 53;
+    let mut m = q >> drop;
+    let half = 1u128 << (drop - 1);
+    let rest = q & ((1u128 << drop) - 1);
+    let round_up = rest > half || (rest == half && (sticky || m & 1 == 1));
+    if round_up {
+        m += 1;
+    }
+    // m ≤ 2^53 (exactly 2^53 after a carry): still exact as f64
+    let exp = e2 + drop;
+    if !(-1000..=1000).contains(&exp) {
+        return None;
+    }
+    Some(m as f64 * f64::powi(2.0, exp))
 }
 
 #[cold]
@@ -576,6 +832,43 @@ mod tests {
             assert_eq!(got.to_bits(), want.to_bits(), "{s}");
         }
         assert!(parse_f64(b"NaN").unwrap().is_nan());
+        // 17-digit decimals (shortest round trip of random doubles) through the 128-bit path
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        for k in 0..200_000 {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            let u = (state >> 11) as f64 / (1u64 << 53) as f64;
+            let x = match k % 4 {
+                0 => u * 1000.0,
+                1 => -u * 25.0,
+                2 => u * 1e-6,
+                _ => f64::from_bits((state >> 2) | 0x3000_0000_0000_0000),
+            };
+            for text in [
+                format!("{x}"),
+                format!("{x:e}"),
+                format!("{:.17}", x * 1e-3),
+                format!("{:.3}", x * 1e12),
+            ] {
+                let want: f64 = text.parse().unwrap();
+                let got = parse_f64(text.as_bytes()).unwrap();
+                assert_eq!(got.to_bits(), want.to_bits(), "{text}");
+            }
+        }
+        for text in [
+            "9007199254740993",
+            "9007199254740995",
+            "18446744073709551615",
+            "0.1000000000000000055511151231257827",
+        ] {
+            let want: f64 = text.parse().unwrap();
+            assert_eq!(
+                parse_f64(text.as_bytes()).unwrap().to_bits(),
+                want.to_bits(),
+                "{text}"
+            );
+        }
         assert_eq!(parse_f64(b"abc"), None);
         assert_eq!(parse_f64(b"1.2.3"), None);
         assert_eq!(parse_f64(b"1e"), None);

@@ -78,3 +78,40 @@ fn bad_header_and_extra_values_are_rejected() {
     let err = rec.require("meas_x").unwrap_err();
     assert!(err.to_string().contains("meas_x") && err.to_string().contains('t'));
 }
+
+#[test]
+fn large_input_parsed_in_parallel_reports_global_line_numbers() {
+    // > 1 MiB so the parser splits the rows across threads
+    let mut csv = String::from("t,meas_x,temp_a\n");
+    for i in 0..120_000 {
+        csv.push_str(&format!("{i},{}.125,2{}.5\n", i % 480, i % 3));
+    }
+    let rec = Recording::parse(csv.as_bytes()).unwrap();
+    assert_eq!(rec.rows(), 120_000);
+    assert_eq!(
+        rec.column("meas_x").unwrap()[119_999],
+        (119_999 % 480) as f64 + 0.125
+    );
+    assert_eq!(rec.column("t").unwrap()[70_000], 70_000.0);
+    // a bad value late in the file: line = header + row index + 1
+    let bad = csv.replacen("100000,", "100000,x", 1);
+    match Recording::parse(bad.as_bytes()).unwrap_err() {
+        RecordingError::NotNumeric { line, column, .. } => assert_eq!((line, column), (100_002, 2)),
+        e => panic!("unexpected {e:?}"),
+    }
+}
+
+#[test]
+fn whitespace_and_exotic_numbers() {
+    let rec =
+        Recording::parse(b"a, b ,c\n 1 , -2.5e3 ,NaN\n\n   \n+4,1e-30,123456789012345678901\n")
+            .unwrap();
+    assert_eq!(rec.names(), &["a", "b", "c"]);
+    assert_eq!(rec.column("b").unwrap(), &[-2500.0, 1e-30]);
+    assert!(rec.column("c").unwrap()[0].is_nan());
+    assert_eq!(rec.column("c").unwrap()[1], 123456789012345678901.0);
+    assert!(matches!(
+        Recording::parse(b"a,b\n1,2,\n"),
+        Err(RecordingError::TooManyValues { line: 2, .. })
+    ));
+}

@@ -49,12 +49,13 @@ pub struct FitArgs {
 
 /// Runs `nanocal fit`.
 pub fn run(args: FitArgs) -> anyhow::Result<()> {
-    let rec = Recording::read_path(&args.recording)?;
     let (spec, fixed) = if args.published_static {
         (DesignSpec::published_static(), true)
     } else {
         (DesignSpec::parse(&args.terms)?, args.fixed)
     };
+    let bar = crate::cli::validate::spinner(format!("reading {}", args.recording.display()));
+    let rec = Recording::read_path(&args.recording)?;
     let selection = if fixed {
         Selection::Fixed
     } else {
@@ -77,6 +78,7 @@ pub fn run(args: FitArgs) -> anyhow::Result<()> {
     };
     let rep =
         fit_dwells(&d, &opts).with_context(|| format!("fitting {}", args.recording.display()))?;
+    bar.finish_and_clear();
     print!("{}", summary(&rep));
     let bytes = encode_blob(&rep.model);
     std::fs::write(&args.output, &bytes)

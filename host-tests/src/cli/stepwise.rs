@@ -9,7 +9,7 @@ use crate::recording::Recording;
 use crate::stepwise::{stepwise, Action, StepwiseOptions, StepwiseResult};
 
 /// Stepwise linear regression with MATLAB `stepwisefit` semantics: every numeric column other
-/// than the response (and `t`, unless `--with-time`) is a candidate term; the intercept is
+/// than the response (and those listed in `--exclude`) is a candidate term; the intercept is
 /// always in the model.
 #[derive(Args, Debug)]
 pub struct StepwiseArgs {
@@ -33,9 +33,9 @@ pub struct StepwiseArgs {
     /// Columns whose status never changes (names, comma separated).
     #[arg(long, value_delimiter = ',')]
     pub keep: Vec<String>,
-    /// Also use the time column `t` as a candidate.
-    #[arg(long)]
-    pub with_time: bool,
+    /// Columns that are not candidates (names, comma separated), e.g. `t`.
+    #[arg(long, value_delimiter = ',')]
+    pub exclude: Vec<String>,
     /// Write the full result (b, se, pval, inmodel, history, ...) as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -43,12 +43,17 @@ pub struct StepwiseArgs {
 
 /// Runs `nanocal stepwise`.
 pub fn run(args: StepwiseArgs) -> anyhow::Result<()> {
+    let bar = crate::cli::validate::spinner(format!("reading {}", args.file.display()));
     let rec = Recording::read_path(&args.file)?;
+    bar.finish_and_clear();
     let y = rec.require(&args.response)?;
+    for n in &args.exclude {
+        rec.require(n).context("--exclude")?;
+    }
     let names: Vec<String> = rec
         .names()
         .iter()
-        .filter(|n| **n != args.response && (args.with_time || n.as_str() != "t"))
+        .filter(|n| **n != args.response && !args.exclude.contains(n))
         .cloned()
         .collect();
     if names.is_empty() {
@@ -82,7 +87,13 @@ pub fn run(args: StepwiseArgs) -> anyhow::Result<()> {
         keep: index_of("keep", &args.keep)?,
         threads: None,
     };
+    let bar = crate::cli::validate::spinner(format!(
+        "stepwise over {} candidates, {} rows",
+        x.len(),
+        y.len()
+    ));
     let res = stepwise(&x, y, &opts)?;
+    bar.finish_and_clear();
     print!("{}", table(&names, &res, &opts));
     if let Some(path) = &args.json {
         let json = to_json(&names, &args.response, &res);

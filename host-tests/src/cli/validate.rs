@@ -37,6 +37,14 @@ pub struct ValidateArgs {
     pub json: Option<PathBuf>,
 }
 
+/// A spinner on stderr for long work (indicatif hides it when stderr is not a terminal).
+pub fn spinner(message: impl Into<String>) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new_spinner();
+    bar.set_message(message.into());
+    bar.enable_steady_tick(std::time::Duration::from_millis(120));
+    bar
+}
+
 /// Reads and decodes a model blob.
 pub fn read_model(path: &Path) -> anyhow::Result<Model> {
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
@@ -46,7 +54,9 @@ pub fn read_model(path: &Path) -> anyhow::Result<Model> {
 
 /// Reads a recording and averages its dwells.
 pub fn read_dwells(path: &Path, average_last_s: f64) -> anyhow::Result<Dwells> {
+    let bar = spinner(format!("reading {}", path.display()));
     let rec = Recording::read_path(path)?;
+    bar.finish_and_clear();
     let d = dwell_average(
         &rec,
         &DwellOptions {
@@ -139,7 +149,9 @@ pub fn report_json(r: &ValidationReport) -> serde_json::Value {
 pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
     let model = read_model(&args.model)?;
     let d = read_dwells(&args.recording, args.average_last_s)?;
+    let bar = spinner("validating: no model, static, adaptive KMZ");
     let reports = three_ways(&model, &d, &args.reference_pose_um, args.kmz_interval_s)?;
+    bar.finish_and_clear();
     println!(
         "{} dwells, {} tests, KMZ re-measured {} times at {:?} µm",
         d.len(),

@@ -160,6 +160,53 @@ pub struct Fitted<'a> {
     pub se: &'a [f64],
 }
 
+/// Where a channel sits in the shared model, for [`Candidate::blob_terms`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct BlobContext {
+    /// Output axis (model index) of the channel.
+    pub output: u8,
+    /// Axes of the model.
+    pub axes: u8,
+    /// Temperature inputs of the model (model Temp index = order in the recording).
+    pub temps: u8,
+    /// Aux index of the barometric pressure, if the model has it.
+    pub pressure_aux: Option<u8>,
+}
+
+/// The shared-model terms that carry an effect into the blob: shapes with coefficient 0 (the
+/// host's fit sets them in the model's scaling) and the lag filters they need.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BlobTerms {
+    /// Lag filters to declare first, (sensor, τ in s); `Factor::Lagged(k)` in `terms` counts
+    /// from the first of these (add the model's existing lag count).
+    pub lags: Vec<(u8, f64)>,
+    /// Term shapes.
+    pub terms: Vec<nanocal_model::Term>,
+}
+
+/// A term shape with coefficient 0.
+pub fn term(
+    output: u8,
+    powers: [u8; 3],
+    factor: nanocal_model::Factor,
+    direction: u8,
+) -> nanocal_model::Term {
+    nanocal_model::Term {
+        output,
+        powers,
+        factor,
+        direction,
+        coeff: 0.0,
+    }
+}
+
+/// `[0, 0, 0]` with `p` on `axis`.
+pub fn powers(axis: u8, p: u8) -> [u8; 3] {
+    let mut out = [0; 3];
+    out[axis as usize] = p;
+    out
+}
+
 /// An effect as explain tests it: a model extension with physical parameters.
 pub trait Candidate: Sync {
     /// One of [`NAMES`].
@@ -186,6 +233,11 @@ pub trait Candidate: Sync {
     fn regressors(&self, d: &Data, ch: usize, theta: Option<f64>) -> Vec<Vec<f64>>;
     /// The physical parameters from the fitted coefficients.
     fn params(&self, d: &Data, ch: usize, f: &Fitted) -> Vec<Estimate>;
+    /// The shared-model terms that let the firmware run the effect (with the fitted nonlinear
+    /// parameter `theta`), or `None` when the compensator cannot (see [`Candidate::deploy`]).
+    fn blob_terms(&self, _ctx: &BlobContext, _theta: Option<f64>) -> Option<BlobTerms> {
+        None
+    }
 }
 
 /// The library of candidates explain tests, in a fixed order.

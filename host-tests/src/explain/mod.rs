@@ -97,6 +97,34 @@ impl Model {
     }
 }
 
+/// Half widths (s) of the delay-free temperature denoising that the baseline may use: sensor
+/// noise is fast; slower smoothing would start to shape the thermal response itself.
+pub const SMOOTHING_OPTIONS_S: [f64; 3] = [60.0, 150.0, 300.0];
+
+fn choose_smoothing(d: &Data, ch: usize, folds: &[u8]) -> Result<Data, ExplainError> {
+    if d.temps.is_empty() || d.against_simulation {
+        return Ok(d.clone());
+    }
+    let mut best: Option<(f64, Data)> = None;
+    let mut first_rms = f64::NAN;
+    for &w in SMOOTHING_OPTIONS_S
+        .iter()
+        .filter(|&&w| w == SMOOTHING_OPTIONS_S[0] || w <= d.duration_s() / 20.0)
+    {
+        let dw = d.with_smoothing(w);
+        let (cols, _) = baseline_columns(&dw, ch);
+        let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
+        let cv = fit::cross_validate(&refs, &dw.channels[ch].y_um, folds)?;
+        if first_rms.is_nan() {
+            first_rms = cv.rms_um;
+        }
+        if best.as_ref().is_none_or(|b| cv.rms_um < b.0 * 0.99) {
+            best = Some((cv.rms_um, dw));
+        }
+    }
+    Ok(best.map(|b| b.1).unwrap_or_else(|| d.clone()))
+}
+
 fn baseline_columns(d: &Data, ch: usize) -> (Vec<Vec<f64>>, String) {
     if d.against_simulation {
         return (Vec::new(), "the given simulation (plus an offset)".into());
@@ -261,11 +289,20 @@ pub fn explain_channel(
     ch: usize,
     settings: &Settings,
 ) -> Result<ChannelReport, ExplainError> {
-    let (base_cols, baseline) = baseline_columns(d, ch);
-    let mut model = Model { cols: base_cols };
     let folds = fit::folds(d.rows());
+    // Sensor noise in the temperatures would make any low-pass filter (a short "lag") look like
+    // physics: pick the delay-free denoising of the temperatures that predicts held-out data
+    // best (the least smoothing within 1 %), so a lag must earn its place by its delay.
+    let mut d = choose_smoothing(d, ch, &folds)?;
+    let (base_cols, mut baseline) = baseline_columns(&d, ch);
+    if !d.temps.is_empty() && !d.against_simulation {
+        baseline.push_str(&format!(
+            " (temperatures denoised by a centred ±{:.0} s mean, chosen by cross-validation)",
+            d.smooth_half_window_s
+        ));
+    }
+    let mut model = Model { cols: base_cols };
     let base_fit = fit::fit(&model.with(&[]), &d.channels[ch].y_um)?;
-    let mut d = d.clone();
     {
         let c = &mut d.channels[ch];
         for ((p, m), r) in c
@@ -421,6 +458,7 @@ pub fn explain_channel(
             channel: d.channels[ch].name.clone(),
             description: cand.description(),
             deploy: cand.deploy(),
+            blob: cand.blob_terms(&blob_context(d, ch), theta),
             params,
             rms_before_nm: rms_before_um * 1e3,
             rms_after_nm: cv.rms_um * 1e3,
@@ -472,6 +510,20 @@ fn sig3(v: f64) -> String {
         format!("{v:.0}")
     } else {
         format!("{v:.3}")
+    }
+}
+
+/// Where channel `ch` sits in a shared model built from this recording.
+pub fn blob_context(d: &Data, ch: usize) -> crate::effects::BlobContext {
+    crate::effects::BlobContext {
+        output: ch as u8,
+        axes: d.channels.len() as u8,
+        temps: d.temps.len().min(nanocal_model::MAX_TEMPS) as u8,
+        pressure_aux: d
+            .pressure_hpa
+            .as_ref()
+            .and_then(|(name, _)| d.aux.iter().position(|a| &a.0 == name))
+            .map(|i| i as u8),
     }
 }
 

@@ -1,0 +1,178 @@
+//! The CLI end to end: stepwise table, fit → blob → validate → report, and clear non-zero
+//! exits on bad input.
+use std::path::PathBuf;
+use std::process::Command;
+
+fn nanocal() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_nanocal"))
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("nanocal-cli-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+#[test]
+fn stepwise_cli_prints_the_matlab_like_table_and_json() {
+    let dir = tmp("stepwise");
+    let hald = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../shared/peers/octave-stepwise/hald.csv"
+    );
+    let json = dir.join("h.json");
+    let out = nanocal()
+        .args(["stepwise", hald, "--response", "heat", "--json"])
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("Final columns included: x1 x4"), "{text}");
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    assert_eq!(v["selected"], serde_json::json!(["x1", "x4"]));
+    assert!((v["intercept"].as_f64().unwrap() - 103.0974).abs() < 1e-4);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn fit_validate_report_round_trip_on_the_twin() {
+    let dir = tmp("roundtrip");
+    let (train, val) = nanocal::twin::examples::published_1dof(5);
+    let tr = dir.join("training.csv");
+    let va = dir.join("validation.csv");
+    nanocal::recording::Recording::from_columns(train.columns)
+        .unwrap()
+        .write_path(&tr)
+        .unwrap();
+    nanocal::recording::Recording::from_columns(val.columns)
+        .unwrap()
+        .write_path(&va)
+        .unwrap();
+    let blob = dir.join("m.blob");
+    let out = nanocal()
+        .arg("fit")
+        .arg(&tr)
+        .arg("-o")
+        .arg(&blob)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("axis x:") && text.contains("temp_base"),
+        "{text}"
+    );
+    let json = dir.join("v.json");
+    let out = nanocal()
+        .arg("validate")
+        .arg(&blob)
+        .arg(&va)
+        .arg("--per-pose")
+        .arg("--json")
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    let acc = |i: usize| v[i]["max_accuracy_um"].as_f64().unwrap();
+    assert_eq!(v[0]["compensation"], "no model");
+    assert!(
+        acc(1) < acc(0) && acc(2) < acc(0),
+        "static/adaptive not better: {v}"
+    );
+    let plots = dir.join("plots");
+    let out = nanocal()
+        .arg("report")
+        .arg(&blob)
+        .arg(&va)
+        .arg("--out")
+        .arg(&plots)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for f in [
+        "error_vs_position",
+        "drift_vs_temperature",
+        "accuracy_per_pose",
+        "error_over_time",
+    ] {
+        for ext in ["png", "svg"] {
+            let p = plots.join(format!("{f}.{ext}"));
+            assert!(
+                std::fs::metadata(&p)
+                    .map(|m| m.len() > 1000)
+                    .unwrap_or(false),
+                "{} missing",
+                p.display()
+            );
+        }
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn bad_input_exits_non_zero_with_the_line() {
+    let dir = tmp("bad");
+    let csv = dir.join("bad.csv");
+    std::fs::write(&csv, "t,cmd_x,meas_x\n0,0,0\n1,30,abc\n").unwrap();
+    let out = nanocal()
+        .arg("fit")
+        .arg(&csv)
+        .arg("-o")
+        .arg(dir.join("m.blob"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("line 3") && err.contains("meas_x") && err.contains("abc"),
+        "{err}"
+    );
+    let good = dir.join("good.csv");
+    std::fs::write(&good, "a,b\n1,2\n3,4\n5,7\n").unwrap();
+    let out = nanocal()
+        .args(["stepwise"])
+        .arg(&good)
+        .args(["--response", "nope"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("nope"), "{err}");
+    let out = nanocal()
+        .arg("validate")
+        .arg(&csv)
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("not a valid model blob"));
+    let out = nanocal()
+        .arg("fit")
+        .arg(&csv)
+        .arg("-o")
+        .arg(dir.join("m.blob"))
+        .args(["--terms", "cubic"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("cubic"));
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -8,58 +8,97 @@
 //!   target: so f32 rounding acts on δ, not on the whole command, and stays far below 0.05 nm.
 
 use crate::error::InverseError;
+use crate::horner::{self, Dual, HornerNum};
 use crate::input::{Input, SlowInputs};
-use crate::limits::{MAX_AXES, MAX_POWER, MAX_TERMS};
+use crate::limits::MAX_AXES;
 use crate::model::Model;
+use crate::term::Term;
 
-const FAST_CAPACITY: usize = MAX_TERMS + 2 * MAX_AXES;
-const POWERS: usize = MAX_POWER as usize + 1;
-/// Flat power table: axis `a`'s power `p` sits at `a·POWERS + p`; a power of two in size so a
-/// masked index needs no bounds check on the fast path.
-const TABLE: usize = 32;
-const TABLE_MASK: usize = TABLE - 1;
+/// Coefficients a fold can hold over all its blocks (a power of two: masked indices need no
+/// bounds check). [`Model`] validation refuses a model whose fold would not fit.
+pub const FOLD_CAPACITY: usize = 512;
+const POOL_MASK: usize = FOLD_CAPACITY - 1;
+/// Blocks: one per output axis and sign channel (none, or the sign of approach of an axis).
+const MAX_BLOCKS: usize = MAX_AXES * (MAX_AXES + 1);
 const MAX_NEWTON_STEPS: usize = 24;
 
-// The flat power table must hold every axis' powers.
-const _: () = assert!(MAX_AXES * POWERS <= TABLE);
+/// One dense polynomial of the fold: its output axis, the sign that multiplies it (0 none,
+/// 1 + a the sign of approach of axis a), its total degree and where its coefficients start.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Block {
+    output: u8,
+    sign: u8,
+    degree: u8,
+    start: u16,
+}
 
-/// One monomial of the folded deviation polynomial, laid out for the fast path: its
-/// coefficient, where its three powers sit in the flat power table, and which sign multiplies
-/// it (slot 0 holds 1, slot 1 + a the sign of approach of axis a).
+/// The blocks a model folds into, with their degrees: the fold's shape, which depends only on
+/// the model's terms, not on the slow inputs.
 #[derive(Clone, Copy, Debug, PartialEq)]
-struct FastTerm {
-    coeff: f32,
-    index: [u8; 4],
+pub(crate) struct FoldShape {
+    blocks: [Block; MAX_BLOCKS],
+    len: usize,
+    /// Coefficients all blocks need together.
+    pub coefficients: usize,
 }
 
-impl FastTerm {
-    fn new(powers: [u8; MAX_AXES], direction: u8, coeff: f32) -> Self {
-        let mut index = [0u8; 4];
-        for a in 0..MAX_AXES {
-            index[a] = (a * POWERS) as u8 + powers[a];
+impl FoldShape {
+    /// The blocks of a model with `axes` axes and these terms: for each output the identity
+    /// is subtracted (degree ≥ 1), and every sign channel used gets a block of its own.
+    pub(crate) fn of(axes: usize, terms: &[Term]) -> FoldShape {
+        let mut degree = [[None::<u8>; MAX_AXES + 1]; MAX_AXES];
+        for o in 0..axes {
+            degree[o][0] = Some(1);
         }
-        index[3] = direction;
-        FastTerm { coeff, index }
+        for t in terms {
+            let (o, s) = (
+                (t.output as usize).min(MAX_AXES - 1),
+                (t.direction as usize).min(MAX_AXES),
+            );
+            degree[o][s] = Some(degree[o][s].unwrap_or(0).max(t.degree()));
+        }
+        let mut shape = FoldShape {
+            blocks: [Block::default(); MAX_BLOCKS],
+            len: 0,
+            coefficients: 0,
+        };
+        for o in 0..axes {
+            for s in 0..=MAX_AXES {
+                if let Some(d) = degree[o][s] {
+                    shape.blocks[shape.len] = Block {
+                        output: o as u8,
+                        sign: s as u8,
+                        degree: d,
+                        start: shape.coefficients as u16,
+                    };
+                    shape.len += 1;
+                    shape.coefficients += horner::block_len(axes, d as usize);
+                }
+            }
+        }
+        shape
     }
 
-    fn power(&self, axis: usize) -> usize {
-        self.index[axis] as usize - axis * POWERS
-    }
-
-    #[inline(always)]
-    fn monomial(&self, pows: &PowerTable) -> f32 {
-        pows[self.index[0] as usize & TABLE_MASK]
-            * pows[self.index[1] as usize & TABLE_MASK]
-            * pows[self.index[2] as usize & TABLE_MASK]
-    }
-
-    #[inline(always)]
-    fn sign(&self, signs: &[f32; 4]) -> f32 {
-        signs[self.index[3] as usize & 3]
+    fn block_of(&self, output: u8, sign: u8) -> Option<&Block> {
+        self.blocks[..self.len]
+            .iter()
+            .find(|b| b.output == output && b.sign == sign)
     }
 }
 
-/// A model with its slow inputs folded in: a pure f32 polynomial in position.
+/// Position of monomial `powers` in a block's layout.
+fn position(axes: usize, degree: usize, powers: [u8; MAX_AXES]) -> Option<usize> {
+    let mut found = None;
+    horner::for_each_monomial(axes, degree, |pos, p| {
+        if p == powers {
+            found = Some(pos);
+        }
+    });
+    found
+}
+
+/// A model with its slow inputs folded in: dense f32 polynomials in position, one block per
+/// output axis and sign channel.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Fold {
     axes: u8,
@@ -67,14 +106,12 @@ pub struct Fold {
     inv_half_range: [f32; MAX_AXES],
     envelope_min_um: [f32; MAX_AXES],
     envelope_max_um: [f32; MAX_AXES],
-    max_power: [u8; MAX_AXES],
-    /// Constant part of δ per axis, added after the small terms: summing those onto a large
+    /// Constant part of δ per axis, added after the rest: summing small terms onto a large
     /// constant would round each partial sum at the constant's magnitude.
     constant_um: [f32; MAX_AXES],
-    /// Non-constant monomials, grouped by output axis: output `o` owns
-    /// `terms[output_end[o−1]..output_end[o]]`.
-    terms: [FastTerm; FAST_CAPACITY],
-    output_end: [u16; MAX_AXES],
+    blocks: [Block; MAX_BLOCKS],
+    n_blocks: u8,
+    coefficients: [f32; FOLD_CAPACITY],
     slow_flags: u16,
 }
 
@@ -92,26 +129,39 @@ impl Model {
     /// Slow path: folds temperatures, aux channels and lagged temperatures into the fast
     /// coefficients (computed in f64, stored in f32).
     pub fn fold(&self, slow: &SlowInputs) -> Fold {
+        let axes = self.axes();
+        let shape = FoldShape::of(axes, self.terms());
         let scaled = self.scale(&[0.0; MAX_AXES], &[0; MAX_AXES], slow);
-        let mut acc = FoldAccumulator::default();
-        for a in 0..self.axes() {
+        // Accumulate in f64 at each coefficient's place; validation guarantees it fits.
+        let mut acc = [0.0f64; FOLD_CAPACITY];
+        let mut constant = [0.0f64; MAX_AXES];
+        let mut add = |output: u8, sign: u8, powers: [u8; MAX_AXES], value: f64| {
+            if powers == [0; MAX_AXES] && sign == 0 {
+                constant[output as usize] += value;
+            } else if let Some(b) = shape.block_of(output, sign) {
+                if let Some(pos) = position(axes, b.degree as usize, powers) {
+                    acc[(b.start as usize + pos) & POOL_MASK] += value;
+                }
+            }
+        };
+        for a in 0..axes {
             let sc = self.scaling(Input::Axis(a as u8));
             // δ = q − x, and x = centre + half_range·u.
-            acc.add(
+            add(
                 a as u8,
-                [0; MAX_AXES],
                 0,
+                [0; MAX_AXES],
                 self.offset_um[a] + self.kmz_offset_um[a] - sc.centre,
             );
             let mut unit = [0; MAX_AXES];
             unit[a] = 1;
-            acc.add(a as u8, unit, 0, -sc.half_range);
+            add(a as u8, 0, unit, -sc.half_range);
         }
         for term in self.terms() {
-            acc.add(
+            add(
                 term.output,
-                term.powers,
                 term.direction,
+                term.powers,
                 term.coeff * term.slow_factor(&scaled),
             );
         }
@@ -121,16 +171,13 @@ impl Model {
             inv_half_range: [1.0; MAX_AXES],
             envelope_min_um: [f32::NEG_INFINITY; MAX_AXES],
             envelope_max_um: [f32::INFINITY; MAX_AXES],
-            max_power: [0; MAX_AXES],
-            constant_um: [0.0; MAX_AXES],
-            terms: [FastTerm {
-                coeff: 0.0,
-                index: [0; 4],
-            }; FAST_CAPACITY],
-            output_end: [0; MAX_AXES],
+            constant_um: constant.map(|c| c as f32),
+            blocks: shape.blocks,
+            n_blocks: shape.len as u8,
+            coefficients: acc.map(|c| c as f32),
             slow_flags: self.slow_envelope_flags(slow).0,
         };
-        for a in 0..self.axes() {
+        for a in 0..axes {
             let sc = self.scaling(Input::Axis(a as u8));
             let (min, max) = self.envelope(Input::Axis(a as u8));
             fold.centre_um[a] = sc.centre as f32;
@@ -138,81 +185,9 @@ impl Model {
             fold.envelope_min_um[a] = min as f32;
             fold.envelope_max_um[a] = max as f32;
         }
-        let mut n = 0;
-        for output in 0..MAX_AXES as u8 {
-            for (shape, &coeff) in acc.shapes[..acc.len].iter().zip(&acc.coeffs) {
-                if shape.output != output {
-                    continue;
-                }
-                if shape.powers == [0; MAX_AXES] && shape.direction == 0 {
-                    fold.constant_um[output as usize] = coeff as f32;
-                    continue;
-                }
-                fold.terms[n] = FastTerm::new(shape.powers, shape.direction, coeff as f32);
-                n += 1;
-                for a in 0..MAX_AXES {
-                    fold.max_power[a] = fold.max_power[a].max(shape.powers[a]);
-                }
-            }
-            fold.output_end[output as usize] = n as u16;
-        }
         fold
     }
 }
-
-/// Shape of a folded monomial: output axis, powers, direction.
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct Shape {
-    output: u8,
-    powers: [u8; MAX_AXES],
-    direction: u8,
-}
-
-/// Merges folded coefficients of equal monomials, in f64 until stored.
-struct FoldAccumulator {
-    coeffs: [f64; FAST_CAPACITY],
-    shapes: [Shape; FAST_CAPACITY],
-    len: usize,
-}
-
-impl Default for FoldAccumulator {
-    fn default() -> Self {
-        let empty = Shape {
-            output: 0,
-            powers: [0; MAX_AXES],
-            direction: 0,
-        };
-        FoldAccumulator {
-            coeffs: [0.0; FAST_CAPACITY],
-            shapes: [empty; FAST_CAPACITY],
-            len: 0,
-        }
-    }
-}
-
-impl FoldAccumulator {
-    fn add(&mut self, output: u8, powers: [u8; MAX_AXES], direction: u8, coeff: f64) {
-        let shape = Shape {
-            output,
-            powers,
-            direction,
-        };
-        let slot = match self.shapes[..self.len].iter().position(|s| *s == shape) {
-            Some(i) => i,
-            // A validated model has at most MAX_TERMS shapes plus the 2·axes identity ones.
-            None if self.len < FAST_CAPACITY => {
-                self.shapes[self.len] = shape;
-                self.len += 1;
-                self.len - 1
-            }
-            None => return,
-        };
-        self.coeffs[slot] += coeff;
-    }
-}
-
-/// Powers 0..=MAX_POWER of each scaled axis position, flat (see [`TABLE`]).
-type PowerTable = [f32; TABLE];
 
 impl Fold {
     /// Number of axes.
@@ -226,32 +201,40 @@ impl Fold {
         self.slow_flags
     }
 
-    /// Number of non-constant monomials the fast path evaluates.
-    pub fn fast_terms(&self) -> usize {
-        self.output_end[MAX_AXES - 1] as usize
+    /// Number of coefficients the fast path reads per correction.
+    pub fn fast_coefficients(&self) -> usize {
+        self.blocks[..self.n_blocks as usize]
+            .iter()
+            .map(|b| horner::block_len(self.axes(), b.degree as usize))
+            .sum()
     }
 
     /// Fast path: commands for calibrated targets `x_um`, approached in direction `dir`
     /// (+1 forward, −1 backward, 0 unknown).
     pub fn correct(&self, x_um: &[f32; MAX_AXES], dir: &[i8; MAX_AXES]) -> Correction {
+        let axes = self.axes();
         let mut outside = 0u8;
-        for a in 0..self.axes() {
+        let mut u = [0.0f32; MAX_AXES];
+        for a in 0..axes {
             if !(x_um[a] >= self.envelope_min_um[a] && x_um[a] <= self.envelope_max_um[a]) {
                 outside |= 1 << a;
             }
+            u[a] = (x_um[a] - self.centre_um[a]) * self.inv_half_range[a];
         }
-        let pows = self.power_table(x_um);
-        let signs = signs(dir);
+        let mut delta = [0.0f32; MAX_AXES];
+        for b in &self.blocks[..(self.n_blocks as usize).min(MAX_BLOCKS)] {
+            let value = horner::evaluate(axes, b.degree as usize, u, |k| {
+                self.coefficients[(b.start as usize + k) & POOL_MASK]
+            });
+            delta[(b.output as usize).min(MAX_AXES - 1)] += if b.sign == 0 {
+                value
+            } else {
+                value * sign(dir, b.sign)
+            };
+        }
         let mut q_um = [0.0f32; MAX_AXES];
-        let mut start = 0;
-        for o in 0..self.axes() {
-            let end = self.output_end[o] as usize;
-            let mut delta = 0.0f32;
-            for t in self.terms.get(start..end).unwrap_or(&[]) {
-                delta += t.coeff * t.monomial(&pows) * t.sign(&signs);
-            }
-            q_um[o] = (delta + self.constant_um[o]) + x_um[o];
-            start = end;
+        for a in 0..axes {
+            q_um[a] = (delta[a] + self.constant_um[a]) + x_um[a];
         }
         Correction {
             q_um,
@@ -270,32 +253,27 @@ impl Fold {
         if q_um[..n].iter().any(|v| !v.is_finite()) {
             return Err(InverseError::NonFinite);
         }
-        let signs = signs(dir);
         let mut x = *q_um;
         for _ in 0..MAX_NEWTON_STEPS {
-            let pows = self.power_table(&x);
             let mut residual = [0.0f32; MAX_AXES];
             let mut jacobian = [[0.0f32; MAX_AXES]; MAX_AXES];
-            let mut start = 0;
-            for o in 0..n {
-                residual[o] = (x[o] - q_um[o]) + self.constant_um[o];
-                jacobian[o][o] = 1.0;
-                let end = self.output_end[o] as usize;
-                for t in self.terms.get(start..end).unwrap_or(&[]) {
-                    let c = t.coeff * t.sign(&signs);
-                    residual[o] += c * t.monomial(&pows);
-                    for a in 0..n {
-                        let p = t.power(a);
-                        if p > 0 {
-                            // d/du_a of u_a^p is p·u_a^(p−1); the other axes' powers stay.
-                            let mut lowered = *t;
-                            lowered.index[a] -= 1;
-                            let d = p as f32 * lowered.monomial(&pows) * self.inv_half_range[a];
-                            jacobian[o][a] += c * d;
-                        }
-                    }
+            let mut u = [<Dual as HornerNum>::ZERO; MAX_AXES];
+            for a in 0..n {
+                residual[a] = (x[a] - q_um[a]) + self.constant_um[a];
+                jacobian[a][a] = 1.0;
+                u[a] = Dual::variable(a, (x[a] - self.centre_um[a]) * self.inv_half_range[a]);
+            }
+            for b in &self.blocks[..(self.n_blocks as usize).min(MAX_BLOCKS)] {
+                let d = horner::evaluate(n, b.degree as usize, u, |k| {
+                    self.coefficients[(b.start as usize + k) & POOL_MASK]
+                });
+                let s = if b.sign == 0 { 1.0 } else { sign(dir, b.sign) };
+                let o = (b.output as usize).min(MAX_AXES - 1);
+                residual[o] += s * d.value;
+                for a in 0..n {
+                    // Chain rule: du_a/dx_a = 1/half_range_a.
+                    jacobian[o][a] += s * d.grad[a] * self.inv_half_range[a];
                 }
-                start = end;
             }
             let step = solve(jacobian, residual, n)?;
             let mut converged = true;
@@ -313,28 +291,12 @@ impl Fold {
         }
         Err(InverseError::NotConverged)
     }
-
-    #[inline(always)]
-    fn power_table(&self, x_um: &[f32; MAX_AXES]) -> PowerTable {
-        let mut pows = [1.0f32; TABLE];
-        for a in 0..self.axes() {
-            let u = (x_um[a] - self.centre_um[a]) * self.inv_half_range[a];
-            let base = a * POWERS;
-            for k in 1..=self.max_power[a] as usize {
-                pows[(base + k) & TABLE_MASK] = pows[(base + k - 1) & TABLE_MASK] * u;
-            }
-        }
-        pows
-    }
 }
 
+/// Sign of approach for a block's sign channel `1 + axis`: +1, −1, or 0 when unknown.
 #[inline(always)]
-fn signs(dir: &[i8; MAX_AXES]) -> [f32; 4] {
-    let mut s = [1.0f32; 4];
-    for a in 0..MAX_AXES {
-        s[a + 1] = crate::term::approach_sign(dir[a]) as f32;
-    }
-    s
+fn sign(dir: &[i8; MAX_AXES], channel: u8) -> f32 {
+    crate::term::approach_sign(dir[(channel as usize - 1).min(MAX_AXES - 1)]) as f32
 }
 
 /// Solves `J·s = r` for n ≤ 3 by Gaussian elimination with partial pivoting.

@@ -635,3 +635,35 @@ proptest! {
         let _ = u.finish(&buf);
     }
 }
+
+#[test]
+fn every_upload_error_code_has_a_meaning() {
+    use nanocal_model::blob::BlobError;
+    let errors = [
+        UploadError::NotStarted,
+        UploadError::VersionMismatch {
+            found: 2,
+            expected: 1,
+        },
+        UploadError::BadLength { len: 0, max: 1 },
+        UploadError::OutOfOrder {
+            expected: 0,
+            found: 1,
+        },
+        UploadError::Overrun,
+        UploadError::ChunkMismatch,
+        UploadError::Incomplete {
+            expected: 2,
+            received: 1,
+        },
+        UploadError::CrcMismatch {
+            expected: 1,
+            computed: 2,
+        },
+        UploadError::Blob(BlobError::BadMagic),
+    ];
+    for e in errors {
+        assert_ne!(mgmt::result_meaning(e.code()), "unknown code", "{e}");
+        assert_ne!(e.code(), mgmt::RESULT_OK);
+    }
+}

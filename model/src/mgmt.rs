@@ -71,6 +71,27 @@ pub const RESULT_BAD_REQUEST: u8 = 22;
 /// Result: unknown request kind.
 pub const RESULT_UNKNOWN_KIND: u8 = 23;
 
+/// What a result code means (for people: CLI output, logs).
+pub fn result_meaning(code: u8) -> &'static str {
+    match code {
+        RESULT_OK => "ok",
+        1 => "upload step without a begin",
+        2 => "blob format version not supported by the firmware",
+        3 => "announced length out of range",
+        4 => "chunk out of order",
+        5 => "chunk past the announced length",
+        6 => "repeated chunk differs",
+        7 => "upload incomplete",
+        8 => "whole-blob CRC mismatch",
+        9 => "invalid blob",
+        RESULT_STORAGE => "storage (flash) failure; old model kept",
+        RESULT_NO_MODEL => "no model loaded",
+        RESULT_BAD_REQUEST => "malformed request",
+        RESULT_UNKNOWN_KIND => "unknown request",
+        _ => "unknown code",
+    }
+}
+
 /// Framing errors.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[non_exhaustive]

@@ -95,27 +95,20 @@ impl EffectSpec {
 }
 
 /// First-order lag (time constant `tau_s`) of a sampled series, exact for a held input between
-/// samples; starts at `y0` (or the first sample).
+/// samples; starts at `y0` (or the first sample). The shared model's filter, which the
+/// firmware runs too.
 pub fn lag_series(t_s: &[f64], x: &[f64], tau_s: f64, y0: Option<f64>) -> Vec<f64> {
+    let mut filter = match y0 {
+        Some(y0) if tau_s > 0.0 => nanocal_model::LagFilter::starting_at(tau_s, y0),
+        _ => nanocal_model::LagFilter::new(tau_s),
+    };
     let mut out = Vec::with_capacity(x.len());
-    let mut y = y0.unwrap_or_else(|| x.first().copied().unwrap_or(0.0));
-    let mut last_dt = f64::NAN;
-    let mut a = 0.0;
-    for k in 0..x.len() {
-        if k > 0 {
-            let dt = t_s[k] - t_s[k - 1];
-            if dt != last_dt {
-                a = if tau_s > 0.0 {
-                    1.0 - (-dt / tau_s).exp()
-                } else {
-                    1.0
-                };
-                last_dt = dt;
-            }
-            y += a * (x[k] - y);
-        } else if tau_s <= 0.0 {
-            y = x[0];
-        }
+    for (k, &v) in x.iter().enumerate() {
+        let y = match k {
+            0 if y0.is_some() && tau_s > 0.0 => filter.value(),
+            0 => filter.update(v, f64::NAN),
+            _ => filter.update(v, t_s[k] - t_s[k - 1]),
+        };
         out.push(y);
     }
     out
@@ -265,16 +258,7 @@ pub fn log_grid(lo: f64, hi: f64, k: usize) -> Vec<f64> {
         .collect()
 }
 
-/// Lag every column of a series set with the shared model's filter (the firmware's code).
+/// Lag a sampled series with the shared model's filter, starting at its first sample.
 pub fn lag_columns(t_s: &[f64], x: &[f64], tau_s: f64) -> Vec<f64> {
-    let mut f = nanocal_model::LagFilter::new(tau_s);
-    let mut prev = f64::NAN;
-    x.iter()
-        .zip(t_s)
-        .map(|(&v, &t)| {
-            let dt = t - prev;
-            prev = t;
-            f.update(v, dt)
-        })
-        .collect()
+    lag_series(t_s, x, tau_s, None)
 }

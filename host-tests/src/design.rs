@@ -18,12 +18,13 @@
 //! | `temp_x_pos` | every temperature × own-axis position (thermal expansion of the moving part) |
 //! | `aux` | linear in every auxiliary channel (file order = model Aux index) |
 //! | `direction` | a constant step with the sign of approach of the own axis (hysteresis) |
+//! | `lag=TAU` | every temperature through a first-order lag of time constant TAU s (thermal lag; the blob declares the lag filters and the firmware runs them) |
 //! | `static` | shorthand for the published static model: `poly=3 temps` |
 //! | `adaptive` | shorthand for the published adaptive model: `poly=3` (offset re-measured by KMZ) |
 
 use nanocal_model::{
-    Factor, Input, Model, ModelBuilder, ModelError, ScaledInputs, SlowInputs, Term, MAX_AUX,
-    MAX_AXES, MAX_TEMPS,
+    Factor, Input, LagBank, Model, ModelBuilder, ModelError, ScaledInputs, SlowInputs, Term,
+    MAX_AUX, MAX_AXES, MAX_TEMPS,
 };
 
 use crate::dwell::Dwells;
@@ -32,7 +33,7 @@ use crate::dwell::Dwells;
 #[derive(Debug, thiserror::Error)]
 pub enum DesignError {
     /// The spec text could not be read.
-    #[error("design spec: expected one of poly=N, poly_<axis>=N, cross=N, temps, temp_x_pos, aux, direction, static, adaptive; found `{0}`")]
+    #[error("design spec: expected one of poly=N, poly_<axis>=N, cross=N, temps, temp_x_pos, aux, direction, lag=TAU_S, static, adaptive; found `{0}`")]
     BadToken(String),
     /// An axis named in the spec is not in the data.
     #[error("design spec names axis `{0}`, but the data has axes: {1}")]
@@ -72,6 +73,8 @@ pub struct DesignSpec {
     pub aux: bool,
     /// Direction-of-approach step per axis.
     pub direction: bool,
+    /// Lagged temperature terms: every temperature through a first-order lag with this τ, s.
+    pub lag_tau_s: Option<f64>,
 }
 
 impl DesignSpec {
@@ -111,6 +114,14 @@ impl DesignSpec {
                 "adaptive" => s.poly_order = s.poly_order.max(3),
                 _ => {
                     let (k, v) = tok.split_once('=').ok_or_else(bad)?;
+                    if k == "lag" {
+                        let tau: f64 = v.parse().map_err(|_| bad())?;
+                        if !(tau > 0.0 && tau.is_finite()) {
+                            return Err(bad());
+                        }
+                        s.lag_tau_s = Some(tau);
+                        continue;
+                    }
                     let n: u8 = v.parse().map_err(|_| bad())?;
                     if n > 9 {
                         return Err(bad());
@@ -187,7 +198,7 @@ impl DesignFrame {
                 max: MAX_AXES,
             });
         }
-        let use_temps = spec.temps || spec.temp_x_position;
+        let use_temps = spec.temps || spec.temp_x_position || spec.lag_tau_s.is_some();
         let temps: Vec<String> = if use_temps {
             d.channels
                 .iter()
@@ -251,6 +262,11 @@ impl DesignFrame {
             let (lo, hi) = range(d.channel(name).expect("listed"));
             b = b.trained_range(Input::Aux(i as u8), lo, hi);
         }
+        if let Some(tau) = spec.lag_tau_s {
+            for i in 0..temps.len() {
+                b.lag(i as u8, tau).map_err(DesignError::Model)?;
+            }
+        }
         let skeleton = b.build().map_err(DesignError::Model)?;
         Ok(DesignFrame {
             axes: d.axes.clone(),
@@ -280,6 +296,10 @@ impl DesignFrame {
         for a in 0..m.axes() {
             let (lo, hi) = m.travel_um(a);
             b = b.travel_um(a, lo, hi);
+        }
+        for spec in m.lags() {
+            b.lag(spec.sensor, spec.tau_s)
+                .expect("skeleton's lags are valid");
         }
         b
     }
@@ -355,6 +375,14 @@ impl DesignFrame {
                 });
             }
         }
+        if let Some(tau) = spec.lag_tau_s {
+            for (k, lag) in self.skeleton.lags().iter().enumerate() {
+                out.push(Candidate {
+                    term: term([0; MAX_AXES], Factor::Lagged(k as u8), 0),
+                    name: format!("lag({}, {tau} s)", self.temps[lag.sensor as usize]),
+                });
+            }
+        }
         if spec.aux {
             for (i, name) in self.aux.iter().enumerate() {
                 out.push(Candidate {
@@ -366,21 +394,36 @@ impl DesignFrame {
         out
     }
 
-    /// Slow inputs of dwell `i` (temperatures and aux in model index order).
-    pub fn slow_inputs(&self, d: &Dwells, i: usize) -> SlowInputs {
-        let mut s = SlowInputs::default();
-        for (t, name) in self.temps.iter().enumerate() {
-            s.temps_c[t] = d.channel(name).map_or(f64::NAN, |c| c[i]);
-        }
-        for (n, name) in self.aux.iter().enumerate() {
-            s.aux[n] = d.channel(name).map_or(f64::NAN, |c| c[i]);
-        }
-        s
+    /// Slow inputs of every dwell (temperatures and aux in model index order; the outputs of
+    /// the declared lag filters from the model crate's [`LagBank`], run over the dwells in time
+    /// order — exact for temperatures held between dwells).
+    pub fn slow_inputs(&self, d: &Dwells) -> Vec<SlowInputs> {
+        let mut bank = LagBank::new(self.skeleton.lags());
+        (0..d.len())
+            .map(|i| {
+                let mut s = SlowInputs::default();
+                for (t, name) in self.temps.iter().enumerate() {
+                    s.temps_c[t] = d.channel(name).map_or(f64::NAN, |c| c[i]);
+                }
+                for (n, name) in self.aux.iter().enumerate() {
+                    s.aux[n] = d.channel(name).map_or(f64::NAN, |c| c[i]);
+                }
+                let dt_s = if i == 0 {
+                    0.0
+                } else {
+                    d.t_end_s[i] - d.t_end_s[i - 1]
+                };
+                let temps_c = s.temps_c;
+                bank.update(&temps_c, dt_s, &mut s.lagged_c);
+                s
+            })
+            .collect()
     }
 
     /// Scaled inputs of every dwell, at the measured (calibrated) positions, by the model's
     /// own scaling.
     pub fn scaled_inputs(&self, d: &Dwells) -> Vec<ScaledInputs> {
+        let slow = self.slow_inputs(d);
         (0..d.len())
             .map(|i| {
                 let mut x = [0.0; MAX_AXES];
@@ -389,7 +432,7 @@ impl DesignFrame {
                     x[a] = d.meas_um[a][i];
                     dir[a] = d.dir[a][i];
                 }
-                self.skeleton.scale(&x, &dir, &self.slow_inputs(d, i))
+                self.skeleton.scale(&x, &dir, &slow[i])
             })
             .collect()
     }

@@ -223,5 +223,5 @@ pub fn predict(model: &Model, frame: &DesignFrame, d: &Dwells, i: usize) -> [f64
         x[a] = d.meas_um[a][i];
         dir[a] = d.dir[a][i];
     }
-    model.eval_f64(&x, &dir, &frame.slow_inputs(d, i))
+    model.eval_f64(&x, &dir, &frame.slow_inputs(d)[i])
 }

@@ -291,6 +291,54 @@ pub struct Compressed {
     pub rows: usize,
     /// For each input row: true if it held a NaN and was left out.
     pub was_nan: Vec<bool>,
+    /// For each input column (not the intercept): true if all its used values are equal
+    /// (exactly; a constant column has zero variance, which `R` shows only up to rounding).
+    pub constant: Vec<bool>,
+}
+
+/// Per-thread constancy tracker: the first value seen per column and whether all equal it.
+#[derive(Clone)]
+struct Constancy {
+    first: Vec<Option<f64>>,
+    constant: Vec<bool>,
+}
+
+impl Constancy {
+    fn new(p: usize) -> Self {
+        Constancy {
+            first: vec![None; p],
+            constant: vec![true; p],
+        }
+    }
+    /// Looks at a column-major block of `b` rows whose columns `off..` are the inputs.
+    fn observe(&mut self, blk: &[f64], b: usize, off: usize) {
+        if b == 0 {
+            return;
+        }
+        for j in 0..self.first.len() {
+            if !self.constant[j] {
+                continue;
+            }
+            let col = &blk[(j + off) * b..(j + off + 1) * b];
+            let f = *self.first[j].get_or_insert(col[0]);
+            if col.iter().any(|&v| v != f) {
+                self.constant[j] = false;
+            }
+        }
+    }
+    fn merge(&mut self, other: &Constancy) {
+        for j in 0..self.first.len() {
+            self.constant[j] = self.constant[j]
+                && other.constant[j]
+                && match (self.first[j], other.first[j]) {
+                    (Some(a), Some(b)) => a == b,
+                    _ => true,
+                };
+            if self.first[j].is_none() {
+                self.first[j] = other.first[j];
+            }
+        }
+    }
 }
 
 /// Rows per block in [`compress`]: the block (rows × columns × 8 bytes) stays in L2 cache.
@@ -319,8 +367,10 @@ pub fn compress(
     let k = columns.len() + intercept as usize;
     let threads = threads.max(1).min(n / 4096 + 1);
     let chunk = n.div_ceil(threads);
-    let work = |lo: usize, hi: usize| -> (RAccumulator, Vec<usize>) {
+    let p_in = columns.len();
+    let work = |lo: usize, hi: usize| -> (RAccumulator, Vec<usize>, Constancy) {
         let mut acc = RAccumulator::new(k);
+        let mut constancy = Constancy::new(p_in);
         let mut nan_rows = Vec::new();
         let br = block_rows(k);
         let mut block = vec![0.0; br * k];
@@ -353,15 +403,17 @@ pub fn compress(
                         small[j * nb + t] = blk[j * b + i];
                     }
                 }
+                constancy.observe(&small, nb, off);
                 acc.push_block(&mut small, nb);
             } else {
+                constancy.observe(blk, b, off);
                 acc.push_block(blk, b);
             }
             start += b;
         }
-        (acc, nan_rows)
+        (acc, nan_rows, constancy)
     };
-    let parts: Vec<(RAccumulator, Vec<usize>)> = if threads == 1 {
+    let parts: Vec<(RAccumulator, Vec<usize>, Constancy)> = if threads == 1 {
         vec![work(0, n)]
     } else {
         std::thread::scope(|s| {
@@ -381,12 +433,13 @@ pub fn compress(
     };
     let mut was_nan = vec![false; n];
     let mut iter = parts.into_iter();
-    let (mut acc, nans) = iter.next().expect("at least one part");
+    let (mut acc, nans, mut constancy) = iter.next().expect("at least one part");
     for i in nans {
         was_nan[i] = true;
     }
-    for (other, nans) in iter {
+    for (other, nans, other_constancy) in iter {
         acc.merge(&other);
+        constancy.merge(&other_constancy);
         for i in nans {
             was_nan[i] = true;
         }
@@ -396,6 +449,7 @@ pub fn compress(
         r: acc.into_r(),
         rows,
         was_nan,
+        constant: constancy.constant,
     })
 }
 

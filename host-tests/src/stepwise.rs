@@ -200,6 +200,7 @@ pub fn stepwise(
     }
     Ok(run(
         comp.r,
+        &comp.constant,
         comp.rows,
         in_,
         &keep,
@@ -223,8 +224,10 @@ struct Calc {
     ss_resid: f64,
 }
 
+#[allow(clippy::too_many_arguments)]
 fn run(
     mut z: Mat,
+    constant: &[bool],
     n: usize,
     mut in_: Vec<bool>,
     keep: &[bool],
@@ -234,7 +237,16 @@ fn run(
 ) -> StepwiseResult {
     let k = z.cols();
     let p = k - 2;
-    // standard deviations from R (column 0 is the constant), sx = 0 -> 1
+    // standard deviations from R (column 0 is the constant), sx = 0 -> 1. A column whose
+    // values are all equal is exactly a multiple of the constant: its R column is zero below
+    // the first row (rounding aside), and its standard deviation is exactly 0 as in MATLAB.
+    for (j, &c) in constant.iter().enumerate().take(p) {
+        if c {
+            for i in 1..k {
+                z.set(i, j + 1, 0.0);
+            }
+        }
+    }
     let mut sx = vec![1.0; p];
     for j in 0..p {
         let ss: f64 = (1..k).map(|i| z.get(i, j + 1).powi(2)).sum();

@@ -13,9 +13,12 @@
 //!
 //! Temperature and auxiliary channels map onto the model's inputs by their order in the file
 //! (`temp_*` columns → Temp 0, 1, …; other channels → Aux 0, 1, …), the same convention as
-//! [`crate::design`].
+//! [`crate::design`]. A model with lag filters (thermal lag) gets their outputs from the model
+//! crate's own [`nanocal_model::LagBank`], run over the dwell-averaged temperatures in time
+//! order (exact for a temperature held between dwells; dwells are short against the τ of
+//! thermal lags).
 
-use nanocal_model::{Model, SlowInputs, MAX_AXES};
+use nanocal_model::{LagBank, Model, SlowInputs, MAX_AXES};
 
 use crate::dwell::Dwells;
 use crate::iso9283::{
@@ -202,6 +205,7 @@ pub fn validate(
     let mut last_kmz: Option<f64> = None;
     let mut kmz_updates = 0;
     let mut inverse_failures = 0;
+    let mut lags = model.as_ref().map(|m| LagBank::new(m.lags()));
     for i in 0..d.len() {
         let tgt = target(i);
         if i > 0 && tgt == first && target(i - 1) != first {
@@ -213,6 +217,15 @@ pub fn validate(
         }
         for (n, col) in aux.iter().enumerate().take(nanocal_model::MAX_AUX) {
             slow.aux[n] = col[i];
+        }
+        if let Some(bank) = lags.as_mut() {
+            let dt_s = if i == 0 {
+                0.0
+            } else {
+                d.t_end_s[i] - d.t_end_s[i - 1]
+            };
+            let temps_c = slow.temps_c;
+            bank.update(&temps_c, dt_s, &mut slow.lagged_c);
         }
         let mean_temp_c = if temps.is_empty() {
             f64::NAN

@@ -125,3 +125,67 @@ fn stepwise_fit_selects_the_true_terms_and_predictions_match_regression() {
         );
     }
 }
+
+/// Thermal lag: the stage follows a lagged copy (τ = 900 s) of the sensed temperature. With
+/// `lag=900` among the candidates, stepwise picks the lagged term over the direct one, the blob
+/// declares the lag filter, and validation (which runs the model's own lag filters) of the
+/// fitted model on its training dwells leaves only the noise.
+#[test]
+fn lagged_temperature_term_is_selected_and_deployed() {
+    use nanocal::dwell::Dwells;
+    use nanocal::validate::{validate, Compensation};
+    use nanocal_model::LagFilter;
+    let n = 400;
+    let mut r = Lcg(9);
+    let t: Vec<f64> = (0..n).map(|i| 60.0 * (i + 1) as f64).collect();
+    // temperature: slow steps and ramps between 20 and 22 °C
+    let temp: Vec<f64> = (0..n)
+        .map(|i| 21.0 + ((i / 40) % 3) as f64 * 0.5 - 0.5 + 0.002 * (i % 40) as f64)
+        .collect();
+    let x: Vec<f64> = (0..n).map(|i| 30.0 * (i % 17) as f64).collect();
+    let mut filt = LagFilter::new(900.0);
+    let cmd: Vec<f64> = (0..n)
+        .map(|i| {
+            let dt = if i == 0 { 0.0 } else { t[i] - t[i - 1] };
+            let lagged = filt.update(temp[i], dt);
+            1.003 * x[i] - 1.5 * (lagged - 21.0) + 0.001 * (r.next() - 0.5)
+        })
+        .collect();
+    let d = Dwells {
+        axes: vec!["x".into()],
+        t_end_s: t.clone(),
+        t_start_s: t.iter().map(|v| v - 30.0).collect(),
+        cmd_um: vec![cmd],
+        meas_um: vec![x],
+        meas_sd_um: vec![vec![0.0; n]],
+        dir: vec![vec![1; n]],
+        channels: vec![("temp_a".into(), temp)],
+        rows_averaged: vec![1; n],
+    };
+    let spec = DesignSpec::parse("poly=1 temps lag=900").unwrap();
+    let opts = FitOptions {
+        spec,
+        selection: Selection::Stepwise(StepwiseOptions::default()),
+        ..Default::default()
+    };
+    let rep = nanocal::fit::fit_dwells(&d, &opts).unwrap();
+    let ax = &rep.axes[0];
+    let chosen: Vec<&str> = ax
+        .candidates
+        .iter()
+        .zip(&ax.selected)
+        .filter(|(_, s)| **s)
+        .map(|(c, _)| c.name.as_str())
+        .collect();
+    assert!(chosen.contains(&"lag(temp_a, 900 s)"), "{chosen:?}");
+    assert!(ax.rmse_um < 0.002, "rmse {}", ax.rmse_um);
+    assert_eq!(rep.model.lags().len(), 1);
+    assert_eq!(rep.model.lags()[0].tau_s, 900.0);
+    let model = blob::decode(&encode_blob(&rep.model)).unwrap();
+    let v = validate(Some(&model), &d, &Compensation::Static).unwrap();
+    assert!(
+        v.distribution.max_um < 0.01,
+        "max error {} µm",
+        v.distribution.max_um
+    );
+}

@@ -108,3 +108,67 @@ fn mismatched_inputs_are_reported() {
         Err(ValidateError::BadReference { .. })
     ));
 }
+
+/// A model with a thermal-lag term: validation feeds the model's own lag filters, so data made
+/// by that very model (lagged temperature along the dwell sequence) leave no error, while
+/// ignoring the lag would leave micrometres.
+#[test]
+fn lag_filters_of_the_model_are_run_over_the_dwells() {
+    use nanocal::dwell::Dwells;
+    use nanocal_model::{Factor, Input, LagFilter, ModelBuilder, SlowInputs, Term};
+    let mut b = ModelBuilder::new(1, 1, 0)
+        .unwrap()
+        .trained_range(Input::Axis(0), 0.0, 480.0)
+        .trained_range(Input::Temp(0), 20.0, 22.0);
+    let k = b.lag(0, 900.0).unwrap();
+    let lin = Term {
+        output: 0,
+        powers: [1, 0, 0],
+        factor: Factor::None,
+        direction: 0,
+        coeff: 240.0,
+    };
+    let lag = Term {
+        output: 0,
+        powers: [0, 0, 0],
+        factor: Factor::Lagged(k),
+        direction: 0,
+        coeff: 2.0,
+    };
+    b.add_term(lin).unwrap();
+    b.add_term(lag).unwrap();
+    let model = b.offset_um(0, 240.0).build().unwrap();
+    // dwells every 60 s over 0:80:480, temperature steps from 20 to 22 °C after 10 dwells
+    let n = 120;
+    let t: Vec<f64> = (0..n).map(|i| 60.0 * (i + 1) as f64).collect();
+    let temp: Vec<f64> = (0..n).map(|i| if i < 10 { 20.0 } else { 22.0 }).collect();
+    let x: Vec<f64> = (0..n).map(|i| 80.0 * (i % 7) as f64).collect();
+    let mut filt = LagFilter::new(900.0);
+    let mut cmd = Vec::new();
+    for i in 0..n {
+        let dt = if i == 0 { 0.0 } else { t[i] - t[i - 1] };
+        let mut slow = SlowInputs::default();
+        slow.temps_c[0] = temp[i];
+        slow.lagged_c[0] = filt.update(temp[i], dt);
+        cmd.push(model.eval_f64(&[x[i], 0.0, 0.0], &[1, 0, 0], &slow)[0]);
+    }
+    let d = Dwells {
+        axes: vec!["x".into()],
+        t_end_s: t.clone(),
+        t_start_s: t.iter().map(|v| v - 30.0).collect(),
+        cmd_um: vec![cmd],
+        meas_um: vec![x],
+        meas_sd_um: vec![vec![0.0; n]],
+        dir: vec![vec![1; n]],
+        channels: vec![("temp_a".into(), temp)],
+        rows_averaged: vec![1; n],
+    };
+    let r = validate(Some(&model), &d, &Compensation::Static).unwrap();
+    assert!(
+        r.distribution.max_um < 1e-4,
+        "max error {} µm",
+        r.distribution.max_um
+    );
+    let none = validate(None, &d, &Compensation::None).unwrap();
+    assert!(none.distribution.max_um > 1.0);
+}

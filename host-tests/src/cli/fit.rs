@@ -18,13 +18,14 @@ use crate::stepwise::StepwiseOptions;
 /// regression (MATLAB semantics) selects among them unless `--fixed`.
 #[derive(Args, Debug)]
 pub struct FitArgs {
-    /// Training recording (CSV: t, cmd_<axis>, meas_<axis>, temp_*, aux).
+    /// Training recording (CSV: t, `cmd_<axis>`, `meas_<axis>`, `temp_*`, aux).
     pub recording: PathBuf,
     /// Output model blob.
     #[arg(short, long)]
     pub output: PathBuf,
-    /// Candidate terms: poly=N, poly_<axis>=N, cross=N, temps, temp_x_pos, aux, direction,
-    /// static (= poly=3 temps), adaptive (= poly=3).
+    /// Candidate terms: poly=N, `poly_<axis>=N`, cross=N, temps, temp_x_pos, aux, direction,
+    /// lag=TAU_S (every temperature through a first-order lag), static (= poly=3 temps),
+    /// adaptive (= poly=3).
     #[arg(long, default_value = "poly=5 temps temp_x_pos direction")]
     pub terms: String,
     /// Take every candidate term instead of selecting stepwise.
@@ -137,6 +138,10 @@ pub fn summary(rep: &FitReport) -> String {
     for (t, name) in rep.frame.temps.iter().enumerate() {
         let (lo, hi) = m.envelope(nanocal_model::Input::Temp(t as u8));
         let _ = writeln!(s, "envelope {name}: {lo:.3} … {hi:.3} °C (model Temp {t})");
+    }
+    for (k, lag) in m.lags().iter().enumerate() {
+        let sensor = &rep.frame.temps[lag.sensor as usize];
+        let _ = writeln!(s, "lag filter {k}: {sensor} through τ = {} s", lag.tau_s);
     }
     for (n, name) in rep.frame.aux.iter().enumerate() {
         let (lo, hi) = m.envelope(nanocal_model::Input::Aux(n as u8));

@@ -1,12 +1,17 @@
 #!/usr/bin/env bash
 # Firmware: install what the build and the QEMU end-to-end test need (fresh Debian bookworm, as
 # root or with sudo), build both boards in release, clippy both with warnings as errors, fmt.
-# The e2e test itself runs with the host tests (cd host-tests && cargo test); it builds the QEMU
-# image on its own, so it also works without this script having run first.
+# The e2e tests run with the host tests (cd host-tests && cargo test); they build the QEMU
+# image on their own. tests/e2e_pipython.rs uses the PIPython venv this script makes.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 as_root() { if [ "$(id -u)" = 0 ]; then "$@"; else sudo "$@"; fi; }
+apt_updated=""
+apt_install() {
+    if [ -z "$apt_updated" ]; then as_root apt-get update; apt_updated=1; fi
+    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y "$@"
+}
 
 rustup target add thumbv7em-none-eabihf
 rustup component add clippy rustfmt
@@ -17,10 +22,17 @@ if [ "$(qemu_major || true)" = "" ] || [ "$(qemu_major)" -lt 10 ]; then
         echo "deb http://deb.debian.org/debian bookworm-backports main" |
             as_root tee /etc/apt/sources.list.d/bookworm-backports.list >/dev/null
     fi
-    as_root apt-get update
-    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -t bookworm-backports qemu-system-arm
+    apt_install -t bookworm-backports qemu-system-arm
 fi
 qemu-system-arm --version | head -n1
+
+# PIPython (PI's Python library, from PyPI) for tests/e2e_pipython.rs, in a venv under target/.
+venv=target/pipython-venv
+if ! "$venv/bin/python" -c "import pipython" 2>/dev/null; then
+    command -v python3 >/dev/null || apt_install python3
+    python3 -m venv "$venv" 2>/dev/null || { apt_install python3-venv && rm -rf "$venv" && python3 -m venv "$venv"; }
+    "$venv/bin/pip" install --quiet pipython
+fi
 
 # STM32 board (default features) and QEMU board.
 cargo build --release

@@ -34,7 +34,17 @@ enum Command {
 fn main() -> anyhow::Result<()> {
     match Cli::parse().command {
         Command::Limits => {
+            use nanocal::model::{blob, limits, FOLD_CAPACITY};
             println!("nanocal-model {}", env!("CARGO_PKG_VERSION"));
+            println!("axes                 {}", limits::MAX_AXES);
+            println!("temperature inputs   {}", limits::MAX_TEMPS);
+            println!("aux inputs           {}", limits::MAX_AUX);
+            println!("lag filters          {}", limits::MAX_LAGS);
+            println!("terms                {}", limits::MAX_TERMS);
+            println!("power per term       {}", limits::MAX_POWER);
+            println!("fold coefficients    {FOLD_CAPACITY}");
+            println!("blob format version  {}", blob::FORMAT_VERSION);
+            println!("largest blob         {} bytes", blob::MAX_BLOB_LEN);
             Ok(())
         }
         Command::Stepwise(a) => nanocal::cli::stepwise::run(a),

@@ -145,25 +145,28 @@ fn a_full_model_fits_the_largest_blob() {
     for k in 0..8 {
         b.lag(k, 100.0 * (k + 1) as f64).unwrap();
     }
+    // Degree ≤ 6 in three axes: 84 monomials per output, so 128 terms fit the fold too.
     let mut n = 0;
-    'outer: for px in 0..=9u8 {
-        for py in 0..=9 - px {
-            for pz in 0..=9 - px - py {
+    'outer: for px in 0..=6u8 {
+        for py in 0..=6 - px {
+            for pz in 0..=6 - px - py {
                 if px + py + pz == 0 {
                     continue;
                 }
-                if n == nanocal_model::MAX_TERMS {
-                    break 'outer;
+                for output in 0..3 {
+                    if n == nanocal_model::MAX_TERMS {
+                        break 'outer;
+                    }
+                    let t = Term {
+                        output,
+                        powers: [px, py, pz],
+                        factor: Factor::None,
+                        direction: 0,
+                        coeff: 1e-3,
+                    };
+                    b.add_term(t).unwrap();
+                    n += 1;
                 }
-                let t = Term {
-                    output: (n % 3) as u8,
-                    powers: [px, py, pz],
-                    factor: Factor::None,
-                    direction: 0,
-                    coeff: 1e-3,
-                };
-                b.add_term(t).unwrap();
-                n += 1;
             }
         }
     }
@@ -172,4 +175,27 @@ fn a_full_model_fits_the_largest_blob() {
     let bytes = encode(&model);
     assert_eq!(bytes.len(), MAX_BLOB_LEN);
     assert_eq!(blob::decode(&bytes).unwrap(), model);
+}
+
+#[test]
+fn a_model_whose_fold_would_not_fit_is_refused() {
+    // Degree 9 in three axes on every output: 3 × 220 dense coefficients > FOLD_CAPACITY.
+    let mut b = ModelBuilder::new(3, 0, 0).unwrap();
+    for output in 0..3 {
+        b.add_term(Term {
+            output,
+            powers: [3, 3, 3],
+            factor: Factor::None,
+            direction: 0,
+            coeff: 1e-3,
+        })
+        .unwrap();
+    }
+    match b.build() {
+        Err(nanocal_model::ModelError::FoldTooLarge { coefficients }) => {
+            assert_eq!(coefficients, 660);
+            assert!(coefficients as usize > nanocal_model::FOLD_CAPACITY);
+        }
+        other => panic!("expected FoldTooLarge, got {other:?}"),
+    }
 }

@@ -90,7 +90,7 @@ fn e2e_compensator_under_qemu() {
             let s = c.status().ok()?;
             let ok = s.flags & flags::MODEL != 0
                 && s.flags & flags::SENSOR_BLOCK == 0
-                && s.sensor_bits[..4].iter().all(|&b| b == 0)
+                && s.sensor_bits[..4].iter().all(|&b| b & 0x0F == 0)
                 && s.folds >= 2;
             ok.then_some(s)
         },
@@ -250,10 +250,37 @@ fn e2e_compensator_under_qemu() {
     c.bypass(false).unwrap();
 
     // KMZ from a reference: the model now maps the measured position to the command sent
+    let before = c.status().unwrap();
     let kmz = c.set_kmz([250.0, 0.0, 0.0], [249.9, 0.0, 0.0]).unwrap();
     assert!(kmz[0].abs() > 1e-3);
     let s = c.status().unwrap();
     assert_eq!(s.kmz_um[0], kmz[0]);
+    assert_eq!(s.slot_seq, before.slot_seq + 1, "the KMZ change was stored");
+    assert_ne!(s.slot, before.slot, "in the other slot");
+    // and it is in service: the same target now gets a command shifted by Δλ_KMZ
+    let shifted = model.eval_f64(&[250.0, 0.0, 0.0], &[0; MAX_AXES], &slow())[0] + kmz[0];
+    host.send("MOV 1 250");
+    let got = stage_value(&stage.next_line(Duration::from_secs(10)), "1");
+    assert!(
+        (got - shifted).abs() <= 1e-4,
+        "after KMZ: {got} vs {shifted}"
+    );
+
+    // the CLI's status report
+    drop(c);
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_nanocal"))
+        .args(["device", "status", "--port", &q.mgmt_spec()])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains("model: 0x00010001"), "{text}");
+    assert!(text.contains("sensor 1:"), "{text}");
+    assert!(text.contains("uploads ok 1  rejected 3"), "{text}");
 }
 
 fn stage_value(line: &str, axis: &str) -> f64 {
@@ -264,4 +291,64 @@ fn stage_value(line: &str, axis: &str) -> f64 {
         .position(|a| *a == axis)
         .unwrap_or_else(|| panic!("axis {axis} in {line:?}"));
     t[i + 1].parse().unwrap()
+}
+
+/// A coupled 2-DoF model through the firmware: both axes re-commanded, and a multi-line `POS?`
+/// reply collected whole and mapped back through the 2-D inverse.
+#[test]
+fn e2e_coupled_2dof_under_qemu() {
+    let Some(mut q) = Qemu::start_or_skip("e2e_coupled_2dof_under_qemu") else {
+        return;
+    };
+    let stage = StageSim::start(q.connect(1), 2);
+    let _sensors = SensorSim::start(q.connect(2), &TEMPS_C);
+    let mut host = q.gcs_host();
+    let mut c = q.client();
+    let model = nanocal::published::coupled_2dof().unwrap();
+    let mut b = vec![0u8; blob::MAX_BLOB_LEN];
+    let n = blob::encode(&model, &mut b).unwrap();
+    c.upload(&b[..n]).unwrap();
+    wait_until("sensors ready", Duration::from_secs(20), || {
+        let s = c.status().ok()?;
+        (s.flags & flags::SENSOR_BLOCK == 0 && s.folds >= 2).then_some(())
+    });
+
+    // a single-axis MOV before any full target is refused: the coupled axis' target is unknown
+    host.send("MOV 1 40");
+    assert_eq!(host.ask("ERR?"), "9004");
+
+    host.send("MOV 1 40 2 70");
+    let fwd = stage.next_line(Duration::from_secs(10));
+    let want = model.eval_f64(&[40.0, 70.0, 0.0], &[0; MAX_AXES], &slow());
+    for (a, axis) in ["1", "2"].iter().enumerate() {
+        let got = stage_value(&fwd, axis);
+        assert!(
+            (got - want[a]).abs() <= 1e-4,
+            "axis {axis}: {got} vs {}",
+            want[a]
+        );
+    }
+    // moving x alone re-commands y too (coupling)
+    host.send("MOV 1 50");
+    let fwd = stage.next_line(Duration::from_secs(10));
+    let want = model.eval_f64(&[50.0, 70.0, 0.0], &[1, 0, 0], &slow());
+    for (a, axis) in ["1", "2"].iter().enumerate() {
+        let got = stage_value(&fwd, axis);
+        assert!(
+            (got - want[a]).abs() <= 1e-4,
+            "axis {axis}: {got} vs {}",
+            want[a]
+        );
+    }
+    // the controller answers POS? on two lines; the host gets both mapped back
+    let reply = host.ask("POS?");
+    let xy: Vec<f64> = reply
+        .lines()
+        .map(|l| l.split('=').nth(1).unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(xy.len(), 2, "{reply}");
+    assert!(
+        (xy[0] - 50.0).abs() <= 2e-4 && (xy[1] - 70.0).abs() <= 2e-4,
+        "{reply}"
+    );
 }

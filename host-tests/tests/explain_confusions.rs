@@ -209,3 +209,68 @@ fn higher_order_geometry_is_not_mistaken_for_coupling() {
         assert!(effect(&rep, "x", "geometric_order").is_some());
     }
 }
+
+/// A periodic error the stage never drifted through (quiet room: the same phase at every
+/// visit of a pose) is indistinguishable from geometry and must not be named periodic.
+#[test]
+fn periodic_error_without_fringe_crossing_is_not_claimed() {
+    for seed in [47, 48] {
+        let mut cfg = nanocal::twin::TwinConfig::published_1dof();
+        cfg.room.daily_amplitude_c = 0.005;
+        cfg.room.hvac_amplitude_c = 0.002;
+        cfg.room.steps_per_day = 0.0;
+        cfg.effects = vec![EffectSpec::PeriodicNonlinearity(
+            periodic_nonlinearity::Params {
+                axis: 0,
+                amplitude_nm: 10.0,
+                phase_rad: 0.5,
+                second_harmonic_nm: 0.0,
+            },
+        )];
+        let rep = explain_columns(simulate(
+            cfg,
+            &Trajectory::published_training_1dof(60.0, 6),
+            seed,
+        ));
+        assert!(
+            !names(&rep).contains(&"periodic_nonlinearity"),
+            "{}",
+            rep.to_text()
+        );
+    }
+}
+
+/// A fine scan (poses 50 nm apart) samples the fringe at many phases without any drift: there
+/// the periodic error is identifiable, and found.
+#[test]
+fn periodic_error_in_a_fine_scan_is_found() {
+    let poses: Vec<f64> = (0..400).map(|k| 0.05 * k as f64).collect();
+    for seed in [49, 50] {
+        let mut r = rng(seed);
+        let amplitude_nm = draw(&mut r, 4.0, 10.0);
+        let mut cfg = nanocal::twin::TwinConfig::published_1dof();
+        cfg.room.daily_amplitude_c = 0.005;
+        cfg.room.hvac_amplitude_c = 0.002;
+        cfg.room.steps_per_day = 0.0;
+        cfg.positioning_sigma_nm = 3.0;
+        cfg.effects = vec![EffectSpec::PeriodicNonlinearity(
+            periodic_nonlinearity::Params {
+                axis: 0,
+                amplitude_nm,
+                phase_rad: draw(&mut r, -3.0, 3.0),
+                second_harmonic_nm: 0.0,
+            },
+        )];
+        let traj = Trajectory::forward_backward(&poses, 5.0, 3, 0.0);
+        let rep = explain_columns(simulate(cfg, &traj, seed));
+        assert_names(&rep, &["periodic_nonlinearity"], "fine scan");
+        let e = effect(&rep, "x", "periodic_nonlinearity").unwrap();
+        assert_close(
+            param(e, "amplitude_nm"),
+            amplitude_nm,
+            0.25,
+            1.0,
+            "amplitude_nm",
+        );
+    }
+}

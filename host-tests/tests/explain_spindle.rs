@@ -20,9 +20,10 @@ fn spindle_displacement_lags_the_temperatures() {
     let rep = explain(&data, &Settings::default()).unwrap();
     println!("{}", rep.to_text());
     for c in &rep.channels {
-        // the published static model (linear in the 16 temperatures) leaves 1.6–2.5 µm
+        // the published static model (linear in the 16 temperatures) leaves 1.6–2.5 µm with the raw
+        // readings; denoising them without delay (t16 is noisy) takes off a little
         assert!(
-            (1200.0..2800.0).contains(&c.baseline_in_sample_rms_nm),
+            (1000.0..2800.0).contains(&c.baseline_in_sample_rms_nm),
             "{}: baseline {} nm",
             c.channel,
             c.baseline_in_sample_rms_nm

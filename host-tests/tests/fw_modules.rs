@@ -274,6 +274,18 @@ fn pos_and_mov_replies_map_back_through_the_inverse() {
         "{reply}"
     );
     assert_eq!(p.counters.mapped_replies, 1);
+
+    // a query the controller never answers (invalid: it only sets its error) does not shift
+    // the attribution of the next reply
+    assert_eq!(host(&mut p, Some(&c), "FOO?").0, Route::Stage);
+    assert_eq!(host(&mut p, Some(&c), "POS? 1").0, Route::Stage);
+    let (r, reply) = stage(&mut p, Some(&c), &format!("1={:.6}", fwd[0].1));
+    assert_eq!(r, Route::Host);
+    assert!(
+        reply.starts_with("1=49.99") || reply.starts_with("1=50.00"),
+        "{reply}"
+    );
+    assert_eq!(p.counters.mapped_replies, 2);
 }
 
 // ---------------------------------------------------------------- sensors and faults
@@ -569,5 +581,89 @@ fn power_loss_at_any_byte_leaves_a_valid_model() {
         } else {
             step = 97;
         }
+    }
+}
+
+// ---------------------------------------------------------------- no panics on external input
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(2_000))]
+
+    #[test]
+    fn proxy_never_panics_on_any_bytes(
+        host_lines in proptest::collection::vec(proptest::collection::vec(any::<u8>(), 0..60), 0..8),
+        stage_lines in proptest::collection::vec(proptest::collection::vec(any::<u8>(), 0..60), 0..8),
+        prefix in prop_oneof![Just("MOV 1 "), Just("MVR 1 "), Just("POS? "), Just("1=")],
+    ) {
+        let model = published_1dof().unwrap();
+        let c = corrector(&model, &[22.0; 4]);
+        let mut p = Proxy::default();
+        let mut out = Out::new();
+        let mut asm = LineAssembler::new();
+        for (h, s) in host_lines.iter().zip(stage_lines.iter().chain(std::iter::repeat(&vec![]))) {
+            let mut line = prefix.as_bytes().to_vec();
+            line.extend_from_slice(h);
+            line.push(b'\n');
+            for &b in &line {
+                let feed = asm.feed(b);
+                let _ = p.host_feed(Some(&c), feed, asm.line(), &mut out);
+            }
+            let _ = p.stage_line(Some(&c), s, &mut out);
+            let _ = p.host_line(None::<&FoldCorrector>, h, &mut out);
+        }
+    }
+
+    #[test]
+    fn management_decoder_and_upload_never_panic(
+        bytes in proptest::collection::vec(any::<u8>(), 0..2000),
+        offsets in proptest::collection::vec(0u32..4000, 0..20),
+    ) {
+        let mut d = Decoder::new();
+        for &b in &bytes {
+            if let Some(Ok(())) = d.feed(b) {
+                let f = d.frame();
+                let _ = Status::decode(&mut Reader::new(f.payload));
+            }
+        }
+        let mut buf = vec![0u8; blob::MAX_BLOB_LEN];
+        let mut u = Upload::new();
+        let _ = u.begin(bytes.len() as u32, 0, blob::FORMAT_VERSION, buf.len());
+        for o in offsets {
+            let end = (o as usize % (bytes.len() + 1)).min(bytes.len());
+            let _ = u.chunk(&mut buf, o, &bytes[..end]);
+        }
+        let _ = u.finish(&buf);
+    }
+}
+
+#[test]
+fn every_upload_error_code_has_a_meaning() {
+    use nanocal_model::blob::BlobError;
+    let errors = [
+        UploadError::NotStarted,
+        UploadError::VersionMismatch {
+            found: 2,
+            expected: 1,
+        },
+        UploadError::BadLength { len: 0, max: 1 },
+        UploadError::OutOfOrder {
+            expected: 0,
+            found: 1,
+        },
+        UploadError::Overrun,
+        UploadError::ChunkMismatch,
+        UploadError::Incomplete {
+            expected: 2,
+            received: 1,
+        },
+        UploadError::CrcMismatch {
+            expected: 1,
+            computed: 2,
+        },
+        UploadError::Blob(BlobError::BadMagic),
+    ];
+    for e in errors {
+        assert_ne!(mgmt::result_meaning(e.code()), "unknown code", "{e}");
+        assert_ne!(e.code(), mgmt::RESULT_OK);
     }
 }

@@ -86,8 +86,8 @@ fn published_1dof_has_the_published_size_and_shape() {
     // a3, a2, a1 on the position, one term per temperature; λ is the offset.
     assert_eq!(model.terms().len(), 7);
     let fold = model.fold(&slow_with_temps(&[22.0; 4]));
-    // The fold leaves a cubic in position: u, u², u³ (the constant is kept apart).
-    assert_eq!(fold.fast_terms(), 3);
+    // The fold leaves a cubic in position: one dense block of four coefficients.
+    assert_eq!(fold.fast_coefficients(), 4);
     // Spot value from the published formula, at the centre of the envelope.
     let q = model.eval_f64(
         &[240.0, 0.0, 0.0],

@@ -35,6 +35,12 @@ pub enum ModelError {
         /// Flat index of the input (axes, temperatures, aux); travel ranges use the axis index.
         input: u8,
     },
+    /// The terms' degrees need more dense fast-path coefficients than a fold holds
+    /// (`FOLD_CAPACITY`): lower the degree of some output or direction term.
+    FoldTooLarge {
+        /// Coefficients the fold would need.
+        coefficients: u16,
+    },
     /// A lag filter follows a sensor the model does not have, or has τ ≤ 0.
     InvalidLag {
         /// Index of the lag filter.
@@ -63,6 +69,10 @@ impl fmt::Display for ModelError {
                 )
             }
             ModelError::InvalidRange { input } => write!(f, "input {input} has min > max"),
+            ModelError::FoldTooLarge { coefficients } => write!(
+                f,
+                "the terms' degrees need {coefficients} fast-path coefficients, more than a fold holds"
+            ),
             ModelError::InvalidLag { lag } => {
                 write!(f, "lag filter {lag} has an unknown sensor or τ ≤ 0")
             }

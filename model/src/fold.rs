@@ -8,24 +8,97 @@
 //!   target: so f32 rounding acts on δ, not on the whole command, and stays far below 0.05 nm.
 
 use crate::error::InverseError;
+use crate::horner::{self, Dual, HornerNum};
 use crate::input::{Input, SlowInputs};
-use crate::limits::{MAX_AXES, MAX_POWER, MAX_TERMS};
+use crate::limits::MAX_AXES;
 use crate::model::Model;
+use crate::term::Term;
 
-const FAST_CAPACITY: usize = MAX_TERMS + 2 * MAX_AXES;
-const POWERS: usize = MAX_POWER as usize + 1;
+/// Coefficients a fold can hold over all its blocks (a power of two: masked indices need no
+/// bounds check). [`Model`] validation refuses a model whose fold would not fit.
+pub const FOLD_CAPACITY: usize = 512;
+const POOL_MASK: usize = FOLD_CAPACITY - 1;
+/// Blocks: one per output axis and sign channel (none, or the sign of approach of an axis).
+const MAX_BLOCKS: usize = MAX_AXES * (MAX_AXES + 1);
 const MAX_NEWTON_STEPS: usize = 24;
 
-/// One monomial of the folded deviation polynomial.
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct FastTerm {
+/// One dense polynomial of the fold: its output axis, the sign that multiplies it (0 none,
+/// 1 + a the sign of approach of axis a), its total degree and where its coefficients start.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Block {
     output: u8,
-    powers: [u8; MAX_AXES],
-    direction: u8,
-    coeff: f32,
+    sign: u8,
+    degree: u8,
+    start: u16,
 }
 
-/// A model with its slow inputs folded in: a pure f32 polynomial in position.
+/// The blocks a model folds into, with their degrees: the fold's shape, which depends only on
+/// the model's terms, not on the slow inputs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct FoldShape {
+    blocks: [Block; MAX_BLOCKS],
+    len: usize,
+    /// Coefficients all blocks need together.
+    pub coefficients: usize,
+}
+
+impl FoldShape {
+    /// The blocks of a model with `axes` axes and these terms: for each output the identity
+    /// is subtracted (degree ≥ 1), and every sign channel used gets a block of its own.
+    pub(crate) fn of(axes: usize, terms: &[Term]) -> FoldShape {
+        let mut degree = [[None::<u8>; MAX_AXES + 1]; MAX_AXES];
+        for o in 0..axes {
+            degree[o][0] = Some(1);
+        }
+        for t in terms {
+            let (o, s) = (
+                (t.output as usize).min(MAX_AXES - 1),
+                (t.direction as usize).min(MAX_AXES),
+            );
+            degree[o][s] = Some(degree[o][s].unwrap_or(0).max(t.degree()));
+        }
+        let mut shape = FoldShape {
+            blocks: [Block::default(); MAX_BLOCKS],
+            len: 0,
+            coefficients: 0,
+        };
+        for o in 0..axes {
+            for s in 0..=MAX_AXES {
+                if let Some(d) = degree[o][s] {
+                    shape.blocks[shape.len] = Block {
+                        output: o as u8,
+                        sign: s as u8,
+                        degree: d,
+                        start: shape.coefficients as u16,
+                    };
+                    shape.len += 1;
+                    shape.coefficients += horner::block_len(axes, d as usize);
+                }
+            }
+        }
+        shape
+    }
+
+    fn block_of(&self, output: u8, sign: u8) -> Option<&Block> {
+        self.blocks[..self.len]
+            .iter()
+            .find(|b| b.output == output && b.sign == sign)
+    }
+}
+
+/// Position of monomial `powers` in a block's layout.
+fn position(axes: usize, degree: usize, powers: [u8; MAX_AXES]) -> Option<usize> {
+    let mut found = None;
+    horner::for_each_monomial(axes, degree, |pos, p| {
+        if p == powers {
+            found = Some(pos);
+        }
+    });
+    found
+}
+
+/// A model with its slow inputs folded in: dense f32 polynomials in position, one block per
+/// output axis and sign channel.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Fold {
     axes: u8,
@@ -33,12 +106,12 @@ pub struct Fold {
     inv_half_range: [f32; MAX_AXES],
     envelope_min_um: [f32; MAX_AXES],
     envelope_max_um: [f32; MAX_AXES],
-    max_power: [u8; MAX_AXES],
-    /// Constant part of δ per axis, added after the small terms: summing those onto a large
+    /// Constant part of δ per axis, added after the rest: summing small terms onto a large
     /// constant would round each partial sum at the constant's magnitude.
     constant_um: [f32; MAX_AXES],
-    terms: [FastTerm; FAST_CAPACITY],
-    n_terms: u16,
+    blocks: [Block; MAX_BLOCKS],
+    n_blocks: u8,
+    coefficients: [f32; FOLD_CAPACITY],
     slow_flags: u16,
 }
 
@@ -56,26 +129,39 @@ impl Model {
     /// Slow path: folds temperatures, aux channels and lagged temperatures into the fast
     /// coefficients (computed in f64, stored in f32).
     pub fn fold(&self, slow: &SlowInputs) -> Fold {
+        let axes = self.axes();
+        let shape = FoldShape::of(axes, self.terms());
         let scaled = self.scale(&[0.0; MAX_AXES], &[0; MAX_AXES], slow);
-        let mut acc = FoldAccumulator::default();
-        for a in 0..self.axes() {
+        // Accumulate in f64 at each coefficient's place; validation guarantees it fits.
+        let mut acc = [0.0f64; FOLD_CAPACITY];
+        let mut constant = [0.0f64; MAX_AXES];
+        let mut add = |output: u8, sign: u8, powers: [u8; MAX_AXES], value: f64| {
+            if powers == [0; MAX_AXES] && sign == 0 {
+                constant[output as usize] += value;
+            } else if let Some(b) = shape.block_of(output, sign) {
+                if let Some(pos) = position(axes, b.degree as usize, powers) {
+                    acc[(b.start as usize + pos) & POOL_MASK] += value;
+                }
+            }
+        };
+        for a in 0..axes {
             let sc = self.scaling(Input::Axis(a as u8));
             // δ = q − x, and x = centre + half_range·u.
-            acc.add(
+            add(
                 a as u8,
-                [0; MAX_AXES],
                 0,
+                [0; MAX_AXES],
                 self.offset_um[a] + self.kmz_offset_um[a] - sc.centre,
             );
             let mut unit = [0; MAX_AXES];
             unit[a] = 1;
-            acc.add(a as u8, unit, 0, -sc.half_range);
+            add(a as u8, 0, unit, -sc.half_range);
         }
         for term in self.terms() {
-            acc.add(
+            add(
                 term.output,
-                term.powers,
                 term.direction,
+                term.powers,
                 term.coeff * term.slow_factor(&scaled),
             );
         }
@@ -85,13 +171,13 @@ impl Model {
             inv_half_range: [1.0; MAX_AXES],
             envelope_min_um: [f32::NEG_INFINITY; MAX_AXES],
             envelope_max_um: [f32::INFINITY; MAX_AXES],
-            max_power: [0; MAX_AXES],
-            constant_um: [0.0; MAX_AXES],
-            terms: acc.terms,
-            n_terms: 0,
+            constant_um: constant.map(|c| c as f32),
+            blocks: shape.blocks,
+            n_blocks: shape.len as u8,
+            coefficients: acc.map(|c| c as f32),
             slow_flags: self.slow_envelope_flags(slow).0,
         };
-        for a in 0..self.axes() {
+        for a in 0..axes {
             let sc = self.scaling(Input::Axis(a as u8));
             let (min, max) = self.envelope(Input::Axis(a as u8));
             fold.centre_um[a] = sc.centre as f32;
@@ -99,70 +185,9 @@ impl Model {
             fold.envelope_min_um[a] = min as f32;
             fold.envelope_max_um[a] = max as f32;
         }
-        for (i, t) in acc.terms[..acc.len].iter().enumerate() {
-            if t.powers == [0; MAX_AXES] && t.direction == 0 {
-                fold.constant_um[t.output as usize] = acc.coeffs[i] as f32;
-                continue;
-            }
-            fold.terms[fold.n_terms as usize] = *t;
-            fold.n_terms += 1;
-            for a in 0..MAX_AXES {
-                fold.max_power[a] = fold.max_power[a].max(t.powers[a]);
-            }
-        }
         fold
     }
 }
-
-/// Merges folded coefficients of equal monomials (f64 until stored).
-struct FoldAccumulator {
-    coeffs: [f64; FAST_CAPACITY],
-    terms: [FastTerm; FAST_CAPACITY],
-    len: usize,
-}
-
-impl Default for FoldAccumulator {
-    fn default() -> Self {
-        let empty = FastTerm {
-            output: 0,
-            powers: [0; MAX_AXES],
-            direction: 0,
-            coeff: 0.0,
-        };
-        FoldAccumulator {
-            coeffs: [0.0; FAST_CAPACITY],
-            terms: [empty; FAST_CAPACITY],
-            len: 0,
-        }
-    }
-}
-
-impl FoldAccumulator {
-    fn add(&mut self, output: u8, powers: [u8; MAX_AXES], direction: u8, coeff: f64) {
-        let shape =
-            |t: &FastTerm| t.output == output && t.powers == powers && t.direction == direction;
-        let slot = match self.terms[..self.len].iter().position(shape) {
-            Some(i) => i,
-            // A validated model has at most MAX_TERMS shapes plus the 2·axes identity ones.
-            None if self.len < FAST_CAPACITY => {
-                self.terms[self.len] = FastTerm {
-                    output,
-                    powers,
-                    direction,
-                    coeff: 0.0,
-                };
-                self.len += 1;
-                self.len - 1
-            }
-            None => return,
-        };
-        self.coeffs[slot] += coeff;
-        self.terms[slot].coeff = self.coeffs[slot] as f32;
-    }
-}
-
-/// Powers 0..=MAX_POWER of each scaled axis position.
-type PowerTable = [[f32; POWERS]; MAX_AXES];
 
 impl Fold {
     /// Number of axes.
@@ -176,29 +201,40 @@ impl Fold {
         self.slow_flags
     }
 
-    /// Number of non-constant monomials the fast path evaluates.
-    pub fn fast_terms(&self) -> usize {
-        self.n_terms as usize
+    /// Number of coefficients the fast path reads per correction.
+    pub fn fast_coefficients(&self) -> usize {
+        self.blocks[..self.n_blocks as usize]
+            .iter()
+            .map(|b| horner::block_len(self.axes(), b.degree as usize))
+            .sum()
     }
 
     /// Fast path: commands for calibrated targets `x_um`, approached in direction `dir`
     /// (+1 forward, −1 backward, 0 unknown).
     pub fn correct(&self, x_um: &[f32; MAX_AXES], dir: &[i8; MAX_AXES]) -> Correction {
+        let axes = self.axes();
         let mut outside = 0u8;
-        for a in 0..self.axes() {
+        let mut u = [0.0f32; MAX_AXES];
+        for a in 0..axes {
             if !(x_um[a] >= self.envelope_min_um[a] && x_um[a] <= self.envelope_max_um[a]) {
                 outside |= 1 << a;
             }
+            u[a] = (x_um[a] - self.centre_um[a]) * self.inv_half_range[a];
         }
-        let pows = self.power_table(x_um);
-        let sign = signs(dir);
+        let mut delta = [0.0f32; MAX_AXES];
+        for b in &self.blocks[..(self.n_blocks as usize).min(MAX_BLOCKS)] {
+            let value = horner::evaluate(axes, b.degree as usize, u, |k| {
+                self.coefficients[(b.start as usize + k) & POOL_MASK]
+            });
+            delta[(b.output as usize).min(MAX_AXES - 1)] += if b.sign == 0 {
+                value
+            } else {
+                value * sign(dir, b.sign)
+            };
+        }
         let mut q_um = [0.0f32; MAX_AXES];
-        for t in &self.terms[..self.n_terms as usize] {
-            q_um[t.output as usize] +=
-                t.coeff * monomial(&pows, t.powers) * sign_of(&sign, t.direction);
-        }
-        for a in 0..self.axes() {
-            q_um[a] = (q_um[a] + self.constant_um[a]) + x_um[a];
+        for a in 0..axes {
+            q_um[a] = (delta[a] + self.constant_um[a]) + x_um[a];
         }
         Correction {
             q_um,
@@ -217,28 +253,26 @@ impl Fold {
         if q_um[..n].iter().any(|v| !v.is_finite()) {
             return Err(InverseError::NonFinite);
         }
-        let sign = signs(dir);
         let mut x = *q_um;
         for _ in 0..MAX_NEWTON_STEPS {
-            let pows = self.power_table(&x);
             let mut residual = [0.0f32; MAX_AXES];
             let mut jacobian = [[0.0f32; MAX_AXES]; MAX_AXES];
+            let mut u = [<Dual as HornerNum>::ZERO; MAX_AXES];
             for a in 0..n {
                 residual[a] = (x[a] - q_um[a]) + self.constant_um[a];
                 jacobian[a][a] = 1.0;
+                u[a] = Dual::variable(a, (x[a] - self.centre_um[a]) * self.inv_half_range[a]);
             }
-            for t in &self.terms[..self.n_terms as usize] {
-                let c = t.coeff * sign_of(&sign, t.direction);
-                let o = t.output as usize;
-                residual[o] += c * monomial(&pows, t.powers);
+            for b in &self.blocks[..(self.n_blocks as usize).min(MAX_BLOCKS)] {
+                let d = horner::evaluate(n, b.degree as usize, u, |k| {
+                    self.coefficients[(b.start as usize + k) & POOL_MASK]
+                });
+                let s = if b.sign == 0 { 1.0 } else { sign(dir, b.sign) };
+                let o = (b.output as usize).min(MAX_AXES - 1);
+                residual[o] += s * d.value;
                 for a in 0..n {
-                    let p = t.powers[a];
-                    if p > 0 {
-                        let mut lowered = t.powers;
-                        lowered[a] -= 1;
-                        let d = p as f32 * monomial(&pows, lowered) * self.inv_half_range[a];
-                        jacobian[o][a] += c * d;
-                    }
+                    // Chain rule: du_a/dx_a = 1/half_range_a.
+                    jacobian[o][a] += s * d.grad[a] * self.inv_half_range[a];
                 }
             }
             let step = solve(jacobian, residual, n)?;
@@ -257,40 +291,12 @@ impl Fold {
         }
         Err(InverseError::NotConverged)
     }
-
-    fn power_table(&self, x_um: &[f32; MAX_AXES]) -> PowerTable {
-        let mut pows = [[0.0f32; POWERS]; MAX_AXES];
-        for a in 0..MAX_AXES {
-            pows[a][0] = 1.0;
-            if a < self.axes() {
-                let u = (x_um[a] - self.centre_um[a]) * self.inv_half_range[a];
-                for k in 1..=self.max_power[a] as usize {
-                    pows[a][k] = pows[a][k - 1] * u;
-                }
-            }
-        }
-        pows
-    }
 }
 
-#[inline]
-fn monomial(pows: &PowerTable, powers: [u8; MAX_AXES]) -> f32 {
-    pows[0][powers[0] as usize] * pows[1][powers[1] as usize] * pows[2][powers[2] as usize]
-}
-
-#[inline]
-fn signs(dir: &[i8; MAX_AXES]) -> [f32; MAX_AXES + 1] {
-    let mut s = [1.0f32; MAX_AXES + 1];
-    for a in 0..MAX_AXES {
-        s[a + 1] = crate::term::approach_sign(dir[a]) as f32;
-    }
-    s
-}
-
-/// Factor of a term's direction field: 1 for none, else the sign of that axis (index 0 is 1).
-#[inline]
-fn sign_of(signs: &[f32; MAX_AXES + 1], direction: u8) -> f32 {
-    signs[(direction as usize).min(MAX_AXES)]
+/// Sign of approach for a block's sign channel `1 + axis`: +1, −1, or 0 when unknown.
+#[inline(always)]
+fn sign(dir: &[i8; MAX_AXES], channel: u8) -> f32 {
+    crate::term::approach_sign(dir[(channel as usize - 1).min(MAX_AXES - 1)]) as f32
 }
 
 /// Solves `J·s = r` for n ≤ 3 by Gaussian elimination with partial pivoting.

@@ -13,13 +13,17 @@ pub struct LagSpec {
 }
 
 /// First-order lag `dy/dt = (x − y)/τ`, discretised exactly for a held input over each step.
-/// The first sample initialises the state (no start-up transient).
+/// The first sample initialises the state (no start-up transient) unless a start was given.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct LagFilter {
     tau_s: f64,
     state: f64,
     primed: bool,
+    /// Step of the last update and its smoothing factor: sampling is usually regular, so the
+    /// exponential is computed once per step size, not once per sample.
+    last_dt_s: f64,
+    alpha: f64,
 }
 
 impl LagFilter {
@@ -29,6 +33,17 @@ impl LagFilter {
             tau_s,
             state: 0.0,
             primed: false,
+            last_dt_s: f64::NAN,
+            alpha: 1.0,
+        }
+    }
+
+    /// A filter whose output starts at `y0` instead of at the first sample.
+    pub fn starting_at(tau_s: f64, y0: f64) -> Self {
+        LagFilter {
+            state: y0,
+            primed: true,
+            ..LagFilter::new(tau_s)
         }
     }
 
@@ -38,8 +53,11 @@ impl LagFilter {
             self.state = x;
             self.primed = true;
         } else if dt_s > 0.0 {
-            let alpha = 1.0 - libm::exp(-dt_s / self.tau_s);
-            self.state += alpha * (x - self.state);
+            if dt_s != self.last_dt_s {
+                self.alpha = 1.0 - libm::exp(-dt_s / self.tau_s);
+                self.last_dt_s = dt_s;
+            }
+            self.state += self.alpha * (x - self.state);
         }
         self.state
     }

@@ -17,7 +17,7 @@
 // Index loops over axes read like the maths they implement.
 #![allow(clippy::needless_range_loop)]
 
-#[cfg(feature = "std")]
+#[cfg(any(test, feature = "std"))]
 extern crate std;
 
 pub mod blob;
@@ -26,6 +26,7 @@ mod error;
 pub mod fault;
 mod fold;
 pub mod gcs;
+mod horner;
 mod input;
 mod lag;
 pub mod limits;
@@ -39,7 +40,7 @@ pub mod upload;
 
 pub use builder::ModelBuilder;
 pub use error::{InverseError, ModelError};
-pub use fold::{Correction, Fold};
+pub use fold::{Correction, Fold, FOLD_CAPACITY};
 pub use input::{EnvelopeFlags, Input, Range, Scaling, SlowInputs};
 pub use lag::{LagBank, LagFilter, LagSpec};
 pub use limits::{MAX_AUX, MAX_AXES, MAX_LAGS, MAX_TEMPS, MAX_TERMS};

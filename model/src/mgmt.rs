@@ -16,7 +16,7 @@
 //! | `UPLOAD_CHUNK` 0x11 | offset u32, bytes | received u32 |
 //! | `UPLOAD_COMMIT` 0x12 | – | model id u32, slot u8, seq u32 |
 //! | `UPLOAD_ABORT` 0x13 | – | – |
-//! | `SET_KMZ` 0x20 | q_cmd f64×3, x_meas f64×3 | kmz f64×3 |
+//! | `SET_KMZ` 0x20 | q_cmd f64×3, x_meas f64×3 | kmz f64×3, stored u8 (model re-committed) |
 //! | `BYPASS` 0x21 | on u8 | – |
 //!
 //! Result codes: 0 ok; 1..=9 [`crate::upload::UploadError::code`]; [`RESULT_STORAGE`];
@@ -70,6 +70,27 @@ pub const RESULT_NO_MODEL: u8 = 21;
 pub const RESULT_BAD_REQUEST: u8 = 22;
 /// Result: unknown request kind.
 pub const RESULT_UNKNOWN_KIND: u8 = 23;
+
+/// What a result code means (for people: CLI output, logs).
+pub fn result_meaning(code: u8) -> &'static str {
+    match code {
+        RESULT_OK => "ok",
+        1 => "upload step without a begin",
+        2 => "blob format version not supported by the firmware",
+        3 => "announced length out of range",
+        4 => "chunk out of order",
+        5 => "chunk past the announced length",
+        6 => "repeated chunk differs",
+        7 => "upload incomplete",
+        8 => "whole-blob CRC mismatch",
+        9 => "invalid blob",
+        RESULT_STORAGE => "storage (flash) failure; old model kept",
+        RESULT_NO_MODEL => "no model loaded",
+        RESULT_BAD_REQUEST => "malformed request",
+        RESULT_UNKNOWN_KIND => "unknown request",
+        _ => "unknown code",
+    }
+}
 
 /// Framing errors.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

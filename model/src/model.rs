@@ -1,6 +1,7 @@
 //! The calibration model: terms, offsets, scalings, envelope, travel; its f64 reference evaluation.
 
 use crate::error::ModelError;
+use crate::fold::{FoldShape, FOLD_CAPACITY};
 use crate::input::{EnvelopeFlags, Input, Range, Scaling, SlowInputs};
 use crate::lag::LagSpec;
 use crate::limits::{MAX_AUX, MAX_AXES, MAX_INPUTS, MAX_LAGS, MAX_POWER, MAX_TEMPS, MAX_TERMS};
@@ -267,6 +268,12 @@ impl Model {
         }
         for (i, term) in self.terms().iter().enumerate() {
             self.validate_term(term, i as u16)?;
+        }
+        let fold = FoldShape::of(axes, self.terms());
+        if fold.coefficients > FOLD_CAPACITY {
+            return Err(ModelError::FoldTooLarge {
+                coefficients: fold.coefficients as u16,
+            });
         }
         Ok(())
     }

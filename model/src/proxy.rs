@@ -5,7 +5,8 @@
 //! everything else passes untouched. When a move is refused (outside the model's envelope or
 //! the stage travel, a failed sensor, no model) nothing is forwarded and the error is kept for
 //! the host's next `ERR?`, which the proxy then answers itself (PIPython asks `ERR?` after
-//! every command). Controller → host: replies to `POS?` and `MOV?` are mapped back through the
+//! every command; the controller's own error, if it has one too, stays for the following
+//! `ERR?`). Controller → host: replies to `POS?` and `MOV?` are mapped back through the
 //! inverse so the host sees calibrated coordinates; all other replies are relayed.
 //!
 //! The proxy is generic over a [`Corrector`] (the firmware's current thermal fold) so that it is
@@ -136,8 +137,6 @@ enum Pending {
     Map,
 }
 
-const QUEUE: usize = 16;
-
 /// Counters for the status report.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Counters {
@@ -163,9 +162,10 @@ pub struct Proxy {
     dir: [i8; MAP_AXES],
     /// Last error the compensator raised, for the next `ERR?` (0 = none).
     pending_error: i32,
-    queue: [Pending; QUEUE],
-    q_head: usize,
-    q_len: usize,
+    /// What the controller's next reply answers. GCS is request/response, and a query the
+    /// controller does not answer at all (an invalid one only sets its error) must not shift
+    /// the attribution of later replies: so a reply belongs to the most recent query.
+    pending: Option<Pending>,
     reply: LineBuf<OUT_LEN>,
     /// Forward everything untouched.
     pub bypass: bool,
@@ -192,9 +192,7 @@ impl Proxy {
             q_um: [None; MAP_AXES],
             dir: [0; MAP_AXES],
             pending_error: 0,
-            queue: [Pending::Pass; QUEUE],
-            q_head: 0,
-            q_len: 0,
+            pending: None,
             reply: LineBuf::new(),
             bypass: false,
             gate: Gate::Open,
@@ -224,28 +222,19 @@ impl Proxy {
     }
 
     fn push_pending(&mut self, p: Pending) {
-        if self.q_len == QUEUE {
-            // drop the oldest: a controller that never answers must not wedge the proxy
-            self.q_head = (self.q_head + 1) % QUEUE;
-            self.q_len -= 1;
+        if self.pending != Some(p) {
+            // a new query while a multi-line reply was being collected: drop the partial reply
+            self.reply.clear();
         }
-        self.queue[(self.q_head + self.q_len) % QUEUE] = p;
-        self.q_len += 1;
+        self.pending = Some(p);
     }
 
     fn front_pending(&self) -> Pending {
-        if self.q_len == 0 {
-            Pending::Pass
-        } else {
-            self.queue[self.q_head]
-        }
+        self.pending.unwrap_or(Pending::Pass)
     }
 
     fn pop_pending(&mut self) {
-        if self.q_len > 0 {
-            self.q_head = (self.q_head + 1) % QUEUE;
-            self.q_len -= 1;
-        }
+        self.pending = None;
     }
 
     /// A single-character command from the host: forwarded as is (its reply is relayed).

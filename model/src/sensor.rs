@@ -85,6 +85,8 @@ pub mod max31856 {
     pub const CR0_OCFAULT_01: u8 = 0x10;
     /// CR1: type K thermocouple, 1 sample.
     pub const CR1_TYPE_K: u8 = 0x03;
+    /// CR1: average 4 samples per conversion (AVGSEL = 010): the chip's own noise filter.
+    pub const CR1_AVG4: u8 = 0x20;
     /// MASK register value: assert no FAULT pin (faults are read from SR).
     pub const MASK_NONE: u8 = 0xFF;
     /// First register of the read burst: CJTH (cold junction), then CJTL, LTCBH, LTCBM, LTCBL, SR.
@@ -131,7 +133,7 @@ pub fn config_frames(chip: Chip) -> [[u8; FRAME_LEN]; 1] {
         Chip::Max31856 => [[
             max31856::CR0_WRITE,
             max31856::CR0_CMODE_AUTO | max31856::CR0_OCFAULT_01,
-            max31856::CR1_TYPE_K,
+            max31856::CR1_AVG4 | max31856::CR1_TYPE_K,
             max31856::MASK_NONE,
             0x7F, // CJHF: +127 °C
             0xC0, // CJLF: -64 °C

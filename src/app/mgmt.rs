@@ -1,6 +1,6 @@
 //! The management task: status, chunked upload with two-slot commit, KMZ, bypass.
 
-use super::Shared;
+use super::{Comp, Shared};
 use embassy_time::{Instant, Timer};
 use embedded_io_async::{Read, Write};
 use nanocal_model::mgmt::{self, flags, kind, Decoder, Reader, Status, Writer};
@@ -174,15 +174,19 @@ fn handle<S: SlotStorage>(
                     for (a, v) in k.iter_mut().enumerate().take(model.axes()) {
                         *v = model.kmz_offset_um(a);
                     }
-                    Some(k)
+                    // the next command already uses the new offset
+                    Some((k, Comp::new(model, &slow)))
                 });
                 match kmz {
-                    Some(k) => {
+                    Some((k, comp)) => {
+                        sh.core.lock(|c| c.borrow_mut().comp = Some(comp));
                         sh.refold.signal(());
+                        let persisted = persist(storage, sh);
                         let _ = w.u8(mgmt::RESULT_OK);
                         for v in k {
                             let _ = w.f64(v);
                         }
+                        let _ = w.u8(u8::from(persisted));
                         return w.len();
                     }
                     None => mgmt::RESULT_NO_MODEL,
@@ -200,6 +204,34 @@ fn handle<S: SlotStorage>(
     };
     let _ = w.u8(code);
     w.len()
+}
+
+/// Store the model in service (e.g. after a KMZ change) to the other slot; the blob is built
+/// on the stack, so an upload in progress is not disturbed. False when it could not be stored
+/// (the change stays in RAM).
+fn persist<S: SlotStorage>(storage: &mut S, sh: &Shared) -> bool {
+    let mut bytes = [0u8; blob::MAX_BLOB_LEN];
+    let (len, current) = sh.model.lock(|m| {
+        let m = m.borrow();
+        let len = m
+            .model
+            .as_ref()
+            .map(|model| blob::encode(model, &mut bytes));
+        (len, m.active)
+    });
+    let Some(Ok(len)) = len else {
+        return false;
+    };
+    match slots::commit(storage, current, &bytes[..len]) {
+        Ok(active) => {
+            sh.model.lock(|m| m.borrow_mut().active = Some(active));
+            true
+        }
+        Err(_) => {
+            warn!("KMZ change not stored");
+            false
+        }
+    }
 }
 
 fn reject(sh: &Shared, code: u8) -> u8 {

@@ -91,7 +91,7 @@ async fn main(spawner: Spawner) {
     let (srx, stx) = stage.split();
     let (brx, btx) = sensors.split();
     let (mrx, mtx) = mgmt.split();
-    let bus = SerialSensorBus::new(brx, btx, Duration::from_millis(50));
+    let bus = SerialSensorBus::new(brx, btx, Duration::from_millis(200));
     let flash = FLASH.init(RamFlash::new());
     let buf = UPLOAD.init([0; blob::MAX_BLOB_LEN]);
     spawner.spawn(management_task(mrx, mtx, flash, buf, sh).expect("task pool"));

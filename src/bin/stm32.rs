@@ -11,12 +11,12 @@ use panic_probe as _;
 use embassy_executor::Spawner;
 use embassy_stm32::flash::{Blocking, Flash};
 use embassy_stm32::gpio::{Level, Output, Speed};
-use embassy_stm32::mode::Blocking as BlockingMode;
-use embassy_stm32::peripherals::{UART4, USB_OTG_FS};
+use embassy_stm32::mode::Async;
+use embassy_stm32::peripherals::{DMA1_CH2, DMA1_CH3, UART4, USB_OTG_FS};
 use embassy_stm32::spi::{self, Spi};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
-use embassy_stm32::{bind_interrupts, usb, Config};
+use embassy_stm32::{bind_interrupts, dma, usb, Config};
 use embassy_time::{Duration, Timer};
 use embassy_usb::class::cdc_acm::{BufferedReceiver, CdcAcmClass, Sender, State};
 use embassy_usb::UsbDevice;
@@ -30,6 +30,8 @@ use static_cell::StaticCell;
 bind_interrupts!(struct Irqs {
     OTG_FS => usb::InterruptHandler<USB_OTG_FS>;
     UART4 => usart::BufferedInterruptHandler<UART4>;
+    DMA1_CHANNEL2 => dma::InterruptHandler<DMA1_CH2>;
+    DMA1_CHANNEL3 => dma::InterruptHandler<DMA1_CH3>;
 });
 
 /// Stage link baud rate (the controller's setting; 8N1).
@@ -82,9 +84,9 @@ impl FlashSlots {
     }
 }
 
-/// SPI1 with one chip-select per sensor.
+/// SPI1 (DMA) with one chip-select per sensor.
 struct SpiSensors {
-    spi: Spi<'static, BlockingMode, spi::mode::Master>,
+    spi: Spi<'static, Async, spi::mode::Master>,
     cs: [Output<'static>; CHIPS.len()],
 }
 
@@ -95,11 +97,9 @@ impl SensorBus for SpiSensors {
             .get_mut(usize::from(cs))
             .ok_or(SensorFault::NoResponse)?;
         pin.set_low();
-        // 8 bytes at 1 MHz: 64 µs — shorter than any await would be worth
-        let r = self.spi.blocking_transfer_in_place(frame);
+        // DMA transfer: the executor runs the command path meanwhile
+        let r = self.spi.transfer_in_place(frame).await;
         pin.set_high();
-        // give other tasks a turn between sensors
-        embassy_futures::yield_now().await;
         r.map_err(|_| SensorFault::NoResponse)
     }
 }
@@ -190,8 +190,10 @@ async fn main(spawner: Spawner) {
 
     // USB: two CDC-ACM interfaces (GCS host link, management), composite with IADs.
     static EP_OUT: StaticCell<[u8; 256]> = StaticCell::new();
+    // No VBUS sensing: the board is powered from the same host through its ST-LINK port, and
+    // this works whether or not PA9 is wired to the OTG connector's VBUS.
     let mut usb_config = usb::Config::default();
-    usb_config.vbus_detection = true;
+    usb_config.vbus_detection = false;
     let driver = usb::Driver::new_fs(
         p.USB_OTG_FS,
         Irqs,
@@ -253,7 +255,9 @@ async fn main(spawner: Spawner) {
     let mut spi_config = spi::Config::default();
     spi_config.frequency = Hertz(1_000_000);
     spi_config.mode = spi::MODE_1;
-    let spi = Spi::new_blocking(p.SPI1, p.PA5, p.PA7, p.PA6, spi_config);
+    let spi = Spi::new(
+        p.SPI1, p.PA5, p.PA7, p.PA6, p.DMA1_CH3, p.DMA1_CH2, Irqs, spi_config,
+    );
     let cs = [
         Output::new(p.PA2, Level::High, Speed::Low),  // D10
         Output::new(p.PA15, Level::High, Speed::Low), // D9

@@ -72,7 +72,7 @@ fn main() -> anyhow::Result<()> {
             400,
         ),
     ];
-    println!("| model | stored terms | fast monomials | worst f32−f64 (nm) | fold (µs) | correct (ns) | inverse (ns) |");
+    println!("| model | stored terms | fast coefficients | worst f32−f64 (nm) | fold (µs) | correct (ns) | inverse (ns) |");
     println!("|---|---|---|---|---|---|---|");
     for (name, model, x_max, t_range, steps) in cases {
         let worst = worst_error_nm(&model, x_max, t_range, steps);
@@ -92,7 +92,7 @@ fn main() -> anyhow::Result<()> {
         println!(
             "| {name} | {} | {} | {worst:.4} | {:.2} | {correct_ns:.1} | {inverse_ns:.1} |",
             model.terms().len(),
-            fold.fast_terms(),
+            fold.fast_coefficients(),
             fold_ns / 1e3
         );
     }

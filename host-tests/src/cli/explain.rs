@@ -23,7 +23,7 @@ pub struct ExplainArgs {
     #[arg(long)]
     pub plots: Option<PathBuf>,
     /// Minimum BIC drop for an effect to be named.
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = 20.0)]
     pub min_bic_drop: f64,
 }
 
@@ -71,22 +71,9 @@ pub fn run(args: ExplainArgs) -> Result<()> {
     if let Some(dir) = &args.plots {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         for c in &report.channels {
-            let p = dir.join(format!("residual_{}.svg", c.channel));
-            let title = format!(
-                "{}: residual before {:.0} nm / after {:.0} nm RMS (held-out)",
-                c.channel, c.baseline_rms_nm, c.final_rms_nm
-            );
-            std::fs::write(
-                &p,
-                plot::residual_svg(
-                    &title,
-                    &data.t_s,
-                    &c.residual_before_um,
-                    &c.residual_after_um,
-                ),
-            )
-            .with_context(|| format!("writing {}", p.display()))?;
-            println!("wrote {}", p.display());
+            for p in plot::write_residual_plots(dir, &data, c)? {
+                println!("wrote {}", p.display());
+            }
         }
     }
     println!("done in {:.2} s", start.elapsed().as_secs_f64());

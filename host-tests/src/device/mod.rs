@@ -42,26 +42,7 @@ pub enum DeviceError {
     Blob(String),
 }
 
-/// What a management result code means.
-pub fn result_meaning(code: u8) -> &'static str {
-    match code {
-        mgmt::RESULT_OK => "ok",
-        1 => "upload step without a begin",
-        2 => "blob format version not supported by the firmware",
-        3 => "announced length out of range",
-        4 => "chunk out of order",
-        5 => "chunk past the announced length",
-        6 => "repeated chunk differs",
-        7 => "upload incomplete",
-        8 => "whole-blob CRC mismatch",
-        9 => "invalid blob",
-        mgmt::RESULT_STORAGE => "storage (flash) failure; old model kept",
-        mgmt::RESULT_NO_MODEL => "no model loaded",
-        mgmt::RESULT_BAD_REQUEST => "malformed request",
-        mgmt::RESULT_UNKNOWN_KIND => "unknown request",
-        _ => "unknown code",
-    }
-}
+pub use nanocal_model::mgmt::result_meaning;
 
 /// A byte stream to the device.
 pub trait Port: Read + Write + Send {}
@@ -268,7 +249,8 @@ impl Client {
     }
 
     /// Set λ_KMZ so that the model maps the measured reference `x_meas_um` to the command
-    /// `q_cmd_um` that was sent. Returns the new λ_KMZ per axis.
+    /// `q_cmd_um` that was sent; the device stores the changed model in its other flash slot.
+    /// Returns the new λ_KMZ per axis.
     pub fn set_kmz(
         &mut self,
         q_cmd_um: [f64; MAX_AXES],

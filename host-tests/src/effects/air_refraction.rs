@@ -80,4 +80,18 @@ impl super::Candidate for Candidate {
             super::Estimate::new("dead_path_mm", l_mm, f.se[0] / DN_DP_PER_HPA * 1e-3),
         ]
     }
+    fn blob_terms(
+        &self,
+        ctx: &super::BlobContext,
+        _theta: Option<f64>,
+    ) -> Option<super::BlobTerms> {
+        let p = nanocal_model::Factor::Aux(ctx.pressure_aux?);
+        Some(super::BlobTerms {
+            lags: Vec::new(),
+            terms: vec![
+                super::term(ctx.output, [0; 3], p, 0),
+                super::term(ctx.output, super::powers(ctx.output, 1), p, 0),
+            ],
+        })
+    }
 }

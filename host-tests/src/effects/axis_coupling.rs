@@ -82,4 +82,37 @@ impl super::Candidate for Candidate {
             super::Estimate::new("cross_nm", f.coeffs[2] * 1e3, f.se[2] * 1e3),
         ]
     }
+    fn blob_terms(
+        &self,
+        ctx: &super::BlobContext,
+        _theta: Option<f64>,
+    ) -> Option<super::BlobTerms> {
+        let mut terms = Vec::new();
+        for b in (0..ctx.axes).filter(|&b| b != ctx.output) {
+            let mut cross = super::powers(b, 1);
+            cross[ctx.output as usize] = 1;
+            terms.push(super::term(
+                ctx.output,
+                super::powers(b, 1),
+                nanocal_model::Factor::None,
+                0,
+            ));
+            terms.push(super::term(
+                ctx.output,
+                super::powers(b, 2),
+                nanocal_model::Factor::None,
+                0,
+            ));
+            terms.push(super::term(
+                ctx.output,
+                cross,
+                nanocal_model::Factor::None,
+                0,
+            ));
+        }
+        (!terms.is_empty()).then_some(super::BlobTerms {
+            lags: Vec::new(),
+            terms,
+        })
+    }
 }

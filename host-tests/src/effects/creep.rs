@@ -85,7 +85,8 @@ impl super::Candidate for Candidate {
     }
     fn applies(&self, d: &Data, ch: usize) -> bool {
         let c = &d.channels[ch];
-        c.u.is_some() && c.steps.len() >= 3 && c.steps.len() <= 20_000
+        // the basis costs rows × moves additions per evaluation
+        c.u.is_some() && c.steps.len() >= 3 && (c.steps.len() as f64) * (d.rows() as f64) <= 3e8
     }
     fn theta_name(&self) -> Option<&'static str> {
         Some("t0_s")

@@ -78,4 +78,23 @@ impl super::Candidate for Candidate {
             .map(|(j, (c, s))| super::Estimate::new(&format!("u{}_nm", 4 + j), c * 1e3, s * 1e3))
             .collect()
     }
+    fn blob_terms(
+        &self,
+        ctx: &super::BlobContext,
+        _theta: Option<f64>,
+    ) -> Option<super::BlobTerms> {
+        Some(super::BlobTerms {
+            lags: Vec::new(),
+            terms: (4..=6)
+                .map(|p| {
+                    super::term(
+                        ctx.output,
+                        super::powers(ctx.output, p),
+                        nanocal_model::Factor::None,
+                        0,
+                    )
+                })
+                .collect(),
+        })
+    }
 }

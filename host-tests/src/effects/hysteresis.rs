@@ -33,7 +33,7 @@ impl Params {
     }
 }
 
-/// The explain candidate: sign of approach, and sign × position.
+/// The explain candidate: sign of approach × (1, u, u²).
 pub struct Candidate;
 
 impl super::Candidate for Candidate {
@@ -44,7 +44,7 @@ impl super::Candidate for Candidate {
         "the stage stops at a different place depending on the direction it came from (forward vs backward approach)"
     }
     fn deploy(&self) -> &'static str {
-        "in the blob: direction-dependent terms (Term.direction = axis + 1) on u⁰ and u¹"
+        "in the blob: direction-dependent terms (Term.direction = axis + 1) on u⁰, u¹ and u²"
     }
     fn applies(&self, d: &Data, ch: usize) -> bool {
         d.channels[ch].dir.is_some() && d.channels[ch].u.is_some()
@@ -52,12 +52,43 @@ impl super::Candidate for Candidate {
     fn regressors(&self, d: &Data, ch: usize, _theta: Option<f64>) -> Vec<Vec<f64>> {
         let c = &d.channels[ch];
         let (dir, u) = (c.dir.as_ref().unwrap(), c.u.as_ref().unwrap());
-        vec![dir.clone(), dir.iter().zip(u).map(|(a, b)| a * b).collect()]
+        vec![
+            dir.clone(),
+            dir.iter().zip(u).map(|(a, b)| a * b).collect(),
+            // a piezo loop is widest mid-travel: the width's curvature along the travel
+            dir.iter().zip(u).map(|(a, b)| a * b * b).collect(),
+        ]
     }
     fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
         vec![
             super::Estimate::new("half_width_nm", f.coeffs[0] * 1e3, f.se[0] * 1e3),
             super::Estimate::new("slope_nm", f.coeffs[1] * 1e3, f.se[1] * 1e3),
+            super::Estimate::new("curvature_nm", f.coeffs[2] * 1e3, f.se[2] * 1e3),
         ]
+    }
+    fn blob_terms(
+        &self,
+        ctx: &super::BlobContext,
+        _theta: Option<f64>,
+    ) -> Option<super::BlobTerms> {
+        let dir = ctx.output + 1;
+        Some(super::BlobTerms {
+            lags: Vec::new(),
+            terms: vec![
+                super::term(ctx.output, [0; 3], nanocal_model::Factor::None, dir),
+                super::term(
+                    ctx.output,
+                    super::powers(ctx.output, 1),
+                    nanocal_model::Factor::None,
+                    dir,
+                ),
+                super::term(
+                    ctx.output,
+                    super::powers(ctx.output, 2),
+                    nanocal_model::Factor::None,
+                    dir,
+                ),
+            ],
+        })
     }
 }

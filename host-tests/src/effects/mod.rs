@@ -95,27 +95,20 @@ impl EffectSpec {
 }
 
 /// First-order lag (time constant `tau_s`) of a sampled series, exact for a held input between
-/// samples; starts at `y0` (or the first sample).
+/// samples; starts at `y0` (or the first sample). The shared model's filter, which the
+/// firmware runs too.
 pub fn lag_series(t_s: &[f64], x: &[f64], tau_s: f64, y0: Option<f64>) -> Vec<f64> {
+    let mut filter = match y0 {
+        Some(y0) if tau_s > 0.0 => nanocal_model::LagFilter::starting_at(tau_s, y0),
+        _ => nanocal_model::LagFilter::new(tau_s),
+    };
     let mut out = Vec::with_capacity(x.len());
-    let mut y = y0.unwrap_or_else(|| x.first().copied().unwrap_or(0.0));
-    let mut last_dt = f64::NAN;
-    let mut a = 0.0;
-    for k in 0..x.len() {
-        if k > 0 {
-            let dt = t_s[k] - t_s[k - 1];
-            if dt != last_dt {
-                a = if tau_s > 0.0 {
-                    1.0 - (-dt / tau_s).exp()
-                } else {
-                    1.0
-                };
-                last_dt = dt;
-            }
-            y += a * (x[k] - y);
-        } else if tau_s <= 0.0 {
-            y = x[0];
-        }
+    for (k, &v) in x.iter().enumerate() {
+        let y = match k {
+            0 if y0.is_some() && tau_s > 0.0 => filter.value(),
+            0 => filter.update(v, f64::NAN),
+            _ => filter.update(v, t_s[k] - t_s[k - 1]),
+        };
         out.push(y);
     }
     out
@@ -160,6 +153,53 @@ pub struct Fitted<'a> {
     pub se: &'a [f64],
 }
 
+/// Where a channel sits in the shared model, for [`Candidate::blob_terms`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct BlobContext {
+    /// Output axis (model index) of the channel.
+    pub output: u8,
+    /// Axes of the model.
+    pub axes: u8,
+    /// Temperature inputs of the model (model Temp index = order in the recording).
+    pub temps: u8,
+    /// Aux index of the barometric pressure, if the model has it.
+    pub pressure_aux: Option<u8>,
+}
+
+/// The shared-model terms that carry an effect into the blob: shapes with coefficient 0 (the
+/// host's fit sets them in the model's scaling) and the lag filters they need.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BlobTerms {
+    /// Lag filters to declare first, (sensor, τ in s); `Factor::Lagged(k)` in `terms` counts
+    /// from the first of these (add the model's existing lag count).
+    pub lags: Vec<(u8, f64)>,
+    /// Term shapes.
+    pub terms: Vec<nanocal_model::Term>,
+}
+
+/// A term shape with coefficient 0.
+pub fn term(
+    output: u8,
+    powers: [u8; 3],
+    factor: nanocal_model::Factor,
+    direction: u8,
+) -> nanocal_model::Term {
+    nanocal_model::Term {
+        output,
+        powers,
+        factor,
+        direction,
+        coeff: 0.0,
+    }
+}
+
+/// `[0, 0, 0]` with `p` on `axis`.
+pub fn powers(axis: u8, p: u8) -> [u8; 3] {
+    let mut out = [0; 3];
+    out[axis as usize] = p;
+    out
+}
+
 /// An effect as explain tests it: a model extension with physical parameters.
 pub trait Candidate: Sync {
     /// One of [`NAMES`].
@@ -186,6 +226,11 @@ pub trait Candidate: Sync {
     fn regressors(&self, d: &Data, ch: usize, theta: Option<f64>) -> Vec<Vec<f64>>;
     /// The physical parameters from the fitted coefficients.
     fn params(&self, d: &Data, ch: usize, f: &Fitted) -> Vec<Estimate>;
+    /// The shared-model terms that let the firmware run the effect (with the fitted nonlinear
+    /// parameter `theta`), or `None` when the compensator cannot (see [`Candidate::deploy`]).
+    fn blob_terms(&self, _ctx: &BlobContext, _theta: Option<f64>) -> Option<BlobTerms> {
+        None
+    }
 }
 
 /// The library of candidates explain tests, in a fixed order.
@@ -213,16 +258,7 @@ pub fn log_grid(lo: f64, hi: f64, k: usize) -> Vec<f64> {
         .collect()
 }
 
-/// Lag every column of a series set with the shared model's filter (the firmware's code).
+/// Lag a sampled series with the shared model's filter, starting at its first sample.
 pub fn lag_columns(t_s: &[f64], x: &[f64], tau_s: f64) -> Vec<f64> {
-    let mut f = nanocal_model::LagFilter::new(tau_s);
-    let mut prev = f64::NAN;
-    x.iter()
-        .zip(t_s)
-        .map(|(&v, &t)| {
-            let dt = t - prev;
-            prev = t;
-            f.update(v, dt)
-        })
-        .collect()
+    lag_series(t_s, x, tau_s, None)
 }

@@ -58,16 +58,19 @@ impl super::Candidate for Candidate {
         "not in the blob (no periodic term in the shared model): correct in the interferometer's electronics (Heydemann) or note it in the uncertainty budget"
     }
     fn applies(&self, d: &Data, ch: usize) -> bool {
-        let m = &d.channels[ch].meas_um;
-        let lo = m.iter().cloned().fold(f64::INFINITY, f64::min);
-        let hi = m.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
-        (hi - lo) * 1e3 > 3.0 * HENE_HALF_WAVELENGTH_NM * 2.0
+        !self.theta_grid(d, ch).is_empty()
     }
     fn theta_name(&self) -> Option<&'static str> {
         Some("period_nm")
     }
-    fn theta_grid(&self, _d: &Data, _ch: usize) -> Vec<f64> {
-        PERIODS_NM.to_vec()
+    fn theta_grid(&self, d: &Data, ch: usize) -> Vec<f64> {
+        let range_nm = within_pose_range_nm(d, ch);
+        let spacing_nm = fine_pose_spacing_nm(d, ch);
+        PERIODS_NM
+            .iter()
+            .copied()
+            .filter(|p| range_nm >= 0.5 * p || spacing_nm <= p / 3.0)
+            .collect()
     }
     fn regressors(&self, d: &Data, ch: usize, theta: Option<f64>) -> Vec<Vec<f64>> {
         let p = theta.unwrap_or(HENE_HALF_WAVELENGTH_NM);
@@ -100,4 +103,53 @@ impl super::Candidate for Candidate {
             super::Estimate::new("second_harmonic_nm", a2, s2),
         ]
     }
+}
+
+/// Median over commanded poses of how far the (noise-free) position wandered while the command
+/// stayed, nm. A periodic error is only told apart from geometry (any function of the pose) when
+/// the stage crossed a good part of a fringe at the same commanded pose (thermal drift).
+fn within_pose_range_nm(d: &Data, ch: usize) -> f64 {
+    let pos = &d.channels[ch].position_est_um;
+    let cmds: Vec<&Vec<f64>> = d
+        .channels
+        .iter()
+        .filter_map(|c| c.cmd_um.as_ref())
+        .collect();
+    let mut groups: std::collections::HashMap<Vec<i64>, (f64, f64)> =
+        std::collections::HashMap::new();
+    for (i, &p) in pos.iter().enumerate() {
+        if !p.is_finite() {
+            continue;
+        }
+        let key: Vec<i64> = cmds.iter().map(|c| (c[i] * 1e3).round() as i64).collect();
+        let e = groups
+            .entry(key)
+            .or_insert((f64::INFINITY, f64::NEG_INFINITY));
+        e.0 = e.0.min(p);
+        e.1 = e.1.max(p);
+    }
+    let mut ranges: Vec<f64> = groups.values().map(|(lo, hi)| (hi - lo) * 1e3).collect();
+    if ranges.is_empty() {
+        return 0.0;
+    }
+    ranges.sort_by(f64::total_cmp);
+    ranges[ranges.len() / 2]
+}
+
+/// Median spacing between neighbouring distinct commanded poses of this axis when there are at
+/// least 20 of them (a fine scan samples a fringe at many phases even without drift), nm;
+/// infinite otherwise.
+fn fine_pose_spacing_nm(d: &Data, ch: usize) -> f64 {
+    let Some(cmd) = &d.channels[ch].cmd_um else {
+        return f64::INFINITY;
+    };
+    let mut poses: Vec<i64> = cmd.iter().map(|c| (c * 1e3).round() as i64).collect();
+    poses.sort_unstable();
+    poses.dedup();
+    if poses.len() < 20 {
+        return f64::INFINITY;
+    }
+    let mut gaps: Vec<i64> = poses.windows(2).map(|w| w[1] - w[0]).collect();
+    gaps.sort_unstable();
+    gaps[gaps.len() / 2] as f64
 }

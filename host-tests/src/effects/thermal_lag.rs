@@ -78,4 +78,14 @@ impl super::Candidate for Candidate {
             f.theta_sigma,
         )]
     }
+    fn blob_terms(&self, ctx: &super::BlobContext, theta: Option<f64>) -> Option<super::BlobTerms> {
+        let tau = theta?;
+        let n = ctx.temps.min(nanocal_model::MAX_LAGS as u8);
+        Some(super::BlobTerms {
+            lags: (0..n).map(|i| (i, tau)).collect(),
+            terms: (0..n)
+                .map(|k| super::term(ctx.output, [0; 3], nanocal_model::Factor::Lagged(k), 0))
+                .collect(),
+        })
+    }
 }

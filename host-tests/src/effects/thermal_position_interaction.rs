@@ -79,4 +79,23 @@ impl super::Candidate for Candidate {
             f.se[0] / h * 1e6,
         )]
     }
+    fn blob_terms(
+        &self,
+        ctx: &super::BlobContext,
+        _theta: Option<f64>,
+    ) -> Option<super::BlobTerms> {
+        Some(super::BlobTerms {
+            lags: Vec::new(),
+            terms: (0..ctx.temps)
+                .map(|i| {
+                    super::term(
+                        ctx.output,
+                        super::powers(ctx.output, 1),
+                        nanocal_model::Factor::Temp(i),
+                        0,
+                    )
+                })
+                .collect(),
+        })
+    }
 }

@@ -39,8 +39,15 @@ pub struct Data {
     pub t_s: Vec<f64>,
     /// The measured channels.
     pub channels: Vec<Channel>,
-    /// Temperature channels (full column name, °C).
+    /// Temperature channels (full column name, °C), denoised without delay (centred moving
+    /// average of ±`smooth_half_window_s`).
     pub temps: Vec<(String, Vec<f64>)>,
+    /// The temperature readings as recorded.
+    pub temps_raw: Vec<(String, Vec<f64>)>,
+    /// Half width of the centred mean applied to `temps` and the pressure, s.
+    pub smooth_half_window_s: f64,
+    /// Median sample period, s.
+    pub median_dt_s: f64,
     /// Auxiliary channels (column name, values).
     pub aux: Vec<(String, Vec<f64>)>,
     /// Barometric pressure in hPa, when an auxiliary channel is recognisably a pressure.
@@ -88,6 +95,26 @@ impl Data {
                 ExplainError::Input("expected a time column `t` (s), found none".into())
             })?
             .to_vec();
+        for name in rec.names() {
+            if let Some(i) = rec
+                .column(name)
+                .and_then(|c| c.iter().position(|v| !v.is_finite()))
+            {
+                return Err(ExplainError::Input(format!(
+                    "column `{name}`, data row {}: expected a finite number, found {}",
+                    i + 1,
+                    rec.column(name).map_or(f64::NAN, |c| c[i])
+                )));
+            }
+        }
+        if let Some(i) = t_s.windows(2).position(|w| w[1] <= w[0]) {
+            return Err(ExplainError::Input(format!(
+                "column `t`, data row {}: expected time to increase, found {} after {}",
+                i + 2,
+                t_s[i + 1],
+                t_s[i]
+            )));
+        }
         if let Some(s) = sim {
             if s.rows() != n {
                 return Err(ExplainError::Input(format!(
@@ -221,20 +248,41 @@ impl Data {
         } else {
             0
         };
-        let temps = temps
-            .into_iter()
-            .map(|(c, v)| (c, centred_mean(&v, half)))
+        let temps_raw = temps;
+        let temps = temps_raw
+            .iter()
+            .map(|(c, v)| (c.clone(), centred_mean(v, half)))
             .collect();
         let pressure_hpa = pressure_hpa.map(|(c, v)| (c, centred_mean(&v, half)));
         Ok(Self {
             t_s,
             channels,
             temps,
+            temps_raw,
+            smooth_half_window_s: SMOOTH_HALF_WINDOW_S,
+            median_dt_s: med,
             aux,
             pressure_hpa,
             against_simulation: sim.is_some(),
             uniform_dt_s,
         })
+    }
+
+    /// The same data with the temperatures denoised by a centred mean of ±`half_window_s`.
+    pub fn with_smoothing(&self, half_window_s: f64) -> Data {
+        let half = if self.median_dt_s > 0.0 {
+            ((half_window_s / self.median_dt_s).round() as usize).min(self.rows() / 50)
+        } else {
+            0
+        };
+        let mut d = self.clone();
+        d.temps = self
+            .temps_raw
+            .iter()
+            .map(|(c, v)| (c.clone(), centred_mean(v, half)))
+            .collect();
+        d.smooth_half_window_s = half_window_s;
+        d
     }
 
     /// Number of samples.

@@ -22,7 +22,7 @@ pub struct Fit {
     pub rss: f64,
     /// Rows used.
     pub n: usize,
-    /// Effective number of independent rows (lag-1 autocorrelation of the residuals).
+    /// Effective number of independent rows of the residuals (batch means, see [`effective_n`]).
     pub n_eff: f64,
 }
 

@@ -107,12 +107,17 @@ fn quantile_bins(key: &[f64], k: usize, fmt: impl Fn(f64, f64) -> String) -> Bin
     if n < k * 5 {
         return Vec::new();
     }
-    (0..k)
-        .map(|b| {
-            let s = &idx[b * n / k..(b + 1) * n / k];
-            (fmt(key[s[0]], key[s[s.len() - 1]]), s.to_vec())
-        })
-        .collect()
+    let mut out: Bins = Vec::new();
+    for b in 0..k {
+        let s = &idx[b * n / k..(b + 1) * n / k];
+        let label = fmt(key[s[0]], key[s[s.len() - 1]]);
+        // quantiles of a channel that often sits at one value (rpm = 0) give equal labels: merge
+        match out.last_mut() {
+            Some(last) if last.0 == label => last.1.extend_from_slice(s),
+            _ => out.push((label, s.to_vec())),
+        }
+    }
+    out
 }
 
 fn value_bins(key: &[f64], max_bins: usize, fmt: impl Fn(f64) -> String) -> Option<Bins> {

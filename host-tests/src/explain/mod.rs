@@ -58,7 +58,7 @@ pub struct Settings {
 impl Default for Settings {
     fn default() -> Self {
         Self {
-            min_bic_drop: 10.0,
+            min_bic_drop: 20.0,
             min_rms_gain: 0.01,
             min_folds_better: 4,
             max_effects: 4,
@@ -97,6 +97,34 @@ impl Model {
     }
 }
 
+/// Half widths (s) of the delay-free temperature denoising that the baseline may use: sensor
+/// noise is fast; slower smoothing would start to shape the thermal response itself.
+pub const SMOOTHING_OPTIONS_S: [f64; 3] = [60.0, 150.0, 300.0];
+
+fn choose_smoothing(d: &Data, ch: usize, folds: &[u8]) -> Result<Data, ExplainError> {
+    if d.temps.is_empty() || d.against_simulation {
+        return Ok(d.clone());
+    }
+    let mut best: Option<(f64, Data)> = None;
+    let mut first_rms = f64::NAN;
+    for &w in SMOOTHING_OPTIONS_S
+        .iter()
+        .filter(|&&w| w == SMOOTHING_OPTIONS_S[0] || w <= d.duration_s() / 20.0)
+    {
+        let dw = d.with_smoothing(w);
+        let (cols, _) = baseline_columns(&dw, ch);
+        let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
+        let cv = fit::cross_validate(&refs, &dw.channels[ch].y_um, folds)?;
+        if first_rms.is_nan() {
+            first_rms = cv.rms_um;
+        }
+        if best.as_ref().is_none_or(|b| cv.rms_um < b.0 * 0.99) {
+            best = Some((cv.rms_um, dw));
+        }
+    }
+    Ok(best.map(|b| b.1).unwrap_or_else(|| d.clone()))
+}
+
 fn baseline_columns(d: &Data, ch: usize) -> (Vec<Vec<f64>>, String) {
     if d.against_simulation {
         return (Vec::new(), "the given simulation (plus an offset)".into());
@@ -121,6 +149,9 @@ fn baseline_columns(d: &Data, ch: usize) -> (Vec<Vec<f64>>, String) {
         format!("published static model: {}", words.join(", ")),
     )
 }
+
+/// Most rows used while searching a nonlinear parameter.
+pub const SEARCH_ROWS: usize = 100_000;
 
 /// A fitted extension: (θ, regressors, fit).
 type Extension = (Option<f64>, Vec<Vec<f64>>, fit::Fit);
@@ -151,9 +182,21 @@ fn best_theta(
         let f = fit::fit(&model.with(&regs), y)?;
         return Ok((None, regs, f));
     }
+    // Long recordings: search θ on every k-th row (≤ SEARCH_ROWS rows; the regressors, e.g.
+    // lag filters, still run over every sample), then refit the best θ on all rows.
+    let k = d.rows().div_ceil(SEARCH_ROWS).max(1);
+    let y_search: Vec<f64> = if k > 1 {
+        y.iter()
+            .enumerate()
+            .map(|(i, &v)| if i % k == 0 { v } else { f64::NAN })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let ys: &[f64] = if k > 1 { &y_search } else { y };
     let eval = |th: f64| -> Result<(f64, Vec<Vec<f64>>, fit::Fit), ExplainError> {
         let regs = cand.regressors(d, ch, Some(th));
-        let f = fit::fit(&model.with(&regs), y)?;
+        let f = fit::fit(&model.with(&regs), ys)?;
         Ok((f.rss, regs, f))
     };
     let mut best: Option<(usize, f64, Vec<Vec<f64>>, fit::Fit)> = None;
@@ -201,6 +244,10 @@ fn best_theta(
         }
     }
     let _ = brss;
+    if k > 1 {
+        bregs = cand.regressors(d, ch, Some(bth));
+        bfit = fit::fit(&model.with(&bregs), y)?;
+    }
     Ok((Some(bth), bregs, bfit))
 }
 
@@ -261,11 +308,20 @@ pub fn explain_channel(
     ch: usize,
     settings: &Settings,
 ) -> Result<ChannelReport, ExplainError> {
-    let (base_cols, baseline) = baseline_columns(d, ch);
-    let mut model = Model { cols: base_cols };
     let folds = fit::folds(d.rows());
+    // Sensor noise in the temperatures would make any low-pass filter (a short "lag") look like
+    // physics: pick the delay-free denoising of the temperatures that predicts held-out data
+    // best (the least smoothing within 1 %), so a lag must earn its place by its delay.
+    let mut d = choose_smoothing(d, ch, &folds)?;
+    let (base_cols, mut baseline) = baseline_columns(&d, ch);
+    if !d.temps.is_empty() && !d.against_simulation {
+        baseline.push_str(&format!(
+            " (temperatures denoised by a centred ±{:.0} s mean, chosen by cross-validation)",
+            d.smooth_half_window_s
+        ));
+    }
+    let mut model = Model { cols: base_cols };
     let base_fit = fit::fit(&model.with(&[]), &d.channels[ch].y_um)?;
-    let mut d = d.clone();
     {
         let c = &mut d.channels[ch];
         for ((p, m), r) in c
@@ -421,6 +477,7 @@ pub fn explain_channel(
             channel: d.channels[ch].name.clone(),
             description: cand.description(),
             deploy: cand.deploy(),
+            blob: cand.blob_terms(&blob_context(d, ch), theta),
             params,
             rms_before_nm: rms_before_um * 1e3,
             rms_after_nm: cv.rms_um * 1e3,
@@ -434,6 +491,9 @@ pub fn explain_channel(
     }
     let final_floor = locate::noise(d, ch, &cur_fit.residuals);
     let mut unexplained = locate::locate(d, ch, &cur_cv.residuals, final_floor);
+    // the clearest places first, at most eight per channel
+    unexplained.sort_by(|a, b| b.z.total_cmp(&a.z));
+    unexplained.truncate(8);
     // everything left well above the noise floor without a place: say so
     let final_rms = cur_cv.rms_um;
     if unexplained.is_empty()
@@ -472,6 +532,20 @@ fn sig3(v: f64) -> String {
         format!("{v:.0}")
     } else {
         format!("{v:.3}")
+    }
+}
+
+/// Where channel `ch` sits in a shared model built from this recording.
+pub fn blob_context(d: &Data, ch: usize) -> crate::effects::BlobContext {
+    crate::effects::BlobContext {
+        output: ch as u8,
+        axes: d.channels.len() as u8,
+        temps: d.temps.len().min(nanocal_model::MAX_TEMPS) as u8,
+        pressure_aux: d
+            .pressure_hpa
+            .as_ref()
+            .and_then(|(name, _)| d.aux.iter().position(|a| &a.0 == name))
+            .map(|i| i as u8),
     }
 }
 

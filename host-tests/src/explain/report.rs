@@ -21,6 +21,8 @@ pub struct EffectReport {
     pub description: &'static str,
     /// Where the compensator can run it.
     pub deploy: &'static str,
+    /// The shared-model terms (and lag filters) that carry it into the blob, if deployable.
+    pub blob: Option<crate::effects::BlobTerms>,
     /// Physical parameters with 1σ.
     pub params: Vec<Estimate>,
     /// Held-out RMS before adding the effect, nm.
@@ -122,46 +124,38 @@ pub struct JsonReport {
     pub unexplained: Vec<JsonUnexplained>,
 }
 
-/// ISO accuracy per (pose, direction) of a held-out residual `r` (µm) on a commanded channel.
+/// ISO 9283 accuracy and repeatability (host's [`crate::iso9283`]) of a held-out residual `r`
+/// (µm) on a commanded channel: one visit per dwell (its mean), poses split by direction of
+/// approach (forward and backward are different poses, as the literature reports them).
 pub fn iso_accuracy(d: &Data, ch: usize, r: &[f64]) -> Option<IsoAccuracy> {
     let c = &d.channels[ch];
     let cmd = c.cmd_um.as_ref()?;
     c.u.as_ref()?;
-    let mut groups: BTreeMap<(i64, i8), Vec<f64>> = BTreeMap::new();
-    // one value per dwell: the mean of its held-out residuals
     let mut bounds = vec![0usize];
     bounds.extend(c.steps.iter().map(|s| s.0));
     bounds.push(d.rows());
+    let (mut targets, mut errors) = (Vec::new(), Vec::new());
     for w in bounds.windows(2) {
         let (a, b) = (w[0], w[1]);
-        if b <= a {
-            continue;
-        }
-        let vals: Vec<f64> = r[a..b].iter().copied().filter(|v| v.is_finite()).collect();
+        let vals: Vec<f64> = r[a..b.max(a)]
+            .iter()
+            .copied()
+            .filter(|v| v.is_finite())
+            .collect();
         if vals.is_empty() {
             continue;
         }
-        let m = vals.iter().sum::<f64>() / vals.len() as f64;
-        let dir = c.dir.as_ref().map_or(0, |dv| dv[a] as i8);
-        groups
-            .entry(((cmd[a] * 1e3).round() as i64, dir))
-            .or_default()
-            .push(m);
+        let dir = c.dir.as_ref().map_or(0.0, |dv| dv[a]);
+        targets.push(vec![cmd[a], dir]);
+        errors.push(vec![vals.iter().sum::<f64>() / vals.len() as f64, 0.0]);
     }
-    let (mut acc, mut rep) = (0.0f64, 0.0f64);
-    for v in groups.values() {
-        let m = v.iter().sum::<f64>() / v.len() as f64;
-        acc = acc.max(m.abs());
-        if v.len() >= 2 {
-            let mad = v.iter().map(|x| (x - m).abs()).sum::<f64>() / v.len() as f64;
-            let sd = (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt();
-            rep = rep.max(mad + 3.0 * sd);
-        }
-    }
+    // the direction rides along as a second coordinate (error 0) only to split the groups
+    let poses = crate::iso9283::per_pose(&targets, &errors);
+    let (acc, rep) = crate::iso9283::max_over_poses(&poses);
     Some(IsoAccuracy {
         max_accuracy_nm: acc * 1e3,
         max_repeatability_nm: rep * 1e3,
-        poses: groups.len(),
+        poses: poses.len(),
     })
 }
 
@@ -273,6 +267,14 @@ impl Report {
                 let _ = writeln!(s, "    parameters: {}", ps.join(", "));
                 let _ = writeln!(s, "    evidence: {}", e.evidence);
                 let _ = writeln!(s, "    compensator: {}", e.deploy);
+                if let Some(b) = &e.blob {
+                    let _ = writeln!(
+                        s,
+                        "    blob: {} term shape(s), {} lag filter(s) to fit into the shared model",
+                        b.terms.len(),
+                        b.lags.len()
+                    );
+                }
             }
             if let Some(last) = c.trials.last() {
                 let rejected: Vec<String> = last

@@ -1,6 +1,7 @@
 //! Ready-made simulated stages and recordings.
 
 use super::{Columns, Trajectory, Twin, TwinConfig};
+use crate::effects::{thermal_lag, thermal_position_interaction, unexplained_drift, EffectSpec};
 
 /// Absolute time at which the published training starts (08:00 on day 0), s.
 pub const TRAINING_START_S: f64 = 8.0 * 3600.0;
@@ -29,5 +30,21 @@ pub fn published_1dof(seed: u64) -> (Columns, Columns) {
 pub fn published_1dof_twin(seed: u64) -> Twin {
     let mut cfg = TwinConfig::published_1dof();
     cfg.room.trend_c_per_day = 0.08;
+    // What the published models could not see: the structure follows its sensors with a lag, a
+    // heat source no sensor reads (electronics, a motor) switches on and off, and the piezo's
+    // stroke changes with temperature — a gain error a reference pose at 0 µm cannot measure.
+    cfg.effects = vec![
+        EffectSpec::ThermalPositionInteraction(thermal_position_interaction::Params {
+            axis: 0,
+            alpha_ppm_per_c: 600.0,
+        }),
+        EffectSpec::ThermalLag(thermal_lag::Params { tau_s: 1200.0 }),
+        EffectSpec::UnexplainedDrift(unexplained_drift::Params {
+            axis: 0,
+            amplitude_nm: 400.0,
+            tau_s: 4.0 * 3600.0,
+            switch_period_s: 10.0 * 3600.0,
+        }),
+    ];
     Twin::new(cfg, 5.0 * 86_400.0, seed)
 }

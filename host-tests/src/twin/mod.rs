@@ -16,6 +16,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::effects::{lag_series, EffectSpec};
+use crate::recording::{Recording, RecordingError};
 pub use room::{Room, RoomConfig, SensorConfig};
 pub use trajectory::{Dwell, Trajectory};
 
@@ -154,33 +155,24 @@ impl Columns {
             .map(|c| c.1.as_slice())
     }
 
-    /// Write as CSV in the shared layout.
-    pub fn write_csv<W: std::io::Write>(&self, mut w: W) -> std::io::Result<()> {
-        let names: Vec<&str> = self.columns.iter().map(|c| c.0.as_str()).collect();
-        writeln!(w, "{}", names.join(","))?;
-        let mut line = String::new();
-        for r in 0..self.rows() {
-            line.clear();
-            for (i, c) in self.columns.iter().enumerate() {
-                if i > 0 {
-                    line.push(',');
-                }
-                use std::fmt::Write as _;
-                let _ = write!(line, "{}", fmt_num(c.1[r]));
-            }
-            writeln!(w, "{line}")?;
-        }
-        Ok(())
+    /// As a [`Recording`] (the host's type for recordings in the shared layout).
+    pub fn to_recording(&self) -> Result<Recording, RecordingError> {
+        Recording::from_columns(self.columns.clone())
+    }
+
+    /// Write as CSV in the shared layout (through the host's recording writer).
+    pub fn write_csv<W: std::io::Write>(&self, w: W) -> std::io::Result<()> {
+        self.to_recording().map_err(std::io::Error::other)?.write(w)
     }
 }
 
-fn fmt_num(v: f64) -> String {
-    let s = format!("{v:.6}");
-    let s = s.trim_end_matches('0').trim_end_matches('.');
-    if s == "-0" {
-        "0".into()
+/// Round to 1 pm (µm columns) / 1 µK (°C): removes binary noise so the CSV stays short.
+fn tidy(v: f64) -> f64 {
+    let r = (v * 1e6).round() / 1e6;
+    if r == 0.0 {
+        0.0
     } else {
-        s.into()
+        r
     }
 }
 
@@ -346,6 +338,11 @@ impl Twin {
                 .map(|&p| room::quantize(p + cfg.pressure_noise_hpa * normal(&mut rng), 0.01))
                 .collect();
             columns.push(("pressure".to_string(), read));
+        }
+        for c in columns.iter_mut() {
+            for v in c.1.iter_mut() {
+                *v = tidy(*v);
+            }
         }
         Columns { columns }
     }

@@ -236,6 +236,13 @@ impl Qemu {
         GcsHost::new(self.connect(0))
     }
 
+    /// Give up the test's own connection to serial0 and return its port, for an external GCS
+    /// client (QEMU serves one client per port at a time).
+    pub fn gcs_port(&mut self) -> u16 {
+        self.streams[0] = None;
+        self.ports[0]
+    }
+
     /// Management port spec for the CLI.
     pub fn mgmt_spec(&self) -> String {
         format!("tcp:127.0.0.1:{}", self.ports[3])

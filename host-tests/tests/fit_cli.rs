@@ -176,3 +176,43 @@ fn bad_input_exits_non_zero_with_the_line() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("cubic"));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn validate_refuses_a_corrupt_or_truncated_blob_in_words() {
+    let dir = tmp("badblob");
+    let model = nanocal::published::published_1dof().unwrap();
+    let mut bytes = vec![0u8; nanocal_model::blob::MAX_BLOB_LEN];
+    let n = nanocal_model::blob::encode(&model, &mut bytes).unwrap();
+    bytes.truncate(n);
+    let (_, val) = nanocal::twin::examples::published_1dof(5);
+    let rec = dir.join("val.csv");
+    val.to_recording().unwrap().write_path(&rec).unwrap();
+    let cases = [
+        ("corrupt.blob", "CRC mismatch", true),
+        ("truncated.blob", "length mismatch", false),
+    ];
+    for (name, words, corrupt) in cases {
+        let mut b = bytes.clone();
+        if corrupt {
+            b[40] ^= 0x01;
+        } else {
+            b.truncate(20);
+        }
+        let path = dir.join(name);
+        std::fs::write(&path, &b).unwrap();
+        let out = nanocal()
+            .arg("validate")
+            .arg(&path)
+            .arg(&rec)
+            .env("RUST_BACKTRACE", "0")
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "{name} was accepted");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains("not a valid model blob") && err.contains(words),
+            "{name}: {err}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -49,7 +49,7 @@ pub fn spinner(message: impl Into<String>) -> indicatif::ProgressBar {
 pub fn read_model(path: &Path) -> anyhow::Result<Model> {
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
     nanocal_model::blob::decode(&bytes)
-        .map_err(|e| anyhow::anyhow!("{}: not a valid model blob: {e:?}", path.display()))
+        .map_err(|e| anyhow::anyhow!("{}: not a valid model blob: {e}", path.display()))
 }
 
 /// Reads a recording and averages its dwells.

@@ -645,100 +645,6 @@ const POW10: [f64; 23] = [
     1e17, 1e18, 1e19, 1e20, 1e21, 1e22,
 ];
 
-/// Parses a decimal number exactly (correctly rounded). Fast path (Clinger): at most 19
-/// significant digits whose value fits in 2^53 and a decimal exponent within ±22 — one exact
-/// multiplication or division. Anything else goes through `str::parse::<f64>`, which also
-/// accepts `NaN` and `inf`. Returns `None` for an empty or non-numeric field.
-#[inline]
-pub fn parse_f64(field: &[u8]) -> Option<f64> {
-    let s = trim(field);
-    if s.is_empty() {
-        return None;
-    }
-    let mut i = 0;
-    let neg = match s[0] {
-        b'-' => {
-            i = 1;
-            true
-        }
-        b'+' => {
-            i = 1;
-            false
-        }
-        _ => false,
-    };
-    let mut mant: u64 = 0;
-    let mut digits = 0u32;
-    let mut exp10: i32 = 0;
-    let mut any = false;
-    while i < s.len() && s[i].is_ascii_digit() {
-        if digits < 19 {
-            mant = mant * 10 + (s[i] - b'0') as u64;
-            if mant != 0 {
-                digits += 1;
-            }
-        } else {
-            return slow_parse(s);
-        }
-        any = true;
-        i += 1;
-    }
-    if i < s.len() && s[i] == b'.' {
-        i += 1;
-        while i < s.len() && s[i].is_ascii_digit() {
-            if digits < 19 {
-                mant = mant * 10 + (s[i] - b'0') as u64;
-                if mant != 0 {
-                    digits += 1;
-                }
-                exp10 -= 1;
-            } else {
-                return slow_parse(s);
-            }
-            any = true;
-            i += 1;
-        }
-    }
-    if !any {
-        return slow_parse(s);
-    }
-    if i < s.len() && (s[i] == b'e' || s[i] == b'E') {
-        i += 1;
-        let mut eneg = false;
-        if i < s.len() && (s[i] == b'-' || s[i] == b'+') {
-            eneg = s[i] == b'-';
-            i += 1;
-        }
-        let mut e: i32 = 0;
-        let mut edig = false;
-        while i < s.len() && s[i].is_ascii_digit() {
-            e = e.saturating_mul(10).saturating_add((s[i] - b'0') as i32);
-            edig = true;
-            i += 1;
-        }
-        if !edig {
-            return None;
-        }
-        exp10 = exp10.saturating_add(if eneg { -e } else { e });
-    }
-    if i != s.len() {
-        return slow_parse(s);
-    }
-    if mant < (1u64 << 53) && (-22..=22).contains(&exp10) {
-        let m = mant as f64;
-        let v = if exp10 >= 0 {
-            m * POW10[exp10 as usize]
-        } else {
-            m / POW10[(-exp10) as usize]
-        };
-        return Some(if neg { -v } else { v });
-    }
-    if let Some(v) = exact_decimal(mant, exp10) {
-        return Some(if neg { -v } else { v });
-    }
-    slow_parse(s)
-}
-
 /// Exact powers of ten as integers, 10^0 ..= 10^22.
 const POW10_U128: [u128; 23] = {
     let mut t = [1u128; 23];
@@ -805,9 +711,31 @@ fn slow_parse(s: &[u8]) -> Option<f64> {
 mod tests {
     use super::*;
 
+    /// Reads each text as one line of a one-column recording: the reader's own path (the fast
+    /// scan, the exact fallback, and the parallel split for inputs over 1 MiB).
+    fn read_all<S: AsRef<str>>(texts: &[S]) -> Vec<f64> {
+        let mut csv = String::from("x\n");
+        for t in texts {
+            csv.push_str(t.as_ref());
+            csv.push('\n');
+        }
+        Recording::parse(csv.as_bytes())
+            .unwrap()
+            .column("x")
+            .unwrap()
+            .to_vec()
+    }
+
+    fn assert_bit_identical<S: AsRef<str>>(texts: &[S]) {
+        for (text, got) in texts.iter().zip(read_all(texts)) {
+            let want: f64 = text.as_ref().trim().parse().unwrap();
+            assert_eq!(got.to_bits(), want.to_bits(), "{}", text.as_ref());
+        }
+    }
+
     #[test]
-    fn fast_parse_matches_std() {
-        for s in [
+    fn numbers_read_bit_identical_to_std() {
+        assert_bit_identical(&[
             "0",
             "-0",
             "1",
@@ -826,14 +754,12 @@ mod tests {
             ".5",
             "5.",
             "1e400",
-        ] {
-            let want: f64 = s.parse().unwrap();
-            let got = parse_f64(s.as_bytes()).unwrap();
-            assert_eq!(got.to_bits(), want.to_bits(), "{s}");
-        }
-        assert!(parse_f64(b"NaN").unwrap().is_nan());
+            " 2 ",
+        ]);
+        assert!(read_all(&["NaN"])[0].is_nan());
         // 17-digit decimals (shortest round trip of random doubles) through the 128-bit path
         let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut texts = Vec::with_capacity(800_000);
         for k in 0..200_000 {
             state ^= state << 13;
             state ^= state >> 7;
@@ -845,34 +771,38 @@ mod tests {
                 2 => u * 1e-6,
                 _ => f64::from_bits((state >> 2) | 0x3000_0000_0000_0000),
             };
-            for text in [
-                format!("{x}"),
-                format!("{x:e}"),
-                format!("{:.17}", x * 1e-3),
-                format!("{:.3}", x * 1e12),
-            ] {
-                let want: f64 = text.parse().unwrap();
-                let got = parse_f64(text.as_bytes()).unwrap();
-                assert_eq!(got.to_bits(), want.to_bits(), "{text}");
-            }
+            texts.push(format!("{x}"));
+            texts.push(format!("{x:e}"));
+            texts.push(format!("{:.17}", x * 1e-3));
+            texts.push(format!("{:.3}", x * 1e12));
         }
-        for text in [
+        assert_bit_identical(&texts);
+        assert_bit_identical(&[
             "9007199254740993",
             "9007199254740995",
             "18446744073709551615",
             "0.1000000000000000055511151231257827",
-        ] {
-            let want: f64 = text.parse().unwrap();
-            assert_eq!(
-                parse_f64(text.as_bytes()).unwrap().to_bits(),
-                want.to_bits(),
-                "{text}"
+        ]);
+    }
+
+    #[test]
+    fn malformed_numbers_and_empty_fields_are_refused() {
+        for bad in ["abc", "1.2.3", "1e"] {
+            let csv = format!("x\n{bad}\n");
+            let err = Recording::parse(csv.as_bytes()).unwrap_err();
+            assert!(
+                matches!(
+                    err,
+                    RecordingError::NotNumeric {
+                        line: 2,
+                        column: 1,
+                        ..
+                    }
+                ),
+                "{bad}: {err}"
             );
         }
-        assert_eq!(parse_f64(b"abc"), None);
-        assert_eq!(parse_f64(b"1.2.3"), None);
-        assert_eq!(parse_f64(b"1e"), None);
-        assert_eq!(parse_f64(b""), None);
-        assert_eq!(parse_f64(b" 2 "), Some(2.0));
+        let err = Recording::parse(b"x,y\n1,\n").unwrap_err();
+        assert!(err.to_string().contains("line 2"), "{err}");
     }
 }

@@ -86,17 +86,6 @@ impl FoldShape {
     }
 }
 
-/// Position of monomial `powers` in a block's layout.
-fn position(axes: usize, degree: usize, powers: [u8; MAX_AXES]) -> Option<usize> {
-    let mut found = None;
-    horner::for_each_monomial(axes, degree, |pos, p| {
-        if p == powers {
-            found = Some(pos);
-        }
-    });
-    found
-}
-
 /// A model with its slow inputs folded in: dense f32 polynomials in position, one block per
 /// output axis and sign channel.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -139,7 +128,7 @@ impl Model {
             if powers == [0; MAX_AXES] && sign == 0 {
                 constant[output as usize] += value;
             } else if let Some(b) = shape.block_of(output, sign) {
-                if let Some(pos) = position(axes, b.degree as usize, powers) {
+                if let Some(pos) = horner::position(axes, b.degree as usize, powers) {
                     acc[(b.start as usize + pos) & POOL_MASK] += value;
                 }
             }

@@ -19,19 +19,24 @@ pub(crate) const fn block_len(vars: usize, degree: usize) -> usize {
     }
 }
 
-/// Calls `f(position, powers)` for every monomial of a block in layout order.
-pub(crate) fn for_each_monomial(vars: usize, degree: usize, mut f: impl FnMut(usize, [u8; 3])) {
-    let d = degree;
-    let (dj, dl) = (if vars >= 2 { d } else { 0 }, if vars >= 3 { d } else { 0 });
-    let mut pos = 0;
-    for i in (0..=d).rev() {
-        for j in (0..=dj.min(d - i)).rev() {
-            for l in (0..=dl.min(d - i - j)).rev() {
-                f(pos, [i as u8, j as u8, l as u8]);
-                pos += 1;
-            }
-        }
+/// Position of monomial `powers` in a block of `vars` variables and total degree `degree`, or
+/// `None` when it does not belong to the block. Blocks whose first power is higher come first:
+/// `block_len(vars, degree − i − 1)` entries precede first power `i`; within them the other
+/// variables form a block of degree `degree − i`.
+pub(crate) fn position(vars: usize, degree: usize, powers: [u8; 3]) -> Option<usize> {
+    let total: usize = powers.iter().map(|&p| p as usize).sum();
+    if total > degree || powers[vars.min(3)..].iter().any(|&p| p != 0) {
+        return None;
     }
+    let (mut pos, mut d) = (0, degree);
+    for v in (1..=vars).rev() {
+        let i = powers[vars - v] as usize;
+        if i < d {
+            pos += block_len(v, d - i - 1);
+        }
+        d -= i;
+    }
+    Some(pos)
 }
 
 /// What nested Horner computes with: plain f32 on the fast path, a value with its gradient
@@ -156,6 +161,21 @@ mod tests {
     use super::*;
     use crate::model::powi;
 
+    /// The layout by definition: `f(position, powers)` for every monomial in order.
+    fn for_each_monomial(vars: usize, degree: usize, mut f: impl FnMut(usize, [u8; 3])) {
+        let d = degree;
+        let (dj, dl) = (if vars >= 2 { d } else { 0 }, if vars >= 3 { d } else { 0 });
+        let mut pos = 0;
+        for i in (0..=d).rev() {
+            for j in (0..=dj.min(d - i)).rev() {
+                for l in (0..=dl.min(d - i - j)).rev() {
+                    f(pos, [i as u8, j as u8, l as u8]);
+                    pos += 1;
+                }
+            }
+        }
+    }
+
     /// Evaluates a block straight from its monomials, as a reference for Horner.
     fn by_monomials(vars: usize, degree: usize, x: [f64; 3], c: &[f64]) -> f64 {
         let mut sum = 0.0;
@@ -175,6 +195,14 @@ mod tests {
                     count += 1;
                 });
                 assert_eq!(count, block_len(vars, degree));
+                for_each_monomial(vars, degree, |pos, p| {
+                    assert_eq!(
+                        position(vars, degree, p),
+                        Some(pos),
+                        "vars {vars} degree {degree} {p:?}"
+                    );
+                });
+                assert_eq!(position(vars, degree, [degree as u8 + 1, 0, 0]), None);
                 let c: [f64; 84] = core::array::from_fn(|k| ((k * 37 % 11) as f64 - 5.0) / 7.0);
                 let x = [0.3, -0.7, 0.55];
                 let reference = by_monomials(vars, degree, x, &c);

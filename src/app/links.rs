@@ -1,8 +1,7 @@
 //! Host link and stage link: bytes ↔ lines ↔ proxy.
 
-use super::{Shared, PIPE_LEN};
+use super::{read_some, Shared, PIPE_LEN};
 use embassy_futures::join::join;
-use embassy_time::Timer;
 use embedded_io_async::{Read, Write};
 use nanocal_model::gcs::{Feed, LineAssembler};
 use nanocal_model::proxy::{Out, Route};
@@ -34,14 +33,7 @@ pub async fn host_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) -> 
         let mut out = Out::new();
         let mut buf = [0u8; 64];
         loop {
-            let n = match rx.read(&mut buf).await {
-                Ok(n) if n > 0 => n,
-                _ => {
-                    // disconnected or error: back off briefly and try again
-                    Timer::after_millis(5).await;
-                    continue;
-                }
-            };
+            let n = read_some(&mut rx, &mut buf).await;
             for &b in &buf[..n] {
                 let feed = asm.feed(b);
                 if feed == Feed::Pending {
@@ -69,13 +61,7 @@ pub async fn stage_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) ->
         let mut out = Out::new();
         let mut buf = [0u8; 64];
         loop {
-            let n = match rx.read(&mut buf).await {
-                Ok(n) if n > 0 => n,
-                _ => {
-                    Timer::after_millis(5).await;
-                    continue;
-                }
-            };
+            let n = read_some(&mut rx, &mut buf).await;
             for &b in &buf[..n] {
                 let r = match asm.feed(b) {
                     Feed::Line => sh.core.lock(|c| {

@@ -1,7 +1,7 @@
 //! The management task: status, chunked upload with two-slot commit, KMZ, bypass.
 
-use super::{Comp, Shared};
-use embassy_time::{Instant, Timer};
+use super::{read_some, Comp, Shared};
+use embassy_time::Instant;
 use embedded_io_async::{Read, Write};
 use nanocal_model::mgmt::{self, flags, kind, Decoder, Reader, Status, Writer};
 use nanocal_model::proxy::Gate;
@@ -44,13 +44,7 @@ pub async fn management<R: Read, W: Write, S: SlotStorage>(
     let mut reply = [0u8; mgmt::MAX_PAYLOAD];
     let mut frame = [0u8; mgmt::MAX_FRAME];
     loop {
-        let n = match rx.read(&mut inbuf).await {
-            Ok(n) if n > 0 => n,
-            _ => {
-                Timer::after_millis(5).await;
-                continue;
-            }
-        };
+        let n = read_some(&mut rx, &mut inbuf).await;
         for &b in &inbuf[..n] {
             match dec.feed(b) {
                 Some(Ok(())) => {

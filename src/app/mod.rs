@@ -28,6 +28,18 @@ use nanocal_model::proxy::{FoldCorrector, Proxy};
 use nanocal_model::slots::Active;
 use nanocal_model::{Model, SlowInputs, MAX_TEMPS};
 
+/// Reads at least one byte into `buf`. An error or end of input (host unplugged, a UART
+/// framing error) is retried after a short pause instead of ending the task: the compensator
+/// keeps serving when the link comes back.
+pub(crate) async fn read_some<R: embedded_io_async::Read>(rx: &mut R, buf: &mut [u8]) -> usize {
+    loop {
+        match rx.read(buf).await {
+            Ok(n) if n > 0 => return n,
+            _ => embassy_time::Timer::after_millis(5).await,
+        }
+    }
+}
+
 /// Bytes buffered toward each link.
 pub const PIPE_LEN: usize = 512;
 

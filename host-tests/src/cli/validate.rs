@@ -16,6 +16,20 @@ use crate::validate::{comparison_table, validate, Compensation, ValidationReport
 /// percentiles and the robustness indices R_s, R_t.
 #[derive(Args, Debug, Clone)]
 pub struct ValidateArgs {
+    /// The model, the recording, and how to validate.
+    #[command(flatten)]
+    pub inputs: ValidationInputs,
+    /// Also print the per-pose table of each compensation.
+    #[arg(long)]
+    pub per_pose: bool,
+    /// Write the summary as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+/// What `validate` and `report` both read, and how they validate.
+#[derive(Args, Debug, Clone)]
+pub struct ValidationInputs {
     /// Model blob (from `nanocal fit`).
     pub model: PathBuf,
     /// Validation recording (CSV, shared layout).
@@ -29,12 +43,19 @@ pub struct ValidateArgs {
     /// Average the last this many seconds of each dwell.
     #[arg(long, default_value_t = 10.0)]
     pub average_last_s: f64,
-    /// Also print the per-pose table of each compensation.
-    #[arg(long)]
-    pub per_pose: bool,
-    /// Write the summary as JSON here.
-    #[arg(long)]
-    pub json: Option<PathBuf>,
+}
+
+impl ValidationInputs {
+    /// Reads the model and the recording's dwells, and validates three ways: no model, static,
+    /// adaptive KMZ.
+    pub fn validate_three_ways(&self) -> anyhow::Result<(Dwells, [ValidationReport; 3])> {
+        let model = read_model(&self.model)?;
+        let d = read_dwells(&self.recording, self.average_last_s)?;
+        let bar = spinner("validating: no model, static, adaptive KMZ");
+        let reports = three_ways(&model, &d, &self.reference_pose_um, self.kmz_interval_s)?;
+        bar.finish_and_clear();
+        Ok((d, reports))
+    }
 }
 
 /// A spinner on stderr for long work (indicatif hides it when stderr is not a terminal).
@@ -53,7 +74,7 @@ pub fn read_model(path: &Path) -> anyhow::Result<Model> {
 }
 
 /// Reads a recording and averages its dwells.
-pub fn read_dwells(path: &Path, average_last_s: f64) -> anyhow::Result<Dwells> {
+fn read_dwells(path: &Path, average_last_s: f64) -> anyhow::Result<Dwells> {
     let bar = spinner(format!("reading {}", path.display()));
     let rec = Recording::read_path(path)?;
     bar.finish_and_clear();
@@ -69,7 +90,7 @@ pub fn read_dwells(path: &Path, average_last_s: f64) -> anyhow::Result<Dwells> {
 }
 
 /// The three validations (no model, static, adaptive KMZ) of `model` on `d`.
-pub fn three_ways(
+fn three_ways(
     model: &Model,
     d: &Dwells,
     reference_um: &[f64],
@@ -147,17 +168,13 @@ pub fn report_json(r: &ValidationReport) -> serde_json::Value {
 
 /// Runs `nanocal validate`.
 pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
-    let model = read_model(&args.model)?;
-    let d = read_dwells(&args.recording, args.average_last_s)?;
-    let bar = spinner("validating: no model, static, adaptive KMZ");
-    let reports = three_ways(&model, &d, &args.reference_pose_um, args.kmz_interval_s)?;
-    bar.finish_and_clear();
+    let (d, reports) = args.inputs.validate_three_ways()?;
     println!(
         "{} dwells, {} tests, KMZ re-measured {} times at {:?} µm",
         d.len(),
         reports[2].tests,
         reports[2].kmz_updates,
-        args.reference_pose_um
+        args.inputs.reference_pose_um
     );
     print!(
         "{}",

@@ -43,7 +43,7 @@ fn thermal_only_channels_without_commands_are_explained_each() {
         .iter()
         .map(|s| 20.0 + 0.5 * (s / 7200.0).sin() + 0.2 * (s / 2500.0).sin())
         .collect();
-    let lagged = nanocal::effects::lag_columns(&t, &temp, 1200.0);
+    let lagged = nanocal::effects::lag_series(&t, &temp, 1200.0, None);
     let noise = |i: usize, k: f64| 0.002 * ((i as f64 * k).sin() + (i as f64 * 1.7 * k).cos());
     let ch1: Vec<f64> = (0..n)
         .map(|i| 3.0 * (lagged[i] - 20.0) + noise(i, 0.37))

@@ -257,8 +257,3 @@ pub fn log_grid(lo: f64, hi: f64, k: usize) -> Vec<f64> {
         .map(|i| lo * (hi / lo).powf(i as f64 / (k - 1) as f64))
         .collect()
 }
-
-/// Lag a sampled series with the shared model's filter, starting at its first sample.
-pub fn lag_columns(t_s: &[f64], x: &[f64], tau_s: f64) -> Vec<f64> {
-    lag_series(t_s, x, tau_s, None)
-}

@@ -68,7 +68,7 @@ impl super::Candidate for Candidate {
         let tau = theta.unwrap_or(1.0);
         d.temps
             .iter()
-            .map(|(_, x)| super::lag_columns(&d.t_s, x, tau))
+            .map(|(_, x)| super::lag_series(&d.t_s, x, tau, None))
             .collect()
     }
     fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {

@@ -19,8 +19,7 @@ rustup component add clippy rustfmt
 qemu_major() { qemu-system-arm --version 2>/dev/null | sed -n 's/.*version \([0-9]*\)\..*/\1/p' | head -n1; }
 if [ "$(qemu_major || true)" = "" ] || [ "$(qemu_major)" -lt 10 ]; then
     if ! grep -rqs "bookworm-backports" /etc/apt/sources.list /etc/apt/sources.list.d/; then
-        echo "deb http://deb.debian.org/debian bookworm-backports main" |
-            as_root tee /etc/apt/sources.list.d/bookworm-backports.list >/dev/null
+        bash "$(dirname "$0")/add-backports.sh"
     fi
     apt_install -t bookworm-backports qemu-system-arm
 fi

@@ -18,9 +18,11 @@ cd "$root/host-tests"
 cargo fmt --all --check
 cargo clippy --all-targets -- -D warnings
 
-step "shared model builds for the firmware target (no_std, with and without defmt)"
-cargo clippy -p nanocal-model --target thumbv7em-none-eabihf -- -D warnings
-cargo clippy -p nanocal-model --target thumbv7em-none-eabihf --features defmt -- -D warnings
+step "shared no_std crates build for the firmware target (with and without defmt)"
+for crate in nanocal-model nanocal-compensator; do
+    cargo clippy -p "$crate" --target thumbv7em-none-eabihf -- -D warnings
+    cargo clippy -p "$crate" --target thumbv7em-none-eabihf --features defmt -- -D warnings
+done
 
 step "fuzz target builds (run it with cargo +nightly fuzz run decode_blob in model/)"
 cd "$root/model/fuzz"
@@ -29,6 +31,6 @@ cargo build --quiet --target "$(rustc -vV | sed -n 's/^host: //p')"
 step "host prerequisites (GNU Octave for the differential stepwise test)"
 bash "$root/.ci/host.sh"
 
-step "host tests"
+step "host tests: every crate of the host workspace (model, compensator, host tools), unit and integration"
 cd "$root/host-tests"
-cargo test --no-fail-fast
+cargo test --workspace --no-fail-fast

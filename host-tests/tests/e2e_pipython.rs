@@ -11,7 +11,7 @@ mod fw_sim;
 
 use fw_sim::{repo_root, Qemu, SensorSim, StageSim};
 use nanocal::published::published_1dof;
-use nanocal_model::mgmt::flags;
+use nanocal_compensator::mgmt::flags;
 use nanocal_model::{blob, SlowInputs};
 use std::path::PathBuf;
 use std::process::Command;

@@ -14,8 +14,8 @@ mod fw_sim;
 use fw_sim::{Qemu, SensorSim, StageSim};
 use nanocal::device::DeviceError;
 use nanocal::published::published_1dof;
-use nanocal_model::mgmt::flags;
-use nanocal_model::sensor::max31856;
+use nanocal_compensator::mgmt::flags;
+use nanocal_compensator::sensor::max31856;
 use nanocal_model::{blob, SlowInputs, MAX_AXES};
 use std::time::{Duration, Instant};
 
@@ -54,7 +54,7 @@ fn e2e_compensator_under_qemu() {
     let mut c = q.client();
     let (proto, format, _) = c.hello().expect("hello");
     assert_eq!(format, blob::FORMAT_VERSION);
-    assert_eq!(proto, nanocal_model::mgmt::PROTOCOL);
+    assert_eq!(proto, nanocal_compensator::mgmt::PROTOCOL);
     let s = c.status().unwrap();
     assert_eq!(s.flags & flags::MODEL, 0, "no model before the upload");
     drop(c);

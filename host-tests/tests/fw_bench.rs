@@ -157,7 +157,7 @@ fn fw_bench_latency_throughput() {
     let n = blob::encode(&model, &mut b).unwrap();
     c.upload(&b[..n]).unwrap();
     let deadline = Instant::now() + Duration::from_secs(20);
-    while c.status().unwrap().flags & nanocal_model::mgmt::flags::SENSOR_BLOCK != 0
+    while c.status().unwrap().flags & nanocal_compensator::mgmt::flags::SENSOR_BLOCK != 0
         || c.status().unwrap().folds < 2
     {
         assert!(Instant::now() < deadline, "sensors never became ready");

@@ -2,14 +2,14 @@
 //! frames, fault policy, management frames, chunked upload and two-slot storage.
 
 use nanocal::published::{coupled_2dof, published_1dof};
+use nanocal_compensator::fault::{ChannelState, Faults, Policy};
+use nanocal_compensator::gcs::{self, Feed, LineAssembler, LineBuf};
+use nanocal_compensator::mgmt::{self, Decoder, FrameError, Reader, Status, Writer};
+use nanocal_compensator::proxy::{codes, FoldCorrector, Gate, Out, Proxy, Route};
+use nanocal_compensator::sensor::{self, max31856, Chip, SensorFault};
+use nanocal_compensator::slots::{self, RamFlash};
+use nanocal_compensator::upload::{Upload, UploadError};
 use nanocal_model::blob;
-use nanocal_model::fault::{ChannelState, Faults, Policy};
-use nanocal_model::gcs::{self, Feed, LineAssembler, LineBuf};
-use nanocal_model::mgmt::{self, Decoder, FrameError, Reader, Status, Writer};
-use nanocal_model::proxy::{codes, FoldCorrector, Gate, Out, Proxy, Route};
-use nanocal_model::sensor::{self, max31856, Chip, SensorFault};
-use nanocal_model::slots::{self, RamFlash};
-use nanocal_model::upload::{Upload, UploadError};
 use nanocal_model::{Model, SlowInputs, MAX_AXES};
 use proptest::prelude::*;
 

@@ -3,8 +3,8 @@
 use super::{read_some, Shared, PIPE_LEN};
 use embassy_futures::join::join;
 use embedded_io_async::{Read, Write};
-use nanocal_model::gcs::{Feed, LineAssembler};
-use nanocal_model::proxy::{Out, Route};
+use nanocal_compensator::gcs::{Feed, LineAssembler};
+use nanocal_compensator::proxy::{Out, Route};
 
 async fn pump<W: Write>(pipe: &embassy_sync::pipe::Pipe<super::Cs, PIPE_LEN>, tx: &mut W) -> ! {
     let mut buf = [0u8; 128];

@@ -3,10 +3,10 @@
 use super::{read_some, Comp, Shared};
 use embassy_time::Instant;
 use embedded_io_async::{Read, Write};
-use nanocal_model::mgmt::{self, flags, kind, Decoder, Reader, Status, Writer};
-use nanocal_model::proxy::Gate;
-use nanocal_model::slots::{self, SlotStorage};
-use nanocal_model::upload::Upload;
+use nanocal_compensator::mgmt::{self, flags, kind, Decoder, Reader, Status, Writer};
+use nanocal_compensator::proxy::Gate;
+use nanocal_compensator::slots::{self, SlotStorage};
+use nanocal_compensator::upload::Upload;
 use nanocal_model::{blob, MAX_AXES};
 
 /// Load the newest valid model from storage into service (at start-up).

@@ -23,9 +23,9 @@ use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, ThreadModeRawMu
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::pipe::Pipe;
 use embassy_sync::signal::Signal;
-use nanocal_model::fault::{Faults, Policy};
-use nanocal_model::proxy::{FoldCorrector, Proxy};
-use nanocal_model::slots::Active;
+use nanocal_compensator::fault::{Faults, Policy};
+use nanocal_compensator::proxy::{FoldCorrector, Proxy};
+use nanocal_compensator::slots::Active;
 use nanocal_model::{Model, SlowInputs, MAX_TEMPS};
 
 /// Reads at least one byte into `buf`. An error or end of input (host unplugged, a UART

@@ -4,9 +4,9 @@
 use super::{Comp, Shared};
 use embassy_futures::select::select;
 use embassy_time::{Duration, Instant, Timer};
-use nanocal_model::fault::MAX_CHANNELS;
-use nanocal_model::proxy::Gate;
-use nanocal_model::sensor::{self, Chip, SensorFault, FRAME_LEN};
+use nanocal_compensator::fault::MAX_CHANNELS;
+use nanocal_compensator::proxy::Gate;
+use nanocal_compensator::sensor::{self, Chip, SensorFault, FRAME_LEN};
 use nanocal_model::LagBank;
 
 /// A bus that clocks a frame in and out of the sensor behind chip-select `cs`.

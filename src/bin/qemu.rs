@@ -7,13 +7,14 @@ use cortex_m_rt::exception;
 use cortex_m_semihosting::{debug, hprintln};
 use embassy_executor::Spawner;
 use embassy_time::Duration;
+use nanocal_compensator::fault::Policy;
+use nanocal_compensator::sensor::Chip;
+use nanocal_compensator::slots::RamFlash;
 use nanocal_fw::app::{self, Shared};
 use nanocal_fw::qemu::sensor_bus::SerialSensorBus;
 use nanocal_fw::qemu::uart::{Uart, UartRx, UartTx};
 use nanocal_fw::qemu::{self, time};
-use nanocal_model::fault::Policy;
-use nanocal_model::sensor::Chip;
-use nanocal_model::{blob, slots::RamFlash};
+use nanocal_model::blob;
 use static_cell::StaticCell;
 
 /// Sensors on the stand-in bus (chip-selects 0..4).

@@ -14,7 +14,7 @@ use core::ptr::addr_of_mut;
 use core::sync::atomic::{compiler_fence, Ordering};
 use cortex_m_rt::entry;
 use cortex_m_semihosting::{debug, hprintln};
-use nanocal_model::proxy::{FoldCorrector, Out, Proxy};
+use nanocal_compensator::proxy::{FoldCorrector, Out, Proxy};
 use nanocal_model::{Factor, Input, Model, ModelBuilder, SlowInputs, Term, MAX_AXES};
 
 /// Iterations per region.

@@ -20,11 +20,11 @@ use embassy_stm32::{bind_interrupts, dma, usb, Config};
 use embassy_time::{Duration, Timer};
 use embassy_usb::class::cdc_acm::{BufferedReceiver, CdcAcmClass, Sender, State};
 use embassy_usb::UsbDevice;
+use nanocal_compensator::fault::Policy;
+use nanocal_compensator::sensor::{Chip, SensorFault, FRAME_LEN};
+use nanocal_compensator::slots::{SlotStorage, StorageError};
 use nanocal_fw::app::{self, SensorBus, Shared};
 use nanocal_model::blob;
-use nanocal_model::fault::Policy;
-use nanocal_model::sensor::{Chip, SensorFault, FRAME_LEN};
-use nanocal_model::slots::{SlotStorage, StorageError};
 use static_cell::StaticCell;
 
 bind_interrupts!(struct Irqs {

@@ -1,10 +1,10 @@
 //! The sensor-bus stand-in: SPI transfers to MAX31856/MAX31865 chips carried over a UART
-//! (framing in `nanocal_model::sensor::bus`), so the real decode and fault code runs.
+//! (framing in `nanocal_compensator::sensor::bus`), so the real decode and fault code runs.
 
 use crate::app::SensorBus;
 use embassy_time::{with_timeout, Duration};
 use embedded_io_async::{Read, Write};
-use nanocal_model::sensor::{bus, SensorFault, FRAME_LEN};
+use nanocal_compensator::sensor::{bus, SensorFault, FRAME_LEN};
 
 /// A serial port playing the SPI bus.
 pub struct SerialSensorBus<R, W> {

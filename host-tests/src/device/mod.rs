@@ -1,9 +1,9 @@
 //! The device client: talks to the inline compensator's management channel (a second USB
 //! CDC-ACM interface, e.g. `/dev/ttyACM1`, or a TCP socket for the QEMU board) and its GCS
-//! stream. The protocol itself (frames, status layout) lives in `nanocal_model::mgmt`, shared
+//! stream. The protocol itself (frames, status layout) lives in `nanocal_compensator::mgmt`, shared
 //! with the firmware.
 
-use nanocal_model::mgmt::{self, kind, Decoder, Reader, Status};
+use nanocal_compensator::mgmt::{self, kind, Decoder, Reader, Status};
 use nanocal_model::{blob, MAX_AXES};
 use std::io::{self, Read, Write};
 use std::net::TcpStream;
@@ -42,7 +42,7 @@ pub enum DeviceError {
     Blob(String),
 }
 
-pub use nanocal_model::mgmt::result_meaning;
+pub use nanocal_compensator::mgmt::result_meaning;
 
 /// A byte stream to the device.
 pub trait Port: Read + Write + Send {}

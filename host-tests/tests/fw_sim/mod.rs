@@ -3,7 +3,7 @@
 #![allow(dead_code)]
 
 use nanocal::device::Client;
-use nanocal_model::sensor::{self, bus, FRAME_LEN};
+use nanocal_compensator::sensor::{self, bus, FRAME_LEN};
 use std::collections::HashMap;
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
@@ -365,7 +365,7 @@ impl StageSim {
                     Ok(n) => n,
                 };
                 for &c in &b[..n] {
-                    if line.is_empty() && nanocal_model::gcs::is_single_char_command(c) {
+                    if line.is_empty() && nanocal_compensator::gcs::is_single_char_command(c) {
                         if tx.send(format!("#{c}")).is_err() {
                             return;
                         }

@@ -13,8 +13,8 @@
 //! tested natively with the model's own code.
 
 use crate::gcs::{self, AxisMap, Feed, GcsError, LineBuf, MAP_AXES, MAX_LINE};
-use crate::{Fold, Model, SlowInputs, MAX_AXES};
 use core::fmt;
+use nanocal_model::{Fold, Model, SlowInputs, MAX_AXES};
 
 const _: () = assert!(MAP_AXES == MAX_AXES);
 

@@ -12,8 +12,8 @@
 //! checked (header, CRC, and the caller decodes the blob) and the valid one with the newer
 //! sequence number (wrapping comparison) wins.
 
-use crate::blob;
 use core::fmt;
+use nanocal_model::blob;
 
 /// Header length, bytes.
 pub const HEADER_LEN: usize = 16;

@@ -22,8 +22,8 @@
 //! Result codes: 0 ok; 1..=9 [`crate::upload::UploadError::code`]; [`RESULT_STORAGE`];
 //! [`RESULT_NO_MODEL`]; [`RESULT_BAD_REQUEST`]; [`RESULT_UNKNOWN_KIND`].
 
-use crate::blob;
 use core::fmt;
+use nanocal_model::blob;
 
 /// Protocol version.
 pub const PROTOCOL: u16 = 1;

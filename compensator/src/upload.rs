@@ -6,9 +6,9 @@
 //! decoder checks magic, format version, its own CRC and every field). Only a model that passed
 //! all of that is returned; any failure leaves the model in service untouched.
 
-use crate::blob::{self, BlobError};
-use crate::Model;
 use core::fmt;
+use nanocal_model::blob::{self, BlobError};
+use nanocal_model::Model;
 
 /// Why an upload step was refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

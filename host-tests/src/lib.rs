@@ -19,3 +19,4 @@ pub mod stats;
 pub mod stepwise;
 pub mod twin;
 pub mod validate;
+pub mod virtual_bench;

@@ -1,0 +1,11 @@
+//! The virtual bench: what stands around the firmware when it runs under QEMU — the emulated
+//! board as a process, a simulated stage controller on the stage link, simulated sensor chips on
+//! the sensor bus. The end-to-end tests, the firmware benchmarks and `campaign --virtual` share it.
+
+pub mod controller;
+pub mod qemu;
+pub mod sensors;
+
+pub use controller::StageSim;
+pub use qemu::{bench_elf, have_qemu, qemu_elf, repo_root, Elf, GcsHost, Qemu};
+pub use sensors::SensorSim;

@@ -1,0 +1,334 @@
+//! The QEMU firmware as a process: build it, start it on `mps2-an386` with its serial ports on
+//! local TCP sockets, and talk GCS (serial0) and management (serial3) to it.
+
+use crate::device::Client;
+use std::io::{Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+/// The repository root (the firmware package).
+pub fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("host-tests has a parent")
+        .to_path_buf()
+}
+
+/// Build the QEMU firmware images (compensator and benchmark) once per test process; returns
+/// the compensator's ELF path (the benchmark's is next to it, `nanocal-fw-bench`).
+pub fn qemu_elf() -> PathBuf {
+    static ELF: OnceLock<PathBuf> = OnceLock::new();
+    ELF.get_or_init(|| {
+        let root = repo_root();
+        let cargo = option_env!("CARGO").unwrap_or("cargo");
+        let status = Command::new(cargo)
+            .current_dir(&root)
+            .args([
+                "build",
+                "--release",
+                "--no-default-features",
+                "--features",
+                "qemu",
+                "--bins",
+            ])
+            .env_remove("CARGO_TARGET_DIR")
+            .env_remove("CARGO_BUILD_TARGET")
+            .env_remove("RUSTFLAGS")
+            .env_remove("CARGO_ENCODED_RUSTFLAGS")
+            .status()
+            .expect("run cargo to build the QEMU firmware");
+        assert!(status.success(), "building the QEMU firmware failed");
+        root.join("target/thumbv7em-none-eabihf/release/nanocal-fw-qemu")
+    })
+    .clone()
+}
+
+/// The benchmark image.
+pub fn bench_elf() -> PathBuf {
+    qemu_elf().with_file_name("nanocal-fw-bench")
+}
+
+/// Symbols and section sizes of a little-endian ELF32 file.
+pub struct Elf {
+    /// (name, value) of every symbol.
+    pub symbols: Vec<(String, u32)>,
+    /// (name, address, size) of every section.
+    pub sections: Vec<(String, u32, u32)>,
+}
+
+impl Elf {
+    /// Read `path`.
+    pub fn read(path: &Path) -> Elf {
+        let b = std::fs::read(path).expect("read ELF");
+        assert_eq!(&b[..5], b"\x7fELF\x01", "ELF32 expected");
+        let u16_at = |o: usize| u16::from_le_bytes([b[o], b[o + 1]]) as usize;
+        let u32_at = |o: usize| u32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]);
+        let shoff = u32_at(0x20) as usize;
+        let (shentsize, shnum, shstrndx) = (u16_at(0x2E), u16_at(0x30), u16_at(0x32));
+        let sh = |i: usize| shoff + i * shentsize;
+        let cstr = |o: usize| {
+            let end = b[o..].iter().position(|&c| c == 0).unwrap_or(0);
+            String::from_utf8_lossy(&b[o..o + end]).into_owned()
+        };
+        let shstr = u32_at(sh(shstrndx) + 0x10) as usize;
+        let mut sections = vec![];
+        let mut symbols = vec![];
+        for i in 0..shnum {
+            let h = sh(i);
+            let name = cstr(shstr + u32_at(h) as usize);
+            let (ty, addr, off, size) = (
+                u32_at(h + 4),
+                u32_at(h + 0x0C),
+                u32_at(h + 0x10),
+                u32_at(h + 0x14),
+            );
+            sections.push((name, addr, size));
+            if ty == 2 {
+                // SHT_SYMTAB: its string table is the section in sh_link
+                let strtab = u32_at(sh(u32_at(h + 0x18) as usize) + 0x10) as usize;
+                for k in 0..(size / 16) as usize {
+                    let e = off as usize + k * 16;
+                    symbols.push((cstr(strtab + u32_at(e) as usize), u32_at(e + 4)));
+                }
+            }
+        }
+        Elf { symbols, sections }
+    }
+
+    /// A symbol's value.
+    pub fn symbol(&self, name: &str) -> u32 {
+        self.symbols
+            .iter()
+            .find(|(n, _)| n == name)
+            .unwrap_or_else(|| panic!("symbol {name}"))
+            .1
+    }
+
+    /// Size of a section (0 when absent).
+    pub fn section(&self, name: &str) -> u32 {
+        self.sections
+            .iter()
+            .find(|(n, _, _)| n == name)
+            .map(|s| s.2)
+            .unwrap_or(0)
+    }
+
+    /// Flash (vector table, code, constants, initialised data) and static RAM (data, bss).
+    pub fn flash_ram(&self) -> (u32, u32) {
+        let s = |n| self.section(n);
+        (
+            s(".vector_table") + s(".text") + s(".rodata") + s(".data"),
+            s(".data") + s(".bss") + s(".uninit"),
+        )
+    }
+}
+
+/// True when qemu-system-arm runs.
+pub fn have_qemu() -> bool {
+    Command::new("qemu-system-arm")
+        .arg("--version")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false)
+}
+
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .expect("a free local port")
+}
+
+/// A running QEMU with the firmware; killed on drop.
+pub struct Qemu {
+    child: Child,
+    ports: [u16; 4],
+    streams: [Option<TcpStream>; 3],
+    log: PathBuf,
+}
+
+impl Qemu {
+    /// Start QEMU, or skip (None) with a loud message when it is missing — except in CI.
+    pub fn start_or_skip(test: &str) -> Option<Self> {
+        if !have_qemu() {
+            if std::env::var_os("CI").is_some() {
+                panic!("{test}: qemu-system-arm is missing in CI (run .ci/firmware.sh first)");
+            }
+            eprintln!("\n**********\n{test}: SKIPPED — qemu-system-arm not found (install QEMU ≥ 10, see .ci/firmware.sh)\n**********\n");
+            return None;
+        }
+        Some(Self::start(&[]))
+    }
+
+    /// Start QEMU with extra arguments (e.g. a TCG plugin).
+    pub fn start(extra: &[String]) -> Self {
+        let elf = qemu_elf();
+        let ports = [free_port(), free_port(), free_port(), free_port()];
+        let log = std::env::temp_dir().join(format!(
+            "nanocal-qemu-{}-{}.log",
+            std::process::id(),
+            ports[0]
+        ));
+        let mut cmd = Command::new("qemu-system-arm");
+        cmd.args(["-M", "mps2-an386", "-display", "none", "-monitor", "none"])
+            .args(["-semihosting-config", "enable=on,target=native"]);
+        for (i, p) in ports.iter().enumerate() {
+            cmd.arg("-chardev").arg(format!(
+                "socket,id=s{i},host=127.0.0.1,port={p},server=on,wait=off"
+            ));
+            cmd.arg("-serial").arg(format!("chardev:s{i}"));
+        }
+        cmd.args(extra).arg("-kernel").arg(&elf);
+        let logf = std::fs::File::create(&log).expect("qemu log file");
+        let child = cmd
+            .stdout(logf.try_clone().expect("log"))
+            .stderr(logf)
+            .spawn()
+            .expect("start qemu-system-arm");
+        let mut q = Self {
+            child,
+            ports,
+            streams: [None, None, None],
+            log,
+        };
+        for i in 0..3 {
+            q.streams[i] = Some(q.dial(i));
+        }
+        q
+    }
+
+    fn dial(&mut self, i: usize) -> TcpStream {
+        let deadline = Instant::now() + Duration::from_secs(20);
+        loop {
+            if let Ok(Some(st)) = self.child.try_wait() {
+                panic!("qemu exited ({st}): {}", self.log_text());
+            }
+            if let Ok(s) = TcpStream::connect(("127.0.0.1", self.ports[i])) {
+                s.set_nodelay(true).ok();
+                return s;
+            }
+            assert!(Instant::now() < deadline, "qemu serial{i} never listened");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// QEMU's output so far.
+    pub fn log_text(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    /// Take the connection to serial `i` (0 host, 1 stage, 2 sensors).
+    pub fn connect(&mut self, i: usize) -> TcpStream {
+        self.streams[i].take().expect("serial port taken once")
+    }
+
+    /// The GCS host side (serial0).
+    pub fn gcs_host(&mut self) -> GcsHost {
+        GcsHost::new(self.connect(0))
+    }
+
+    /// Give up the test's own connection to serial0 and return its port, for an external GCS
+    /// client (QEMU serves one client per port at a time).
+    pub fn gcs_port(&mut self) -> u16 {
+        self.streams[0] = None;
+        self.ports[0]
+    }
+
+    /// Management port spec for the CLI.
+    pub fn mgmt_spec(&self) -> String {
+        format!("tcp:127.0.0.1:{}", self.ports[3])
+    }
+
+    /// A management client (serial3); one at a time.
+    pub fn client(&mut self) -> Client {
+        let s = self.dial(3);
+        s.set_read_timeout(Some(Duration::from_millis(50))).ok();
+        let mut c = Client::new(Box::new(s), &self.mgmt_spec(), Duration::from_secs(10));
+        // QEMU may still be handing over from a previous client: retry the first request
+        let deadline = Instant::now() + Duration::from_secs(20);
+        c.timeout = Duration::from_secs(2);
+        while c.hello().is_err() {
+            assert!(Instant::now() < deadline, "management port never answered");
+        }
+        c.timeout = Duration::from_secs(10);
+        c
+    }
+}
+
+impl Drop for Qemu {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        if std::thread::panicking() {
+            eprintln!("--- qemu log ---\n{}", self.log_text());
+        }
+        let _ = std::fs::remove_file(&self.log);
+    }
+}
+
+/// The host's side of the GCS link.
+pub struct GcsHost {
+    s: TcpStream,
+    buf: Vec<u8>,
+}
+
+impl GcsHost {
+    fn new(s: TcpStream) -> Self {
+        Self { s, buf: vec![] }
+    }
+
+    /// Send one line.
+    pub fn send(&mut self, line: &str) {
+        self.s.write_all(format!("{line}\n").as_bytes()).unwrap();
+    }
+
+    /// Send raw bytes.
+    pub fn send_raw(&mut self, b: &[u8]) {
+        self.s.write_all(b).unwrap();
+    }
+
+    /// Read one line (LF removed, trailing space kept).
+    pub fn read_line(&mut self, timeout: Duration) -> String {
+        let deadline = Instant::now() + timeout;
+        loop {
+            if let Some(p) = self.buf.iter().position(|&b| b == b'\n') {
+                let line: Vec<u8> = self.buf.drain(..=p).collect();
+                return String::from_utf8_lossy(&line[..line.len() - 1]).into_owned();
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            assert!(
+                !left.is_zero(),
+                "no reply from the compensator within {timeout:?}"
+            );
+            self.s
+                .set_read_timeout(Some(left.min(Duration::from_millis(200))))
+                .unwrap();
+            let mut b = [0u8; 256];
+            match self.s.read(&mut b) {
+                Ok(0) => panic!("compensator closed the host link"),
+                Ok(n) => self.buf.extend_from_slice(&b[..n]),
+                Err(_) => {}
+            }
+        }
+    }
+
+    /// Send a query and read its (possibly multi-line) reply, lines joined with LF.
+    pub fn ask(&mut self, line: &str) -> String {
+        self.send(line);
+        let mut out = String::new();
+        loop {
+            let l = self.read_line(Duration::from_secs(10));
+            let more = l.ends_with(' ');
+            out += l.trim_end();
+            if !more {
+                return out;
+            }
+            out.push('\n');
+        }
+    }
+}

@@ -29,6 +29,7 @@ mod input;
 mod lag;
 pub mod limits;
 mod model;
+pub mod play;
 mod term;
 
 pub use builder::ModelBuilder;

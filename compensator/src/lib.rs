@@ -29,6 +29,7 @@ pub mod identity;
 pub mod inputs;
 pub mod l4flash;
 pub mod led;
+pub mod lps22hb;
 pub mod mgmt;
 pub mod proxy;
 pub mod sensor;

@@ -69,6 +69,8 @@ pub mod kind {
     pub const CONFIG_SET: u8 = 0x31;
     /// Reset the device.
     pub const RESET: u8 = 0x32;
+    /// QEMU board only: the firmware hangs in a busy loop (the watchdog test's hung firmware).
+    pub const DEBUG_HANG: u8 = 0x7E;
     /// Bit set in reply kinds.
     pub const REPLY: u8 = 0x80;
 }

@@ -22,7 +22,10 @@ async fn route(sh: &Shared, route: Route, out: &Out) {
     match route {
         Route::Stage => sh.to_stage.write_all(out.as_bytes()).await,
         // nobody has the port open: what would be queued belongs to no connection
-        Route::Host if !sh.host_connected.load(core::sync::atomic::Ordering::Relaxed) => {}
+        Route::Host
+            if !sh
+                .host_connected
+                .load(core::sync::atomic::Ordering::Relaxed) => {}
         Route::Host => sh.to_host.write_all(out.as_bytes()).await,
         Route::None => {}
     }

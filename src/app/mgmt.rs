@@ -156,7 +156,10 @@ async fn handle<F: NorFlash>(
                 let settings = sh.settings.lock(|s| *s.borrow());
                 let board = sh.board.lock(|b| *b.borrow());
                 if let Err(e) = inputs::check(&model, &settings, &board) {
-                    warn!("upload refused: model input not supplied (code {=u8})", e.code());
+                    warn!(
+                        "upload refused: model input not supplied (code {=u8})",
+                        e.code()
+                    );
                     let _ = w.u8(reject(sh, mgmt::RESULT_INPUT));
                     let _ = w.u8(e.code());
                     return w.len();
@@ -266,6 +269,11 @@ async fn handle<F: NorFlash>(
             Err(_) => mgmt::RESULT_SETTINGS,
         },
         kind::RESET => mgmt::RESULT_OK,
+        #[cfg(feature = "qemu")]
+        kind::DEBUG_HANG => loop {
+            // a hung firmware, for the watchdog test: only the watchdog gets out of here
+            core::hint::spin_loop();
+        },
         _ => mgmt::RESULT_UNKNOWN_KIND,
     };
     let _ = w.u8(code);
@@ -328,7 +336,13 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
             s.temps_c[i] = ch.value_c().unwrap_or(f32::NAN);
             s.sensor_bits[i] = ch.status_bits();
         }
-        for (i, ch) in m.aux_faults.channels.iter().enumerate().take(mgmt::STATUS_AUX) {
+        for (i, ch) in m
+            .aux_faults
+            .channels
+            .iter()
+            .enumerate()
+            .take(mgmt::STATUS_AUX)
+        {
             s.aux[i] = ch.value_c().unwrap_or(f32::NAN);
             s.aux_bits[i] = ch.status_bits();
         }
@@ -344,7 +358,10 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
     });
     s.sensors = sh.settings.lock(|x| {
         let x = x.borrow();
-        x.sensors.iter().rposition(|c| c.is_some()).map_or(0, |i| i as u8 + 1)
+        x.sensors
+            .iter()
+            .rposition(|c| c.is_some())
+            .map_or(0, |i| i as u8 + 1)
     });
     let limit = super::supervisor::stale_limit_ms(sh);
     sh.core.lock(|c| {

@@ -18,7 +18,7 @@ mod sensors;
 mod supervisor;
 
 pub use links::{host_link, stage_link};
-pub use mgmt::{load_settings, management};
+pub use mgmt::{load_settings, management, VERSION};
 pub use sensors::{sensors, InputBus};
 pub use supervisor::{supervisor, Board};
 

@@ -73,7 +73,11 @@ impl Baro {
     async fn probe<B: InputBus>(bus: &mut B, timeout: Duration) -> bool {
         let mut id = [0u8; 1];
         matches!(
-            with_timeout(timeout, bus.i2c(lps22hb::ADDRESS, &[lps22hb::WHO_AM_I], &mut id)).await,
+            with_timeout(
+                timeout,
+                bus.i2c(lps22hb::ADDRESS, &[lps22hb::WHO_AM_I], &mut id)
+            )
+            .await,
             Ok(Ok(()))
         ) && id[0] == lps22hb::ID
     }
@@ -230,7 +234,9 @@ pub async fn sensors<B: InputBus>(mut bus: B, timeout: Duration, sh: &Shared) ->
                     Gate::Open
                 };
             }),
-            Some(None) => sh.core.lock(|c| c.borrow_mut().proxy.gate = Gate::SensorFault),
+            Some(None) => sh
+                .core
+                .lock(|c| c.borrow_mut().proxy.gate = Gate::SensorFault),
             None => {}
         }
         sh.sensor_beat_ms.store(now_ms(), Ordering::Relaxed);

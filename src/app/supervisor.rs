@@ -28,7 +28,10 @@ pub fn led_state(sh: &Shared) -> LedState {
     let model = sh.model.lock(|m| m.borrow().model.is_some());
     let (bypass, refused) = sh.core.lock(|c| {
         let c = c.borrow();
-        (c.proxy.bypass, c.proxy.gate != Gate::Open || c.comp.is_none())
+        (
+            c.proxy.bypass,
+            c.proxy.gate != Gate::Open || c.comp.is_none(),
+        )
     });
     LedState::of(model, bypass, refused)
 }

@@ -109,7 +109,10 @@ async fn main(spawner: Spawner) {
     };
     time::init(cp.SYST);
     let cause = board::reset_cause();
-    hprintln!("nanocal-fw (qemu mps2-an386) up; reset cause {}", cause.code());
+    hprintln!(
+        "nanocal-fw (qemu mps2-an386) up; reset cause {}",
+        cause.code()
+    );
     board::watchdog_start(2000);
     // SAFETY: called once, here.
     let flash = unsafe { board::flash(cause) };

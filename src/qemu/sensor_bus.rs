@@ -31,7 +31,13 @@ impl<R: Read, W: Write> SerialBus<R, W> {
 
     /// Send a request and wait for its reply; the reply data go to `data_in`. Replies to
     /// earlier requests (that timed out) are skipped.
-    async fn transact(&mut self, op: u8, target: u8, out: &[u8], data_in: &mut [u8]) -> Result<u8, ()> {
+    async fn transact(
+        &mut self,
+        op: u8,
+        target: u8,
+        out: &[u8],
+        data_in: &mut [u8],
+    ) -> Result<u8, ()> {
         let mut req = [0u8; wire::HEADER + wire::MAX_DATA];
         let n = wire::request(op, target, out, data_in.len(), &mut req).ok_or(())?;
         self.tx.write_all(&req[..n]).await.map_err(|_| ())?;
@@ -61,7 +67,10 @@ impl<R: Read, W: Write> InputBus for SerialBus<R, W> {
         let mut out = [0u8; wire::MAX_DATA];
         let n = buf.len().min(wire::MAX_DATA);
         out[..n].copy_from_slice(&buf[..n]);
-        match self.transact(wire::SPI, cs, &out[..n], &mut buf[..n]).await? {
+        match self
+            .transact(wire::SPI, cs, &out[..n], &mut buf[..n])
+            .await?
+        {
             wire::OK => Ok(()),
             _ => Err(()),
         }

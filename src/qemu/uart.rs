@@ -28,7 +28,13 @@ const INT_RX: u32 = 1 << 1;
 
 /// UARTs the board uses (UART4 is polled: [`UartRx::try_read`]).
 pub const COUNT: usize = 5;
-const BASES: [usize; COUNT] = [0x4000_4000, 0x4000_5000, 0x4000_6000, 0x4000_7000, 0x4000_9000];
+const BASES: [usize; COUNT] = [
+    0x4000_4000,
+    0x4000_5000,
+    0x4000_6000,
+    0x4000_7000,
+    0x4000_9000,
+];
 const RX_IRQS: [u16; COUNT] = [0, 2, 4, 18, 20];
 
 static WAKERS: [AtomicWaker; COUNT] = [const { AtomicWaker::new() }; COUNT];

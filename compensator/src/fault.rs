@@ -212,7 +212,12 @@ impl Faults {
     /// True when every one of the first `used` channels has a usable value (moves and the
     /// model's lag filters may start).
     pub fn all_usable(&self, used: usize) -> bool {
-        used <= MAX_CHANNELS && self.channels.iter().take(used).all(|c| c.value_c().is_some())
+        used <= MAX_CHANNELS
+            && self
+                .channels
+                .iter()
+                .take(used)
+                .all(|c| c.value_c().is_some())
     }
 
     /// True when any of the first `used` channels blocks moves.

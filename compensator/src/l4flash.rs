@@ -154,7 +154,9 @@ impl<R: RawFlash, const ERASE: usize> NorFlash for L4Nor<R, ERASE> {
         for (i, c) in bytes.chunks_exact(DWORD).enumerate() {
             let mut d = [0u8; DWORD];
             d.copy_from_slice(c);
-            self.raw.program_dword(offset + (i * DWORD) as u32, d).await?;
+            self.raw
+                .program_dword(offset + (i * DWORD) as u32, d)
+                .await?;
         }
         Ok(())
     }

@@ -242,7 +242,10 @@ impl Decoder {
 
     /// The frame completed by the last `feed`.
     pub fn frame(&self) -> Frame<'_> {
-        let n = self.payload_len().min(MAX_PAYLOAD).min(self.buf.len().saturating_sub(6));
+        let n = self
+            .payload_len()
+            .min(MAX_PAYLOAD)
+            .min(self.buf.len().saturating_sub(6));
         Frame {
             kind: self.buf[2],
             seq: self.buf[3],

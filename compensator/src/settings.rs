@@ -141,7 +141,9 @@ impl fmt::Display for SettingsError {
         match self {
             SettingsError::Length => write!(f, "settings record is not {LEN} bytes"),
             SettingsError::Magic => f.write_str("settings record has no NCST magic"),
-            SettingsError::Version(v) => write!(f, "settings layout version {v}, expected {VERSION}"),
+            SettingsError::Version(v) => {
+                write!(f, "settings layout version {v}, expected {VERSION}")
+            }
             SettingsError::Crc => f.write_str("settings record CRC mismatch"),
             SettingsError::Field(o) => write!(f, "settings field at byte {o} out of range"),
         }
@@ -301,7 +303,8 @@ impl Settings {
         for i in 0..MAP_AXES {
             let o = AXES_AT + 9 * i;
             let n = usize::from(b[o]).min(8);
-            s.axis_names[i] = AxisId::new(&b[o + 1..o + 1 + n]).ok_or(SettingsError::Field(o as u16))?;
+            s.axis_names[i] =
+                AxisId::new(&b[o + 1..o + 1 + n]).ok_or(SettingsError::Field(o as u16))?;
         }
         for i in 0..MAX_AUX {
             let o = AUX_AT + 10 * i;

@@ -94,7 +94,11 @@ impl<F: NorFlash> Store<F> {
     }
 
     async fn fetch(&mut self, k: u8, out: &mut [u8]) -> Result<Option<usize>, StoreError> {
-        let v: Option<&[u8]> = self.map.fetch_item(&mut self.scratch, &k).await.map_err(err)?;
+        let v: Option<&[u8]> = self
+            .map
+            .fetch_item(&mut self.scratch, &k)
+            .await
+            .map_err(err)?;
         match v {
             None => Ok(None),
             Some(v) if v.len() > out.len() => Err(StoreError::TooLarge),
@@ -106,7 +110,10 @@ impl<F: NorFlash> Store<F> {
     }
 
     async fn put(&mut self, k: u8, v: &[u8]) -> Result<(), StoreError> {
-        self.map.store_item(&mut self.scratch, &k, &v).await.map_err(err)
+        self.map
+            .store_item(&mut self.scratch, &k, &v)
+            .await
+            .map_err(err)
     }
 
     /// The stored model blob into `out`; its length.
@@ -137,7 +144,11 @@ impl<F: NorFlash> Store<F> {
     }
 
     /// Store λ_KMZ for model `model_id`.
-    pub async fn save_kmz(&mut self, model_id: u32, kmz_um: &[f64; MAX_AXES]) -> Result<(), StoreError> {
+    pub async fn save_kmz(
+        &mut self,
+        model_id: u32,
+        kmz_um: &[f64; MAX_AXES],
+    ) -> Result<(), StoreError> {
         let mut b = [0u8; KMZ_LEN];
         b[..4].copy_from_slice(&model_id.to_le_bytes());
         for (a, v) in kmz_um.iter().enumerate() {

@@ -50,7 +50,8 @@ fn pressure_model() -> Model {
 
 #[test]
 fn e2e_first_conversion_absent_chip_brownout_and_dead_bus() {
-    let Some(mut q) = Qemu::start_or_skip("e2e_first_conversion_absent_chip_brownout_and_dead_bus") else {
+    let Some(mut q) = Qemu::start_or_skip("e2e_first_conversion_absent_chip_brownout_and_dead_bus")
+    else {
         return;
     };
     let _stage = StageSim::start(q.connect(1), 1);
@@ -64,17 +65,26 @@ fn e2e_first_conversion_absent_chip_brownout_and_dead_bus() {
     if s.flags & flags::WARMING_UP != 0 {
         host.send("MOV 1 10");
         let e = host.ask("ERR?");
-        assert!(e == "9002" || e == "9003", "moves refused while warming up: {e}");
+        assert!(
+            e == "9002" || e == "9003",
+            "moves refused while warming up: {e}"
+        );
     }
     let s = wait_until("first conversions", Duration::from_secs(20), || {
         let s = c.status().ok()?;
         (s.flags & (flags::WARMING_UP | flags::SENSOR_BLOCK) == 0 && s.folds >= 1).then_some(s)
     });
     for (i, t) in TEMPS_C.iter().enumerate() {
-        assert_eq!(s.temps_c[i], *t, "sensor {i}: the first fold uses real readings");
+        assert_eq!(
+            s.temps_c[i], *t,
+            "sensor {i}: the first fold uses real readings"
+        );
     }
     let conversions = sensors.buses().spi_mut::<Max31856>(0).conversions;
-    assert!(conversions >= 1, "the simulated chip converted ({conversions})");
+    assert!(
+        conversions >= 1,
+        "the simulated chip converted ({conversions})"
+    );
 
     // defect: an absent chip (MISO pull-up: FFh) decoded as a temperature
     let chip = sensors.unplug(2).unwrap();
@@ -97,10 +107,14 @@ fn e2e_first_conversion_absent_chip_brownout_and_dead_bus() {
     // defect: configured once, never checked; a brown-out left the chip unconfigured
     let before = c.status().unwrap().sensor_reconfigs;
     sensors.brownout(1);
-    wait_until("reconfiguration after a brown-out", Duration::from_secs(30), || {
-        let s = c.status().ok()?;
-        (s.sensor_reconfigs > before && s.sensor_bits[1] & 0x0F == 0).then_some(())
-    });
+    wait_until(
+        "reconfiguration after a brown-out",
+        Duration::from_secs(30),
+        || {
+            let s = c.status().ok()?;
+            (s.sensor_reconfigs > before && s.sensor_bits[1] & 0x0F == 0).then_some(())
+        },
+    );
 
     // defect: no SPI timeout and no hold-time check: a dead bus froze the fold for ever
     sensors.buses().dead = true;
@@ -108,7 +122,11 @@ fn e2e_first_conversion_absent_chip_brownout_and_dead_bus() {
         let s = c.status().ok()?;
         (s.flags & flags::SENSOR_BLOCK != 0).then_some(s)
     });
-    assert!(s.sensor_bits[..4].iter().all(|b| b & 0x0F == 2), "{:?}", s.sensor_bits);
+    assert!(
+        s.sensor_bits[..4].iter().all(|b| b & 0x0F == 2),
+        "{:?}",
+        s.sensor_bits
+    );
     host.send("MOV 1 30");
     assert_eq!(host.ask("ERR?"), "9002");
     sensors.buses().dead = false;
@@ -138,6 +156,13 @@ fn e2e_host_session_ends_when_the_port_closes() {
     drop(host);
     std::thread::sleep(Duration::from_millis(300));
     q.set_dtr(true);
+    // a host raises DTR when it opens the port, before it writes anything
+    let mut c = q.client();
+    wait_until("DTR seen", Duration::from_secs(10), || {
+        let st = c.status().ok()?;
+        (st.flags & flags::HOST_CONNECTED != 0).then_some(())
+    });
+    drop(c);
     let mut host = q.reconnect_gcs();
     host.send("SVO 1 1");
     assert_eq!(
@@ -145,15 +170,19 @@ fn e2e_host_session_ends_when_the_port_closes() {
         "SVO 1 1",
         "the closed connection's half line did not join the new one"
     );
-    assert_eq!(host.ask("ERR?"), "0", "no error carried over from the closed connection");
-    let mut c = q.client();
-    assert_ne!(c.status().unwrap().flags & flags::HOST_CONNECTED, 0);
+    assert_eq!(
+        host.ask("ERR?"),
+        "0",
+        "no error carried over from the closed connection"
+    );
 }
 
 #[test]
 fn e2e_watchdog_resets_a_hung_firmware_and_settings_persist() {
     // defect: no watchdog: a hung firmware stayed hung with the last fold in use
-    let Some(mut q) = Qemu::start_or_skip("e2e_watchdog_resets_a_hung_firmware_and_settings_persist") else {
+    let Some(mut q) =
+        Qemu::start_or_skip("e2e_watchdog_resets_a_hung_firmware_and_settings_persist")
+    else {
         return;
     };
     let _stage = StageSim::start(q.connect(1), 1);
@@ -173,7 +202,11 @@ fn e2e_watchdog_resets_a_hung_firmware_and_settings_persist() {
     drop(c);
     let mut c = q.client();
     let h = c.identify().unwrap();
-    assert_eq!(h.reset_cause, ResetCause::Watchdog, "the watchdog reset the hung board");
+    assert_eq!(
+        h.reset_cause,
+        ResetCause::Watchdog,
+        "the watchdog reset the hung board"
+    );
     let back = c.config().unwrap();
     assert_eq!(back, s, "settings survived the reset");
 }
@@ -191,19 +224,34 @@ fn e2e_model_inputs_must_be_supplied() {
     let model = pressure_model();
     let e = c.upload(&blob_of(&model)).unwrap_err();
     assert!(
-        matches!(e, nanocal::device::DeviceError::Refused { code: mgmt::RESULT_INPUT, .. }),
+        matches!(
+            e,
+            nanocal::device::DeviceError::Refused {
+                code: mgmt::RESULT_INPUT,
+                ..
+            }
+        ),
         "{e}"
     );
-    assert_eq!(c.status().unwrap().flags & flags::MODEL, 0, "nothing stored");
+    assert_eq!(
+        c.status().unwrap().flags & flags::MODEL,
+        0,
+        "nothing stored"
+    );
     let mut s = c.config().unwrap();
     s.aux[0] = AuxSource::AirPressure;
     c.set_config(&s).unwrap();
     c.upload(&blob_of(&model)).unwrap();
     let st = wait_until("pressure read and folded", Duration::from_secs(30), || {
         let st = c.status().ok()?;
-        (st.flags & (flags::SENSOR_BLOCK | flags::WARMING_UP) == 0 && !st.aux[0].is_nan()).then_some(st)
+        (st.flags & (flags::SENSOR_BLOCK | flags::WARMING_UP) == 0 && !st.aux[0].is_nan())
+            .then_some(st)
     });
-    assert!((st.aux[0] - 1013.25).abs() < 0.01, "LPS22HB pressure {}", st.aux[0]);
+    assert!(
+        (st.aux[0] - 1013.25).abs() < 0.01,
+        "LPS22HB pressure {}",
+        st.aux[0]
+    );
     host.send("MOV 1 100");
     let fwd = stage.next_line(Duration::from_secs(10));
     let mut slow = nanocal_model::SlowInputs::default();
@@ -214,8 +262,12 @@ fn e2e_model_inputs_must_be_supplied() {
     assert!((got - want).abs() < 1e-4, "{got} vs {want}");
     // the barometer stops answering: pressure is a failed input, moves refused (no default)
     sensors.buses().i2c.clear();
-    wait_until("missing pressure blocks moves", Duration::from_secs(40), || {
-        let st = c.status().ok()?;
-        (st.flags & flags::SENSOR_BLOCK != 0).then_some(())
-    });
+    wait_until(
+        "missing pressure blocks moves",
+        Duration::from_secs(40),
+        || {
+            let st = c.status().ok()?;
+            (st.flags & flags::SENSOR_BLOCK != 0).then_some(())
+        },
+    );
 }

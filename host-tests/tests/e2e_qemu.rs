@@ -289,7 +289,10 @@ fn e2e_compensator_under_qemu() {
     std::thread::sleep(Duration::from_millis(500));
     let mut c = q.client();
     let h = c.identify().unwrap();
-    assert_eq!(h.reset_cause, nanocal_compensator::identity::ResetCause::Software);
+    assert_eq!(
+        h.reset_cause,
+        nanocal_compensator::identity::ResetCause::Software
+    );
     let s = wait_until("model reloaded", Duration::from_secs(20), || {
         let s = c.status().ok()?;
         (s.flags & flags::MODEL != 0).then_some(s)

@@ -391,7 +391,13 @@ fn status_round_trips() {
     let n = w.len();
     let back = Status::decode(&mut Reader::new(&buf[..n])).unwrap();
     assert_eq!(back.aux[1].to_bits(), s.aux[1].to_bits());
-    assert_eq!(Status { aux: [0.0; 4], ..back }, Status { aux: [0.0; 4], ..s });
+    assert_eq!(
+        Status {
+            aux: [0.0; 4],
+            ..back
+        },
+        Status { aux: [0.0; 4], ..s }
+    );
 }
 
 // ---------------------------------------------------------------- upload and slots

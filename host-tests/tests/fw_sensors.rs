@@ -3,15 +3,17 @@
 //! the other pure device rules of issue 9. Each test names the defect of the first firmware it
 //! catches.
 
-use nanocal::virtual_bench::chips::{Lps22hb, Max31856, Max31865, SpiChip};
 use nanocal::virtual_bench::chips::I2cChip;
+use nanocal::virtual_bench::chips::{Lps22hb, Max31856, Max31865, SpiChip};
 use nanocal_compensator::clock::{self, ClockStep};
 use nanocal_compensator::fault::{ChannelState, Faults, Policy};
 use nanocal_compensator::identity::{self, ResetCause};
 use nanocal_compensator::inputs::{self, Board, InputError};
 use nanocal_compensator::led::LedState;
 use nanocal_compensator::lps22hb;
-use nanocal_compensator::sensor::{Chip, Driver, Mains, Outcome, SensorFault, TcType, Wires, MAX_TXN};
+use nanocal_compensator::sensor::{
+    Chip, Driver, Mains, Outcome, SensorFault, TcType, Wires, MAX_TXN,
+};
 use nanocal_compensator::settings::{AuxSource, Settings, StageUnit};
 
 /// One SPI transaction with the chip (None: nothing on the chip-select, MISO pulled up).
@@ -29,12 +31,20 @@ fn spi(chip: Option<&mut (dyn SpiChip + '_)>, buf: &mut [u8], now_s: f64) {
 }
 
 /// Run the driver for one sensor cycle at `now_ms`, as the firmware's sensor task does.
-fn cycle(d: &mut Driver, mut chip: Option<&mut (dyn SpiChip + '_)>, now_ms: u32) -> Option<Result<f32, SensorFault>> {
+fn cycle(
+    d: &mut Driver,
+    mut chip: Option<&mut (dyn SpiChip + '_)>,
+    now_ms: u32,
+) -> Option<Result<f32, SensorFault>> {
     let mut buf = [0u8; MAX_TXN];
     for _ in 0..4 {
         let txn = d.next(now_ms)?;
         let n = d.fill(txn, &mut buf);
-        spi(chip.as_mut().map(|c| &mut **c), &mut buf[..n], f64::from(now_ms) * 1e-3);
+        spi(
+            chip.as_mut().map(|c| &mut **c),
+            &mut buf[..n],
+            f64::from(now_ms) * 1e-3,
+        );
         match d.complete(txn, Ok(&buf[..n]), now_ms) {
             Outcome::Continue => continue,
             Outcome::Waiting => return None,
@@ -51,7 +61,11 @@ const PT100: Chip = Chip::Max31865 {
 };
 
 /// Cycles every 250 ms from `t0_ms` until a reading; (time, reading).
-fn first_reading(d: &mut Driver, chip: &mut dyn SpiChip, t0_ms: u32) -> (u32, Result<f32, SensorFault>) {
+fn first_reading(
+    d: &mut Driver,
+    chip: &mut dyn SpiChip,
+    t0_ms: u32,
+) -> (u32, Result<f32, SensorFault>) {
     for k in 0..40 {
         let t = t0_ms + 250 * k;
         if let Some(r) = cycle(d, Some(chip), t) {
@@ -68,7 +82,11 @@ fn max31865_fault_thresholds_land_in_their_registers() {
     let mut chip = Max31865::new(21.5, 100.0, 430.0);
     let mut d = Driver::new(PT100, Mains::Hz50);
     let (_, r) = first_reading(&mut d, &mut chip, 0);
-    assert_eq!(&chip.regs()[3..7], &[0xFF, 0xFF, 0x00, 0x00], "HFT FFFFh, LFT 0000h");
+    assert_eq!(
+        &chip.regs()[3..7],
+        &[0xFF, 0xFF, 0x00, 0x00],
+        "HFT FFFFh, LFT 0000h"
+    );
     let t = r.expect("a PT100 at 21.5 °C reads without a fault");
     assert!((t - 21.5).abs() < 0.05, "{t}");
 
@@ -76,10 +94,18 @@ fn max31865_fault_thresholds_land_in_their_registers() {
     let mut old = Max31865::new(21.5, 100.0, 430.0);
     let mut burst = [0x80, 0xC1, 0xFF, 0xFF, 0x00, 0x00, 0, 0];
     spi(Some(&mut old), &mut burst, 0.0);
-    assert_eq!(&old.regs()[3..5], &[0x00, 0x00], "old burst: high threshold 0000h");
+    assert_eq!(
+        &old.regs()[3..5],
+        &[0x00, 0x00],
+        "old burst: high threshold 0000h"
+    );
     let mut dump = [0u8; 9];
     spi(Some(&mut old), &mut dump, 1.0);
-    assert_ne!(dump[8] & 0x80, 0, "old burst: every conversion above the high threshold");
+    assert_ne!(
+        dump[8] & 0x80,
+        0,
+        "old burst: every conversion above the high threshold"
+    );
 }
 
 #[test]
@@ -146,7 +172,10 @@ fn an_absent_chip_is_a_fault_never_a_temperature() {
             }
         }
         assert!(!seen.is_empty());
-        assert!(seen.iter().all(|r| *r == Err(SensorFault::NoResponse)), "{chip:?}: {seen:?}");
+        assert!(
+            seen.iter().all(|r| *r == Err(SensorFault::NoResponse)),
+            "{chip:?}: {seen:?}"
+        );
     }
 }
 
@@ -189,7 +218,11 @@ fn lps22hb_pressure_after_its_first_conversion() {
     let mut burst = [0u8; lps22hb::BURST];
     chip.write(&[lps22hb::STATUS], 0.0);
     chip.read(&mut burst, 0.0);
-    assert_eq!(lps22hb::decode(&burst, false), None, "power-down: no conversion yet");
+    assert_eq!(
+        lps22hb::decode(&burst, false),
+        None,
+        "power-down: no conversion yet"
+    );
     chip.write(&[lps22hb::CTRL_REG1, lps22hb::CTRL_REG1_VALUE], 0.0);
     chip.write(&[lps22hb::STATUS], 1.5);
     chip.read(&mut burst, 1.5);
@@ -201,7 +234,10 @@ fn lps22hb_pressure_after_its_first_conversion() {
 fn a_holding_channel_fails_without_new_readings() {
     // defect: Channel::tick was never called; a channel whose readings stopped coming held
     // its last value for ever
-    let mut f = Faults::new(Policy { hold_ms: 1000, ..Policy::default() });
+    let mut f = Faults::new(Policy {
+        hold_ms: 1000,
+        ..Policy::default()
+    });
     f.update(0, Ok(22.0), 0);
     f.update(0, Err(SensorFault::NoResponse), 100);
     assert!(matches!(f.channels[0].state, ChannelState::Holding { .. }));
@@ -220,7 +256,11 @@ fn boot_sets_flash_latency_before_the_msi_goes_to_48_mhz() {
         ClockStep::SetLatency(4),    // latency for the final 80 MHz
         ClockStep::Hclk(80_000_000), // switch to PLL
     ];
-    assert_eq!(clock::first_violation(&embassy_060), Some(0), "0 WS at 48 MHz");
+    assert_eq!(
+        clock::first_violation(&embassy_060),
+        Some(0),
+        "0 WS at 48 MHz"
+    );
     let mut fixed = vec![ClockStep::SetLatency(clock::BOOT_WAIT_STATES)];
     fixed.extend_from_slice(&embassy_060);
     assert_eq!(clock::first_violation(&fixed), None);
@@ -232,8 +272,15 @@ fn boot_sets_flash_latency_before_the_msi_goes_to_48_mhz() {
 fn the_stm32_tick_divides_its_timer_clock() {
     // defect: tick-hz-32_768 on an 80 MHz timer: prescaler 2441 → 32 773 Hz, 14 s/day fast
     assert!(clock::tick_error_ppm(80_000_000, 32_768) * 86_400e-6 > 14.0);
-    let manifest = std::fs::read_to_string(nanocal::virtual_bench::repo_root().join("Cargo.toml")).unwrap();
-    let stm32 = manifest.split("\nstm32 = [").nth(1).expect("stm32 feature").split(']').next().unwrap();
+    let manifest =
+        std::fs::read_to_string(nanocal::virtual_bench::repo_root().join("Cargo.toml")).unwrap();
+    let stm32 = manifest
+        .split("\nstm32 = [")
+        .nth(1)
+        .expect("stm32 feature")
+        .split(']')
+        .next()
+        .unwrap();
     let tick: u32 = stm32
         .split("tick-hz-")
         .nth(1)
@@ -251,12 +298,24 @@ fn the_stm32_tick_divides_its_timer_clock() {
 #[test]
 fn reset_cause_from_rcc_csr_and_serial_from_uid() {
     // RM0351 §6.4.29 RCC_CSR; a power-on sets BORRSTF and PINRSTF together
-    assert_eq!(ResetCause::from_rcc_csr((1 << 27) | (1 << 26)), ResetCause::PowerOn);
+    assert_eq!(
+        ResetCause::from_rcc_csr((1 << 27) | (1 << 26)),
+        ResetCause::PowerOn
+    );
     assert_eq!(ResetCause::from_rcc_csr(1 << 26), ResetCause::Pin);
-    assert_eq!(ResetCause::from_rcc_csr((1 << 29) | (1 << 26)), ResetCause::Watchdog);
-    assert_eq!(ResetCause::from_rcc_csr((1 << 28) | (1 << 26)), ResetCause::Software);
+    assert_eq!(
+        ResetCause::from_rcc_csr((1 << 29) | (1 << 26)),
+        ResetCause::Watchdog
+    );
+    assert_eq!(
+        ResetCause::from_rcc_csr((1 << 28) | (1 << 26)),
+        ResetCause::Software
+    );
     for c in 0..8 {
-        assert_eq!(ResetCause::from_code(ResetCause::from_code(c).code()).code(), ResetCause::from_code(c).code());
+        assert_eq!(
+            ResetCause::from_code(ResetCause::from_code(c).code()).code(),
+            ResetCause::from_code(c).code()
+        );
     }
     // defect: every board enumerated with serial "0001"
     let (mut a, mut b) = ([0u8; 24], [0u8; 24]);
@@ -271,23 +330,40 @@ fn settings_round_trip_and_reject_what_they_must() {
     let mut s = Settings::default();
     s.stage_baud = 57_600;
     s.mains = Mains::Hz60;
-    s.sensors[5] = Some(Chip::Max31865 { r_ref_ohm: 4300.0, r0_ohm: 1000.0, wires: Wires::Four });
+    s.sensors[5] = Some(Chip::Max31865 {
+        r_ref_ohm: 4300.0,
+        r0_ohm: 1000.0,
+        wires: Wires::Four,
+    });
     s.sensors[1] = Some(Chip::Max31856 { tc: TcType::T });
     s.stage_unit = StageUnit::Mm;
     s.axis_names[0] = nanocal_compensator::gcs::AxisId::new(b"X").unwrap();
     s.aux[0] = AuxSource::AirPressure;
-    s.aux[1] = AuxSource::Force { channel: 0, scale_n_per_count: 0.01, offset_n: -20.48 };
+    s.aux[1] = AuxSource::Force {
+        channel: 0,
+        scale_n_per_count: 0.01,
+        offset_n: -20.48,
+    };
     let b = s.encode();
     assert_eq!(Settings::decode(&b), Ok(s));
     let mut torn = b;
     torn[20] ^= 1;
-    assert!(Settings::decode(&torn).is_err(), "CRC catches a changed byte");
+    assert!(
+        Settings::decode(&torn).is_err(),
+        "CRC catches a changed byte"
+    );
     let mut bad = s;
     bad.sample_period_ms = 10;
-    assert!(Settings::decode(&bad.encode()).is_err(), "period out of range");
+    assert!(
+        Settings::decode(&bad.encode()).is_err(),
+        "period out of range"
+    );
     // CRC-32 from the crc crate equals the blob's CRC-32 (the golden bytes stay)
     for data in [&b""[..], b"123456789", &b[..]] {
-        assert_eq!(nanocal_compensator::crc32(data), nanocal_model::blob::crc32(data));
+        assert_eq!(
+            nanocal_compensator::crc32(data),
+            nanocal_model::blob::crc32(data)
+        );
     }
     assert_eq!(nanocal_compensator::crc32(b"123456789"), 0xCBF4_3926);
 }
@@ -295,29 +371,55 @@ fn settings_round_trip_and_reject_what_they_must() {
 #[test]
 fn a_model_using_an_input_the_board_cannot_supply_is_refused() {
     let model = nanocal::published::published_1dof().unwrap();
-    let board = Board { barometer: true, adc_channels: 1 };
+    let board = Board {
+        barometer: true,
+        adc_channels: 1,
+    };
     let mut s = Settings::default();
-    assert_eq!(inputs::check(&model, &s, &board), Ok(()), "temps 0..{} configured", model.temps());
+    assert_eq!(
+        inputs::check(&model, &s, &board),
+        Ok(()),
+        "temps 0..{} configured",
+        model.temps()
+    );
     if model.temps() > 0 {
         s.sensors[model.temps() - 1] = None;
         assert_eq!(
             inputs::check(&model, &s, &board),
-            Err(InputError::NoTemperatureSensor { index: model.temps() as u8 - 1 })
+            Err(InputError::NoTemperatureSensor {
+                index: model.temps() as u8 - 1
+            })
         );
     }
     // an aux-using model: built by the model's own builder
     let aux_model = pressure_model();
     let s = Settings::default();
-    assert_eq!(inputs::check(&aux_model, &s, &board), Err(InputError::NoAuxSource { index: 0 }));
+    assert_eq!(
+        inputs::check(&aux_model, &s, &board),
+        Err(InputError::NoAuxSource { index: 0 })
+    );
     let mut s2 = s;
     s2.aux[0] = AuxSource::AirPressure;
     assert_eq!(inputs::check(&aux_model, &s2, &board), Ok(()));
-    let no_baro = Board { barometer: false, adc_channels: 1 };
-    assert_eq!(inputs::check(&aux_model, &s2, &no_baro), Err(InputError::NoBarometer { index: 0 }));
-    s2.aux[0] = AuxSource::Force { channel: 3, scale_n_per_count: 1.0, offset_n: 0.0 };
+    let no_baro = Board {
+        barometer: false,
+        adc_channels: 1,
+    };
+    assert_eq!(
+        inputs::check(&aux_model, &s2, &no_baro),
+        Err(InputError::NoBarometer { index: 0 })
+    );
+    s2.aux[0] = AuxSource::Force {
+        channel: 3,
+        scale_n_per_count: 1.0,
+        offset_n: 0.0,
+    };
     assert_eq!(
         inputs::check(&aux_model, &s2, &board),
-        Err(InputError::NoAdcChannel { index: 0, channel: 3 })
+        Err(InputError::NoAdcChannel {
+            index: 0,
+            channel: 3
+        })
     );
 }
 

@@ -76,7 +76,10 @@ fn power_cut_at_every_flash_operation_keeps_the_previous_value() {
     let mut full = base.clone_sim();
     update(&mut full).unwrap();
     let total_ops = full.ops;
-    assert!(total_ops > 100, "the update takes {total_ops} flash operations");
+    assert!(
+        total_ops > 100,
+        "the update takes {total_ops} flash operations"
+    );
     let mut torn_seen = 0;
     for cut in 0..=total_ops {
         let mut sim = base.clone_sim();
@@ -86,20 +89,33 @@ fn power_cut_at_every_flash_operation_keeps_the_previous_value() {
         torn_seen += usize::from(sim.torn_dwords() > 0);
         let (model, kmz, settings) = boot(&mut sim);
         let model = model.unwrap_or_else(|| panic!("cut at op {cut}: no model after power loss"));
-        assert!(model == b1 || model == b2, "cut at op {cut}: a model that was never stored");
+        assert!(
+            model == b1 || model == b2,
+            "cut at op {cut}: a model that was never stored"
+        );
         if model == b1 {
             let k = kmz.unwrap_or_else(|| panic!("cut at op {cut}: KMZ of model 1 lost"));
-            assert!(k[0] >= 0.5 && k[0] <= 19.5 && k[0].fract() == 0.5, "cut {cut}: kmz {k:?}");
+            assert!(
+                k[0] >= 0.5 && k[0] <= 19.5 && k[0].fract() == 0.5,
+                "cut {cut}: kmz {k:?}"
+            );
         }
         let s = settings.unwrap_or_else(|| panic!("cut at op {cut}: settings lost"));
-        assert!(s == Settings::default() || s == settings2, "cut at op {cut}");
+        assert!(
+            s == Settings::default() || s == settings2,
+            "cut at op {cut}"
+        );
         // and the store takes writes again after the power came back
         let mut st = store(&mut sim);
-        block_on(st.save_model(&b2)).unwrap_or_else(|e| panic!("cut at op {cut}: write after reboot: {e}"));
+        block_on(st.save_model(&b2))
+            .unwrap_or_else(|e| panic!("cut at op {cut}: write after reboot: {e}"));
         let (model, _, _) = boot(&mut sim);
         assert_eq!(model.as_deref(), Some(&b2[..]), "cut at op {cut}");
     }
-    assert!(torn_seen > total_ops as usize / 2, "cuts tear double words ({torn_seen})");
+    assert!(
+        torn_seen > total_ops as usize / 2,
+        "cuts tear double words ({torn_seen})"
+    );
 }
 
 #[test]
@@ -117,7 +133,10 @@ fn hourly_kmz_for_ten_years_wears_no_page_out() {
     }
     let mut b = vec![0u8; blob::MAX_BLOB_LEN];
     assert_eq!(block_on(st.load_model(&mut b)).unwrap(), Some(b1.len()));
-    assert_eq!(block_on(st.load_kmz(id1)).unwrap().unwrap()[0], f64::from(hours - 1) * 1e-3);
+    assert_eq!(
+        block_on(st.load_kmz(id1)).unwrap().unwrap()[0],
+        f64::from(hours - 1) * 1e-3
+    );
     drop(st);
     let max = *sim.erases.iter().max().unwrap();
     let min = *sim.erases[..64 * 1024 / PAGE].iter().min().unwrap();

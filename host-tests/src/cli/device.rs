@@ -103,8 +103,13 @@ pub fn parse_sensor(arg: &str) -> anyhow::Result<(usize, Option<Chip>)> {
     let (cs, spec) = arg
         .split_once('=')
         .with_context(|| format!("--sensor {arg}: expected CS=SPEC"))?;
-    let cs: usize = cs.parse().with_context(|| format!("--sensor {arg}: chip-select"))?;
-    anyhow::ensure!(cs < nanocal_compensator::settings::SENSORS, "--sensor {arg}: chip-select 0..=7");
+    let cs: usize = cs
+        .parse()
+        .with_context(|| format!("--sensor {arg}: chip-select"))?;
+    anyhow::ensure!(
+        cs < nanocal_compensator::settings::SENSORS,
+        "--sensor {arg}: chip-select 0..=7"
+    );
     let p: Vec<&str> = spec.split(':').collect();
     let wires = |w: &str| -> anyhow::Result<Wires> {
         Ok(match w {
@@ -137,17 +142,29 @@ pub fn parse_sensor(arg: &str) -> anyhow::Result<(usize, Option<Chip>)> {
 
 /// Parse an `--aux I=SPEC` argument.
 pub fn parse_aux(arg: &str) -> anyhow::Result<(usize, AuxSource)> {
-    let (i, spec) = arg.split_once('=').with_context(|| format!("--aux {arg}: expected I=SPEC"))?;
+    let (i, spec) = arg
+        .split_once('=')
+        .with_context(|| format!("--aux {arg}: expected I=SPEC"))?;
     let i: usize = i.parse().with_context(|| format!("--aux {arg}: index"))?;
-    anyhow::ensure!(i < nanocal_model::MAX_AUX, "--aux {arg}: index 0..{}", nanocal_model::MAX_AUX);
+    anyhow::ensure!(
+        i < nanocal_model::MAX_AUX,
+        "--aux {arg}: index 0..{}",
+        nanocal_model::MAX_AUX
+    );
     let p: Vec<&str> = spec.split(':').collect();
     let src = match p.as_slice() {
         ["none"] => AuxSource::None,
         ["pressure"] => AuxSource::AirPressure,
         ["force", ch, scale, off] => AuxSource::Force {
-            channel: ch.parse().with_context(|| format!("--aux {arg}: channel"))?,
-            scale_n_per_count: scale.parse().with_context(|| format!("--aux {arg}: N per count"))?,
-            offset_n: off.parse().with_context(|| format!("--aux {arg}: offset"))?,
+            channel: ch
+                .parse()
+                .with_context(|| format!("--aux {arg}: channel"))?,
+            scale_n_per_count: scale
+                .parse()
+                .with_context(|| format!("--aux {arg}: N per count"))?,
+            offset_n: off
+                .parse()
+                .with_context(|| format!("--aux {arg}: offset"))?,
         },
         _ => bail!("--aux {arg}: expected none, pressure or force:CHANNEL:N_PER_COUNT:OFFSET_N"),
     };
@@ -191,8 +208,9 @@ pub fn edit_settings(
     if let Some(a) = axes {
         anyhow::ensure!((1..=3).contains(&a.len()), "--axes: 1 to 3 names");
         for (i, n) in a.iter().enumerate() {
-            s.axis_names[i] = AxisId::new(n.as_bytes())
-                .with_context(|| format!("--axes: {n:?} is not a GCS axis name (1..8 characters)"))?;
+            s.axis_names[i] = AxisId::new(n.as_bytes()).with_context(|| {
+                format!("--axes: {n:?} is not a GCS axis name (1..8 characters)")
+            })?;
         }
     }
     for a in sensors {
@@ -203,7 +221,8 @@ pub fn edit_settings(
         let (i, src) = parse_aux(a)?;
         s.aux[i] = src;
     }
-    s.validate().map_err(|e| anyhow::anyhow!("settings rejected: {e}"))?;
+    s.validate()
+        .map_err(|e| anyhow::anyhow!("settings rejected: {e}"))?;
     Ok(*s != before)
 }
 

@@ -374,7 +374,11 @@ pub fn format_status(s: &Status) -> String {
         "sensors warming up (no first reading yet): {}  fold age {} ms{}\n",
         flag(flags::WARMING_UP),
         s.fold_age_ms,
-        if s.flags & flags::FOLD_STALE != 0 { " (STALE: moves refused)" } else { "" }
+        if s.flags & flags::FOLD_STALE != 0 {
+            " (STALE: moves refused)"
+        } else {
+            ""
+        }
     );
     o += &format!(
         "moves blocked by a sensor fault: {}\n",
@@ -445,7 +449,10 @@ pub fn format_settings(s: &Settings) -> String {
     use nanocal_compensator::sensor::{Chip, Mains};
     use nanocal_compensator::settings::AuxSource;
     let mut o = String::new();
-    o += &format!("stage baud: {} (8N1; applied at the next reset)\n", s.stage_baud);
+    o += &format!(
+        "stage baud: {} (8N1; applied at the next reset)\n",
+        s.stage_baud
+    );
     o += &format!("stage unit: {}\n", s.stage_unit.name());
     let names: Vec<String> = s
         .axis_names
@@ -462,7 +469,11 @@ pub fn format_settings(s: &Settings) -> String {
         let d = match c {
             None => "none".to_string(),
             Some(Chip::Max31856 { tc }) => format!("MAX31856, type {} thermocouple", tc.letter()),
-            Some(Chip::Max31865 { r_ref_ohm, r0_ohm, wires }) => format!(
+            Some(Chip::Max31865 {
+                r_ref_ohm,
+                r0_ohm,
+                wires,
+            }) => format!(
                 "MAX31865, PT{} {}-wire, R_ref {} Ω",
                 r0_ohm.round() as u32,
                 *wires as u8,
@@ -475,9 +486,11 @@ pub fn format_settings(s: &Settings) -> String {
         let d = match a {
             AuxSource::None => "none".to_string(),
             AuxSource::AirPressure => "air pressure, hPa (LPS22HB)".to_string(),
-            AuxSource::Force { channel, scale_n_per_count, offset_n } => format!(
-                "force, N = {offset_n} + {scale_n_per_count} × ADC{channel}"
-            ),
+            AuxSource::Force {
+                channel,
+                scale_n_per_count,
+                offset_n,
+            } => format!("force, N = {offset_n} + {scale_n_per_count} × ADC{channel}"),
         };
         o += &format!("aux {i}: {d}\n");
     }

@@ -173,7 +173,13 @@ impl Qemu {
     /// Start QEMU with extra arguments (e.g. a TCG plugin).
     pub fn start(extra: &[String]) -> Self {
         let elf = qemu_elf();
-        let ports = [free_port(), free_port(), free_port(), free_port(), free_port()];
+        let ports = [
+            free_port(),
+            free_port(),
+            free_port(),
+            free_port(),
+            free_port(),
+        ];
         let log = std::env::temp_dir().join(format!(
             "nanocal-qemu-{}-{}.log",
             std::process::id(),
@@ -213,7 +219,8 @@ impl Qemu {
     /// sends with CDC SET_CONTROL_LINE_STATE (DTR, bit 0), carried to the board on serial4.
     pub fn set_dtr(&mut self, on: bool) {
         let l = self.line.as_mut().expect("line-state port");
-        l.write_all(&[0xC0 | u8::from(on)]).expect("line-state port");
+        l.write_all(&[0xC0 | u8::from(on)])
+            .expect("line-state port");
     }
 
     /// Send raw bytes to a serial port the test still owns (e.g. the bus stand-in's).

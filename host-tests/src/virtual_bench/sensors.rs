@@ -30,11 +30,20 @@ impl Buses {
     /// The SPI chip on chip-select `cs`, as its concrete type.
     pub fn spi_mut<T: 'static>(&mut self, cs: usize) -> &mut T {
         let chip = self.spi[cs].as_mut().expect("a chip on that chip-select");
-        chip.any_mut().downcast_mut::<T>().expect("chip of that type")
+        chip.any_mut()
+            .downcast_mut::<T>()
+            .expect("chip of that type")
     }
 
     /// Serve one transaction; `None` when there is no answer.
-    pub fn serve(&mut self, op: u8, target: u8, out: &[u8], n_in: usize, now_s: f64) -> Option<(u8, Vec<u8>)> {
+    pub fn serve(
+        &mut self,
+        op: u8,
+        target: u8,
+        out: &[u8],
+        n_in: usize,
+        now_s: f64,
+    ) -> Option<(u8, Vec<u8>)> {
         if self.dead {
             return None;
         }
@@ -89,7 +98,10 @@ impl SensorSim {
         for &t in temps {
             b.spi.push(Some(Box::new(Max31856::new(f64::from(t)))));
         }
-        b.i2c.insert(super::chips::lps22hb::ADDRESS, Box::new(Lps22hb::new(1013.25)));
+        b.i2c.insert(
+            super::chips::lps22hb::ADDRESS,
+            Box::new(Lps22hb::new(1013.25)),
+        );
         b.adc = vec![Some(2048), None, None, None];
         Self::start_with(s, b)
     }
@@ -176,7 +188,8 @@ fn serve(s: TcpStream, buses: Arc<Mutex<Buses>>, t0: Instant) {
             if buf.len() < wire::HEADER {
                 break;
             }
-            let (op, target, n_out, n_in) = (buf[1], buf[2], usize::from(buf[3]), usize::from(buf[4]));
+            let (op, target, n_out, n_in) =
+                (buf[1], buf[2], usize::from(buf[3]), usize::from(buf[4]));
             if n_out > wire::MAX_DATA || n_in > wire::MAX_DATA {
                 buf.remove(0);
                 continue;
@@ -186,7 +199,10 @@ fn serve(s: TcpStream, buses: Arc<Mutex<Buses>>, t0: Instant) {
             }
             let req: Vec<u8> = buf.drain(..wire::HEADER + n_out).collect();
             let now = t0.elapsed().as_secs_f64();
-            let answer = buses.lock().unwrap().serve(op, target, &req[wire::HEADER..], n_in, now);
+            let answer = buses
+                .lock()
+                .unwrap()
+                .serve(op, target, &req[wire::HEADER..], n_in, now);
             if let Some((status, data)) = answer {
                 let mut rep = vec![wire::REP, op, target, status, data.len() as u8];
                 rep.extend_from_slice(&data);

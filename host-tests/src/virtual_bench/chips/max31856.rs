@@ -110,11 +110,15 @@ impl Max31856 {
 
     fn convert(&mut self) {
         self.conversions += 1;
-        let cj = (self.cold_junction_c / 0.015625).round().clamp(-8192.0, 8191.0) as i32;
+        let cj = (self.cold_junction_c / 0.015625)
+            .round()
+            .clamp(-8192.0, 8191.0) as i32;
         let cj16 = ((cj << 2) as u32 & 0xFFFF) as u16;
         self.regs[0x0A] = (cj16 >> 8) as u8;
         self.regs[0x0B] = cj16 as u8;
-        let tc = (self.temp_c / 0.0078125).round().clamp(-262_144.0, 262_143.0) as i32;
+        let tc = (self.temp_c / 0.0078125)
+            .round()
+            .clamp(-262_144.0, 262_143.0) as i32;
         let raw = ((tc << 5) as u32) & 0x00FF_FFFF;
         self.regs[0x0C] = (raw >> 16) as u8;
         self.regs[0x0D] = (raw >> 8) as u8;

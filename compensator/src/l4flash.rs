@@ -130,7 +130,10 @@ impl<R: RawFlash, const ERASE: usize> NorFlash for L4Nor<R, ERASE> {
     const ERASE_SIZE: usize = ERASE;
 
     async fn erase(&mut self, from: u32, to: u32) -> Result<(), FlashError> {
-        if from as usize % ERASE != 0 || to as usize % ERASE != 0 || from > to {
+        if !(from as usize).is_multiple_of(ERASE)
+            || !(to as usize).is_multiple_of(ERASE)
+            || from > to
+        {
             return Err(FlashError::Alignment);
         }
         if to as usize > self.raw.capacity() {
@@ -145,7 +148,7 @@ impl<R: RawFlash, const ERASE: usize> NorFlash for L4Nor<R, ERASE> {
     }
 
     async fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), FlashError> {
-        if offset as usize % DWORD != 0 || bytes.len() % DWORD != 0 {
+        if !(offset as usize).is_multiple_of(DWORD) || !bytes.len().is_multiple_of(DWORD) {
             return Err(FlashError::Alignment);
         }
         if offset as usize + bytes.len() > self.raw.capacity() {
@@ -202,7 +205,7 @@ impl<const SIZE: usize> L4Sim<SIZE> {
 
     /// A fully erased region (`SIZE`: a multiple of [`PAGE`], at most 64 pages).
     pub const fn new() -> Self {
-        assert!(SIZE % PAGE == 0 && SIZE / PAGE <= 64);
+        assert!(SIZE.is_multiple_of(PAGE) && SIZE / PAGE <= 64);
         Self {
             data: [0xFF; SIZE],
             cells: [[Cell::Erased; PAGE / DWORD]; 64],
@@ -283,7 +286,7 @@ impl<const SIZE: usize> L4Sim<SIZE> {
     /// Synchronous page erase (see [`RawFlash::erase_page`]).
     pub fn erase_now(&mut self, offset: u32) -> Result<(), FlashError> {
         let o = offset as usize;
-        if o % PAGE != 0 {
+        if !o.is_multiple_of(PAGE) {
             return Err(FlashError::Alignment);
         }
         if o >= SIZE {
@@ -317,7 +320,7 @@ impl<const SIZE: usize> L4Sim<SIZE> {
     /// Synchronous double-word programming (see [`RawFlash::program_dword`]).
     pub fn program_now(&mut self, offset: u32, d: [u8; DWORD]) -> Result<(), FlashError> {
         let o = offset as usize;
-        if o % DWORD != 0 {
+        if !o.is_multiple_of(DWORD) {
             return Err(FlashError::Alignment);
         }
         if o + DWORD > SIZE {

@@ -31,6 +31,7 @@ fn spi(chip: Option<&mut (dyn SpiChip + '_)>, buf: &mut [u8], now_s: f64) {
 }
 
 /// Run the driver for one sensor cycle at `now_ms`, as the firmware's sensor task does.
+#[allow(clippy::option_as_ref_deref)] // as_deref_mut would keep the borrow for the loop
 fn cycle(
     d: &mut Driver,
     mut chip: Option<&mut (dyn SpiChip + '_)>,
@@ -327,9 +328,11 @@ fn reset_cause_from_rcc_csr_and_serial_from_uid() {
 
 #[test]
 fn settings_round_trip_and_reject_what_they_must() {
-    let mut s = Settings::default();
-    s.stage_baud = 57_600;
-    s.mains = Mains::Hz60;
+    let mut s = Settings {
+        stage_baud: 57_600,
+        mains: Mains::Hz60,
+        ..Default::default()
+    };
     s.sensors[5] = Some(Chip::Max31865 {
         r_ref_ohm: 4300.0,
         r0_ohm: 1000.0,

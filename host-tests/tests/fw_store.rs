@@ -60,8 +60,10 @@ fn power_cut_at_every_flash_operation_keeps_the_previous_value() {
         block_on(st.save_model(&b1)).unwrap();
         block_on(st.save_kmz(id1, &[0.5, 0.0, 0.0])).unwrap();
     }
-    let mut settings2 = Settings::default();
-    settings2.stage_baud = 57_600;
+    let settings2 = Settings {
+        stage_baud: 57_600,
+        ..Settings::default()
+    };
     // the update under test: 20 KMZ updates (they fill pages and force erases), a new model,
     // new settings
     let update = |sim: &mut L4Sim<SIZE>| -> Result<(), ()> {
@@ -137,7 +139,7 @@ fn hourly_kmz_for_ten_years_wears_no_page_out() {
         block_on(st.load_kmz(id1)).unwrap().unwrap()[0],
         f64::from(hours - 1) * 1e-3
     );
-    drop(st);
+    let _ = st;
     let max = *sim.erases.iter().max().unwrap();
     let min = *sim.erases[..64 * 1024 / PAGE].iter().min().unwrap();
     println!("10 years of hourly KMZ: page erases min {min}, max {max} (endurance 10 000)");

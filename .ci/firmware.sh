@@ -45,7 +45,7 @@ cargo fmt --check
 # section headers (binutils is on every Debian).
 command -v size >/dev/null || apt_install binutils
 elf=target/thumbv7em-none-eabihf/release/nanocal-fw
-size -A "$elf" target/thumbv7em-none-eabihf/release/nanocal-fw-qemu | grep -E '^(target|\.vector_table|\.text|\.rodata|\.data|\.bss|\.uninit) '
+size -A "$elf" target/thumbv7em-none-eabihf/release/nanocal-fw-qemu | grep -E '^(target/.*|\.vector_table|\.text|\.rodata|\.data|\.bss|\.uninit) '
 size -A "$elf" | awk '
     $1 == ".vector_table" || $1 == ".text" || $1 == ".rodata" { flash += $2 }
     $1 == ".data" { flash += $2; ram += $2 }

@@ -14,7 +14,7 @@
 //! | `STATUS` 0x02 | – | [`Status`] |
 //! | `UPLOAD_BEGIN` 0x10 | total_len u32, crc32 u32, format u16 | – |
 //! | `UPLOAD_CHUNK` 0x11 | offset u32, bytes | received u32 |
-//! | `UPLOAD_COMMIT` 0x12 | – | model id u32, slot u8, seq u32 |
+//! | `UPLOAD_COMMIT` 0x12 | – | model id u32, 0 u8 (was: slot), uploads accepted u32 |
 //! | `UPLOAD_ABORT` 0x13 | – | – |
 //! | `SET_KMZ` 0x20 | q_cmd f64×3, x_meas f64×3 | kmz f64×3, stored u8 (model re-committed) |
 //! | `BYPASS` 0x21 | on u8 | – |
@@ -393,9 +393,9 @@ pub struct Status {
     pub flags: u16,
     /// Model id (0 without a model).
     pub model_id: u32,
-    /// Storage slot of the model in service (0xFF = none).
+    /// Unused since the store replaced the two slots (always 0xFF); kept for the layout.
     pub slot: u8,
-    /// Commit sequence number of that slot.
+    /// Unused (0); kept for the layout.
     pub slot_seq: u32,
     /// Temperatures in use, °C (NaN when unusable).
     pub temps_c: [f32; STATUS_SENSORS],

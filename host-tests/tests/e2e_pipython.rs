@@ -71,7 +71,7 @@ fn e2e_pipython_through_the_compensator() {
     };
     let temps = [22.0f32, 22.125, 21.875, 22.25];
     let stage = StageSim::start(q.connect(1), 1);
-    let _sensors = SensorSim::start(q.connect(2), &temps);
+    let _sensors = SensorSim::start(q.link(), &temps);
     let host_port = q.gcs_port();
     let mut c = q.client();
     let model = published_1dof().unwrap();

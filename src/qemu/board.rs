@@ -1,4 +1,4 @@
-//! The rest of the QEMU board: CMSDK APB watchdog, FPGA LED, reset cause, storage in RAM that
+//! The rest of the QEMU board: CMSDK APB watchdog (and its deadline on the board's clock), FPGA LED, reset cause, storage in RAM that
 //! survives a system reset, the host-link line state.
 //!
 //! CMSDK APB watchdog (ARM DDI 0479, "Cortex-M System Design Kit", §4.4; QEMU
@@ -9,6 +9,7 @@
 
 use core::mem::MaybeUninit;
 use core::ptr::{addr_of_mut, read_volatile, write_volatile};
+use core::sync::atomic::{AtomicU32, Ordering};
 use nanocal_compensator::identity::ResetCause;
 use nanocal_compensator::l4flash::{FlashError, L4Sim, RawFlash, DWORD, ERASE_PAGE_US};
 
@@ -20,12 +21,24 @@ fn w(addr: usize, v: u32) {
     unsafe { write_volatile(addr as *mut u32, v) }
 }
 
+/// Watchdog timeout in force, ms (0: not started).
+static WATCHDOG_MS: AtomicU32 = AtomicU32::new(0);
+
 /// Start the watchdog: a hang of more than `timeout_ms` (twice, interrupt then reset) resets.
 pub fn watchdog_start(timeout_ms: u32) {
+    WATCHDOG_MS.store(timeout_ms, Ordering::Relaxed);
     w(WDOG + 0xC00, 0x1ACC_E551);
     w(WDOG, super::SYSCLK_HZ / 1000 * timeout_ms);
     w(WDOG + 0x08, 0b11);
     w(WDOG + 0xC00, 0);
+    watchdog_deadline(timeout_ms);
+}
+
+/// The same deadline on the board's clock (see [`super::time`]): two expiries, as the CMSDK
+/// watchdog's interrupt-then-reset.
+fn watchdog_deadline(timeout_ms: u32) {
+    let ticks = 2 * u64::from(timeout_ms) * (embassy_time_driver::TICK_HZ / 1000);
+    super::time::set_watchdog_deadline(super::time::uptime_ticks().saturating_add(ticks));
 }
 
 /// Reload the watchdog.
@@ -33,6 +46,35 @@ pub fn watchdog_pet() {
     w(WDOG + 0xC00, 0x1ACC_E551);
     w(WDOG + 0x0C, 1);
     w(WDOG + 0xC00, 0);
+    let ms = WATCHDOG_MS.load(Ordering::Relaxed);
+    if ms != 0 {
+        watchdog_deadline(ms);
+    }
+}
+
+/// Stop the CMSDK watchdog's counter while the board waits for the bench (no board time passes
+/// then; QEMU's clock does).
+pub fn watchdog_pause() {
+    if WATCHDOG_MS.load(Ordering::Relaxed) != 0 {
+        w(WDOG + 0xC00, 0x1ACC_E551);
+        w(WDOG + 0x08, 0);
+        w(WDOG + 0xC00, 0);
+    }
+}
+
+/// Restart it after a wait (ARM DDI 0479 §4.4: setting INTEN again reloads the counter).
+pub fn watchdog_resume() {
+    if WATCHDOG_MS.load(Ordering::Relaxed) != 0 {
+        w(WDOG + 0xC00, 0x1ACC_E551);
+        w(WDOG + 0x08, 0b11);
+        w(WDOG + 0xC00, 0);
+    }
+}
+
+/// The watchdog's deadline passed on the board's clock: reset as the watchdog does (no
+/// software-reset marker, so the next boot reports the watchdog).
+pub fn watchdog_fire() -> ! {
+    cortex_m::peripheral::SCB::sys_reset()
 }
 
 /// Light FPGA LED 0.

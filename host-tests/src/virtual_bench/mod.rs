@@ -4,9 +4,11 @@
 
 pub mod chips;
 pub mod controller;
+pub mod link;
 pub mod qemu;
 pub mod sensors;
 
 pub use controller::StageSim;
+pub use link::{BenchClock, BenchLink};
 pub use qemu::{bench_elf, have_qemu, qemu_elf, repo_root, Elf, GcsHost, Qemu};
 pub use sensors::{Buses, SensorSim};

@@ -22,6 +22,7 @@
 //! 0x024  u32   board       BOOTS: incremented at every boot (the host sees resets)
 //! 0x028  u64   board       BOOT_AT: bench time of the last boot (the board's uptime = NOW − BOOT_AT)
 //! 0x030  u32×5 board       TX_BYTES[n]: bytes the board has written to serial n since power-on
+//! 0x048  u32   host        WATCHING: 1 while the host polls this page (no doorbells needed)
 //! 0x080  u32   board       BUS_REQ_SEQ: incremented when a request is posted (after its bytes)
 //! 0x084  37 B  board       BUS_REQ: the request frame (`crate::wire` layout, A5 … )
 //! 0x0C0  u32   host        BUS_REP_SEQ: set to BUS_REQ_SEQ when the reply is posted (after its bytes)
@@ -31,8 +32,9 @@
 //! start), across resets of the board; the board's own `Instant` is its uptime.
 //!
 //! Doorbells (serial4, besides the host-link line state `C0h | DTR`):
-//! - board → host [`RING_WAITING`]: the board is idle at the horizon (once per horizon);
-//!   [`RING_BUS`]: a bus request is posted.
+//! - board → host [`RING_WAITING`]: the board is idle at the horizon (once per instant);
+//!   [`RING_BUS`]: a bus request is posted. Neither is sent while WATCHING is set: the host
+//!   polls the page then, and clears WATCHING and looks once more before it stops polling.
 //! - host → board [`RING_HORIZON`]: the horizon moved (the board wakes and reads it).
 //!
 //! A bus reply carries status [`crate::wire::OK`], [`crate::wire::NACK`], or [`NO_ANSWER`]: the
@@ -73,6 +75,8 @@ pub const BOOT_AT: usize = 0x028;
 pub const TX_BYTES: usize = 0x030;
 /// Serial ports with a transmit counter.
 pub const SERIALS: usize = 5;
+/// Offset of the host's "polling the page" flag.
+pub const WATCHING: usize = 0x048;
 /// Offset of the bus request sequence number.
 pub const BUS_REQ_SEQ: usize = 0x080;
 /// Offset of the bus request frame.
@@ -123,6 +127,7 @@ mod tests {
             (BOOTS, 4),
             (BOOT_AT, 8),
             (TX_BYTES, 4 * SERIALS),
+            (WATCHING, 4),
             (BUS_REQ_SEQ, 4),
             (BUS_REQ, FRAME_LEN),
             (BUS_REP_SEQ, 4),

@@ -145,6 +145,8 @@ fn e2e_host_session_ends_when_the_port_closes() {
     };
     let stage = StageSim::start(q.connect(1), 1);
     let _sensors = SensorSim::start(q.link(), &TEMPS_C);
+    // the board is up (its store read, every task running) before the host opens the port
+    drop(q.client());
     let mut host = q.gcs_host();
     q.set_dtr(true);
     // no model: a MOV leaves error 9003 pending for the next ERR?

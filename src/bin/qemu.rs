@@ -116,6 +116,7 @@ fn start(spawner: Spawner) {
         panic!("core peripherals taken twice");
     };
     time::init(cp.SYST);
+    board::kick_io_init();
     let cause = board::reset_cause();
     hprintln!(
         "nanocal-fw (qemu mps2-an386) up; reset cause {}; clock {}",

@@ -14,6 +14,11 @@ use nanocal_compensator::identity::ResetCause;
 use nanocal_compensator::l4flash::{FlashError, L4Sim, RawFlash, DWORD, ERASE_PAGE_US};
 
 const WDOG: usize = 0x4000_8000;
+/// CMSDK APB timer 0 (ARM DDI 0479 §4.3: CTRL 00h, VALUE 04h, RELOAD 08h), used only to wake
+/// QEMU's I/O loop (see [`kick_io`]).
+const TIMER0: usize = 0x4000_0000;
+/// CMSDK APB timer 1: a free-running down-counter of QEMU's clock (25 MHz).
+const TIMER1: usize = 0x4000_1000;
 const FPGAIO_LED: usize = 0x4002_8000;
 
 fn w(addr: usize, v: u32) {
@@ -41,14 +46,24 @@ fn watchdog_deadline(timeout_ms: u32) {
     super::time::set_watchdog_deadline(super::time::uptime_ticks().saturating_add(ticks));
 }
 
-/// Reload the watchdog.
+/// QEMU-clock time of the last reload of the CMSDK watchdog (timer 1's count).
+static LAST_RELOAD: AtomicU32 = AtomicU32::new(0);
+
+/// Reload the watchdog: its deadline on the board's clock at every pet; the CMSDK counter (on
+/// QEMU's clock, which only catches a busy loop) at most every 100 ms of QEMU's clock — each
+/// reload re-arms a QEMU timer and wakes QEMU's I/O loop, which would cost more than the rest of
+/// a pet when the board's clock runs thousands of times faster than QEMU's.
 pub fn watchdog_pet() {
-    w(WDOG + 0xC00, 0x1ACC_E551);
-    w(WDOG + 0x0C, 1);
-    w(WDOG + 0xC00, 0);
     let ms = WATCHDOG_MS.load(Ordering::Relaxed);
     if ms != 0 {
         watchdog_deadline(ms);
+    }
+    let now = r(TIMER1 + 0x04);
+    if LAST_RELOAD.load(Ordering::Relaxed).wrapping_sub(now) >= super::SYSCLK_HZ / 10 {
+        LAST_RELOAD.store(now, Ordering::Relaxed);
+        w(WDOG + 0xC00, 0x1ACC_E551);
+        w(WDOG + 0x0C, 1);
+        w(WDOG + 0xC00, 0);
     }
 }
 
@@ -75,6 +90,46 @@ pub fn watchdog_resume() {
 /// software-reset marker, so the next boot reports the watchdog).
 pub fn watchdog_fire() -> ! {
     cortex_m::peripheral::SCB::sys_reset()
+}
+
+/// Wake QEMU's I/O loop. QEMU's CMSDK UART model takes the next received byte from its socket
+/// only when QEMU's main loop runs again, and reading the data register does not wake that loop
+/// (`hw/char/cmsdk-apb-uart.c` calls no `qemu_chr_fe_accept_input`): a byte stream into the
+/// board would trickle at the pace of unrelated events. Re-arming timer 0 to expire at once
+/// moves a QEMU timer deadline, which wakes the loop, which then hands over the next byte. The
+/// timer's interrupt stays disabled; on hardware there is nothing to do.
+pub fn kick_io() {
+    w(TIMER0 + 0x04, 2);
+}
+
+/// Set timer 0 up for [`kick_io`], and timer 1 as a free-running counter of QEMU's clock (for
+/// [`wait_for_interrupt_busy`]): enabled, no interrupt, reloading from the largest value.
+pub fn kick_io_init() {
+    for t in [TIMER0, TIMER1] {
+        w(t + 0x08, u32::MAX);
+        w(t, 1);
+    }
+}
+
+fn r(addr: usize) -> u32 {
+    // SAFETY: MMIO register of the board, 32-bit access.
+    unsafe { read_volatile(addr as *const u32) }
+}
+
+/// Busy-wait up to `us` µs of QEMU's clock for an interrupt to become pending (interrupts
+/// masked); true if one did (SCB ICSR.ISRPENDING, ARMv7-M ARM B3.2.4).
+pub fn wait_for_interrupt_busy(us: u32) -> bool {
+    const ICSR: usize = 0xE000_ED04;
+    let start = r(TIMER1 + 0x04);
+    let ticks = us.saturating_mul(super::SYSCLK_HZ / 1_000_000);
+    loop {
+        if r(ICSR) & (1 << 22) != 0 {
+            return true;
+        }
+        if start.wrapping_sub(r(TIMER1 + 0x04)) > ticks {
+            return false;
+        }
+    }
 }
 
 /// Light FPGA LED 0.

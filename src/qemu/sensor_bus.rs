@@ -52,7 +52,9 @@ impl MailboxBus {
         link::barrier();
         link::write_u32(bl::BUS_REQ_SEQ, self.seq);
         link::barrier();
-        uart::ring(bl::RING_BUS);
+        if link::read_u32(bl::WATCHING) == 0 {
+            uart::ring(bl::RING_BUS);
+        }
         while link::read_u32(bl::BUS_REP_SEQ) != self.seq {
             core::hint::spin_loop();
         }

@@ -37,6 +37,9 @@ struct BenchClock {
     systick_horizon: Mutex<Cell<u64>>,
     /// Watchdog deadline, uptime ticks.
     watchdog_at: Mutex<Cell<u64>>,
+    /// Bench time of the last "waiting" doorbell (one per instant: the bench waits for the
+    /// board to reach a time, not for every wake-up at it).
+    rung_at: Mutex<Cell<u64>>,
 }
 
 embassy_time_driver::time_driver_impl!(static DRIVER: BenchClock = BenchClock {
@@ -47,6 +50,7 @@ embassy_time_driver::time_driver_impl!(static DRIVER: BenchClock = BenchClock {
     linked: Mutex::new(Cell::new(false)),
     systick_horizon: Mutex::new(Cell::new(0)),
     watchdog_at: Mutex::new(Cell::new(u64::MAX)),
+    rung_at: Mutex::new(Cell::new(u64::MAX)),
 });
 
 impl Driver for BenchClock {
@@ -64,6 +68,9 @@ impl Driver for BenchClock {
         });
     }
 }
+
+/// Busy wait for the bench's next byte before halting, µs of QEMU's clock.
+const SPIN_BEFORE_WFI_US: u32 = 100;
 
 /// SysTick period without the page: 1 ms.
 const SYSTICK_TICKS: u64 = bl::TICK_HZ / 1000;
@@ -163,10 +170,20 @@ pub fn idle() {
             link::barrier();
             // the bench may have moved the horizon meanwhile: then no wait
             if link::read_u64(bl::HORIZON) == horizon_bench {
-                uart::ring(bl::RING_WAITING);
-                board::watchdog_pause();
-                cortex_m::asm::wfi();
-                board::watchdog_resume();
+                let rung = d.rung_at.borrow(cs);
+                if rung.get() != boot_at + now && link::read_u32(bl::WATCHING) == 0 {
+                    rung.set(boot_at + now);
+                    uart::ring(bl::RING_WAITING);
+                }
+                // the bench usually sends its next byte at once: a short busy wait for it saves
+                // QEMU halting and waking this CPU for every byte of a command
+                if !board::wait_for_interrupt_busy(SPIN_BEFORE_WFI_US)
+                    && link::read_u64(bl::HORIZON) == horizon_bench
+                {
+                    board::watchdog_pause();
+                    cortex_m::asm::wfi();
+                    board::watchdog_resume();
+                }
             }
             link::write_u32(bl::WAITING, 0);
         } else {

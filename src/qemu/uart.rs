@@ -140,6 +140,7 @@ impl embedded_io_async::Read for UartRx {
             while got < buf.len() && read(n, STATE) & STATE_RX_FULL != 0 {
                 buf[got] = read(n, DATA) as u8;
                 got += 1;
+                super::board::kick_io();
             }
             if got > 0 {
                 return Poll::Ready(Ok(got));

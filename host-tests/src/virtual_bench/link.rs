@@ -12,7 +12,7 @@
 
 use nanocal_compensator::bench_link as bl;
 use std::io::{Read, Write};
-use std::net::TcpStream;
+use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{fence, AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
@@ -21,6 +21,9 @@ use std::time::{Duration, Instant};
 /// Size of the file behind the board's PSRAM (QEMU's mps2 machines have exactly 16 MiB).
 pub const RAM_FILE_LEN: u64 = 16 * 1024 * 1024;
 const MAP_LEN: usize = 4096;
+/// How long [`BenchClock::advance_to`] watches the page without any progress of the board
+/// before it sleeps until a doorbell.
+const SPIN: Duration = Duration::from_micros(500);
 
 /// The page, mapped in this process.
 pub struct Page {
@@ -173,7 +176,7 @@ struct Rings {
 /// The bench's side of the link: page, doorbells, bus mailbox, clock.
 pub struct BenchLink {
     page: Page,
-    line: Mutex<TcpStream>,
+    line: Mutex<UnixStream>,
     rings: Mutex<Rings>,
     rung: Condvar,
     bus: Mutex<Option<BusHandler>>,
@@ -188,8 +191,7 @@ pub struct BenchLink {
 impl BenchLink {
     /// Link over `page` and the board's serial4 (`line`). Starts the doorbell reader and the
     /// free-running clock (scale 1).
-    pub fn start(page: Page, line: TcpStream) -> Arc<BenchLink> {
-        line.set_nodelay(true).ok();
+    pub fn start(page: Page, line: UnixStream) -> Arc<BenchLink> {
         let reader = line.try_clone().expect("clone serial4");
         let link = Arc::new(BenchLink {
             page,
@@ -247,7 +249,7 @@ impl BenchLink {
         self.page.u32(bl::BOOTS)
     }
 
-    fn read_doorbells(&self, mut r: TcpStream) {
+    fn read_doorbells(&self, mut r: UnixStream) {
         let mut b = [0u8; 256];
         loop {
             let n = match r.read(&mut b) {
@@ -272,7 +274,15 @@ impl BenchLink {
         }
     }
 
+    /// True when the board has posted a bus request not yet answered.
+    fn bus_pending(&self) -> bool {
+        self.page.u32(bl::BUS_REQ_SEQ) != self.page.u32(bl::BUS_REP_SEQ)
+    }
+
+    /// Answer the board's pending bus request, if any (whichever thread sees it first: the
+    /// doorbell reader, or a caller of [`BenchClock::advance_to`] watching the page).
     fn serve_bus(&self) {
+        let mut bus = self.bus.lock().unwrap();
         let seq = self.page.u32(bl::BUS_REQ_SEQ);
         if self.page.u32(bl::BUS_REP_SEQ) == seq {
             return; // already served
@@ -286,7 +296,6 @@ impl BenchLink {
             .page
             .bytes(bl::BUS_REQ + nanocal_compensator::wire::HEADER, n_out);
         let now = self.now_s();
-        let mut bus = self.bus.lock().unwrap();
         // the board waits for its reply without its clock moving: give a bench that is still
         // being set up a moment to attach its chips
         let deadline = Instant::now() + Duration::from_secs(5);
@@ -393,20 +402,45 @@ impl BenchClock {
             std::thread::sleep(Duration::from_micros(50));
         }
         self.link.set_horizon(target);
-        let mut rings = self.link.rings.lock().unwrap();
-        loop {
+        // Watch the page while the board runs towards the horizon, answering its bus requests
+        // here: no thread hand-over per transaction (the board waits for each reply). Sleep
+        // until a doorbell only when the board makes no progress for a while.
+        let mut last = (page.u64(bl::NOW), page.u32(bl::BUS_REQ_SEQ));
+        let mut quiet_since = Instant::now();
+        page.set_u32(bl::WATCHING, 1);
+        let result = loop {
+            if self.link.bus_pending() {
+                self.link.serve_bus();
+            }
             if page.u32(bl::WAITING) == 1 && page.u64(bl::NOW) == target {
-                return Ok(());
+                break Ok(());
             }
             if start.elapsed() > timeout || self.link.stop.load(Ordering::Acquire) {
-                return Err(stalled(page));
+                break Err(stalled(page));
             }
-            rings = self
-                .link
-                .rung
-                .wait_timeout(rings, Duration::from_millis(5))
-                .unwrap()
-                .0;
-        }
+            let now = (page.u64(bl::NOW), page.u32(bl::BUS_REQ_SEQ));
+            if now != last {
+                last = now;
+                quiet_since = Instant::now();
+            } else if quiet_since.elapsed() > SPIN {
+                // stop polling: the board rings from now on; look once more, then sleep
+                page.set_u32(bl::WATCHING, 0);
+                fence(Ordering::SeqCst);
+                if !self.link.bus_pending() && page.u32(bl::WAITING) == 0 {
+                    let rings = self.link.rings.lock().unwrap();
+                    let _ = self
+                        .link
+                        .rung
+                        .wait_timeout(rings, Duration::from_millis(2))
+                        .unwrap();
+                }
+                page.set_u32(bl::WATCHING, 1);
+                quiet_since = Instant::now();
+            } else {
+                std::hint::spin_loop();
+            }
+        };
+        page.set_u32(bl::WATCHING, 0);
+        result
     }
 }

@@ -6,6 +6,7 @@ use super::link::{BenchClock, BenchLink, Page, RAM_FILE_LEN};
 use crate::device::Client;
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
+use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
@@ -210,10 +211,21 @@ impl Qemu {
             ))
             .args(["-display", "none", "-monitor", "none"])
             .args(["-semihosting-config", "enable=on,target=native"]);
+        // serial0-2 on TCP (an external GCS client such as PIPython connects to serial0), the
+        // management port and the bench's doorbells on Unix sockets: the board writes a byte
+        // at a time, which loopback TCP turns into a segment each (≈ 15 µs per byte)
+        let sockets = log.with_extension("d");
+        std::fs::create_dir_all(&sockets).expect("socket folder");
         for (i, p) in ports.iter().enumerate() {
-            cmd.arg("-chardev").arg(format!(
-                "socket,id=s{i},host=127.0.0.1,port={p},server=on,wait=off"
-            ));
+            let dev = if i >= 3 {
+                format!(
+                    "socket,id=s{i},path={},server=on,wait=off",
+                    sockets.join(format!("s{i}")).display()
+                )
+            } else {
+                format!("socket,id=s{i},host=127.0.0.1,port={p},server=on,wait=off,nodelay=on")
+            };
+            cmd.arg("-chardev").arg(dev);
             cmd.arg("-serial").arg(format!("chardev:s{i}"));
         }
         cmd.args(extra).arg("-kernel").arg(&elf);
@@ -224,7 +236,7 @@ impl Qemu {
             .spawn()
             .expect("start qemu-system-arm");
         let mut child = child;
-        let line = dial(&mut child, ports[4], 4, &log);
+        let line = dial_unix(&mut child, &sockets.join("s4"), 4, &log);
         let link = BenchLink::start(page, line);
         let mut q = Self {
             child,
@@ -243,6 +255,11 @@ impl Qemu {
     /// sends with CDC SET_CONTROL_LINE_STATE (DTR, bit 0), carried to the board on serial4.
     pub fn set_dtr(&mut self, on: bool) {
         self.link.send_line_state(0xC0 | u8::from(on));
+    }
+
+    /// Process id of QEMU.
+    pub fn pid(&self) -> u32 {
+        self.child.id()
     }
 
     /// The bench's side of the board's link (page, doorbells, bus mailbox).
@@ -303,14 +320,19 @@ impl Qemu {
         self.ports[0]
     }
 
-    /// Management port spec for the CLI.
+    /// Management port spec for the CLI (`unix:PATH`).
     pub fn mgmt_spec(&self) -> String {
-        format!("tcp:127.0.0.1:{}", self.ports[3])
+        format!("unix:{}", self.log.with_extension("d").join("s3").display())
     }
 
     /// A management client (serial3); one at a time.
     pub fn client(&mut self) -> Client {
-        let s = self.dial(3);
+        let s = dial_unix(
+            &mut self.child,
+            &self.log.with_extension("d").join("s3"),
+            3,
+            &self.log,
+        );
         s.set_read_timeout(Some(Duration::from_millis(50))).ok();
         let mut c = Client::new(Box::new(s), &self.mgmt_spec(), Duration::from_secs(10));
         // QEMU may still be handing over from a previous client: retry the first request
@@ -321,6 +343,23 @@ impl Qemu {
         }
         c.timeout = Duration::from_secs(10);
         c
+    }
+}
+
+fn dial_unix(child: &mut Child, path: &Path, i: usize, log: &Path) -> UnixStream {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        if let Ok(Some(st)) = child.try_wait() {
+            panic!(
+                "qemu exited ({st}): {}",
+                std::fs::read_to_string(log).unwrap_or_default()
+            );
+        }
+        if let Ok(s) = UnixStream::connect(path) {
+            return s;
+        }
+        assert!(Instant::now() < deadline, "qemu serial{i} never listened");
+        std::thread::sleep(Duration::from_millis(20));
     }
 }
 
@@ -351,6 +390,7 @@ impl Drop for Qemu {
             eprintln!("--- qemu log ---\n{}", self.log_text());
         }
         let _ = std::fs::remove_file(&self.log);
+        let _ = std::fs::remove_dir_all(self.log.with_extension("d"));
     }
 }
 

@@ -69,7 +69,7 @@ pub struct ModelState {
     /// Sensors configured on the board.
     pub sensors: u8,
     /// Slow inputs outside the envelope at the last fold.
-    pub slow_outside: u16,
+    pub slow_outside: u32,
     /// Folds computed.
     pub folds: u32,
     /// Uploads accepted.

@@ -240,7 +240,7 @@ impl Model {
             constant_um: constant.map(|c| c as f32),
             blocks: shape.blocks,
             n_blocks: shape.len as u8,
-            coefficients: acc.map(|c| c as f32),
+            coefficients: [0.0; FOLD_CAPACITY],
             slow_flags: self.slow_envelope_flags(slow).0,
             fast_mask: 0,
             fast_centre: [0.0; MAX_AUX],
@@ -251,6 +251,11 @@ impl Model {
             play_threshold_um: [0.0; MAX_PLAY],
             play_weight: [0.0; MAX_PLAY],
         };
+        // Only the coefficients the blocks use: f64 → f32 is a soft-float call on the M4.
+        let used = shape.coefficients.min(FOLD_CAPACITY);
+        for (c, &v) in fold.coefficients[..used].iter_mut().zip(&acc[..used]) {
+            *c = v as f32;
+        }
         for a in 0..axes {
             let sc = self.scaling(Input::Axis(a as u8));
             let (min, max) = self.envelope(Input::Axis(a as u8));

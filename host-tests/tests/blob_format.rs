@@ -88,61 +88,26 @@ const GOLDEN_V1_HEX: &str = concat!(
     "f533fc72",         // CRC-32/IEEE (zlib) of all bytes above
 );
 
-/// Version 2's additions on top of the version 1 golden model: a fast force input and a bank
-/// of two play operators, each used by one term.
+/// The version 1 golden model plus what version 2 added: a fast force input and a bank of two
+/// play operators, each used by one term.
 fn golden_model_v2() -> Model {
-    let mut b = ModelBuilder::new(1, 1, 1)
-        .unwrap()
-        .id(0xC0FF_EE02)
+    let mut b = ModelBuilder::from_model(&golden_model()).id(0xC0FF_EE02);
+    let force = b.add_aux(AuxSpec::fast(AuxKind::ForceN)).unwrap();
+    let mut b = b
         .scaling(
-            Input::Axis(0),
-            Scaling {
-                centre: 50.0,
-                half_range: 50.0,
-            },
-        )
-        .envelope(Input::Axis(0), 0.0, 100.0)
-        .scaling(
-            Input::Temp(0),
-            Scaling {
-                centre: 22.0,
-                half_range: 1.0,
-            },
-        )
-        .envelope(Input::Temp(0), 21.0, 23.0)
-        .scaling(
-            Input::Aux(0),
+            Input::Aux(force),
             Scaling {
                 centre: 0.0,
                 half_range: 2.0,
             },
         )
-        .envelope(Input::Aux(0), -2.0, 2.0)
-        .aux_spec(
-            0,
-            AuxSpec {
-                kind: AuxKind::ForceN,
-                fast: true,
-            },
-        )
-        .travel_um(0, -5.0, 105.0)
-        .offset_um(0, 0.5)
-        .kmz_offset_um(0, -0.25);
-    let lag = b.lag(0, 600.0).unwrap();
-    let p0 = b.play(0, 0.0).unwrap();
+        .envelope(Input::Aux(force), -2.0, 2.0);
+    b.play(0, 0.0).unwrap();
     let p1 = b.play(0, 12.5).unwrap();
-    assert_eq!((p0, p1), (0, 1));
-    let terms = [
-        ([1, 0, 0], Factor::None, 1.5),
-        ([0, 0, 0], Factor::Temp(0), -0.25),
-        ([0, 0, 0], Factor::Aux(0), 0.125),
-        ([0, 0, 0], Factor::Play(p1), -0.5),
-        ([1, 0, 0], Factor::Lagged(lag), 0.0625),
-    ];
-    for (powers, factor, coeff) in terms {
+    for (factor, coeff) in [(Factor::Aux(force), 0.125), (Factor::Play(p1), -0.5)] {
         b.add_term(Term {
             output: 0,
-            powers,
+            powers: [0; 3],
             factor,
             direction: 0,
             coeff,
@@ -158,12 +123,12 @@ const GOLDEN_V2_HEX: &str = concat!(
     "4e43414c",
     "0200",
     "0000",
-    "14010000", // magic, version 2, reserved, payload 276
+    "24010000", // magic, version 2, reserved, payload 292
     "02eeffc0",
     "01010101",
-    "0500",
+    "0600",
     "02",
-    "00", // id, A T X L, 5 terms, 2 play operators, reserved
+    "00", // id, A T X L, 6 terms, 2 play operators, reserved
     "0000000000004940",
     "0000000000004940",
     "0000000000000000",
@@ -191,13 +156,15 @@ const GOLDEN_V2_HEX: &str = concat!(
     "000000000000f83f", // 1.5·u
     "0000000001000000",
     "000000000000d0bf", // −0.25·T0
+    "0001000003000000",
+    "000000000000c03f", // 0.125·u·lag0
+    "0000000000000100",
+    "000000000000a03f", // 0.03125·sign(x)
     "0000000002000000",
     "000000000000c03f", // 0.125·F (fast aux 0)
     "0000000004010000",
     "000000000000e0bf", // −0.5·play1
-    "0001000003000000",
-    "000000000000b03f", // 0.0625·u·lag0
-    "ec816cb1",         // CRC-32/IEEE (zlib) of all bytes above
+    "f1e09bcf",         // CRC-32/IEEE (zlib) of all bytes above
 );
 
 fn unhex(text: &str) -> Vec<u8> {

@@ -23,20 +23,8 @@ fn rich_model() -> Model {
         .trained_range(Input::Temp(1), 20.0, 24.0)
         .trained_range(Input::Aux(0), 950.0, 1050.0)
         .trained_range(Input::Aux(1), -2.0, 2.0)
-        .aux_spec(
-            0,
-            AuxSpec {
-                kind: AuxKind::AirPressureHpa,
-                fast: false,
-            },
-        )
-        .aux_spec(
-            1,
-            AuxSpec {
-                kind: AuxKind::ForceN,
-                fast: true,
-            },
-        )
+        .aux_spec(0, AuxSpec::slow(AuxKind::AirPressureHpa))
+        .aux_spec(1, AuxSpec::fast(AuxKind::ForceN))
         .travel_um(0, -5.0, 105.0)
         .travel_um(1, -5.0, 55.0);
     b.add_raw_term(0, [1, 0, 0], Factor::None, 0, 1.0).unwrap();

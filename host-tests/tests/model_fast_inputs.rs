@@ -17,20 +17,8 @@ fn model(axes: usize, force_terms: &[(u8, [u8; 3], u8, f64)]) -> Result<Model, M
         .trained_range(Input::Temp(0), 20.0, 24.0)
         .trained_range(Input::Aux(0), 950.0, 1050.0)
         .trained_range(Input::Aux(1), -2.0, 2.0)
-        .aux_spec(
-            0,
-            AuxSpec {
-                kind: AuxKind::AirPressureHpa,
-                fast: false,
-            },
-        )
-        .aux_spec(
-            1,
-            AuxSpec {
-                kind: AuxKind::ForceN,
-                fast: true,
-            },
-        );
+        .aux_spec(0, AuxSpec::slow(AuxKind::AirPressureHpa))
+        .aux_spec(1, AuxSpec::fast(AuxKind::ForceN));
     for a in 0..axes {
         b = b.trained_range(Input::Axis(a as u8), 0.0, 100.0 * (a + 1) as f64);
     }
@@ -165,13 +153,7 @@ fn model_without_force() -> Model {
         .unwrap()
         .trained_range(Input::Axis(0), 0.0, 100.0)
         .trained_range(Input::Axis(1), 0.0, 200.0)
-        .aux_spec(
-            0,
-            AuxSpec {
-                kind: AuxKind::ForceN,
-                fast: true,
-            },
-        );
+        .aux_spec(0, AuxSpec::fast(AuxKind::ForceN));
     b.add_raw_term(0, [1, 0, 0], Factor::None, 0, 1.0).unwrap();
     b.add_raw_term(1, [0, 1, 0], Factor::None, 0, 1.0).unwrap();
     // Declared fast, but no term uses it: the fast path does not read it.

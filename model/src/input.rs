@@ -148,6 +148,18 @@ pub struct AuxSpec {
     pub fast: bool,
 }
 
+impl AuxSpec {
+    /// A slow input of this kind (folded with the temperatures).
+    pub const fn slow(kind: AuxKind) -> AuxSpec {
+        AuxSpec { kind, fast: false }
+    }
+
+    /// A fast input of this kind (evaluated per command).
+    pub const fn fast(kind: AuxKind) -> AuxSpec {
+        AuxSpec { kind, fast: true }
+    }
+}
+
 /// The fast inputs of one command: values of the aux inputs declared fast, in their units, by
 /// aux index. A channel that is not supplied is NaN ([`FastInputs::NONE`]): a model that uses it
 /// then yields NaN commands and flags the channel, it never evaluates with a silent default.

@@ -107,13 +107,9 @@ fn model_1dof(extra: Extra) -> Option<Model> {
             b.play_bank(0, &bank).ok()?;
         }
         Extra::Force => {
-            b = b.trained_range(Input::Aux(0), -2.0, 2.0).aux_spec(
-                0,
-                AuxSpec {
-                    kind: AuxKind::ForceN,
-                    fast: true,
-                },
-            );
+            b = b
+                .trained_range(Input::Aux(0), -2.0, 2.0)
+                .aux_spec(0, AuxSpec::fast(AuxKind::ForceN));
             b.add_term(term(0, [0; 3], Factor::Aux(0), 0.6)).ok()?;
             b.add_term(term(0, [1, 0, 0], Factor::Aux(0), 0.1)).ok()?;
         }

@@ -137,10 +137,7 @@ fn published_1dof_with_bank() -> anyhow::Result<Model> {
 /// The published 1-DoF model with a fast force input (±2 N) in two terms, F and x·F.
 fn published_1dof_with_force() -> anyhow::Result<Model> {
     let mut b = ModelBuilder::from_model(&published_1dof()?);
-    let force = b.add_aux(AuxSpec {
-        kind: AuxKind::ForceN,
-        fast: true,
-    })?;
+    let force = b.add_aux(AuxSpec::fast(AuxKind::ForceN))?;
     let mut b = b.trained_range(Input::Aux(force), -2.0, 2.0);
     for (powers, coeff) in [([0, 0, 0], 0.6), ([1, 0, 0], 0.1)] {
         b.add_term(Term {
@@ -155,57 +152,56 @@ fn published_1dof_with_force() -> anyhow::Result<Model> {
 }
 
 fn main() -> anyhow::Result<()> {
+    let case = |name, model, (x_min_um, x_max_um), t_range_c, steps| Case {
+        name,
+        model,
+        x_min_um,
+        x_max_um,
+        t_range_c,
+        steps,
+        forces_n: &[],
+        force_aux: 0,
+    };
+    let r = ROBOT_HALF_STROKE_UM;
     let cases = [
+        case(
+            "published 1-DoF (cubic + 4 T, 0–480 µm)",
+            published_1dof()?,
+            (0.0, 480.0),
+            (21.0, 23.0),
+            200_000,
+        ),
+        case(
+            "coupled 2-DoF (40 terms, 0–80 µm)",
+            coupled_2dof()?,
+            (0.0, 80.0),
+            (20.0, 24.0),
+            400,
+        ),
+        case(
+            "published 1-DoF + 16 play operators (walk of 200,000 targets)",
+            published_1dof_with_bank()?,
+            (0.0, 480.0),
+            (21.0, 23.0),
+            200_000,
+        ),
         Case {
-            name: "published 1-DoF (cubic + 4 T, 0–480 µm)",
-            model: published_1dof()?,
-            x_min_um: 0.0,
-            x_max_um: 480.0,
-            t_range_c: (21.0, 23.0),
-            steps: 200_000,
-            forces_n: &[],
-            force_aux: 0,
-        },
-        Case {
-            name: "coupled 2-DoF (40 terms, 0–80 µm)",
-            model: coupled_2dof()?,
-            x_min_um: 0.0,
-            x_max_um: 80.0,
-            t_range_c: (20.0, 24.0),
-            steps: 400,
-            forces_n: &[],
-            force_aux: 0,
-        },
-        Case {
-            name: "published 1-DoF + 16 play operators (walk of 200,000 targets)",
-            model: published_1dof_with_bank()?,
-            x_min_um: 0.0,
-            x_max_um: 480.0,
-            t_range_c: (21.0, 23.0),
-            steps: 200_000,
-            forces_n: &[],
-            force_aux: 0,
-        },
-        Case {
-            name: "published 1-DoF + fast force (F, x·F; ±2 N)",
-            model: published_1dof_with_force()?,
-            x_min_um: 0.0,
-            x_max_um: 480.0,
-            t_range_c: (21.0, 23.0),
-            steps: 20_000,
             forces_n: &[-2.0, -0.75, 0.0, 0.5, 2.0],
-            force_aux: 0,
+            ..case(
+                "published 1-DoF + fast force (F, x·F; ±2 N)",
+                published_1dof_with_force()?,
+                (0.0, 480.0),
+                (21.0, 23.0),
+                20_000,
+            )
         },
-        Case {
-            name: "delta robot, 78 terms, 3 outputs, 10 T (±5 mm)",
-            model: delta_robot_78()?,
-            x_min_um: -ROBOT_HALF_STROKE_UM,
-            x_max_um: ROBOT_HALF_STROKE_UM,
-            t_range_c: (20.0, 24.0),
-            steps: 40,
-            forces_n: &[],
-            force_aux: 0,
-        },
+        case(
+            "delta robot, 78 terms, 3 outputs, 10 T (±5 mm)",
+            delta_robot_78()?,
+            (-r, r),
+            (20.0, 24.0),
+            40,
+        ),
     ];
     println!("| model | stored terms | fast coefficients | play operators | worst f32 q − f64 (nm) | worst x + δ − f64 (nm) | fold (µs) | correct (ns) | inverse (ns) |");
     println!("|---|---|---|---|---|---|---|---|---|");

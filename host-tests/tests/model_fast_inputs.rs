@@ -88,9 +88,9 @@ proptest! {
         // The reference reads every aux input, the fast one included, from the slow inputs.
         s.aux[1] = f64::from(force_n);
         let reference = model.eval_f64(&x.map(f64::from), &dir, &s);
-        for a in 0..axes {
-            let err = (f64::from(c.q_um[a]) - reference[a]).abs();
-            prop_assert!(err <= F32_TOLERANCE_UM, "axis {a}: {} vs {} ({} nm)", c.q_um[a], reference[a], err * 1e3);
+        for (a, (&q32, &q64)) in c.q_um.iter().zip(&reference).take(axes).enumerate() {
+            let err = (f64::from(q32) - q64).abs();
+            prop_assert!(err <= F32_TOLERANCE_UM, "axis {a}: {q32} vs {q64} ({} nm)", err * 1e3);
         }
         let back = fold.inverse(&c.q_um, &dir, &fast, &HysteresisState::new()).unwrap();
         for a in 0..axes {

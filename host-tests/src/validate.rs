@@ -18,7 +18,7 @@
 //! order (exact for a temperature held between dwells; dwells are short against the τ of
 //! thermal lags).
 
-use nanocal_model::{LagBank, Model, SlowInputs, MAX_AXES};
+use nanocal_model::{FastInputs, HysteresisState, LagBank, Model, SlowInputs, MAX_AXES};
 
 use crate::dwell::Dwells;
 use crate::iso9283::{
@@ -263,7 +263,11 @@ pub fn validate(
             Some(m) => {
                 let fold = m.fold(&slow);
                 let q32 = [q[0] as f32, q[1] as f32, q[2] as f32];
-                match fold.inverse(&q32, &dir) {
+                // Fast aux inputs at their recorded values; hysteresis from a fresh state.
+                let fast = FastInputs {
+                    aux: slow.aux.map(|v| v as f32),
+                };
+                match fold.inverse(&q32, &dir, &fast, &HysteresisState::new()) {
                     Ok(xh) => (
                         (0..k).map(|a| x[a] - xh[a] as f64).collect(),
                         fold.slow_outside_envelope() != 0,

@@ -7,6 +7,7 @@ pub mod controller;
 pub mod link;
 pub mod qemu;
 pub mod sensors;
+pub mod twin_stage;
 
 pub use controller::StageSim;
 pub use link::{BenchClock, BenchLink};

@@ -1,0 +1,4 @@
+//! `nanocal campaign`: a whole calibration on a bench, through the compensator.
+pub mod gcs;
+pub mod recorder;
+pub mod reference;

@@ -23,6 +23,7 @@
 //! 0x028  u64   board       BOOT_AT: bench time of the last boot (the board's uptime = NOW − BOOT_AT)
 //! 0x030  u32×5 board       TX_BYTES[n]: bytes the board has written to serial n since power-on
 //! 0x048  u32   host        WATCHING: 1 while the host polls this page (no doorbells needed)
+//! 0x050  u32×5 board       RX_BYTES[n]: bytes the board has read from serial n since power-on
 //! 0x080  u32   board       BUS_REQ_SEQ: incremented when a request is posted (after its bytes)
 //! 0x084  37 B  board       BUS_REQ: the request frame (`crate::wire` layout, A5 … )
 //! 0x0C0  u32   host        BUS_REP_SEQ: set to BUS_REQ_SEQ when the reply is posted (after its bytes)
@@ -77,6 +78,8 @@ pub const TX_BYTES: usize = 0x030;
 pub const SERIALS: usize = 5;
 /// Offset of the host's "polling the page" flag.
 pub const WATCHING: usize = 0x048;
+/// Offset of the per-serial receive byte counters (the bench knows its input was taken in).
+pub const RX_BYTES: usize = 0x050;
 /// Offset of the bus request sequence number.
 pub const BUS_REQ_SEQ: usize = 0x080;
 /// Offset of the bus request frame.
@@ -128,6 +131,7 @@ mod tests {
             (BOOT_AT, 8),
             (TX_BYTES, 4 * SERIALS),
             (WATCHING, 4),
+            (RX_BYTES, 4 * SERIALS),
             (BUS_REQ_SEQ, 4),
             (BUS_REQ, FRAME_LEN),
             (BUS_REP_SEQ, 4),

@@ -114,13 +114,6 @@ pub fn on_interrupt(irqn: i16) {
     }
 }
 
-impl UartRx {
-    /// A received byte, if one is waiting (no interrupt needed).
-    pub fn try_read(&mut self) -> Option<u8> {
-        (read(self.n, STATE) & STATE_RX_FULL != 0).then(|| read(self.n, DATA) as u8)
-    }
-}
-
 impl embedded_io_async::ErrorType for UartRx {
     type Error = Infallible;
 }
@@ -143,6 +136,7 @@ impl embedded_io_async::Read for UartRx {
                 super::board::kick_io();
             }
             if got > 0 {
+                super::link::count_rx(n, got as u32);
                 return Poll::Ready(Ok(got));
             }
             WAKERS[n].register(cx.waker());

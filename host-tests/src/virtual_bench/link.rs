@@ -184,6 +184,9 @@ pub struct BenchLink {
     drains: Mutex<Vec<DrainCheck>>,
     lockstep: AtomicBool,
     stop: AtomicBool,
+    /// Counts completed lockstep advances (for threads that follow the board's clock).
+    advances: Mutex<u64>,
+    advanced: Condvar,
     /// Bus transactions served.
     pub transactions: AtomicU64,
 }
@@ -203,6 +206,8 @@ impl BenchLink {
             drains: Mutex::new(Vec::new()),
             lockstep: AtomicBool::new(false),
             stop: AtomicBool::new(false),
+            advances: Mutex::new(0),
+            advanced: Condvar::new(),
             transactions: AtomicU64::new(0),
         });
         let l = link.clone();
@@ -226,6 +231,7 @@ impl BenchLink {
     pub fn shutdown(&self) {
         self.stop.store(true, Ordering::Release);
         self.rung.notify_all();
+        self.advanced.notify_all();
     }
 
     /// Serve the bus with `handler` from now on.
@@ -247,6 +253,44 @@ impl BenchLink {
     /// Boots of the board since QEMU started.
     pub fn boots(&self) -> u32 {
         self.page.u32(bl::BOOTS)
+    }
+
+    /// Bytes the board has read from serial `port` since power-on.
+    pub fn rx_bytes(&self, port: usize) -> u32 {
+        self.page.u32(bl::RX_BYTES + 4 * port)
+    }
+
+    /// Bytes the board has written to serial `port` since power-on.
+    pub fn tx_bytes(&self, port: usize) -> u32 {
+        self.page.u32(bl::TX_BYTES + 4 * port)
+    }
+
+    /// True when the board is idle at the horizon (nothing left to do before it moves).
+    pub fn idle_at_horizon(&self) -> bool {
+        self.page.u32(bl::WAITING) == 1 && self.page.u64(bl::NOW) == self.page.u64(bl::HORIZON)
+    }
+
+    /// Wait (up to `timeout`) until the clock has advanced past generation `seen`; returns the
+    /// current generation (for threads that follow the board's clock, e.g. an instrument).
+    pub fn wait_advanced(&self, seen: u64, timeout: Duration) -> u64 {
+        let g = self.advances.lock().unwrap();
+        let (g, _) = self
+            .advanced
+            .wait_timeout_while(g, timeout, |g| {
+                *g == seen && !self.stop.load(Ordering::Acquire)
+            })
+            .unwrap();
+        *g
+    }
+
+    /// True once the link is shut down.
+    pub fn stopped(&self) -> bool {
+        self.stop.load(Ordering::Acquire)
+    }
+
+    fn notify_advanced(&self) {
+        *self.advances.lock().unwrap() += 1;
+        self.advanced.notify_all();
     }
 
     fn read_doorbells(&self, mut r: UnixStream) {
@@ -341,6 +385,7 @@ impl BenchLink {
         while !self.stop.load(Ordering::Acquire) && !self.lockstep.load(Ordering::Acquire) {
             let t = base + bl::s_to_ticks(t0.elapsed().as_secs_f64() * scale);
             self.set_horizon(t);
+            self.notify_advanced();
             std::thread::sleep(Duration::from_millis(1));
         }
     }
@@ -441,6 +486,9 @@ impl BenchClock {
             }
         };
         page.set_u32(bl::WATCHING, 0);
+        if result.is_ok() {
+            self.link.notify_advanced();
+        }
         result
     }
 }

@@ -2,6 +2,7 @@
 //! board as a process, a simulated stage controller on the stage link, simulated sensor chips on
 //! the sensor bus. The end-to-end tests, the firmware benchmarks and `campaign --virtual` share it.
 
+pub mod bench;
 pub mod chips;
 pub mod controller;
 pub mod link;

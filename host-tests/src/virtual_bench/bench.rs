@@ -1,0 +1,382 @@
+//! The virtual bench a campaign runs on (`nanocal campaign --virtual`): the QEMU firmware, and
+//! the digital twin in three roles around it — the PI controller's stage on the stage link, the
+//! interferometer (a TCP server speaking the reference line protocol of
+//! [`crate::campaign::reference`]), and the temperature sensors behind the register-level chip
+//! models on the bus stand-in. The board's clock is in lockstep with the campaign: plan time
+//! `t` is bench time `t + offset`, and nothing on the board happens between the instants the
+//! campaign lets it reach.
+
+use super::chips::{max31856::TempSource, Lps22hb, Max31856};
+use super::controller::StageSim;
+use super::link::{BenchClock, BenchLink};
+use super::qemu::Qemu;
+use super::sensors::Buses;
+use super::twin_stage::TwinStage;
+use crate::campaign::bench::{BenchDriver, BenchError};
+use crate::device::Port;
+use crate::twin::{Trajectory, Twin};
+use nanocal_compensator::wire;
+use std::io::{Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+/// Serial ports whose input the bench counts (GCS host link, management).
+const COUNTED: [usize; 2] = [0, 3];
+
+/// Board time the bench lets pass at once while a request waits for the board's own timers.
+const NUDGE_S: f64 = 0.01;
+
+/// A stream that counts the bytes written into the board.
+struct Counted<S> {
+    inner: S,
+    sent: Arc<AtomicU64>,
+}
+
+impl<S: Read> Read for Counted<S> {
+    fn read(&mut self, b: &mut [u8]) -> std::io::Result<usize> {
+        self.inner.read(b)
+    }
+}
+
+impl<S: Write> Write for Counted<S> {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(b)?;
+        self.sent.fetch_add(n as u64, Ordering::AcqRel);
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+/// The virtual bench.
+pub struct VirtualBench {
+    qemu: Qemu,
+    link: Arc<BenchLink>,
+    clock: BenchClock,
+    stage: Arc<Mutex<TwinStage>>,
+    stage_sim: StageSim,
+    /// Bytes of the stage link the controller has taken in.
+    stage_bytes: u64,
+    sent: [Arc<AtomicU64>; 2],
+    /// Bench time of plan time 0, s.
+    offset_s: f64,
+    reference_port: u16,
+    axes: Vec<String>,
+    commands: Vec<(f64, Vec<f64>)>,
+    stop_reference: Arc<AtomicBool>,
+}
+
+impl VirtualBench {
+    /// Boot the firmware with the twin around it. `traj` is the plan's schedule as dwells (plan
+    /// time 0 at the twin's absolute time `start_abs_s`); the board boots at plan time
+    /// `plan_at_boot_s` (≤ −[`Self::SETUP_S`] before a plan starts, so that configuration, upload
+    /// and the sensors' first conversions fit before it).
+    pub fn start(
+        twin: &Twin,
+        traj: &Trajectory,
+        start_abs_s: f64,
+        stream: u64,
+        plan_at_boot_s: f64,
+    ) -> Self {
+        let mut qemu = Qemu::start(&[]);
+        let link = qemu.link();
+        let clock = qemu.clock();
+        let axes_n = twin.cfg.axes;
+        let stage = Arc::new(Mutex::new(TwinStage::new(twin, traj, start_abs_s, stream)));
+        let stage_sim = StageSim::start(qemu.connect(1), axes_n);
+        let offset_s = -plan_at_boot_s;
+
+        // the sensor chips read the twin's room at the board's clock
+        let mut buses = Buses::default();
+        let noise: Vec<f64> = twin.cfg.sensors.iter().map(|s| s.noise_c).collect();
+        let n_sensors = stage.lock().unwrap().sensors().len();
+        for i in 0..n_sensors {
+            let st = stage.clone();
+            let source = TempSource(Arc::new(move |bench_s: f64| {
+                st.lock().unwrap().spot_c(i, bench_s - offset_s)
+            }));
+            let chip = Max31856::new(20.0).following(source, noise[i], stream ^ (i as u64 + 1));
+            buses.spi.push(Some(Box::new(chip)));
+        }
+        buses.i2c.insert(
+            super::chips::lps22hb::ADDRESS,
+            Box::new(Lps22hb::new(1013.25)),
+        );
+        buses.adc = vec![Some(2048), None, None, None];
+        let buses = Arc::new(Mutex::new(buses));
+        let (b, st) = (buses.clone(), stage.clone());
+        link.attach_bus(Box::new(move |op, target, out, n_in, now_s| {
+            let mut b = b.lock().unwrap();
+            if op == wire::I2C {
+                let p = st.lock().unwrap().pressure_hpa(now_s - offset_s);
+                if let Some(chip) = b.i2c.get_mut(&super::chips::lps22hb::ADDRESS) {
+                    if let Some(baro) = chip_as_lps(chip.as_mut()) {
+                        baro.pressure_hpa = p;
+                    }
+                }
+            }
+            b.serve(op, target, out, n_in, now_s)
+        }));
+
+        let listener = TcpListener::bind("127.0.0.1:0").expect("interferometer port");
+        let reference_port = listener.local_addr().expect("bound").port();
+        let stop_reference = Arc::new(AtomicBool::new(false));
+        {
+            let (link, stage, stop) = (link.clone(), stage.clone(), stop_reference.clone());
+            std::thread::spawn(move || serve_interferometer(listener, link, stage, offset_s, stop));
+        }
+        clock.lockstep();
+        let sent = [Arc::new(AtomicU64::new(0)), Arc::new(AtomicU64::new(0))];
+        let axes = (1..=axes_n).map(|a| a.to_string()).collect();
+        let _ = &mut qemu;
+        Self {
+            qemu,
+            link,
+            clock,
+            stage,
+            stage_sim,
+            stage_bytes: 0,
+            sent,
+            offset_s,
+            reference_port,
+            axes,
+            commands: Vec::new(),
+            stop_reference,
+        }
+    }
+
+    /// Plan time the bench needs before a plan starts (boot, settings, upload, warm-up), s.
+    pub const SETUP_S: f64 = 60.0;
+
+    /// The compensator's management port (a counted stream).
+    pub fn management(&mut self) -> Box<dyn Port> {
+        let path = self.qemu.mgmt_spec();
+        let path = path.strip_prefix("unix:").expect("unix socket").to_string();
+        let s = std::os::unix::net::UnixStream::connect(path).expect("management socket");
+        s.set_read_timeout(Some(Duration::from_millis(50))).ok();
+        Box::new(Counted {
+            inner: s,
+            sent: self.sent[1].clone(),
+        })
+    }
+
+    /// The compensator's GCS port (a counted stream).
+    pub fn gcs(&mut self) -> Box<dyn Port> {
+        let s: TcpStream = self.qemu.connect(0);
+        s.set_read_timeout(Some(Duration::from_millis(50))).ok();
+        Box::new(Counted {
+            inner: s,
+            sent: self.sent[0].clone(),
+        })
+    }
+
+    /// The interferometer, as a reference specification.
+    pub fn reference_spec(&self) -> String {
+        format!("tcp:127.0.0.1:{}", self.reference_port)
+    }
+
+    /// The board's link (page, counters).
+    pub fn link(&self) -> Arc<BenchLink> {
+        self.link.clone()
+    }
+
+    /// The twin on the bench.
+    pub fn stage(&self) -> Arc<Mutex<TwinStage>> {
+        self.stage.clone()
+    }
+
+    /// Bus transactions served so far.
+    pub fn transactions(&self) -> u64 {
+        self.link.transactions.load(Ordering::Relaxed)
+    }
+
+    /// The QEMU process (its id, for CPU figures).
+    pub fn qemu(&self) -> &Qemu {
+        &self.qemu
+    }
+
+    /// Every byte the bench sent to the board has been read by it, and the board is idle.
+    fn settled(&self) -> bool {
+        COUNTED
+            .iter()
+            .zip(&self.sent)
+            .all(|(&p, sent)| self.link.rx_bytes(p) == sent.load(Ordering::Acquire) as u32)
+            && self.link.idle_at_horizon()
+    }
+
+    /// Take in what the controller received: each MOV is a command to the twin's stage at the
+    /// board's clock (frozen while the campaign exchanges with the board).
+    fn sync_stage(&mut self) -> Result<(), BenchError> {
+        let start = Instant::now();
+        loop {
+            for line in self.stage_sim.drain() {
+                self.stage_bytes += if line.starts_with('#') && line.len() <= 3 {
+                    1
+                } else {
+                    line.len() as u64 + 1
+                };
+                if let Some(targets) = parse_mov(&line, &self.axes) {
+                    let t = self.link.now_s() - self.offset_s;
+                    let mut st = self.stage.lock().unwrap();
+                    let mut cmd = st
+                        .commands()
+                        .last()
+                        .map(|c| c.1.clone())
+                        .unwrap_or_else(|| vec![f64::NAN; self.axes.len()]);
+                    for (a, v) in targets.into_iter().enumerate() {
+                        if let Some(v) = v {
+                            cmd[a] = v;
+                        }
+                    }
+                    if cmd.iter().all(|v| v.is_finite()) {
+                        st.command(t, cmd.clone());
+                        self.commands.push((t, cmd));
+                    }
+                }
+            }
+            if self.stage_bytes as u32 == self.link.tx_bytes(1) {
+                return Ok(());
+            }
+            if start.elapsed() > Duration::from_secs(10) {
+                return Err(BenchError::Other(format!(
+                    "the stage controller took in {} of the {} bytes the board sent it",
+                    self.stage_bytes,
+                    self.link.tx_bytes(1)
+                )));
+            }
+            std::thread::sleep(Duration::from_micros(20));
+        }
+    }
+}
+
+impl Drop for VirtualBench {
+    fn drop(&mut self) {
+        self.stop_reference.store(true, Ordering::Release);
+    }
+}
+
+fn chip_as_lps(chip: &mut dyn super::chips::I2cChip) -> Option<&mut Lps22hb> {
+    chip.any_mut().downcast_mut::<Lps22hb>()
+}
+
+/// The targets of a `MOV` line for `axes` (None for an axis it does not move); None if the
+/// line is not a MOV.
+fn parse_mov(line: &str, axes: &[String]) -> Option<Vec<Option<f64>>> {
+    let t: Vec<&str> = line.split_whitespace().collect();
+    let at = t.iter().position(|w| w.eq_ignore_ascii_case("MOV"))?;
+    let mut out = vec![None; axes.len()];
+    for pair in t[at + 1..].chunks(2) {
+        if let [a, v] = pair {
+            if let (Some(i), Ok(v)) = (axes.iter().position(|x| x == a), v.parse::<f64>()) {
+                out[i] = Some(v);
+            }
+        }
+    }
+    Some(out)
+}
+
+fn serve_interferometer(
+    listener: TcpListener,
+    link: Arc<BenchLink>,
+    stage: Arc<Mutex<TwinStage>>,
+    offset_s: f64,
+    stop: Arc<AtomicBool>,
+) {
+    let Ok((mut s, _)) = listener.accept() else {
+        return;
+    };
+    s.set_nodelay(true).ok();
+    let (period, first) = {
+        let st = stage.lock().unwrap();
+        (st.period_s(), -super::twin_stage::PRE_ROLL_S)
+    };
+    let _ = writeln!(
+        s,
+        "# nanocal virtual interferometer: the digital twin; t = plan time (s), position per axis (um)"
+    );
+    let mut k: u64 = 0;
+    let mut seen = 0;
+    let mut out = String::new();
+    while !stop.load(Ordering::Acquire) && !link.stopped() {
+        seen = link.wait_advanced(seen, Duration::from_millis(100));
+        let now = link.now_s() - offset_s;
+        out.clear();
+        {
+            let mut st = stage.lock().unwrap();
+            let end = st.end_s();
+            loop {
+                let t = first + k as f64 * period;
+                if t >= now || t > end {
+                    break;
+                }
+                let m = st.measure(t);
+                use std::fmt::Write as _;
+                let _ = write!(out, "{t:.3}");
+                for v in m {
+                    let _ = write!(out, " {v:.6}");
+                }
+                out.push('\n');
+                k += 1;
+            }
+        }
+        if !out.is_empty() && s.write_all(out.as_bytes()).is_err() {
+            return;
+        }
+    }
+}
+
+impl BenchDriver for VirtualBench {
+    fn now_s(&self) -> f64 {
+        self.link.now_s() - self.offset_s
+    }
+
+    fn wait_until(&mut self, t_s: f64, stop: &AtomicBool) -> Result<bool, BenchError> {
+        if stop.load(Ordering::Acquire) {
+            return Ok(false);
+        }
+        self.sync_stage()?;
+        self.clock
+            .advance_to(t_s + self.offset_s, Duration::from_secs(60))?;
+        Ok(true)
+    }
+
+    fn exchange(&mut self, op: &mut (dyn FnMut() + Send)) -> Result<(), BenchError> {
+        let mut result = Ok(());
+        std::thread::scope(|sc| {
+            let h = sc.spawn(op);
+            let mut idle_since: Option<Instant> = None;
+            while !h.is_finished() {
+                if self.settled() {
+                    // the board took the request in and waits: for its own time (a flash erase)
+                    let since = *idle_since.get_or_insert_with(Instant::now);
+                    if since.elapsed() > Duration::from_micros(300) {
+                        let next = self.link.now_s() + NUDGE_S;
+                        if let Err(e) = self.clock.advance_to(next, Duration::from_secs(60)) {
+                            result = Err(e.into());
+                            break;
+                        }
+                        idle_since = None;
+                    }
+                } else {
+                    idle_since = None;
+                }
+                std::thread::sleep(Duration::from_micros(20));
+            }
+        });
+        result
+    }
+
+    fn stage_commands(&mut self) -> Option<Vec<(f64, Vec<f64>)>> {
+        if self.sync_stage().is_err() {
+            return None;
+        }
+        Some(std::mem::take(&mut self.commands))
+    }
+
+    fn describe(&self) -> String {
+        "virtual bench (QEMU firmware, digital twin; the board's clock in lockstep)".into()
+    }
+}

@@ -4,7 +4,8 @@
 //! drive the same code natively. The calibration model itself (terms, fold, blob) lives in
 //! `nanocal-model`; this crate is what the device does with it:
 //!
-//! - [`gcs`]: GCS line assembly, numbers, axis/value lists;
+//! - [`gcs`]: GCS syntax: mnemonics, numbers in fixed point, axis/value lists, addresses;
+//! - [`command`]: what each GCS command does to the stage (corrected, refused, forgets targets);
 //! - [`proxy`]: the GCS proxy (targets corrected, position replies mapped back, refusals);
 //! - [`sensor`] and [`fault`]: temperature-amplifier frames and the sensor fault policy;
 //! - [`mgmt`], [`upload`], [`slots`]: the management protocol, chunked upload, model storage.
@@ -18,6 +19,7 @@
 #[cfg(any(test, feature = "std"))]
 extern crate std;
 
+pub mod command;
 pub mod fault;
 pub mod gcs;
 pub mod mgmt;

@@ -348,6 +348,9 @@ pub mod flags {
     pub const EXTRAPOLATING: u16 = 1 << 3;
     /// An upload is in progress.
     pub const UPLOADING: u16 = 1 << 4;
+    /// Moves are refused: the controller's position unit (`PUN?`) is not the model's µm, or
+    /// the controller did not tell it (GCS error 9007 on the host's `ERR?`).
+    pub const UNIT_MISMATCH: u16 = 1 << 5;
 }
 
 /// The device's status report.

@@ -28,14 +28,45 @@ fn require_qemu(test: &str) -> bool {
     false
 }
 
-const REGIONS: [&str; 7] = [
+const REGIONS: [&str; 14] = [
     "empty loop (overhead, subtracted)",
     "`Fold::correct`, 1-DoF, 8 terms",
     "`Fold::correct`, 2-DoF, 40 terms",
-    "`MOV` line through the proxy (parse, correct, format), 1-DoF",
+    "`MOV` line through the proxy (host bytes in, corrected line out), 1-DoF, 8 terms",
     "`Model::eval_f64`, 1-DoF (soft-float f64 reference)",
-    "`Fold::inverse`, 1-DoF (POS?/MOV? replies)",
+    "`Fold::inverse`, 1-DoF, 8 terms (the model's own inverse)",
     "`Model::fold`, 2-DoF, 40 terms (slow path; N/10 iterations)",
+    "published 1-DoF: `MOV` line + `POS? 1` + its reply 3 nm off the command, mapped",
+    "published 1-DoF: `MOV` line alone (subtracted from the two rounds)",
+    "published 1-DoF: `MOV` line + `MOV? 1` + its reply equal to the command, mapped",
+    "published 1-DoF: `HLT 1` + `POS? 1` + its reply, mapped with no target known",
+    "published 1-DoF: `HLT 1` line alone (subtracted)",
+    "8-term 1-DoF: `MOV` line + `POS? 1` + its reply 3 nm off the command, mapped",
+    "published 1-DoF: `Fold::inverse` (the model's own inverse)",
+];
+
+/// Derived figures: (name, region, region subtracted).
+const DERIVED: [(&str, usize, usize); 4] = [
+    (
+        "published 1-DoF: `POS?` mapping (query line + reply mapped; warm start at the target)",
+        7,
+        8,
+    ),
+    (
+        "published 1-DoF: `MOV?` mapping (query line + reply equal to the command sent)",
+        9,
+        8,
+    ),
+    (
+        "published 1-DoF: `POS?` mapping with no target known (cold start at the reply)",
+        10,
+        11,
+    ),
+    (
+        "8-term 1-DoF: `POS?` mapping (warm start at the target)",
+        12,
+        3,
+    ),
 ];
 
 #[test]
@@ -102,10 +133,14 @@ fn fw_bench_instructions() {
     let n = 1000.0;
     let overhead = c[0] as f64 / n;
     println!("\n| region | guest instructions per call |\n|---|---:|");
+    let mut per = vec![];
     for (i, name) in REGIONS.iter().enumerate() {
         let iters = if i == 6 { n / 10.0 } else { n };
-        let per = c[i] as f64 / iters - if i == 0 { 0.0 } else { overhead };
-        println!("| {name} | {per:.0} |");
+        per.push(c[i] as f64 / iters - if i == 0 { 0.0 } else { overhead });
+        println!("| {name} | {:.0} |", per[i]);
+    }
+    for (name, a, b) in DERIVED {
+        println!("| {name} | {:.0} |", per[a] - per[b]);
     }
     let _ = std::fs::remove_dir_all(&dir);
 }

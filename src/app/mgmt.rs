@@ -285,6 +285,9 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
         if c.proxy.gate == Gate::SensorFault {
             s.flags |= flags::SENSOR_BLOCK;
         }
+        if c.proxy.unit_mismatch() {
+            s.flags |= flags::UNIT_MISMATCH;
+        }
         let k = c.proxy.counters;
         s.host_lines = k.host_lines;
         s.moves = k.moves;

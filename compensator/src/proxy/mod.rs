@@ -173,6 +173,16 @@ impl Targets {
         self.q[a] = q;
         self.known |= 1 << a;
     }
+    /// These targets, with `other`'s for the axes not known here.
+    pub fn merged(&self, other: &Targets) -> Targets {
+        let mut m = *self;
+        for a in 0..MAP_AXES {
+            if m.known >> a & 1 == 0 && other.known >> a & 1 != 0 {
+                m.set(a, other.x[a], other.q[a]);
+            }
+        }
+        m
+    }
 }
 
 /// The controller's position unit of the model axes.
@@ -252,6 +262,9 @@ pub struct Proxy {
 pub struct ProxyState {
     map: AxisMap,
     targets: Targets,
+    /// Targets re-seeded from the controller's `MOV?` for the held line that asked; they become
+    /// the proxy's targets only if that line's move goes out.
+    reseed: Targets,
     dir: [i8; MAP_AXES],
     /// Last error the compensator raised, for the next `ERR?` (0 = none).
     pending_error: i32,
@@ -300,6 +313,7 @@ impl Proxy {
             st: ProxyState {
                 map,
                 targets: Targets::default(),
+                reseed: Targets::default(),
                 dir: [0; MAP_AXES],
                 pending_error: 0,
                 ctrl: ControllerInfo::new(),
@@ -473,6 +487,7 @@ impl Proxy {
             st.forget(None);
             if st.held.take().is_some() {
                 st.counters.refused = st.counters.refused.wrapping_add(1);
+                st.reseed = Targets::default();
             }
             self.input.clear();
             self.long = LongLine::None;
@@ -647,6 +662,7 @@ impl ProxyState {
             }
             Action::UnitQuery => self.query(Expect::Snoop(Info::Units), s.command, line, out),
             Action::VersionQuery => self.query(Expect::Snoop(Info::Version), s.command, line, out),
+            Action::ErrorQuery => self.query(Expect::Snoop(Info::Error), s.command, line, out),
             Action::AxesQuery if s.args.is_empty() => {
                 self.query(Expect::Snoop(Info::Axes), s.command, line, out)
             }
@@ -862,6 +878,7 @@ impl ProxyState {
         }
         if let Some(line) = self.held.take() {
             self.process_line(c, line.as_bytes(), out, false);
+            self.reseed = Targets::default();
         }
     }
 

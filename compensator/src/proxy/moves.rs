@@ -49,7 +49,9 @@ impl ProxyState {
         let all = (1u8 << n) - 1;
         // the arguments, in one pass: new targets `x` (micros) of the model axes in `set`, the
         // model axes `named`, how many arguments name `others`
-        let mut x = self.targets.x;
+        // the bases: the targets the proxy knows, else those just re-seeded for this line
+        let base = self.targets.merged(&self.reseed);
+        let mut x = base.x;
         let (mut named, mut set, mut others, mut any) = (0u8, 0u8, 0usize, false);
         let mut toks = gcs::tokens(s.args);
         while let Some(id) = toks.next() {
@@ -69,7 +71,7 @@ impl ProxyState {
                     if kind != MoveKind::Relative {
                         x[a] = v;
                         set |= 1 << a;
-                    } else if self.targets.known >> a & 1 != 0 {
+                    } else if base.known >> a & 1 != 0 {
                         x[a] = x[a].saturating_add(v);
                         set |= 1 << a;
                     }
@@ -92,7 +94,7 @@ impl ProxyState {
             return Ok(());
         }
         // the axes the command does not set keep their targets (already in `x`)
-        let keep = all & !set & self.targets.known;
+        let keep = all & !set & base.known;
 
         let units_ok = match self.ctrl.units {
             Units::Micrometre(k) => k == n,

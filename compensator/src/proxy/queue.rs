@@ -22,6 +22,9 @@ pub(crate) enum Info {
     Axes,
     /// `MOV?` of the model axes: targets to re-seed from.
     Targets,
+    /// The host's `ERR?` answered by the controller: a non-zero code may mean the controller
+    /// refused a move the proxy forwarded, so the proxy forgets its targets.
+    Error,
 }
 
 /// The proxy's own answer to the host's `ERR?`: the code, after the address prefix a

@@ -419,6 +419,18 @@ impl ProxyState {
                 self.ctrl.axes = Some((ids, k));
             }
             Info::Targets => self.reseed(c, lines),
+            Info::Error => {
+                // (after an address prefix, if any)
+                let code = lines_of(lines)
+                    .next()
+                    .and_then(|l| gcs::tokens(l).last())
+                    .map(gcs::parse_micros);
+                if !matches!(code, Some(Ok(0))) {
+                    // the controller may have refused a move the proxy sent (servo off, not
+                    // referenced, limits): the targets it holds are not the ones sent
+                    self.forget(None);
+                }
+            }
         }
     }
 
@@ -440,7 +452,9 @@ impl ProxyState {
         };
     }
 
-    /// `MOV?` reply to the proxy's own query: the targets the controller holds, mapped back.
+    /// `MOV?` reply to the proxy's own query: the targets the controller holds, mapped back
+    /// (the whole vector: a coupled model needs every axis), for the axes whose targets the
+    /// proxy forgot.
     fn reseed<C: Corrector>(&mut self, c: Option<&C>, lines: &[u8]) {
         let Some(c) = c else { return };
         let n = c.axes().min(MAP_AXES);
@@ -467,9 +481,15 @@ impl ProxyState {
             self.counters.inverse_failures = self.counters.inverse_failures.wrapping_add(1);
             return;
         };
+        // the axes whose targets were forgotten take the calibrated position of the
+        // controller's targets (for the held line; kept if its move goes out); the others keep
+        // the targets the host set
         for a in 0..n {
+            if self.targets.known >> a & 1 != 0 {
+                continue;
+            }
             if let (Some(xa), Some(qa)) = (gcs::f32_to_micros(x[a]), q[a]) {
-                self.targets.set(a, xa, qa);
+                self.reseed.set(a, xa, qa);
             }
         }
     }
@@ -503,7 +523,7 @@ impl ProxyState {
             // an older GCS 2 controller without CSV?
             Info::Version => self.ctrl.version = Version::Gcs2,
             Info::Units => self.ctrl.units = Units::Unanswered,
-            Info::Axes | Info::Targets => {}
+            Info::Axes | Info::Targets | Info::Error => {}
         }
     }
 }

@@ -168,6 +168,9 @@ pub enum Event {
     RawMotion {
         /// The command line (or `#n`).
         command: String,
+        /// The axes it names (empty: axes the controller cannot tell from the command — a
+        /// wave generator, a macro — so any axis).
+        axes: Vec<usize>,
     },
     /// Targets were dropped: the axes stopped (`HLT`, `STP`, `#24`), were referenced, or the
     /// servo changed; the target is now wherever the axis is.
@@ -259,7 +262,9 @@ impl Controller {
     }
 
     /// The target of an axis (controller units).
-    pub fn target(&self, axis: usize) -> f64 {
+    pub fn target(&mut self, axis: usize) -> f64 {
+        let t = self.clock.now_s();
+        self.update(t);
         self.axes[axis].target
     }
 
@@ -484,9 +489,10 @@ impl Controller {
         Ok(())
     }
 
-    fn raw(&mut self, line: &str) {
+    fn raw(&mut self, line: &str, axes: Vec<usize>) {
         self.events.push(Event::RawMotion {
             command: line.trim().to_string(),
+            axes,
         });
     }
 
@@ -702,8 +708,20 @@ impl Controller {
                 Ok(None)
             }
             // moves that are not closed-loop targets: recorded, then what the controller does
-            "STE" | "IMP" | "SVA" | "SVR" | "SMO" | "OMA" | "OMR" | "JOG" | "WAV" | "WTR" | "ATZ" => {
-                self.raw(line);
+            "STE" | "IMP" | "SVA" | "SVR" | "SMO" | "OMA" | "OMR" | "JOG" | "ATZ" => {
+                // the axes named (every other token for {axis value} pairs)
+                let step = if m == "ATZ" { 1 } else { 2 };
+                let axes: Vec<usize> = args
+                    .iter()
+                    .step_by(step)
+                    .filter_map(|id| self.axis_index(id))
+                    .collect();
+                let axes = if args.is_empty() {
+                    (0..n).collect()
+                } else {
+                    axes
+                };
+                self.raw(line, axes);
                 if matches!(m, "SVA" | "SVR" | "SMO" | "OMA" | "OMR") {
                     let p = self.pairs(args)?;
                     if p.iter().any(|&(a, _)| self.axes[a].servo) {
@@ -713,14 +731,18 @@ impl Controller {
                 }
                 Ok(None)
             }
+            "WAV" | "WTR" => {
+                self.raw(line, vec![]);
+                Ok(None)
+            }
             "WGO" => {
                 if args.chunks(2).any(|c| c.get(1).is_some_and(|v| *v != "0")) {
-                    self.raw(line);
+                    self.raw(line, vec![]);
                 }
                 Ok(None)
             }
             "MAC START" | "MAC NSTART" | "MAC BEG" | "MAC DEF" => {
-                self.raw(line);
+                self.raw(line, vec![]);
                 Err(1013)
             }
             m if m.starts_with("MAC") => Ok(None),

@@ -428,8 +428,10 @@ pub fn parse_micros(s: &[u8]) -> Result<i64, GcsError> {
 }
 
 /// The usual numbers — `[-+]ddd[.dddddd]`, at most nine integer and six fraction digits — in
-/// 32-bit arithmetic; `None` for anything else (left to the general parser).
-fn parse_micros_short(s: &[u8]) -> Option<i64> {
+/// 32-bit arithmetic; `None` for anything else (then [`parse_micros`] decides). Inlined where a
+/// target is parsed.
+#[inline(always)]
+pub fn parse_micros_short(s: &[u8]) -> Option<i64> {
     let mut i = 0;
     let neg = match s.first() {
         Some(b'-') => {
@@ -904,10 +906,4 @@ pub fn parse_axis_value(line: &[u8]) -> Option<AxisValue<'_>> {
         value,
         continued,
     })
-}
-
-/// True when a reply line is not the last of its reply (ends with a space before LF).
-pub fn is_continued(line: &[u8]) -> bool {
-    let line = line.strip_suffix(b"\r").unwrap_or(line);
-    line.last() == Some(&b' ')
 }

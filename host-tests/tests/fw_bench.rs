@@ -199,6 +199,12 @@ fn fw_bench_latency_throughput() {
         std::thread::sleep(Duration::from_millis(50));
     }
 
+    // the first move waits for the controller's syntax version and unit: not measured
+    host.send("MOV 1 10");
+    for want in ["CSV?", "PUN? 1", "MOV 1 "] {
+        let l = stage.next_line(Duration::from_secs(10));
+        assert!(l.starts_with(want), "{l}");
+    }
     let one_way = |host: &mut fw_sim::GcsHost, k: usize| {
         let t = Instant::now();
         host.send(&format!("MOV 1 {}", 10.0 + (k % 400) as f64));

@@ -703,15 +703,15 @@ impl ProxyState {
             // "MOV " in any case: one word compare (OR 0x20 folds only these letters' cases)
             let w = u32::from_le_bytes([line[0], line[1], line[2], line[3]]);
             if w | 0x0020_2020 == u32::from_le_bytes(*b"mov ") {
-                let mut end = line.len();
-                while end > 4 && matches!(line[end - 1], b'\r' | b' ') {
-                    end -= 1;
+                let mut args = &line[4..];
+                while let [rest @ .., b'\r' | b' '] = args {
+                    args = rest;
                 }
                 let s = Split {
                     prefix: &[],
                     command: &line[..3],
                     key: gcs::key(b"MOV"),
-                    args: &line[4..end],
+                    args,
                 };
                 self.move_line(c, &s, command::MoveKind::Absolute, line, out, true);
                 return;

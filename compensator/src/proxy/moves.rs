@@ -50,7 +50,13 @@ impl ProxyState {
         // the arguments, in one pass: new targets `x` (micros) of the model axes in `set`, the
         // model axes `named`, how many arguments name `others`
         // the bases: the targets the proxy knows, else those just re-seeded for this line
-        let base = self.targets.merged(&self.reseed);
+        let merged;
+        let base = if self.reseed.known == 0 {
+            &self.targets
+        } else {
+            merged = self.targets.merged(&self.reseed);
+            &merged
+        };
         let mut x = base.x;
         let (mut named, mut set, mut others, mut any) = (0u8, 0u8, 0usize, false);
         let mut toks = gcs::tokens(s.args);
@@ -60,7 +66,12 @@ impl ProxyState {
                 0
             } else {
                 let text = toks.next().ok_or(Stop::Refuse(codes::PARAM_SYNTAX))?;
-                gcs::parse_micros(text).map_err(|_| Stop::Refuse(codes::PARAM_SYNTAX))?
+                match gcs::parse_micros_short(text) {
+                    Some(v) => v,
+                    None => {
+                        gcs::parse_micros(text).map_err(|_| Stop::Refuse(codes::PARAM_SYNTAX))?
+                    }
+                }
             };
             match self.map.index(id).filter(|&a| a < n) {
                 Some(a) => {
@@ -204,11 +215,8 @@ impl ProxyState {
     ) -> Result<(), GcsError> {
         let o = &mut out.to_stage;
         let is_model = |id: &[u8]| self.map.index(id).is_some_and(|a| a < n);
-        // the other axes' pairs as they came (identifier, value text)
-        let raw_pairs = || {
-            let mut t = gcs::tokens(s.args);
-            core::iter::from_fn(move || Some((t.next()?, t.next()?)))
-        };
+        // the other axes' pairs as they came (identifier, value text; every value parsed before)
+        let raw_pairs = || gcs::pairs(s.args).flatten().map(|(id, _, text)| (id, text));
         if matches!(kind, MoveKind::Absolute | MoveKind::Vector) {
             for (id, text) in raw_pairs().filter(|p| !is_model(p.0)) {
                 o.push(b' ')?;

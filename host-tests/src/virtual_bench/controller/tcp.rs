@@ -16,9 +16,14 @@ pub struct StageSim {
 }
 
 impl StageSim {
-    /// An E-727 with `axes` axes, servo already on, on ideal stages and the wall clock.
+    /// An E-727 with `axes` axes, servo already on, on ideal stages that arrive at once, and
+    /// the wall clock.
     pub fn start(s: TcpStream, axes: usize) -> Self {
-        Self::serve(s, Config::e727(axes).ready())
+        let mut cfg = Config::e727(axes).ready();
+        for a in &mut cfg.axes {
+            a.velocity = 1e12;
+        }
+        Self::serve(s, cfg)
     }
 
     /// A controller with configuration `cfg` on ideal stages and the wall clock.

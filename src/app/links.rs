@@ -6,7 +6,7 @@
 //! arrive; a line the proxy holds until the controller answered its own query is resumed from
 //! the stage link, which also gives the proxy the time for its reply timeout.
 
-use super::{read_some, Shared, PIPE_LEN};
+use super::{read_some, Core, Shared, PIPE_LEN};
 use embassy_futures::join::join;
 use embassy_futures::select::{select, Either};
 use embassy_time::{Instant, Timer};
@@ -41,6 +41,26 @@ async fn send(sh: &Shared, out: &Output) {
     }
 }
 
+/// Hand `buf` to the proxy through `step` until it has taken all of it, sending what it
+/// produces each time. (When it takes nothing and produces nothing, a held line fills its
+/// input: wait for the controller's answer.)
+async fn feed(
+    sh: &Shared,
+    buf: &[u8],
+    out: &mut Output,
+    step: impl Fn(&mut Core, &[u8], &mut Output) -> usize,
+) {
+    let mut i = 0;
+    while i < buf.len() {
+        let used = sh.core.lock(|c| step(&mut c.borrow_mut(), &buf[i..], out));
+        i += used;
+        send(sh, out).await;
+        if used == 0 && out.is_empty() {
+            Timer::after_millis(1).await;
+        }
+    }
+}
+
 /// Host lines received earlier that the proxy can process now (after the controller answered
 /// a held line's query), and the proxy's own answers that are due.
 async fn resume(sh: &Shared, out: &mut Output) {
@@ -69,21 +89,10 @@ pub async fn host_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) -> 
         let mut buf = [0u8; 64];
         loop {
             let n = read_some(&mut rx, &mut buf).await;
-            let mut i = 0;
-            while i < n {
-                let used = sh.core.lock(|c| {
-                    let mut c = c.borrow_mut();
-                    let c = &mut *c;
-                    c.proxy
-                        .host_bytes(c.comp.as_ref(), &buf[i..n], now_ms(), &mut out)
-                });
-                i += used;
-                send(sh, &out).await;
-                if used == 0 && out.is_empty() {
-                    // a held line fills the proxy's input: wait for the controller's answer
-                    Timer::after_millis(1).await;
-                }
-            }
+            feed(sh, &buf[..n], &mut out, |c, b, out| {
+                c.proxy.host_bytes(c.comp.as_ref(), b, now_ms(), out)
+            })
+            .await;
         }
     };
     join(rx_loop, pump(&sh.to_host, &mut tx)).await;
@@ -99,20 +108,10 @@ pub async fn stage_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) ->
         loop {
             match select(read_some(&mut rx, &mut buf), Timer::after_millis(POLL_MS)).await {
                 Either::First(n) => {
-                    let mut i = 0;
-                    while i < n {
-                        let used = sh.core.lock(|c| {
-                            let mut c = c.borrow_mut();
-                            let c = &mut *c;
-                            c.proxy
-                                .stage_bytes(c.comp.as_ref(), &buf[i..n], now_ms(), &mut out)
-                        });
-                        i += used;
-                        send(sh, &out).await;
-                        if used == 0 && out.is_empty() {
-                            Timer::after_millis(1).await;
-                        }
-                    }
+                    feed(sh, &buf[..n], &mut out, |c, b, out| {
+                        c.proxy.stage_bytes(c.comp.as_ref(), b, now_ms(), out)
+                    })
+                    .await
                 }
                 Either::Second(()) => {
                     sh.core.lock(|c| {

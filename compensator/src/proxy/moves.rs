@@ -215,26 +215,24 @@ impl ProxyState {
     ) -> Result<(), GcsError> {
         let o = &mut out.to_stage;
         let is_model = |id: &[u8]| self.map.index(id).is_some_and(|a| a < n);
-        // the other axes' pairs as they came (identifier, value text; every value parsed before)
-        let raw_pairs = || gcs::pairs(s.args).flatten().map(|(id, _, text)| (id, text));
-        if matches!(kind, MoveKind::Absolute | MoveKind::Vector) {
-            for (id, text) in raw_pairs().filter(|p| !is_model(p.0)) {
+        // the other axes' pairs as they came (every value was parsed before)
+        let other_pairs = |o: &mut gcs::LineBuf<{ super::STAGE_OUT }>| -> Result<(), GcsError> {
+            for (id, _, text) in gcs::pairs(s.args).flatten().filter(|p| !is_model(p.0)) {
                 o.push(b' ')?;
                 o.extend(id)?;
                 o.push(b' ')?;
                 o.extend(text)?;
             }
+            Ok(())
+        };
+        if matches!(kind, MoveKind::Absolute | MoveKind::Vector) {
+            other_pairs(o)?;
         }
         o.push(b'\n')?;
         if kind == MoveKind::Relative {
             o.extend(s.prefix)?;
             o.extend(b"MVR")?;
-            for (id, text) in raw_pairs().filter(|p| !is_model(p.0)) {
-                o.push(b' ')?;
-                o.extend(id)?;
-                o.push(b' ')?;
-                o.extend(text)?;
-            }
+            other_pairs(o)?;
             o.push(b'\n')?;
         }
         if kind == MoveKind::Home {

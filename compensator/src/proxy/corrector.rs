@@ -20,9 +20,10 @@ pub struct Corrected {
 ///   of a position reply iterates on it (a chord method warm-started at the last target, see
 ///   `proxy::inverse`) and differentiates it by finite differences. A model with per-command
 ///   state (play operators of a hysteresis bank, fast inputs) must therefore not advance that
-///   state inside `correct`; it advances it when a target is actually sent, which is the one
-///   place in `proxy::moves` that stores a new target (`Proxy::commit_targets`), through a
-///   method to be added here then.
+///   state inside `correct`; it advances it when a target is actually sent — the one place
+///   that stores new targets, at the end of `ProxyState::rewrite_move` in `proxy/moves.rs`
+///   ("the one place a corrected target goes out") — through a method to be added here then
+///   (the proxy would then hold the corrector mutably).
 /// - [`inverse`](Corrector::inverse) is the model's own inverse, the fallback when the proxy's
 ///   iteration does not converge.
 /// - Positions are in the model's unit, µm; the proxy refuses to correct for a controller whose

@@ -6,9 +6,10 @@
 //! letter case. Commands that would move a model axis to a target the model never saw (open-loop
 //! values, step/impulse responses, wave generator, macros, trajectories, scans, …) are refused
 //! with a GCS error while compensating, see [`crate::command`]. Commands after which the
-//! controller's target is no longer the one the proxy sent (`HLT`, `STP`, `#24`, `FRF`, `SVO`, …)
-//! make the proxy forget it; a later move that needs it re-seeds it from the controller's `MOV?`
-//! (the line waits for that one answer). Single-character commands pass at once, even in the
+//! controller's target is no longer the one the proxy sent (`HLT`, `STP`, `#24`, `FRF`, `SVO`, …,
+//! and a non-zero answer of the controller to the host's `ERR?`: it may have refused a move) make
+//! the proxy forget it; a later move that needs it re-seeds it from the controller's `MOV?` (the
+//! line waits for that one answer). Single-character commands pass at once, even in the
 //! middle of a line. Everything else is forwarded untouched; a line longer than the proxy's
 //! buffer that it does not have to rewrite is streamed through.
 //!
@@ -16,7 +17,7 @@
 //! coordinates (a `MOV?` value equal to the command sent maps back to its target exactly; other
 //! values through a chord iteration warm-started at the target, see `inverse`); every other
 //! reply is relayed byte for byte, whatever its length. Several queries may be in flight: each
-//! reply is matched to its query in order ([`queue`]).
+//! reply is matched to its query in order (`queue`).
 //!
 //! Refusals: nothing is forwarded and the error is kept for the host's next `ERR?`, which the
 //! proxy then answers itself, with the address prefix swapped as a daisy-chained controller

@@ -70,7 +70,8 @@ pub struct Config {
     pub servo_on_at_start: bool,
     /// The axes.
     pub axes: Vec<AxisConfig>,
-    /// Mnemonics the controller knows (listed by `HLP?`); others are error 2.
+    /// Mnemonics the controller knows (listed by `HLP?`); others are error 2. The presets list
+    /// the commands the compensator meets on that controller, not its manual's complete set.
     pub commands: Vec<&'static str>,
 }
 

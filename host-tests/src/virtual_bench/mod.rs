@@ -10,7 +10,10 @@ pub mod qemu;
 pub mod sensors;
 pub mod twin_stage;
 
-pub use controller::StageSim;
+pub use controller::{
+    AxisConfig, Clock, Config, Controller, Event, IdealPlant, ManualClock, Plant, StageSim,
+    SystemClock,
+};
 pub use link::{BenchClock, BenchLink};
 pub use qemu::{bench_elf, have_qemu, qemu_elf, repo_root, Elf, GcsHost, Qemu};
 pub use sensors::{Buses, SensorSim};

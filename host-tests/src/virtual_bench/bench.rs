@@ -7,7 +7,7 @@
 //! campaign lets it reach.
 
 use super::chips::{max31856::TempSource, Lps22hb, Max31856};
-use super::controller::StageSim;
+use super::controller::{Clock, Config, Controller, IdealPlant, Plant, StageSim};
 use super::link::{BenchClock, BenchLink};
 use super::qemu::Qemu;
 use super::sensors::Buses;
@@ -58,15 +58,63 @@ pub struct VirtualBench {
     clock: BenchClock,
     stage: Arc<Mutex<TwinStage>>,
     stage_sim: StageSim,
-    /// Bytes of the stage link the controller has taken in.
-    stage_bytes: u64,
+    /// Commands already handed to the campaign.
+    commands_seen: usize,
     sent: [Arc<AtomicU64>; 2],
     /// Bench time of plan time 0, s.
     offset_s: f64,
     reference_port: u16,
-    axes: Vec<String>,
-    commands: Vec<(f64, Vec<f64>)>,
     stop_reference: Arc<AtomicBool>,
+}
+
+/// The board's clock in plan time: the simulated controller stamps what it receives with it.
+struct PlanClock {
+    link: Arc<BenchLink>,
+    offset_s: f64,
+}
+
+impl Clock for PlanClock {
+    fn now_s(&self) -> f64 {
+        self.link.now_s() - self.offset_s
+    }
+}
+
+/// The twin as the controller's stage: the controller's own sensor follows its drive commands
+/// at once and exactly (closed loop on the E-727's capacitive sensors); where the stage really
+/// goes is the twin's business ([`TwinStage`]), which learns every target the moment the
+/// controller accepts it.
+struct TwinPlant {
+    ideal: IdealPlant,
+    targets: Vec<f64>,
+    stage: Arc<Mutex<TwinStage>>,
+}
+
+impl TwinPlant {
+    fn tell(&self, t_s: f64) {
+        self.stage
+            .lock()
+            .unwrap()
+            .command(t_s, self.targets.clone());
+    }
+}
+
+impl Plant for TwinPlant {
+    fn drive(&mut self, axis: usize, target: f64, velocity: f64, t_s: f64) {
+        self.ideal.drive(axis, target, velocity, t_s);
+        self.targets[axis] = target;
+        self.tell(t_s);
+    }
+    fn stop(&mut self, axis: usize, t_s: f64) {
+        self.ideal.stop(axis, t_s);
+        self.targets[axis] = self.ideal.position(axis, t_s);
+        self.tell(t_s);
+    }
+    fn position(&self, axis: usize, t_s: f64) -> f64 {
+        self.ideal.position(axis, t_s)
+    }
+    fn settled(&self, axis: usize, t_s: f64) -> bool {
+        self.ideal.settled(axis, t_s)
+    }
 }
 
 impl VirtualBench {
@@ -82,12 +130,36 @@ impl VirtualBench {
         plan_at_boot_s: f64,
     ) -> Self {
         let mut qemu = Qemu::start(&[]);
+        let _ = &mut qemu;
         let link = qemu.link();
         let clock = qemu.clock();
         let axes_n = twin.cfg.axes;
         let stage = Arc::new(Mutex::new(TwinStage::new(twin, traj, start_abs_s, stream)));
-        let stage_sim = StageSim::start(qemu.connect(1), axes_n);
         let offset_s = -plan_at_boot_s;
+        // an E-727 whose axes rest at the plan's first pose, servo on
+        let first: Vec<f64> = traj
+            .dwells
+            .first()
+            .map(|d| d.cmd_um.clone())
+            .unwrap_or(vec![0.0; axes_n]);
+        let mut cfg = Config::e727(axes_n).ready();
+        for (a, ax) in cfg.axes.iter_mut().enumerate() {
+            ax.start = first[a];
+        }
+        let plant = TwinPlant {
+            ideal: IdealPlant::new(&first),
+            targets: first,
+            stage: stage.clone(),
+        };
+        let ctl = Controller::new(
+            cfg,
+            Box::new(plant),
+            Arc::new(PlanClock {
+                link: link.clone(),
+                offset_s,
+            }),
+        );
+        let stage_sim = StageSim::serve_controller(qemu.connect(1), ctl);
 
         // the sensor chips read the twin's room at the board's clock
         let mut buses = Buses::default();
@@ -130,20 +202,16 @@ impl VirtualBench {
         }
         clock.lockstep();
         let sent = [Arc::new(AtomicU64::new(0)), Arc::new(AtomicU64::new(0))];
-        let axes = (1..=axes_n).map(|a| a.to_string()).collect();
-        let _ = &mut qemu;
         Self {
             qemu,
             link,
             clock,
             stage,
             stage_sim,
-            stage_bytes: 0,
+            commands_seen: 0,
             sent,
             offset_s,
             reference_port,
-            axes,
-            commands: Vec::new(),
             stop_reference,
         }
     }
@@ -198,57 +266,32 @@ impl VirtualBench {
         &self.qemu
     }
 
-    /// Every byte the bench sent to the board has been read by it, and the board is idle.
+    /// Every byte the bench and the controller sent to the board has been read by it, and the
+    /// board is idle.
     fn settled(&self) -> bool {
         COUNTED
             .iter()
             .zip(&self.sent)
             .all(|(&p, sent)| self.link.rx_bytes(p) == sent.load(Ordering::Acquire) as u32)
+            && self.link.rx_bytes(1) == self.stage_sim.bytes_out() as u32
             && self.link.idle_at_horizon()
     }
 
-    /// Take in what the controller received: each MOV is a command to the twin's stage at the
-    /// board's clock (frozen while the campaign exchanges with the board).
+    /// Wait until the controller has acted on every byte the board sent it: it stamps each
+    /// command with the board's clock, which must not move before.
     fn sync_stage(&mut self) -> Result<(), BenchError> {
         let start = Instant::now();
-        loop {
-            for line in self.stage_sim.drain() {
-                self.stage_bytes += if line.starts_with('#') && line.len() <= 3 {
-                    1
-                } else {
-                    line.len() as u64 + 1
-                };
-                if let Some(targets) = parse_mov(&line, &self.axes) {
-                    let t = self.link.now_s() - self.offset_s;
-                    let mut st = self.stage.lock().unwrap();
-                    let mut cmd = st
-                        .commands()
-                        .last()
-                        .map(|c| c.1.clone())
-                        .unwrap_or_else(|| vec![f64::NAN; self.axes.len()]);
-                    for (a, v) in targets.into_iter().enumerate() {
-                        if let Some(v) = v {
-                            cmd[a] = v;
-                        }
-                    }
-                    if cmd.iter().all(|v| v.is_finite()) {
-                        st.command(t, cmd.clone());
-                        self.commands.push((t, cmd));
-                    }
-                }
-            }
-            if self.stage_bytes as u32 == self.link.tx_bytes(1) {
-                return Ok(());
-            }
+        while self.stage_sim.bytes_in() as u32 != self.link.tx_bytes(1) {
             if start.elapsed() > Duration::from_secs(10) {
                 return Err(BenchError::Other(format!(
                     "the stage controller took in {} of the {} bytes the board sent it",
-                    self.stage_bytes,
+                    self.stage_sim.bytes_in(),
                     self.link.tx_bytes(1)
                 )));
             }
             std::thread::sleep(Duration::from_micros(20));
         }
+        Ok(())
     }
 }
 
@@ -260,22 +303,6 @@ impl Drop for VirtualBench {
 
 fn chip_as_lps(chip: &mut dyn super::chips::I2cChip) -> Option<&mut Lps22hb> {
     chip.any_mut().downcast_mut::<Lps22hb>()
-}
-
-/// The targets of a `MOV` line for `axes` (None for an axis it does not move); None if the
-/// line is not a MOV.
-fn parse_mov(line: &str, axes: &[String]) -> Option<Vec<Option<f64>>> {
-    let t: Vec<&str> = line.split_whitespace().collect();
-    let at = t.iter().position(|w| w.eq_ignore_ascii_case("MOV"))?;
-    let mut out = vec![None; axes.len()];
-    for pair in t[at + 1..].chunks(2) {
-        if let [a, v] = pair {
-            if let (Some(i), Ok(v)) = (axes.iter().position(|x| x == a), v.parse::<f64>()) {
-                out[i] = Some(v);
-            }
-        }
-    }
-    Some(out)
 }
 
 fn serve_interferometer(
@@ -373,7 +400,10 @@ impl BenchDriver for VirtualBench {
         if self.sync_stage().is_err() {
             return None;
         }
-        Some(std::mem::take(&mut self.commands))
+        let st = self.stage.lock().unwrap();
+        let new = st.commands()[self.commands_seen..].to_vec();
+        self.commands_seen = st.commands().len();
+        Some(new)
     }
 
     fn describe(&self) -> String {

@@ -87,12 +87,25 @@ fn fit_validate_report_round_trip_on_the_twin() {
         String::from_utf8_lossy(&out.stderr)
     );
     let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
-    let acc = |i: usize| v[i]["max_accuracy_um"].as_f64().unwrap();
+    let acc = |i: usize| v[i]["max_test_accuracy_um"].as_f64().unwrap();
     assert_eq!(v[0]["compensation"], "no model");
     assert!(
         acc(1) < acc(0) && acc(2) < acc(0),
         "static/adaptive not better: {v}"
     );
+    // per compensation: R_s (µm), R_t (µm/h) and every test's per-pose Acc
+    for i in 0..3 {
+        assert!(v[i]["r_s_um"].as_f64().unwrap() > 0.0);
+        assert!(v[i]["r_t_um_per_h"].as_f64().unwrap() > 0.0);
+        let tests = v[i]["tests"].as_array().unwrap();
+        assert!(!tests.is_empty());
+        let poses = tests[0]["poses"].as_array().unwrap();
+        let worst = poses
+            .iter()
+            .map(|p| p["accuracy_um"].as_f64().unwrap())
+            .fold(0.0, f64::max);
+        assert_eq!(worst, tests[0]["accuracy_um"].as_f64().unwrap());
+    }
     let plots = dir.join("plots");
     let out = nanocal()
         .arg("report")
@@ -112,6 +125,7 @@ fn fit_validate_report_round_trip_on_the_twin() {
         "drift_vs_temperature",
         "accuracy_per_pose",
         "error_over_time",
+        "test_accuracy_over_time",
     ] {
         for ext in ["png", "svg"] {
             let p = plots.join(format!("{f}.{ext}"));

@@ -8,6 +8,7 @@
 //! optional effects of its own) measures the position. Everything is deterministic from a seed.
 
 pub mod examples;
+pub mod execute;
 pub mod room;
 pub mod trajectory;
 
@@ -17,7 +18,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::effects::{lag_series, EffectSpec};
 use crate::recording::{Recording, RecordingError};
-pub use room::{Room, RoomConfig, SensorConfig};
+pub use room::{Ramp, Room, RoomConfig, SensorConfig};
 pub use trajectory::{Dwell, Trajectory};
 
 /// Axis names used for columns (`cmd_x`, `meas_x`, …).
@@ -45,7 +46,8 @@ pub struct TwinConfig {
     pub temp_ref_c: f64,
     /// The room.
     pub room: RoomConfig,
-    /// The temperature sensors (one `temp_` column each).
+    /// The spots whose temperature drives the stage, each read by a sensor (one `temp_`
+    /// column) unless it is unsensed.
     pub sensors: Vec<SensorConfig>,
     /// Positioning scatter: a fresh random offset per move, nm (1 σ).
     pub positioning_sigma_nm: f64,
@@ -325,6 +327,9 @@ impl Twin {
             columns.push((format!("meas_{}", AXIS_NAMES[a]), m));
         }
         for (s, spot) in cfg.sensors.iter().zip(&ctx.spot_c) {
+            if !s.recorded {
+                continue;
+            }
             let read = spot
                 .iter()
                 .map(|&v| room::quantize(v + s.noise_c * normal(&mut rng), s.resolution_c))

@@ -28,6 +28,35 @@ pub struct RoomConfig {
     pub pressure_mean_hpa: f64,
     /// Amplitude of weather pressure changes, hPa.
     pub pressure_amplitude_hpa: f64,
+    /// Planned changes of the room temperature (e.g. paper 000 Fig. 13: 1.3 °C over the last
+    /// two days of validation).
+    #[serde(default)]
+    pub ramps: Vec<Ramp>,
+}
+
+/// A linear change of the room temperature by `delta_c` from `start_s` over `duration_s`
+/// (absolute time), held afterwards.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Ramp {
+    /// Start, s (absolute time).
+    pub start_s: f64,
+    /// Duration, s (0: a step).
+    pub duration_s: f64,
+    /// Change, °C.
+    pub delta_c: f64,
+}
+
+impl Ramp {
+    /// The change at absolute time `t_s`, °C.
+    pub fn at(&self, t_s: f64) -> f64 {
+        if t_s <= self.start_s {
+            0.0
+        } else if self.duration_s <= 0.0 || t_s >= self.start_s + self.duration_s {
+            self.delta_c
+        } else {
+            self.delta_c * (t_s - self.start_s) / self.duration_s
+        }
+    }
 }
 
 impl Default for RoomConfig {
@@ -42,6 +71,7 @@ impl Default for RoomConfig {
             trend_c_per_day: 0.0,
             pressure_mean_hpa: 1013.25,
             pressure_amplitude_hpa: 6.0,
+            ramps: Vec::new(),
         }
     }
 }
@@ -61,6 +91,14 @@ pub struct SensorConfig {
     pub noise_c: f64,
     /// Reading resolution, °C (0 = none).
     pub resolution_c: f64,
+    /// Whether a sensor reads this spot (a `temp_` column); an unsensed spot still drives the
+    /// stage through its thermal coefficients — a part of the structure no sensor is on.
+    #[serde(default = "recorded_by_default")]
+    pub recorded: bool,
+}
+
+fn recorded_by_default() -> bool {
+    true
 }
 
 impl SensorConfig {
@@ -73,6 +111,15 @@ impl SensorConfig {
             gain,
             noise_c: 0.002,
             resolution_c: 0.001,
+            recorded: true,
+        }
+    }
+
+    /// A spot with the same thermal behaviour that no sensor reads.
+    pub fn unsensed(name: &str, offset_c: f64, tau_s: f64, gain: f64) -> Self {
+        Self {
+            recorded: false,
+            ..Self::new(name, offset_c, tau_s, gain)
         }
     }
 }
@@ -128,7 +175,8 @@ impl Room {
         };
         let hvac = c.hvac_amplitude_c * tri;
         let steps: f64 = self.steps.iter().filter(|s| s.0 <= t_s).map(|s| s.1).sum();
-        c.mean_c + daily + hvac + steps + c.trend_c_per_day * t_s / 86_400.0
+        let ramps: f64 = c.ramps.iter().map(|r| r.at(t_s)).sum();
+        c.mean_c + daily + hvac + steps + ramps + c.trend_c_per_day * t_s / 86_400.0
     }
 
     /// Barometric pressure at absolute time `t_s`, hPa.

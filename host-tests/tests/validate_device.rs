@@ -1,0 +1,112 @@
+//! Host validation evaluates exactly what the device evaluates.
+//!
+//! The published 1-DoF procedure (shortened) runs on the digital twin; the static model is
+//! fitted and the validation computes, for every visit, the target `x̂` for which the device
+//! would have sent the recorded command. Here each `MOV x̂` is sent through the compensator's
+//! own GCS proxy (`nanocal_compensator::proxy::Proxy`, the firmware's code) with the fold the
+//! device had in force at the time of the move (`DeviceSlowPath`: fold period, f32 readings, lag
+//! filters): the forwarded command must be the recorded one within 0.1 nm.
+
+use nanocal::design::DesignSpec;
+use nanocal::device_path::{DeviceSlowPath, DEVICE_FOLD_PERIOD_S};
+use nanocal::fit::{fit_dwells, FitOptions, Selection};
+use nanocal::plan::{Plan, TestKind};
+use nanocal::procedure::ProcedureData;
+use nanocal::twin::examples::{paper000_1dof_twin, TRAINING_START_S};
+use nanocal::twin::execute::run_plan;
+use nanocal_compensator::proxy::{FoldCorrector, Out, Proxy, Route};
+
+#[test]
+fn every_validated_visit_is_what_the_gcs_proxy_forwards() {
+    let plan = Plan::paper000_1dof().shortened(4, 2, 2);
+    let run = run_plan(&paper000_1dof_twin(4), &plan, TRAINING_START_S, 1, true);
+    let rec = run.recording.to_recording().unwrap();
+    let data = ProcedureData::new(&rec, &run.steps, 0.0).unwrap();
+    let fit = fit_dwells(
+        &data.training(),
+        &FitOptions {
+            spec: DesignSpec::published_static(),
+            selection: Selection::Fixed,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let model = &fit.model;
+    let report = data
+        .validate(TestKind::Static, Some(model), None, DEVICE_FOLD_PERIOD_S)
+        .unwrap();
+    assert_eq!(report.visits.len(), 2 * 2 * 14);
+    let mut device = DeviceSlowPath::new(model.lags(), &data.data.sensors, DEVICE_FOLD_PERIOD_S);
+    let mut proxy = Proxy::default();
+    let mut out = Out::new();
+    let mut refused = 0;
+    for v in &report.visits {
+        // the commanded pose of the visit is what the recording sent to the controller
+        let recorded = v.target_um[0];
+        let meas = {
+            let i = data
+                .data
+                .dwells
+                .t_start_s
+                .iter()
+                .position(|&t| t == v.t_move_s)
+                .unwrap();
+            data.data.dwells.meas_um[0][i]
+        };
+        // the validation's target: error = meas − x̂
+        let target = meas - v.error_um[0];
+        let slow = device.slow_at(v.t_move_s);
+        let corrector = FoldCorrector::new(model, &slow);
+        let line = format!("MOV 1 {target:.9}");
+        let route = proxy.host_line(Some(&corrector), line.as_bytes(), &mut out);
+        if v.refused {
+            assert_ne!(route, Route::Stage, "{line}: the validation says refused");
+            refused += 1;
+            continue;
+        }
+        assert_eq!(route, Route::Stage, "{line} refused");
+        let sent = std::str::from_utf8(out.as_bytes()).unwrap();
+        let q: f64 = sent.split_whitespace().nth(2).unwrap().parse().unwrap();
+        assert!(
+            (q - recorded).abs() <= 1e-4,
+            "t = {} s: device sends {q} for target {target}, the recording has {recorded} (Δ = {} nm)",
+            v.t_move_s,
+            (q - recorded) * 1e3
+        );
+    }
+    assert_eq!(refused, report.refused);
+    assert!(refused < report.visits.len() / 4, "{refused} refused");
+}
+
+/// The fold in force is the one of the last tick before the move: with a 5 s fold period the
+/// device lags the sensors, and the validation says so (different errors, same visits).
+#[test]
+fn the_fold_period_changes_what_is_evaluated() {
+    let plan = Plan::paper000_1dof().shortened(4, 2, 1);
+    let run = run_plan(&paper000_1dof_twin(5), &plan, TRAINING_START_S, 1, true);
+    let rec = run.recording.to_recording().unwrap();
+    let data = ProcedureData::new(&rec, &run.steps, 0.0).unwrap();
+    let fit = fit_dwells(
+        &data.training(),
+        &FitOptions {
+            spec: DesignSpec::published_static(),
+            selection: Selection::Fixed,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let fast = data
+        .validate(TestKind::Static, Some(&fit.model), None, 0.25)
+        .unwrap();
+    let slow = data
+        .validate(TestKind::Static, Some(&fit.model), None, 10.0)
+        .unwrap();
+    assert_eq!(fast.visits.len(), slow.visits.len());
+    let differ = fast
+        .visits
+        .iter()
+        .zip(&slow.visits)
+        .filter(|(a, b)| (a.error_um[0] - b.error_um[0]).abs() > 1e-6)
+        .count();
+    assert!(differ > fast.visits.len() / 2, "{differ} visits differ");
+}

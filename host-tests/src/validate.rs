@@ -169,8 +169,9 @@ pub struct Visit {
     pub test: usize,
     /// True if λ_KMZ was re-measured here (not counted).
     pub kmz_reference: bool,
-    /// True if the device would have refused the move (target outside the training envelope or
-    /// command outside the travel): the stage would not have gone there (not counted).
+    /// True if the device would have refused a move to the commanded pose (outside the
+    /// training envelope, or its corrected command outside the travel): the stage would not
+    /// have gone there (not counted).
     pub refused: bool,
     /// True if a temperature/aux input was outside the training envelope.
     pub outside_envelope: bool,
@@ -372,11 +373,10 @@ pub fn validate_roles(
                 let device = FoldCorrector::new(m, &slow);
                 let q32 = q.map(|v| v as f32);
                 let outside = device.fold.slow_outside_envelope() != 0;
+                // the user asks for the pose itself: would the device take that move?
+                refused = refuses(&device, &q32, &dir, k);
                 match device.fold.inverse(&q32, &dir) {
-                    Ok(xh) => {
-                        refused = refuses(&device, &xh, &dir, k);
-                        ((0..k).map(|a| x[a] - f64::from(xh[a])).collect(), outside)
-                    }
+                    Ok(xh) => ((0..k).map(|a| x[a] - f64::from(xh[a])).collect(), outside),
                     Err(_) => {
                         inverse_failures += 1;
                         (vec![f64::NAN; k], outside)

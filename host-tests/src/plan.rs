@@ -271,6 +271,38 @@ impl Plan {
         }
     }
 
+    /// Paper 001's procedure for the delta robot (§IV.C), which publishes no durations: "measure
+    /// the pose of the end-effector in all the workspace, doing a regular trajectory" while the
+    /// temperatures vary over their range of use, and "collect some separate measurement … to
+    /// validate". Here: training over a 5 × 5 × 5 grid of effector poses over ±5 mm (a 1 cm³
+    /// cube), commanded in motor coordinates by the nominal inverse geometric model, 72 cycles
+    /// of 125 steps of 2 s + 8 s (mean of the last 5 s) = 25 h, a full day of the room's swing;
+    /// validation at 40 other poses drawn at random inside ±4.5 mm, in tests of 3 cycles
+    /// alternating no model and the model, 18 rounds = 12 h.
+    pub fn paper001_robot() -> Plan {
+        use crate::twin::delta::{grid_poses_mm, motor_poses_um, random_poses_mm};
+        let step = |cycle_um, cycles| Procedure {
+            cycle_um,
+            rise_s: 2.0,
+            hold_s: 8.0,
+            average_last_s: 5.0,
+            cycles,
+        };
+        Plan {
+            name: "paper001-robot".into(),
+            source: "Lubrano, Bouri, Clavel, Ultra-high-precision industrial robots calibration, §IV.C, §VII.A"
+                .into(),
+            training: step(motor_poses_um(&grid_poses_mm(5, 5.0)), 72),
+            pause_s: 0.0,
+            validation: ValidationPlan {
+                test: step(motor_poses_um(&random_poses_mm(40, 4.5, 2011)), 3),
+                order: vec![TestKind::NoModel, TestKind::Static],
+                rounds: 18,
+                kmz: None,
+            },
+        }
+    }
+
     /// The same plan with fewer cycles and rounds (for tests): at most `training_cycles`,
     /// `test_cycles` per test and `rounds`.
     pub fn shortened(mut self, training_cycles: usize, test_cycles: usize, rounds: usize) -> Plan {
@@ -455,7 +487,11 @@ mod tests {
 
     #[test]
     fn plans_round_trip_through_json() {
-        for p in [Plan::paper000_1dof(), Plan::paper000_2dof()] {
+        for p in [
+            Plan::paper000_1dof(),
+            Plan::paper000_2dof(),
+            Plan::paper001_robot(),
+        ] {
             let text = serde_json::to_string(&p).unwrap();
             let back: Plan = serde_json::from_str(&text).unwrap();
             assert_eq!(back, p);

@@ -10,8 +10,27 @@
 //! stage responds at once (plus any creep effect); the measurement is the mean of the step's
 //! last seconds, long after the rise.
 
+use super::delta::DeltaTwin;
 use super::{Columns, Dwell, Trajectory, Twin};
 use crate::plan::{Phase, Plan, Step};
+
+/// Something that turns a command trajectory into a recording in the shared layout.
+pub trait Simulator {
+    /// Simulates `traj` from absolute time `start_s`; `stream` separates the noise of runs.
+    fn simulate(&self, traj: &Trajectory, start_s: f64, stream: u64) -> Columns;
+}
+
+impl Simulator for Twin {
+    fn simulate(&self, traj: &Trajectory, start_s: f64, stream: u64) -> Columns {
+        Twin::simulate(self, traj, start_s, stream)
+    }
+}
+
+impl Simulator for DeltaTwin {
+    fn simulate(&self, traj: &Trajectory, start_s: f64, stream: u64) -> Columns {
+        DeltaTwin::simulate(self, traj, start_s, stream)
+    }
+}
 
 /// A plan run on the twin: its schedule and the recording.
 #[derive(Debug, Clone)]
@@ -42,7 +61,7 @@ pub fn trajectory(steps: &[Step]) -> Trajectory {
 /// the first one (paper 000 §4.1: "the interferometer defines the global frame … by setting the
 /// initial reading at the beginning of training phase as zero").
 pub fn run_plan(
-    twin: &Twin,
+    twin: &impl Simulator,
     plan: &Plan,
     start_s: f64,
     stream: u64,

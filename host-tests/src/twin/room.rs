@@ -6,6 +6,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::normal;
+use crate::effects::lag_series;
 
 /// The air temperature and pressure of a room, as functions of absolute time.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -177,6 +178,43 @@ impl Room {
         let steps: f64 = self.steps.iter().filter(|s| s.0 <= t_s).map(|s| s.1).sum();
         let ramps: f64 = c.ramps.iter().map(|r| r.at(t_s)).sum();
         c.mean_c + daily + hvac + steps + ramps + c.trend_c_per_day * t_s / 86_400.0
+    }
+
+    /// True temperature of each spot at the samples `t_s` (absolute times `t_abs_s`, starting at
+    /// `start_s`), °C: each follows the room air through its own first-order lag, settled over
+    /// the 5 τ before the start, seen with its gain around the room mean plus its offset.
+    pub fn spots(
+        &self,
+        cfg: &RoomConfig,
+        sensors: &[SensorConfig],
+        t_s: &[f64],
+        t_abs_s: &[f64],
+        start_s: f64,
+    ) -> Vec<Vec<f64>> {
+        let air: Vec<f64> = t_abs_s.iter().map(|&t| self.air_c(t)).collect();
+        let warm_start = |s: &SensorConfig| {
+            // settle the lag over the preceding 5 τ (coarse steps) so a recording starts settled
+            let t0 = start_s - 5.0 * s.tau_s;
+            let m = 200;
+            let mut y = self.air_c(t0);
+            for i in 1..=m {
+                let t = t0 + (start_s - t0) * i as f64 / m as f64;
+                let a = 1.0 - (-(5.0 * s.tau_s / m as f64) / s.tau_s).exp();
+                y += a * (self.air_c(t) - y);
+            }
+            y
+        };
+        sensors
+            .iter()
+            .map(|s| {
+                let y0 = warm_start(s);
+                let lagged = lag_series(t_s, &air, s.tau_s, Some(y0));
+                lagged
+                    .iter()
+                    .map(|&v| cfg.mean_c + s.offset_c + s.gain * (v - cfg.mean_c))
+                    .collect()
+            })
+            .collect()
     }
 
     /// Barometric pressure at absolute time `t_s`, hPa.

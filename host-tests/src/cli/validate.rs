@@ -15,8 +15,9 @@ use crate::validate::{
     comparison_table, validate, Compensation, ValidationData, ValidationOptions, ValidationReport,
 };
 
-/// Validate a model blob on a recording: no model, the model as fitted (static), and the model
-/// with its offset re-measured at a reference pose (adaptive KMZ). Visits are grouped into tests
+/// Validate a model blob on a recording: no model, the model as fitted (static), and its
+/// geometric part with the offset re-measured at a reference pose (adaptive KMZ, paper 000
+/// Eq. 14). Visits are grouped into tests
 /// of `--cycles-per-test` cycles; per test, ISO 9283 accuracy and repeatability of every pose
 /// (forward and backward approaches separate) and their maxima (paper 000 Eq. 2–7); over the
 /// tests the robustness indices R_s (µm) and R_t (µm/h) of Eq. 20–21.
@@ -62,6 +63,11 @@ pub struct ValidationInputs {
     /// last.
     #[arg(long)]
     pub time_h: Option<f64>,
+    /// The plan the recording followed (JSON, e.g. from `nanocal simulate --plan`): its steps
+    /// make the visits (step times = the recording's `t`), its tests and their compensations
+    /// the statistics, its KMZ steps the re-measurements (instead of cycles and intervals).
+    #[arg(long)]
+    pub plan: Option<PathBuf>,
 }
 
 impl ValidationInputs {
@@ -72,6 +78,9 @@ impl ValidationInputs {
         let bar = spinner(format!("reading {}", self.recording.display()));
         let rec = Recording::read_path(&self.recording)?;
         bar.finish_and_clear();
+        if let Some(path) = &self.plan {
+            return self.validate_plan(&model, &rec, path);
+        }
         let data = ValidationData::from_recording(
             &rec,
             &DwellOptions {
@@ -93,11 +102,56 @@ impl ValidationInputs {
         let reports = [
             validate(None, &data, &Compensation::None, &opts)?,
             validate(Some(&model), &data, &Compensation::Static, &opts)?,
-            validate(Some(&model), &data, &kmz, &opts)?,
+            validate(Some(&adaptive(&model)?), &data, &kmz, &opts)?,
         ];
         bar.finish_and_clear();
         Ok((data, reports))
     }
+}
+
+impl ValidationInputs {
+    /// Validates as the plan at `path` says: the validation steps of its schedule, each test with
+    /// the compensation the plan gave it (tests of other compensations are left out of that
+    /// compensation's statistics), KMZ at its KMZ steps.
+    fn validate_plan(
+        &self,
+        model: &Model,
+        rec: &Recording,
+        path: &Path,
+    ) -> anyhow::Result<(ValidationData, [ValidationReport; 3])> {
+        use crate::plan::{Phase, Plan, TestKind};
+        use crate::procedure::ProcedureData;
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let plan: Plan = serde_json::from_str(&text)
+            .with_context(|| format!("{}: not a plan", path.display()))?;
+        let steps: Vec<_> = plan
+            .schedule()
+            .into_iter()
+            .filter(|s| s.phase != Phase::Training)
+            .collect();
+        let data = ProcedureData::new(rec, &steps, 0.0).with_context(|| {
+            format!(
+                "{} does not follow the validation of {}",
+                self.recording.display(),
+                path.display()
+            )
+        })?;
+        let kmz = plan.validation.kmz.as_ref();
+        let p = self.fold_period_s;
+        let reports = [
+            data.validate(TestKind::NoModel, None, kmz, p)?,
+            data.validate(TestKind::Static, Some(model), kmz, p)?,
+            data.validate(TestKind::Adaptive, Some(&adaptive(model)?), kmz, p)?,
+        ];
+        Ok((data.data, reports))
+    }
+}
+
+/// The adaptive model of paper 000's Eq. 14 from a fitted blob: its geometric part + λ_KMZ.
+fn adaptive(model: &Model) -> anyhow::Result<Model> {
+    crate::fit::adaptive_from_static(model)
+        .map_err(|e| anyhow::anyhow!("building the adaptive model (Eq. 14): {e:?}"))
 }
 
 /// A spinner on stderr for long work (indicatif hides it when stderr is not a terminal).

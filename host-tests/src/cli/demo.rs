@@ -571,24 +571,28 @@ fn robot(args: &DemoArgs, dir: &Path) -> anyhow::Result<String> {
     Ok(s)
 }
 
-fn easier_or_harder() -> &'static str {
-    "Where the simulation is easier or harder than the published experiments:\n\
-     - easier: the twin's thermal drift is linear in its spot temperatures (Table 1's coefficients plus an\n\
-       unsensed table, 0.3 µm/°C with a 3 h lag): when the room leaves the training range (1.3 °C over the last\n\
-       two days) the static model keeps extrapolating well, while the paper's degraded beyond 400 nm after 70 h;\n\
-     - easier: the stage's geometry never changes (no wear, no re-mounting), the interferometer has no dead-path\n\
-       or cosine error beyond what is modelled and is zeroed once without drift (paper 000: ≤ 41 nm uncertainty),\n\
-       sensors never fail, and every test runs exactly on schedule;\n\
-     - easier: the 2-DoF validation steps and test length are the 1-DoF ones (not published for 2-DoF);\n\
-     - easier: the robot twin's errors are what its kinematics and titanium expansion produce — smooth, so a\n\
-       cubic in motor coordinates and linear temperature terms nearly capture them; its residual is its\n\
-       positioning scatter (15 nm), encoder resolution (10 nm) and interferometer noise; the real robot's\n\
-       flexure hinges, parasitic rotations and gradients inside its parts are not simulated;\n\
-     - harder: the stages carry physics the published models cannot see — the structure lags its sensors by\n\
-       20 min, the stroke changes 50 ppm/°C (a KMZ at 0 µm cannot measure it), a part of the loop has no\n\
-       sensor — and the device folds single readings of type K thermocouples through a MAX31856 (≈ 16 mK noise\n\
-       each), not the 5 s averages the fit was trained on;\n\
-     - different: the 2 s rise is modelled as a step (the twin's stage has no transient); the validation is\n\
-       evaluated open loop — the target for which the device sends the recorded command — instead of\n\
-       driving the stage through the model (equivalent to f32 rounding, see tests/validate_device.rs).\n"
+fn easier_or_harder() -> String {
+    [
+        "Where the simulation is easier or harder than the published experiments:",
+        "- easier: the twin's thermal drift is linear in its spot temperatures (Table 1's coefficients plus an",
+        "  unsensed table, 0.3 µm/°C with a 3 h lag): when the room leaves the training range (1.3 °C over the last",
+        "  two days) the static model keeps extrapolating well; the paper's, under 400 nm for 70 h, deteriorated then;",
+        "- easier: the stage's geometry never changes (no wear, no re-mounting), the interferometer has no dead-path",
+        "  or cosine error beyond what is modelled and is zeroed once without drift (paper 000: ≤ 41 nm uncertainty),",
+        "  sensors never fail, and every test runs exactly on schedule;",
+        "- easier: the 2-DoF validation steps and test length are the 1-DoF ones (not published for 2-DoF);",
+        "- easier: the robot twin's errors are what its kinematics and titanium expansion produce — smooth, so a",
+        "  cubic in motor coordinates and linear temperature terms nearly capture them; its residual is its",
+        "  positioning scatter (15 nm), encoder resolution (10 nm) and interferometer noise; the real robot's",
+        "  flexure hinges, parasitic rotations and gradients inside its parts are not simulated;",
+        "- harder: the stages carry physics the published models cannot see — the structure lags its sensors by",
+        "  20 min, the stroke changes 50 ppm/°C (a KMZ at 0 µm cannot measure it), a part of the loop has no",
+        "  sensor — and the device folds single readings of type K thermocouples through a MAX31856 (≈ 16 mK noise",
+        "  each), not the 5 s averages the fit was trained on;",
+        "- different: the 2 s rise is modelled as a step (the twin's stage has no transient); the validation is",
+        "  evaluated open loop — the target for which the device sends the recorded command — instead of",
+        "  driving the stage through the model (equivalent to f32 rounding, see tests/validate_device.rs).",
+    ]
+    .map(|l| format!("{l}\n"))
+    .concat()
 }

@@ -2,6 +2,7 @@
 
 use super::{read_some, Shared, PIPE_LEN};
 use embassy_futures::join::join;
+use embassy_futures::select::{select, Either};
 use embedded_io_async::{Read, Write};
 use nanocal_compensator::gcs::{Feed, LineAssembler};
 use nanocal_compensator::proxy::{Out, Route};
@@ -20,6 +21,11 @@ async fn pump<W: Write>(pipe: &embassy_sync::pipe::Pipe<super::Cs, PIPE_LEN>, tx
 async fn route(sh: &Shared, route: Route, out: &Out) {
     match route {
         Route::Stage => sh.to_stage.write_all(out.as_bytes()).await,
+        // nobody has the port open: what would be queued belongs to no connection
+        Route::Host
+            if !sh
+                .host_connected
+                .load(core::sync::atomic::Ordering::Relaxed) => {}
         Route::Host => sh.to_host.write_all(out.as_bytes()).await,
         Route::None => {}
     }
@@ -33,7 +39,15 @@ pub async fn host_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) -> 
         let mut out = Out::new();
         let mut buf = [0u8; 64];
         loop {
-            let n = read_some(&mut rx, &mut buf).await;
+            let n = match select(read_some(&mut rx, &mut buf), sh.host_hangup.wait()).await {
+                Either::First(n) => n,
+                Either::Second(()) => {
+                    // the host closed the port: nothing of that connection survives it
+                    asm = LineAssembler::new();
+                    super::end_host_session(sh);
+                    continue;
+                }
+            };
             for &b in &buf[..n] {
                 let feed = asm.feed(b);
                 if feed == Feed::Pending {

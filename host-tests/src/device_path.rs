@@ -1,9 +1,9 @@
 //! The device's slow path replayed on the host: which fold the inline compensator had in force
 //! when a command passed through it.
 //!
-//! The firmware's sensor task (`src/app/sensors.rs`) wakes every fold period, reads every
+//! The firmware's sensor task (`src/app/sensors.rs`) wakes every sample period, reads every
 //! sensor (f32 °C), feeds the readings to the model's [`LagBank`] with the elapsed time, and
-//! folds the model ([`Model::fold`]); a `MOV` is corrected with the fold of the last tick before
+//! folds the model (`Model::fold`); a `MOV` is corrected with the fold of the last tick before
 //! it. [`DeviceSlowPath`] does the same over a recording's sensor samples: ticks every
 //! `fold_period_s` from the first sample, a reading is the latest sample at or before the tick
 //! (the sensors are sample-and-hold between the recording's rows), rounded to f32 as the device
@@ -15,9 +15,10 @@ use nanocal_model::{LagBank, LagSpec, SlowInputs, MAX_AUX, MAX_TEMPS};
 use crate::dwell::Dwells;
 use crate::recording::Recording;
 
-/// Fold period of the STM32 board's sensor task (`src/bin/stm32.rs`: `app::sensors(…,
-/// Duration::from_millis(250), …)`), s. Paper 001 §VI: thermal terms "can be calculated in a
-/// non-real-time process each 5-10 seconds" — any period up to that is faithful to it.
+/// The device's default sample-and-fold period, s: the sensor task folds once a sample period
+/// (`src/app/sensors.rs`), whose default is the compensator's
+/// `Settings::default().sample_period_ms` (250 ms; a management setting, 50 ms – 60 s). Paper
+/// 001 §VI: thermal terms "can be calculated in a non-real-time process each 5-10 seconds".
 pub const DEVICE_FOLD_PERIOD_S: f64 = 0.25;
 
 /// The slow channels of a recording as the device's sensors see them: temperatures (model Temp
@@ -173,6 +174,12 @@ mod tests {
             temps: vec![("temp_a".into(), vec![20.0, 21.0, 22.0, 23.0])],
             aux: vec![("pressure".into(), vec![1000.0, 1001.0, 1002.0, 1003.0])],
         }
+    }
+
+    #[test]
+    fn the_default_period_is_the_devices_default_setting() {
+        let ms = nanocal_compensator::settings::Settings::default().sample_period_ms;
+        assert_eq!(DEVICE_FOLD_PERIOD_S, f64::from(ms) / 1000.0);
     }
 
     #[test]

@@ -5,6 +5,7 @@ use crate::effects::{
     axis_coupling, hysteresis, thermal_lag, thermal_position_interaction, unexplained_drift,
     EffectSpec,
 };
+use nanocal_compensator::sensor::max31856;
 
 /// Absolute time at which the published training starts (08:00 on day 0), s.
 pub const TRAINING_START_S: f64 = 8.0 * 3600.0;
@@ -108,17 +109,18 @@ pub fn paper000_1dof_twin(seed: u64) -> Twin {
 }
 
 /// The paper's sensors are type K thermocouples (§4.1); this project's device reads them with a
-/// MAX31856 in its firmware's configuration (type K, 4-sample averaging): resolution
-/// 0.0078125 °C, and noise ≈ 16 mK RMS per reading — the datasheet's input-referred noise
-/// (Electrical Characteristics: 1.3 µV RMS at A_V = 8) halved by the 4-sample average, over the
-/// type K Seebeck coefficient near room temperature (≈ 41 µV/°C).
+/// MAX31856 in its firmware's configuration (type K, [`max31856::AVG_SAMPLES`] samples averaged
+/// per conversion): resolution 0.0078125 °C, and noise per reading = the datasheet's
+/// input-referred noise (Electrical Characteristics: 1.3 µV RMS at A_V = 8) over √(samples
+/// averaged), over the type K Seebeck coefficient near room temperature (≈ 41 µV/°C): ≈ 16 mK.
 /// All spots see the room fully (gain 1), with their own lags: "the measurements of all the
 /// thermocouples are similar, but there are still some minor differences" (§4.1).
 fn type_k_on_max31856(cfg: &mut TwinConfig) {
+    let noise_uv = 1.3 / f64::from(max31856::AVG_SAMPLES).sqrt();
     for s in cfg.sensors.iter_mut() {
         s.gain = 1.0;
         s.resolution_c = 0.0078125;
-        s.noise_c = 0.65 / 41.0;
+        s.noise_c = noise_uv / 41.0;
     }
 }
 

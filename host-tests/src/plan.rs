@@ -192,6 +192,16 @@ pub fn serpentine(xs: &[f64], ys: &[f64]) -> Vec<Vec<f64>> {
     out
 }
 
+/// Paper 000's 2-DoF validation points P0 … P5 (§5.2.1, Fig. 16), µm.
+pub const PAPER000_2DOF_POINTS_UM: [(f64, f64); 6] = [
+    (0.0, 0.0),
+    (45.0, 45.0),
+    (75.0, 15.0),
+    (75.0, 75.0),
+    (15.0, 75.0),
+    (15.0, 15.0),
+];
+
 /// The published 2 s rise + 20 s hold, mean of the last 5 s (paper 000 §4.2, Fig. 9).
 fn published_step(cycle_um: Vec<Vec<f64>>, cycles: usize) -> Procedure {
     Procedure {
@@ -248,14 +258,7 @@ impl Plan {
     /// nearly one day"); no KMZ.
     pub fn paper000_2dof() -> Plan {
         let g = grid(0.0, 10.0, 80.0);
-        let points = [
-            (0.0, 0.0),
-            (45.0, 45.0),
-            (75.0, 15.0),
-            (75.0, 75.0),
-            (15.0, 75.0),
-            (15.0, 15.0),
-        ];
+        let points = PAPER000_2DOF_POINTS_UM;
         Plan {
             name: "paper000-2dof".into(),
             source: "Tan, Clévy, Chaillet, Calibration of nanopositioning stages, §5.2, Fig. 15-17"

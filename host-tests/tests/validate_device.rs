@@ -17,10 +17,10 @@ use nanocal::twin::examples::{paper000_1dof_twin, TRAINING_START_S};
 use nanocal::twin::execute::run_plan;
 use nanocal_compensator::proxy::{Corrector, FoldCorrector, Out, Proxy, Route};
 
-#[test]
-fn every_validated_visit_is_what_the_gcs_proxy_forwards() {
-    let plan = Plan::paper000_1dof().shortened(4, 2, 2);
-    let run = run_plan(&paper000_1dof_twin(4), &plan, TRAINING_START_S, 1, true);
+/// The shortened 1-DoF plan on the twin (`seed`, `rounds` of validation) and its static model.
+fn fitted(seed: u64, rounds: usize) -> (ProcedureData, nanocal_model::Model) {
+    let plan = Plan::paper000_1dof().shortened(4, 2, rounds);
+    let run = run_plan(&paper000_1dof_twin(seed), &plan, TRAINING_START_S, 1, true);
     let rec = run.recording.to_recording().unwrap();
     let data = ProcedureData::new(&rec, &run.steps, 0.0).unwrap();
     let fit = fit_dwells(
@@ -32,7 +32,13 @@ fn every_validated_visit_is_what_the_gcs_proxy_forwards() {
         },
     )
     .unwrap();
-    let model = &fit.model;
+    (data, fit.model)
+}
+
+#[test]
+fn every_validated_visit_is_what_the_gcs_proxy_forwards() {
+    let (data, model) = fitted(4, 2);
+    let model = &model;
     let report = data
         .validate(TestKind::Static, Some(model), None, DEVICE_FOLD_PERIOD_S)
         .unwrap();
@@ -105,24 +111,12 @@ fn every_validated_visit_is_what_the_gcs_proxy_forwards() {
 /// device lags the sensors, and the validation says so (different errors, same visits).
 #[test]
 fn the_fold_period_changes_what_is_evaluated() {
-    let plan = Plan::paper000_1dof().shortened(4, 2, 1);
-    let run = run_plan(&paper000_1dof_twin(5), &plan, TRAINING_START_S, 1, true);
-    let rec = run.recording.to_recording().unwrap();
-    let data = ProcedureData::new(&rec, &run.steps, 0.0).unwrap();
-    let fit = fit_dwells(
-        &data.training(),
-        &FitOptions {
-            spec: DesignSpec::published_static(),
-            selection: Selection::Fixed,
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let (data, model) = fitted(5, 1);
     let fast = data
-        .validate(TestKind::Static, Some(&fit.model), None, 0.25)
+        .validate(TestKind::Static, Some(&model), None, 0.25)
         .unwrap();
     let slow = data
-        .validate(TestKind::Static, Some(&fit.model), None, 10.0)
+        .validate(TestKind::Static, Some(&model), None, 10.0)
         .unwrap();
     assert_eq!(fast.visits.len(), slow.visits.len());
     let differ = fast

@@ -86,18 +86,12 @@ pub fn paper000_1dof_twin(seed: u64) -> Twin {
     cfg.sensors.push(unsensed_table());
     type_k_on_max31856(&mut cfg);
     cfg.positioning_sigma_nm = 9.0;
-    cfg.effects = vec![
-        EffectSpec::ThermalLag(thermal_lag::Params { tau_s: 1200.0 }),
-        EffectSpec::ThermalPositionInteraction(thermal_position_interaction::Params {
-            axis: 0,
-            alpha_ppm_per_c: 50.0,
-        }),
-        EffectSpec::Hysteresis(hysteresis::Params {
-            axis: 0,
-            half_width_nm: 5.0,
-            slope_nm: 0.0,
-        }),
-    ];
+    cfg.effects = unseen_physics(1);
+    cfg.effects.push(EffectSpec::Hysteresis(hysteresis::Params {
+        axis: 0,
+        half_width_nm: 5.0,
+        slope_nm: 0.0,
+    }));
     let validation_start_s =
         TRAINING_START_S + crate::plan::Plan::paper000_1dof().training.duration_s();
     cfg.room.ramps.push(Ramp {
@@ -122,6 +116,23 @@ fn type_k_on_max31856(cfg: &mut TwinConfig) {
         s.resolution_c = 0.0078125;
         s.noise_c = noise_uv / 41.0;
     }
+}
+
+/// What paper 000's stages carry that its models cannot see (see [`paper000_1dof_twin`]): the
+/// structure follows its sensors with a 20 min lag, and each axis' stroke changes 50 ppm/°C.
+fn unseen_physics(axes: usize) -> Vec<EffectSpec> {
+    let mut e = vec![EffectSpec::ThermalLag(thermal_lag::Params {
+        tau_s: 1200.0,
+    })];
+    for axis in 0..axes {
+        e.push(EffectSpec::ThermalPositionInteraction(
+            thermal_position_interaction::Params {
+                axis,
+                alpha_ppm_per_c: 50.0,
+            },
+        ));
+    }
+    e
 }
 
 /// Thermal coefficient of the unsensed table per axis, µm/°C.
@@ -157,16 +168,8 @@ pub fn paper000_2dof_twin(seed: u64) -> Twin {
     type_k_on_max31856(&mut cfg);
     cfg.geometric_nm = vec![vec![400.0, -150.0, 120.0], vec![-350.0, 120.0, 100.0]];
     cfg.positioning_sigma_nm = 9.0;
-    cfg.effects = vec![
-        EffectSpec::ThermalLag(thermal_lag::Params { tau_s: 1200.0 }),
-        EffectSpec::ThermalPositionInteraction(thermal_position_interaction::Params {
-            axis: 0,
-            alpha_ppm_per_c: 50.0,
-        }),
-        EffectSpec::ThermalPositionInteraction(thermal_position_interaction::Params {
-            axis: 1,
-            alpha_ppm_per_c: 50.0,
-        }),
+    cfg.effects = unseen_physics(2);
+    cfg.effects.extend([
         EffectSpec::AxisCoupling(axis_coupling::Params {
             from_axis: 0,
             to_axis: 1,
@@ -179,6 +182,6 @@ pub fn paper000_2dof_twin(seed: u64) -> Twin {
             nm_per_um: -3.0,
             quadratic_nm: -40.0,
         }),
-    ];
+    ]);
     Twin::new(cfg, 3.0 * 86_400.0, seed)
 }

@@ -32,7 +32,9 @@
 use crate::crc32;
 use core::fmt;
 
-/// Protocol version.
+/// Protocol version. 2: identity in HELLO/STATUS, settings, reset, input checks, and
+/// [`Status::slow_outside`] widened from u16 to u32 (a model has up to 23 inputs with envelope
+/// bits).
 pub const PROTOCOL: u16 = 2;
 /// Frame sync bytes.
 pub const SYNC: [u8; 2] = [0xA7, 0x5C];
@@ -403,8 +405,9 @@ pub struct Status {
     pub sensor_bits: [u8; STATUS_SENSORS],
     /// Sensors configured.
     pub sensors: u8,
-    /// Slow inputs outside the training envelope at the last fold (model input bits).
-    pub slow_outside: u16,
+    /// Slow inputs outside the training envelope at the last fold (model input bits,
+    /// [`nanocal_model::EnvelopeFlags`]: 3 axes, 16 temperatures, 4 aux need a u32).
+    pub slow_outside: u32,
     /// λ_KMZ per axis, µm.
     pub kmz_um: [f64; 3],
     /// Host lines seen.
@@ -457,7 +460,7 @@ impl Status {
         + 4 * STATUS_SENSORS
         + STATUS_SENSORS
         + 1
-        + 2
+        + 4
         + 24
         + 7 * 4
         + 4
@@ -480,7 +483,7 @@ impl Status {
         }
         w.bytes(&self.sensor_bits)?;
         w.u8(self.sensors)?;
-        w.u16(self.slow_outside)?;
+        w.u32(self.slow_outside)?;
         for k in self.kmz_um {
             w.f64(k)?;
         }
@@ -524,7 +527,7 @@ impl Status {
         }
         s.sensor_bits.copy_from_slice(r.bytes(STATUS_SENSORS)?);
         s.sensors = r.u8()?;
-        s.slow_outside = r.u16()?;
+        s.slow_outside = r.u32()?;
         for k in s.kmz_um.iter_mut() {
             *k = r.f64()?;
         }

@@ -14,7 +14,7 @@
 
 use crate::gcs::{self, AxisMap, Feed, GcsError, LineBuf, MAP_AXES, MAX_LINE};
 use core::fmt;
-use nanocal_model::{Fold, Model, SlowInputs, MAX_AXES};
+use nanocal_model::{FastInputs, Fold, HysteresisState, Model, SlowInputs, MAX_AXES};
 
 const _: () = assert!(MAP_AXES == MAX_AXES);
 
@@ -94,14 +94,21 @@ impl Corrector for FoldCorrector {
         self.fold.axes()
     }
     fn correct(&self, x_um: &[f32; MAP_AXES], dir: &[i8; MAP_AXES]) -> Corrected {
-        let c = self.fold.correct(x_um, dir);
+        // Fast inputs and hysteresis state are not supplied by the device yet: a model that
+        // uses a fast input yields NaN commands (refused as out of travel), and play operators
+        // start fresh on every command.
+        let c = self
+            .fold
+            .correct(x_um, dir, &FastInputs::NONE, &mut HysteresisState::new());
         Corrected {
             q_um: c.q_um,
             outside_envelope: c.outside_envelope,
         }
     }
     fn inverse(&self, q_um: &[f32; MAP_AXES], dir: &[i8; MAP_AXES]) -> Option<[f32; MAP_AXES]> {
-        self.fold.inverse(q_um, dir).ok()
+        self.fold
+            .inverse(q_um, dir, &FastInputs::NONE, &HysteresisState::new())
+            .ok()
     }
     fn travel_um(&self, axis: usize) -> (f32, f32) {
         self.travel_um.get(axis).copied().unwrap_or((0.0, 0.0))

@@ -10,7 +10,7 @@
 //! stores it, and the lag filters run at every tick. The fold itself is a pure function of the
 //! slow inputs, so it is computed only when a command needs it.
 
-use nanocal_model::{LagBank, LagSpec, SlowInputs, MAX_AUX, MAX_TEMPS};
+use nanocal_model::{FastInputs, LagBank, LagSpec, SlowInputs, MAX_AUX, MAX_TEMPS};
 
 use crate::dwell::Dwells;
 use crate::recording::Recording;
@@ -79,6 +79,20 @@ impl SensorStream {
             temps,
             aux,
         }
+    }
+
+    /// The aux channels as the device reads them with a command sent at `t_s` (the latest
+    /// sample at or before it, in f32) — a fast input's value for that command. Channels the
+    /// recording lacks are not supplied (NaN).
+    pub fn fast_at(&self, t_s: f64) -> FastInputs {
+        let mut fast = FastInputs::NONE;
+        let i = self.t_s.partition_point(|&t| t <= t_s + 1e-9);
+        if i > 0 {
+            for (n, (_, col)) in self.aux.iter().enumerate().take(MAX_AUX) {
+                fast = fast.with_aux(n, col[i - 1] as f32);
+            }
+        }
+        fast
     }
 
     /// Number of samples.

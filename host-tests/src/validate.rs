@@ -23,7 +23,7 @@
 //! (Eq. 20–21) in µm and µm/h ([`crate::iso9283`]).
 
 use nanocal_compensator::proxy::{Corrector, FoldCorrector};
-use nanocal_model::{Model, MAX_AXES};
+use nanocal_model::{FastInputs, HysteresisState, Model, MAX_AXES};
 
 use crate::device_path::{DeviceSlowPath, SensorStream, DEVICE_FOLD_PERIOD_S};
 use crate::dwell::{dwell_average, DwellError, DwellOptions, Dwells};
@@ -373,9 +373,15 @@ pub fn validate_roles(
                 let device = FoldCorrector::new(m, &slow);
                 let q32 = q.map(|v| v as f32);
                 let outside = device.fold.slow_outside_envelope() != 0;
+                // fast inputs as the device reads them with the command; play operators (none
+                // in the published models) from a fresh state, as the device starts them today
+                let fast = data.sensors.fast_at(d.t_start_s[i]);
                 // the user asks for the pose itself: would the device take that move?
-                refused = refuses(&device, &q32, &dir, k);
-                match device.fold.inverse(&q32, &dir) {
+                refused = refuses(&device, &q32, &dir, &fast, k);
+                match device
+                    .fold
+                    .inverse(&q32, &dir, &fast, &HysteresisState::new())
+                {
                     Ok(xh) => ((0..k).map(|a| x[a] - f64::from(xh[a])).collect(), outside),
                     Err(_) => {
                         inverse_failures += 1;
@@ -412,9 +418,18 @@ pub fn validate_roles(
 
 /// Whether the compensator's proxy refuses a move to `x_um` with this fold: its rule
 /// (`nanocal_compensator::proxy`, `rewrite_move`) — target outside the training envelope, or
-/// corrected command outside the stage travel.
-fn refuses(device: &FoldCorrector, x_um: &[f32; MAX_AXES], dir: &[i8; MAX_AXES], k: usize) -> bool {
-    let c = device.correct(x_um, dir);
+/// corrected command outside the stage travel (a NaN command, from a fast input not supplied,
+/// is outside).
+fn refuses(
+    device: &FoldCorrector,
+    x_um: &[f32; MAX_AXES],
+    dir: &[i8; MAX_AXES],
+    fast: &FastInputs,
+    k: usize,
+) -> bool {
+    let c = device
+        .fold
+        .correct(x_um, dir, fast, &mut HysteresisState::new());
     c.outside_envelope & ((1u8 << k) - 1) != 0
         || (0..k).any(|a| {
             let (lo, hi) = device.travel_um(a);

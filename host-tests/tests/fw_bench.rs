@@ -28,15 +28,25 @@ fn require_qemu(test: &str) -> bool {
     false
 }
 
-const REGIONS: [&str; 7] = [
+/// The regions of src/bin/qemu_bench.rs, in order.
+const REGIONS: [&str; 14] = [
     "empty loop (overhead, subtracted)",
     "`Fold::correct`, 1-DoF, 8 terms",
     "`Fold::correct`, 2-DoF, 40 terms",
     "`MOV` line through the proxy (parse, correct, format), 1-DoF",
     "`Model::eval_f64`, 1-DoF (soft-float f64 reference)",
-    "`Fold::inverse`, 1-DoF (POS?/MOV? replies)",
+    "`Fold::inverse`, 1-DoF (POS?/MOV? replies), started at the reply",
     "`Model::fold`, 2-DoF, 40 terms (slow path; N/10 iterations)",
+    "`Fold::correct`, 1-DoF, 8 terms + 16 play operators (walk with reversals)",
+    "`Fold::correct`, 3-DoF, 78 terms (paper 001's robot size), 105 coefficients",
+    "`Fold::correct`, 1-DoF, 8 terms + fast force input (F, x·F)",
+    "`Fold::correct` + `Fold::inverse_from` of its reply started at the target, 1-DoF + 16 play operators",
+    "`Fold::inverse`, 3-DoF, 78 terms",
+    "`Fold::inverse_from`, 1-DoF, started at the last target (reply 3 nm off)",
+    "`Model::fold`, 3-DoF, 78 terms (slow path; N/10 iterations)",
 ];
+/// Regions that run N/10 iterations.
+const SLOW_REGIONS: [usize; 2] = [6, 13];
 
 #[test]
 #[ignore = "benchmark: run with --ignored --nocapture"]
@@ -103,10 +113,20 @@ fn fw_bench_instructions() {
     let overhead = c[0] as f64 / n;
     println!("\n| region | guest instructions per call |\n|---|---:|");
     for (i, name) in REGIONS.iter().enumerate() {
-        let iters = if i == 6 { n / 10.0 } else { n };
+        let iters = if SLOW_REGIONS.contains(&i) {
+            n / 10.0
+        } else {
+            n
+        };
         let per = c[i] as f64 / iters - if i == 0 { 0.0 } else { overhead };
         println!("| {name} | {per:.0} |");
     }
+    // Region 10 runs region 7's corrections, each followed by the inverse of its reply.
+    let per = |i: usize| c[i] as f64 / n - overhead;
+    println!(
+        "| `Fold::inverse_from`, 1-DoF + 16 play operators, started at the last target (state frozen; region 10 minus region 7) | {:.0} |",
+        per(10) - per(7)
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -101,7 +101,9 @@ fn the_robot_model_reaches_the_papers_ninety_percent_figure() {
     use nanocal::iso9283::ninety_percent_per_axis;
     use nanocal::plan::TestKind;
     use nanocal::stepwise::StepwiseOptions;
-    use nanocal_model::{blob, Factor, SlowInputs, MAX_AXES, MAX_TEMPS};
+    use nanocal_model::{
+        blob, Factor, FastInputs, HysteresisState, SlowInputs, MAX_AXES, MAX_TEMPS,
+    };
     let plan = Plan::paper001_robot().shortened(24, 1, 2);
     let twin = DeltaTwin::new(DeltaConfig::paper001(3), 86_400.0, 3);
     let run = run_plan(&twin, &plan, 8.0 * 3600.0, 1, false);
@@ -165,7 +167,14 @@ fn the_robot_model_reaches_the_papers_ninety_percent_figure() {
         let x32: [f32; MAX_AXES] = [pose[0] as f32, pose[1] as f32, pose[2] as f32];
         let x = x32.map(f64::from);
         let want = model.eval_f64(&x, &[1; MAX_AXES], &slow);
-        let got = fold.correct(&x32, &[1; MAX_AXES]).q_um;
+        let got = fold
+            .correct(
+                &x32,
+                &[1; MAX_AXES],
+                &FastInputs::NONE,
+                &mut HysteresisState::new(),
+            )
+            .q_um;
         for a in 0..3 {
             let half_ulp = 0.5 * (f64::from(got[a].next_up()) - f64::from(got[a]));
             let err = (f64::from(got[a]) - want[a]).abs();

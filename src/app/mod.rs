@@ -87,7 +87,7 @@ pub struct ModelState {
     /// Aux-input fault policy state.
     pub aux_faults: Faults,
     /// Slow inputs outside the envelope at the last fold.
-    pub slow_outside: u16,
+    pub slow_outside: u32,
     /// Folds computed.
     pub folds: u32,
     /// Uploads accepted.

@@ -4,7 +4,8 @@
 //! drive the same code natively. The calibration model itself (terms, fold, blob) lives in
 //! `nanocal-model`; this crate is what the device does with it:
 //!
-//! - [`gcs`]: GCS line assembly, numbers, axis/value lists;
+//! - [`gcs`]: GCS syntax: mnemonics, numbers in fixed point, axis/value lists, addresses;
+//! - [`command`]: what each GCS command does to the stage (corrected, refused, forgets targets);
 //! - [`proxy`]: the GCS proxy (targets corrected, position replies mapped back, refusals);
 //! - [`sensor`] and [`fault`]: temperature amplifiers at register level and the fault policy;
 //! - [`inputs`], [`settings`]: what the board supplies and how it is configured;
@@ -23,6 +24,7 @@
 extern crate std;
 
 pub mod clock;
+pub mod command;
 pub mod fault;
 pub mod gcs;
 pub mod identity;

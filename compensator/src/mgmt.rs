@@ -380,6 +380,9 @@ pub mod flags {
     pub const EXTRAPOLATING: u16 = 1 << 3;
     /// An upload is in progress.
     pub const UPLOADING: u16 = 1 << 4;
+    /// Moves are refused: the controller's position unit (`PUN?`) is not the model's µm, or
+    /// the controller did not tell it (GCS error 9007 on the host's `ERR?`).
+    pub const UNIT_MISMATCH: u16 = 1 << 5;
     /// The thermal fold is older than the sensor hold time (sensor task stalled): moves refused.
     pub const FOLD_STALE: u16 = 1 << 8;
     /// A host has the GCS port open (USB DTR set).

@@ -253,7 +253,13 @@ fn e2e_model_inputs_must_be_supplied() {
         st.aux[0]
     );
     host.send("MOV 1 100");
-    let fwd = stage.next_line(Duration::from_secs(10));
+    // the first move waits for the controller's syntax version and unit (CSV?, PUN?)
+    let fwd = loop {
+        let l = stage.next_line(Duration::from_secs(10));
+        if l.starts_with("MOV") {
+            break l;
+        }
+    };
     let mut slow = nanocal_model::SlowInputs::default();
     slow.temps_c[0] = f64::from(TEMPS_C[0]);
     slow.aux[0] = f64::from(st.aux[0]);

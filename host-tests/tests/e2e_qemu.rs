@@ -111,6 +111,9 @@ fn e2e_compensator_under_qemu() {
         );
     };
     host.send("MOV 1 100");
+    // the first move waits for the controller's GCS syntax version and position unit
+    assert_eq!(stage.next_line(Duration::from_secs(10)), "CSV?");
+    assert_eq!(stage.next_line(Duration::from_secs(10)), "PUN? 1");
     let fwd = stage.next_line(Duration::from_secs(10));
     check(stage_value(&fwd, "1"), 100.0, dir0);
 
@@ -331,9 +334,16 @@ fn e2e_coupled_2dof_under_qemu() {
         (s.flags & flags::SENSOR_BLOCK == 0 && s.folds >= 2).then_some(())
     });
 
-    // a single-axis MOV before any full target is refused: the coupled axis' target is unknown
+    // a single-axis MOV before any full target: the coupled axis' target is read from the
+    // controller first (MOV?), then both axes are commanded
     host.send("MOV 1 40");
-    assert_eq!(host.ask("ERR?"), "9004");
+    assert_eq!(host.ask("ERR?"), "0");
+    let seen = stage.drain();
+    assert_eq!(seen[..3], ["CSV?", "PUN? 1 2", "MOV? 1 2"], "{seen:?}");
+    assert!(
+        seen[3].starts_with("MOV 1 ") && seen[3].contains(" 2 "),
+        "{seen:?}"
+    );
 
     host.send("MOV 1 40 2 70");
     let fwd = stage.next_line(Duration::from_secs(10));

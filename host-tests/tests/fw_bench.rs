@@ -29,11 +29,11 @@ fn require_qemu(test: &str) -> bool {
 }
 
 /// The regions of src/bin/qemu_bench.rs, in order.
-const REGIONS: [&str; 14] = [
+const REGIONS: [&str; 21] = [
     "empty loop (overhead, subtracted)",
     "`Fold::correct`, 1-DoF, 8 terms",
     "`Fold::correct`, 2-DoF, 40 terms",
-    "`MOV` line through the proxy (parse, correct, format), 1-DoF",
+    "`MOV` line through the proxy (host bytes in, corrected line out), 1-DoF, 8 terms",
     "`Model::eval_f64`, 1-DoF (soft-float f64 reference)",
     "`Fold::inverse`, 1-DoF (POS?/MOV? replies), started at the reply",
     "`Model::fold`, 2-DoF, 40 terms (slow path; N/10 iterations)",
@@ -44,6 +44,42 @@ const REGIONS: [&str; 14] = [
     "`Fold::inverse`, 3-DoF, 78 terms",
     "`Fold::inverse_from`, 1-DoF, started at the last target (reply 3 nm off)",
     "`Model::fold`, 3-DoF, 78 terms (slow path; N/10 iterations)",
+    "published 1-DoF: `MOV` line + `POS? 1` + its reply 3 nm off the command, mapped",
+    "published 1-DoF: `MOV` line alone (subtracted from the two rounds)",
+    "published 1-DoF: `MOV` line + `MOV? 1` + its reply equal to the command, mapped",
+    "published 1-DoF: `HLT 1` + `POS? 1` + its reply, mapped with no target known",
+    "published 1-DoF: `HLT 1` line alone (subtracted)",
+    "8-term 1-DoF: `MOV` line + `POS? 1` + its reply 3 nm off the command, mapped",
+    "published 1-DoF: `Fold::inverse` (the model's own inverse)",
+];
+
+/// Derived figures: (name, region, region subtracted).
+const DERIVED: [(&str, usize, usize); 5] = [
+    (
+        "`Fold::inverse_from`, 1-DoF + 16 play operators, started at the last target (state frozen)",
+        10,
+        7,
+    ),
+    (
+        "published 1-DoF: `POS?` mapping (query line + reply mapped; warm start at the target)",
+        14,
+        15,
+    ),
+    (
+        "published 1-DoF: `MOV?` mapping (query line + reply equal to the command sent)",
+        16,
+        15,
+    ),
+    (
+        "published 1-DoF: `POS?` mapping with no target known (cold start at the reply)",
+        17,
+        18,
+    ),
+    (
+        "8-term 1-DoF: `POS?` mapping (warm start at the target)",
+        19,
+        3,
+    ),
 ];
 /// Regions that run N/10 iterations.
 const SLOW_REGIONS: [usize; 2] = [6, 13];
@@ -112,21 +148,19 @@ fn fw_bench_instructions() {
     let n = 1000.0;
     let overhead = c[0] as f64 / n;
     println!("\n| region | guest instructions per call |\n|---|---:|");
+    let mut per = vec![];
     for (i, name) in REGIONS.iter().enumerate() {
         let iters = if SLOW_REGIONS.contains(&i) {
             n / 10.0
         } else {
             n
         };
-        let per = c[i] as f64 / iters - if i == 0 { 0.0 } else { overhead };
-        println!("| {name} | {per:.0} |");
+        per.push(c[i] as f64 / iters - if i == 0 { 0.0 } else { overhead });
+        println!("| {name} | {:.0} |", per[i]);
     }
-    // Region 10 runs region 7's corrections, each followed by the inverse of its reply.
-    let per = |i: usize| c[i] as f64 / n - overhead;
-    println!(
-        "| `Fold::inverse_from`, 1-DoF + 16 play operators, started at the last target (state frozen; region 10 minus region 7) | {:.0} |",
-        per(10) - per(7)
-    );
+    for (name, a, b) in DERIVED {
+        println!("| {name} | {:.0} |", per[a] - per[b]);
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -182,6 +216,12 @@ fn fw_bench_latency_throughput() {
     {
         assert!(Instant::now() < deadline, "sensors never became ready");
         std::thread::sleep(Duration::from_millis(50));
+    }
+    // the first move waits for the controller's syntax version and unit: not measured
+    host.send("MOV 1 10");
+    for want in ["CSV?", "PUN? 1", "MOV 1 "] {
+        let l = stage.next_line(Duration::from_secs(10));
+        assert!(l.starts_with(want), "{l}");
     }
 
     let one_way = |host: &mut fw_sim::GcsHost, k: usize| {

@@ -378,6 +378,9 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
                 s.flags |= flags::FOLD_STALE;
             }
         }
+        if c.proxy.unit_mismatch() {
+            s.flags |= flags::UNIT_MISMATCH;
+        }
         let k = c.proxy.counters;
         s.host_lines = k.host_lines;
         s.moves = k.moves;

@@ -4,15 +4,20 @@
 //! semihosting. Regions (each `N` iterations, `N/10` for the folds) are listed in `REGIONS`
 //! of host-tests/tests/fw_bench.rs, in this order:
 //! 0 empty loop (overhead), 1 `Fold::correct` 1-DoF/8 terms, 2 `Fold::correct` 2-DoF/40 terms,
-//! 3 a `MOV` line through the proxy (parse, correct, format; 1-DoF), 4 `Model::eval_f64` 1-DoF
-//! (the slow path's soft-float f64 for comparison), 5 `Fold::inverse` 1-DoF, 6 `Model::fold`
-//! 2-DoF (the slow path), 7 `Fold::correct` 1-DoF + 16 play operators along a walk with
-//! reversals, 8 `Fold::correct` 3-DoF/78 terms (paper 001's robot size), 9 `Fold::correct`
-//! 1-DoF + a fast force input, 10 region 7's walk, each command followed by
-//! `Fold::inverse_from` of its reply started at the target (1-DoF + 16 play operators, state
-//! frozen), 11 `Fold::inverse`
-//! 3-DoF/78 terms, 12 `Fold::inverse_from` 1-DoF started at the last target, 13 `Model::fold`
-//! 3-DoF/78 terms.
+//! 3 a `MOV` line through the proxy (the host's bytes with LF in, the corrected line out: line
+//! assembly, parse, correct, format; 1-DoF), 4 `Model::eval_f64` 1-DoF (the slow path's
+//! soft-float f64 for comparison), 5 `Fold::inverse` 1-DoF, 6 `Model::fold` 2-DoF (the slow
+//! path), 7 `Fold::correct` 1-DoF + 16 play operators along a walk with reversals, 8
+//! `Fold::correct` 3-DoF/78 terms (paper 001's robot size), 9 `Fold::correct` 1-DoF + a fast
+//! force input, 10 region 7's walk, each command followed by `Fold::inverse_from` of its reply
+//! started at the target (1-DoF + 16 play operators, state frozen), 11 `Fold::inverse` 3-DoF/78
+//! terms, 12 `Fold::inverse_from` 1-DoF started at the last target, 13 `Model::fold` 3-DoF/78
+//! terms. Position replies through the published 1-DoF model: 14 a `MOV` line, then the host's
+//! `POS? 1` and the controller's reply 3 nm off the command, mapped back, 15 the same `MOV` lines
+//! alone (subtracted from 14 and 16), 16 a `MOV` line, then `MOV? 1` answered with the command
+//! sent, 17 `HLT 1`, then `POS? 1` mapped with no target known, 18 `HLT 1` alone (subtracted
+//! from 17), 19 the round of 14 through the 8-term model (region 3's `MOV` lines subtracted),
+//! 20 `Fold::inverse` of the published model.
 #![no_std]
 #![no_main]
 
@@ -21,7 +26,8 @@ use core::ptr::addr_of_mut;
 use core::sync::atomic::{compiler_fence, Ordering};
 use cortex_m_rt::entry;
 use cortex_m_semihosting::{debug, hprintln};
-use nanocal_compensator::proxy::{FoldCorrector, Out, Proxy};
+use nanocal_compensator::gcs::LineBuf;
+use nanocal_compensator::proxy::{FoldCorrector, Output, Proxy};
 use nanocal_model::reference::delta_robot_78;
 use nanocal_model::{
     AuxKind, AuxSpec, Factor, FastInputs, HysteresisState, Input, Model, ModelBuilder, SlowInputs,
@@ -153,6 +159,31 @@ fn model_2dof() -> Option<Model> {
     b.offset_um(0, 40.0).offset_um(1, 40.0).build().ok()
 }
 
+/// The published 1-DoF piezo-stage model (`host-tests/src/published.rs`, paper 000): a cubic in
+/// the position, four temperatures, an offset — a calibration map close to the identity, as
+/// every physical one is. The position replies are mapped through it.
+fn model_published() -> Option<Model> {
+    let mut b = ModelBuilder::new(1, 4, 0)
+        .ok()?
+        .id(0x0001_0001)
+        .trained_range(Input::Axis(0), 0.0, 480.0)
+        .travel_um(0, -20.0, 520.0);
+    for t in 0..4 {
+        b = b.trained_range(Input::Temp(t), 21.0, 23.0);
+    }
+    for (k, a) in [2.454e-8, -2.167e-5, 1.005].iter().enumerate() {
+        b.add_raw_term(0, [3 - k as u8, 0, 0], Factor::None, 0, *a)
+            .ok()?;
+    }
+    #[allow(clippy::approx_constant)] // −3.142 µm/°C is a measured coefficient, not π
+    let b_um_per_c = [2.978, -3.142, -0.996, 0.690];
+    for (t, coeff) in b_um_per_c.iter().enumerate() {
+        b.add_raw_term(0, [0; MAX_AXES], Factor::Temp(t as u8), 0, *coeff)
+            .ok()?;
+    }
+    b.offset_um(0, 10.413).build().ok()
+}
+
 fn slow(t: f64) -> SlowInputs {
     let mut s = SlowInputs::default();
     for (k, v) in s.temps_c.iter_mut().enumerate() {
@@ -173,6 +204,18 @@ fn walk_um(i: u32) -> f32 {
         }
     };
     400.0 * tri(i, 200) + 80.0 * tri(i, 14)
+}
+
+/// Tell the proxy what a controller tells it before the first move: GCS 2.0, axis 1 in µm
+/// (the same bytes a controller sends; the first MOV waits for them).
+fn prime(proxy: &mut Proxy, c: &FoldCorrector, out: &mut Output) {
+    proxy.host_bytes(Some(c), b"MOV 1 1\n", 0, out);
+    for reply in [&b"2.0\n"[..], b"1=\xB5m\n"] {
+        proxy.stage_bytes(Some(c), reply, 0, out);
+    }
+    if proxy.holding() || proxy.unit_mismatch() {
+        panic!("the proxy did not take the controller's answers");
+    }
 }
 
 #[entry]
@@ -231,17 +274,18 @@ fn main() -> ! {
 
     let c1 = FoldCorrector::new(&m1, &slow(22.0));
     let mut proxy = Proxy::default();
-    let mut out = Out::new();
+    let mut out = Output::new();
+    prime(&mut proxy, &c1, &mut out);
     let lines: [&[u8]; 4] = [
-        b"MOV 1 123.456",
-        b"MOV 1 7.25",
-        b"MOV 1 300.0001",
-        b"MOV 1 42",
+        b"MOV 1 123.456\n",
+        b"MOV 1 7.25\n",
+        b"MOV 1 300.0001\n",
+        b"MOV 1 42\n",
     ];
     nanocal_bench_start(3);
     for i in 0..N {
-        let r = proxy.host_line(Some(&c1), black_box(lines[(i % 4) as usize]), &mut out);
-        acc += r as u32 as f32 + out.len() as f32;
+        let used = proxy.host_bytes(Some(&c1), black_box(lines[(i % 4) as usize]), i, &mut out);
+        acc += used as f32 + out.to_stage.len() as f32;
     }
     nanocal_bench_stop(3);
 
@@ -345,6 +389,132 @@ fn main() -> ! {
         acc += f.correct(&[1.0, 1.0, 1.0], &dir, &none, &mut state).q_um[0];
     }
     nanocal_bench_stop(13);
+
+    // position replies, mapped through the published model
+    let Some(mp) = model_published() else {
+        panic!("published model rejected by the builder");
+    };
+    let mut sp = slow(22.0);
+    sp.temps_c[2] = 21.9;
+    sp.temps_c[3] = 22.2;
+    let cp = FoldCorrector::new(&mp, &sp);
+    let mut proxy = Proxy::default();
+    prime(&mut proxy, &cp, &mut out);
+    // POS? while the stage sits at the last target (sensor noise of a few nm)
+    let targets: [&[u8]; 4] = [
+        b"MOV 1 123.456\n",
+        b"MOV 1 7.25\n",
+        b"MOV 1 300.0001\n",
+        b"MOV 1 42\n",
+    ];
+    let mut replies = [
+        LineBuf::<32>::new(),
+        LineBuf::new(),
+        LineBuf::new(),
+        LineBuf::new(),
+    ];
+    let mut sent = [
+        LineBuf::<32>::new(),
+        LineBuf::new(),
+        LineBuf::new(),
+        LineBuf::new(),
+    ];
+    for k in 0..4 {
+        proxy.host_bytes(Some(&cp), targets[k], 0, &mut out);
+        // "MOV 1 <q>\n" → the controller reports q − 3 nm, and exactly q for MOV?
+        let q = &out.to_stage.as_bytes()[6..out.to_stage.len() - 1];
+        let q = nanocal_compensator::gcs::parse_micros(q).unwrap_or(0);
+        let _ = replies[k].extend(b"1=");
+        let _ = replies[k].push_micros(q - 3_000);
+        let _ = replies[k].push(b'\n');
+        let _ = sent[k].extend(b"1=");
+        let _ = sent[k].push_micros(q);
+        let _ = sent[k].push(b'\n');
+    }
+    nanocal_bench_start(14);
+    for i in 0..N {
+        let k = (i % 4) as usize;
+        proxy.host_bytes(Some(&cp), targets[k], i, &mut out);
+        proxy.host_bytes(Some(&cp), black_box(b"POS? 1\n"), i, &mut out);
+        proxy.stage_bytes(Some(&cp), black_box(replies[k].as_bytes()), i, &mut out);
+        acc += out.to_host.len() as f32;
+    }
+    nanocal_bench_stop(14);
+    // the MOV line alone, to subtract from regions 7 and 9
+    nanocal_bench_start(15);
+    for i in 0..N {
+        let k = (i % 4) as usize;
+        proxy.host_bytes(Some(&cp), targets[k], i, &mut out);
+        acc += out.to_stage.len() as f32;
+    }
+    nanocal_bench_stop(15);
+
+    nanocal_bench_start(16);
+    for i in 0..N {
+        let k = (i % 4) as usize;
+        proxy.host_bytes(Some(&cp), targets[k], i, &mut out);
+        proxy.host_bytes(Some(&cp), black_box(b"MOV? 1\n"), i, &mut out);
+        proxy.stage_bytes(Some(&cp), black_box(sent[k].as_bytes()), i, &mut out);
+        acc += out.to_host.len() as f32;
+    }
+    nanocal_bench_stop(16);
+
+    nanocal_bench_start(17);
+    for i in 0..N {
+        let k = (i % 4) as usize;
+        proxy.host_bytes(Some(&cp), black_box(b"HLT 1\n"), i, &mut out);
+        proxy.host_bytes(Some(&cp), black_box(b"POS? 1\n"), i, &mut out);
+        proxy.stage_bytes(Some(&cp), black_box(replies[k].as_bytes()), i, &mut out);
+        acc += out.to_host.len() as f32;
+    }
+    nanocal_bench_stop(17);
+
+    // the HLT line alone, to subtract from region 10
+    nanocal_bench_start(18);
+    for i in 0..N {
+        proxy.host_bytes(Some(&cp), black_box(b"HLT 1\n"), i, &mut out);
+        acc += out.to_stage.len() as f32;
+    }
+    nanocal_bench_stop(18);
+
+    // the same round through the 8-term model (nearly flat: a poor case for any inverse)
+    let mut proxy1 = Proxy::default();
+    prime(&mut proxy1, &c1, &mut out);
+    let mut replies1 = [
+        LineBuf::<32>::new(),
+        LineBuf::new(),
+        LineBuf::new(),
+        LineBuf::new(),
+    ];
+    for k in 0..4 {
+        proxy1.host_bytes(Some(&c1), lines[k], 0, &mut out);
+        let q = &out.to_stage.as_bytes()[6..out.to_stage.len() - 1];
+        let q = nanocal_compensator::gcs::parse_micros(q).unwrap_or(0);
+        let _ = replies1[k].extend(b"1=");
+        let _ = replies1[k].push_micros(q - 3_000);
+        let _ = replies1[k].push(b'\n');
+    }
+    nanocal_bench_start(19);
+    for i in 0..N {
+        let k = (i % 4) as usize;
+        proxy1.host_bytes(Some(&c1), lines[k], i, &mut out);
+        proxy1.host_bytes(Some(&c1), black_box(b"POS? 1\n"), i, &mut out);
+        proxy1.stage_bytes(Some(&c1), black_box(replies1[k].as_bytes()), i, &mut out);
+        acc += out.to_host.len() as f32;
+    }
+    nanocal_bench_stop(19);
+
+    // the model's own inverse on the published model, for comparison
+    let fp = mp.fold(&sp);
+    nanocal_bench_start(20);
+    for i in 0..N {
+        let q = [black_box(10.0 + i as f32 * 0.47), 0.0, 0.0];
+        acc += fp
+            .inverse(&q, &dir, &none, &state)
+            .map(|x| x[0])
+            .unwrap_or(0.0);
+    }
+    nanocal_bench_stop(20);
 
     hprintln!("bench done (N = {}, checksum {})", N, acc);
     debug::exit(debug::EXIT_SUCCESS);

@@ -385,6 +385,10 @@ pub fn format_status(s: &Status) -> String {
         flag(flags::SENSOR_BLOCK)
     );
     o += &format!(
+        "moves refused, controller unit is not the model's µm: {}\n",
+        flag(flags::UNIT_MISMATCH)
+    );
+    o += &format!(
         "extrapolating (slow inputs outside the training envelope): {} (bits {:#06x})\n",
         flag(flags::EXTRAPOLATING),
         s.slow_outside

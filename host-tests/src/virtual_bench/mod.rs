@@ -7,6 +7,9 @@ pub mod controller;
 pub mod qemu;
 pub mod sensors;
 
-pub use controller::StageSim;
+pub use controller::{
+    AxisConfig, Clock, Config, Controller, Event, IdealPlant, ManualClock, Plant, StageSim,
+    SystemClock,
+};
 pub use qemu::{bench_elf, have_qemu, qemu_elf, repo_root, Elf, GcsHost, Qemu};
 pub use sensors::{Buses, SensorSim};

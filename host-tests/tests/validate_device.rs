@@ -4,9 +4,11 @@
 //! fitted and the validation computes, for every visit, the target `x̂` for which the device
 //! would have sent the recorded command. Here, with the fold the device had in force at the time
 //! of the move (`DeviceSlowPath`: fold period, f32 readings, lag filters), the compensator's own
-//! GCS proxy (`nanocal_compensator::proxy::Proxy`, the firmware's code) takes `MOV <pose>`
-//! exactly when the validation says the move is not refused, and forwards for `MOV x̂` the
-//! recorded command within 0.1 nm.
+//! GCS proxy (`nanocal_compensator::proxy::Proxy`, the firmware's code, in front of the
+//! simulated C-867 of `tests/proxy_rig`) takes `MOV <pose>` exactly when the validation says the
+//! move is not refused, and forwards for `MOV x̂` the recorded command within 0.1 nm.
+
+mod proxy_rig;
 
 use nanocal::design::DesignSpec;
 use nanocal::device_path::{DeviceSlowPath, DEVICE_FOLD_PERIOD_S};
@@ -15,7 +17,20 @@ use nanocal::plan::{Plan, TestKind};
 use nanocal::procedure::ProcedureData;
 use nanocal::twin::examples::{paper000_1dof_twin, TRAINING_START_S};
 use nanocal::twin::execute::run_plan;
-use nanocal_compensator::proxy::{Corrector, FoldCorrector, Out, Proxy, Route};
+use nanocal_compensator::proxy::{Corrector, FoldCorrector};
+use proxy_rig::{everything, Rig};
+
+/// The value the controller received for axis 1 in the last `MOV` it got, if any.
+fn forwarded(rig: &mut Rig) -> Option<f64> {
+    rig.received()
+        .iter()
+        .rev()
+        .find(|l| l.starts_with("MOV"))
+        .map(|l| {
+            let t: Vec<&str> = l.split_whitespace().collect();
+            t[2].parse().unwrap()
+        })
+}
 
 /// The shortened 1-DoF plan on the twin (`seed`, `rounds` of validation) and its static model.
 fn fitted(seed: u64, rounds: usize) -> (ProcedureData, nanocal_model::Model) {
@@ -44,8 +59,7 @@ fn every_validated_visit_is_what_the_gcs_proxy_forwards() {
         .unwrap();
     assert_eq!(report.visits.len(), 2 * 2 * 14);
     let mut device = DeviceSlowPath::new(model.lags(), &data.data.sensors, DEVICE_FOLD_PERIOD_S);
-    let mut proxy = Proxy::default();
-    let mut out = Out::new();
+    let mut rig = Rig::new(everything(1), Some(model), &[]);
     let mut refused = 0;
     let mut edge = 0;
     for v in &report.visits {
@@ -65,24 +79,24 @@ fn every_validated_visit_is_what_the_gcs_proxy_forwards() {
         let target = meas - v.error_um[0];
         let slow = device.slow_at(v.t_move_s);
         let corrector = FoldCorrector::new(model, &slow);
+        rig.comp = Some(corrector);
         // the user asks for the pose: the proxy takes the move unless the validation says refused
-        let ask = format!("MOV 1 {recorded}");
-        let route = proxy.host_line(Some(&corrector), ask.as_bytes(), &mut out);
-        assert_eq!(route == Route::Stage, !v.refused, "{ask}");
+        rig.line(&format!("MOV 1 {recorded}"));
+        let taken = forwarded(&mut rig).is_some();
+        rig.line("ERR?");
+        assert_eq!(taken, !v.refused, "MOV 1 {recorded}");
         if v.refused {
             refused += 1;
             continue;
         }
         // the validated target: the command the device sends for it is the recorded one
-        let line = format!("MOV 1 {target:.9}");
-        let q: f64 = match proxy.host_line(Some(&corrector), line.as_bytes(), &mut out) {
-            Route::Stage => {
-                let sent = std::str::from_utf8(out.as_bytes()).unwrap();
-                sent.split_whitespace().nth(2).unwrap().parse().unwrap()
-            }
+        rig.line(&format!("MOV 1 {target:.9}"));
+        let q = match forwarded(&mut rig) {
+            Some(q) => q,
             // a target a few nm beyond the end of the training envelope (the pose itself is
             // inside): the proxy refuses it, so check the fast path it would have called
-            _ => {
+            None => {
+                rig.line("ERR?");
                 edge += 1;
                 let dir = [v.dir[0], 0, 0];
                 let c = corrector.correct(&[target as f32, 0.0, 0.0], &dir);

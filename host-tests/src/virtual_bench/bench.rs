@@ -163,7 +163,13 @@ impl VirtualBench {
 
         // the sensor chips read the twin's room at the board's clock
         let mut buses = Buses::default();
-        let noise: Vec<f64> = twin.cfg.sensors.iter().map(|s| s.noise_c).collect();
+        let noise: Vec<f64> = twin
+            .cfg
+            .sensors
+            .iter()
+            .filter(|s| s.recorded)
+            .map(|s| s.noise_c)
+            .collect();
         let n_sensors = stage.lock().unwrap().sensors().len();
         for i in 0..n_sensors {
             let st = stage.clone();
@@ -277,11 +283,13 @@ impl VirtualBench {
             && self.link.idle_at_horizon()
     }
 
-    /// Wait until the controller has acted on every byte the board sent it: it stamps each
-    /// command with the board's clock, which must not move before.
+    /// Wait until the board has done everything it had to do at this instant (it may still be
+    /// forwarding a corrected `MOV` after it answered the host) and the controller has acted on
+    /// every byte the board sent it: it stamps each command with the board's clock, which must
+    /// not move before.
     fn sync_stage(&mut self) -> Result<(), BenchError> {
         let start = Instant::now();
-        while self.stage_sim.bytes_in() as u32 != self.link.tx_bytes(1) {
+        while !self.settled() || self.stage_sim.bytes_in() as u32 != self.link.tx_bytes(1) {
             if start.elapsed() > Duration::from_secs(10) {
                 return Err(BenchError::Other(format!(
                     "the stage controller took in {} of the {} bytes the board sent it",

@@ -92,7 +92,13 @@ impl TwinStage {
         exact.cfg.interferometer_resolution_nm = 0.0;
         exact.cfg.positioning_sigma_nm = 0.0;
         exact.cfg.sample_period_s = twin.cfg.sample_period_s;
-        let sensors = twin.cfg.sensors.iter().map(|s| s.name.clone()).collect();
+        let sensors = twin
+            .cfg
+            .sensors
+            .iter()
+            .filter(|s| s.recorded)
+            .map(|s| s.name.clone())
+            .collect();
         Self {
             axes,
             start_abs_s,

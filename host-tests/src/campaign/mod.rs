@@ -399,6 +399,9 @@ pub fn run(
                 runner.check_travel()?;
             }
             let r = runner.run(progress);
+            if std::env::var_os("NANOCAL_CAMPAIGN_PROFILE").is_some() {
+                eprintln!("campaign profile (wall s): {:?}", runner.profile());
+            }
             let qemu_cpu = vbench_pid.and_then(cpu_s);
             let txns = transactions.as_ref().map(|f| f());
             r?;

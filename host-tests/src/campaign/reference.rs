@@ -241,6 +241,8 @@ pub struct LineSource {
     axes: usize,
     to_um: f64,
     line: usize,
+    /// A bad line met after good samples: reported at the next poll.
+    pending: Option<ReferenceError>,
 }
 
 impl LineSource {
@@ -253,6 +255,7 @@ impl LineSource {
             axes,
             to_um,
             line: 0,
+            pending: None,
         }
     }
 
@@ -265,12 +268,18 @@ impl LineSource {
                 Ok(Some(s)) => out.push(s),
                 Ok(None) => {}
                 Err(problem) => {
-                    return Err(ReferenceError::Malformed {
+                    let e = ReferenceError::Malformed {
                         source_name: self.name.clone(),
                         line: self.line,
                         problem,
                         text: truncated(text.trim_end()),
-                    })
+                    };
+                    if out.is_empty() {
+                        return Err(e);
+                    }
+                    // hand over the good samples first
+                    self.pending = Some(e);
+                    return Ok(());
                 }
             }
         }
@@ -280,6 +289,9 @@ impl LineSource {
 
 impl ReferenceSource for LineSource {
     fn poll(&mut self, wait: Duration) -> Result<Vec<Sample>, ReferenceError> {
+        if let Some(e) = self.pending.take() {
+            return Err(e);
+        }
         let deadline = Instant::now() + wait;
         let mut out = Vec::new();
         let mut b = [0u8; 4096];
@@ -311,6 +323,9 @@ impl ReferenceSource for LineSource {
                 Some(n) => {
                     self.buf.extend_from_slice(&b[..n]);
                     self.take_lines(&mut out)?;
+                    if self.pending.is_some() {
+                        return Ok(out);
+                    }
                 }
             }
         }
@@ -557,6 +572,66 @@ mod tests {
         let e = parse_line("1 abc", 1, 1.0).unwrap_err();
         assert!(e.contains("position 1 `abc`"), "{e}");
         assert!(parse_line("1 NaN", 1, 1.0).is_err());
+    }
+
+    #[test]
+    fn tcp_stream_samples_malformed_lines_and_a_closed_instrument() {
+        use std::io::Write;
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let port = l.local_addr().unwrap().port();
+        let h = std::thread::spawn(move || {
+            let (mut s, _) = l.accept().unwrap();
+            s.write_all(b"# SIOS\n0.0 1.5\n1.0 2.5\r\n").unwrap();
+            std::thread::sleep(Duration::from_millis(50));
+            s.write_all(b"2.0 3.").unwrap(); // half a line, finished later
+            std::thread::sleep(Duration::from_millis(50));
+            s.write_all(b"5\n3.0 x\n").unwrap();
+        });
+        let mut src = open(&format!("tcp:127.0.0.1:{port}"), 1, 1.0).unwrap();
+        let mut got = Vec::new();
+        let err = loop {
+            match src.poll(Duration::from_millis(500)) {
+                Ok(s) => got.extend(s),
+                Err(e) => break e,
+            }
+        };
+        h.join().unwrap();
+        assert_eq!(
+            got.iter().map(|s| (s.t_s, s.pos_um[0])).collect::<Vec<_>>(),
+            vec![(0.0, 1.5), (1.0, 2.5), (2.0, 3.5)]
+        );
+        let msg = err.to_string();
+        assert!(msg.contains("line 5") && msg.contains("`x` is not a number"), "{msg}");
+        // nothing more: the instrument closed its end
+        assert!(matches!(src.poll(Duration::from_millis(200)), Err(ReferenceError::Closed { .. })));
+        assert!(matches!(open("tcp:127.0.0.1:1", 1, 1.0), Err(ReferenceError::Open { .. })));
+        assert!(matches!(open("carrier-pigeon", 1, 1.0), Err(ReferenceError::BadSpec(_))));
+    }
+
+    #[test]
+    fn a_csv_file_being_appended_to_is_followed_from_where_it_was() {
+        use std::io::Write;
+        let dir = std::env::temp_dir().join(format!("nanocal-ref-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("sios.csv");
+        std::fs::write(&p, "timestamp,meas_x,temp\n0,1.0,20\n1,1.1,20\n2,1.").unwrap();
+        let mut src = open(p.to_str().unwrap(), 1, 1e-3).unwrap();
+        // the complete rows already there are an earlier run's; the one being written is taken
+        assert!(src.poll(Duration::from_millis(50)).unwrap().is_empty());
+        let mut f = std::fs::OpenOptions::new().append(true).open(&p).unwrap();
+        f.write_all(b"2,20\n3,1300,20\n4,14").unwrap();
+        let got = src.poll(Duration::from_millis(200)).unwrap();
+        assert_eq!(got.len(), 2);
+        assert_eq!(got[1].t_s, 3.0);
+        assert!((got[1].pos_um[0] - 1.3).abs() < 1e-12);
+        f.write_all(b"00,20\n").unwrap();
+        let got = src.poll(Duration::from_millis(200)).unwrap();
+        assert_eq!(got[0].t_s, 4.0);
+        assert!((got[0].pos_um[0] - 1.4).abs() < 1e-12);
+        f.write_all(b"5,oops,20\n").unwrap();
+        let e = src.poll(Duration::from_millis(200)).unwrap_err().to_string();
+        assert!(e.contains("line 7") && e.contains("`oops`"), "{e}");
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]

@@ -300,6 +300,25 @@ pub struct Runner<'a> {
     aux: Vec<f32>,
     /// Reference samples of the current step's averaging window.
     window: Vec<Vec<f64>>,
+    /// Wall time spent per part of a step (`NANOCAL_CAMPAIGN_PROFILE=1` prints it).
+    profile: Profile,
+}
+
+/// Wall time per part of the steps, s.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct Profile {
+    /// Letting the bench's time run.
+    pub wait_s: f64,
+    /// Reading the reference and writing rows.
+    pub collect_s: f64,
+    /// Status reads.
+    pub status_s: f64,
+    /// Setting the compensator up (bypass, uploads, KMZ).
+    pub setup_s: f64,
+    /// `MOV` + `ERR?`.
+    pub mov_s: f64,
+    /// Recording commits and state saves.
+    pub save_s: f64,
 }
 
 fn describe(phase: Phase, plan: &Plan) -> String {
@@ -352,7 +371,13 @@ impl<'a> Runner<'a> {
             temps: Vec::new(),
             aux: Vec::new(),
             window: Vec::new(),
+            profile: Profile::default(),
         })
+    }
+
+    /// Where the wall time went.
+    pub fn profile(&self) -> Profile {
+        self.profile
     }
 
     /// The stage's travel covers every pose of the plan (asked of the controller through the
@@ -723,7 +748,15 @@ impl<'a> Runner<'a> {
         for k in start..n {
             let step = self.steps[k].clone();
             progress.step(k, n, &describe(step.phase, self.plan));
-            if !self.links.driver.wait_until(step.t_start_s, &self.stop)?
+            let mut clock = std::time::Instant::now();
+            let mut lap = |slot: &mut f64| {
+                let now = std::time::Instant::now();
+                *slot += (now - clock).as_secs_f64();
+                clock = now;
+            };
+            let waited = self.links.driver.wait_until(step.t_start_s, &self.stop)?;
+            lap(&mut self.profile.wait_s);
+            if !waited
                 || self.stop.load(Ordering::Acquire)
             {
                 return Err(CampaignError::Interrupted {
@@ -735,7 +768,9 @@ impl<'a> Runner<'a> {
                 let prev = &self.steps[k - 1];
                 let from = prev.t_end_s() - prev.average_last_s;
                 self.collect(step.t_start_s, from)?;
+                lap(&mut self.profile.collect_s);
                 self.finish(k - 1)?;
+                lap(&mut self.profile.setup_s);
             } else {
                 self.links.reference.discard_before(0.0);
             }
@@ -743,6 +778,7 @@ impl<'a> Runner<'a> {
             self.state.recording_bytes = self.recorder.commit()?;
             self.state.next_step = k;
             self.save()?;
+            lap(&mut self.profile.save_s);
             if step.phase != Phase::Training && self.models.is_none() {
                 progress.note("fitting the static and adaptive models");
                 let rec = self.recorder.path().to_path_buf();
@@ -788,6 +824,7 @@ impl<'a> Runner<'a> {
                 });
             }
             self.cmd_um = self.stage_command(k, mode);
+            lap(&mut self.profile.mov_s);
             if let Some(next) = self.steps.get(k + 1) {
                 let m = mode_of(next.phase);
                 // a KMZ measurement needs bypass until it is sent; else set up for the next step now

@@ -42,9 +42,13 @@ impl<S: Read> Read for Counted<S> {
 
 impl<S: Write> Write for Counted<S> {
     fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
-        let n = self.inner.write(b)?;
-        self.sent.fetch_add(n as u64, Ordering::AcqRel);
-        Ok(n)
+        // counted before they go (the bench must never see the board as having read them all
+        // while they are on their way), corrected for what did not go
+        self.sent.fetch_add(b.len() as u64, Ordering::AcqRel);
+        let r = self.inner.write(b);
+        let n = *r.as_ref().unwrap_or(&0);
+        self.sent.fetch_sub((b.len() - n) as u64, Ordering::AcqRel);
+        r
     }
     fn flush(&mut self) -> std::io::Result<()> {
         self.inner.flush()
@@ -387,7 +391,7 @@ impl BenchDriver for VirtualBench {
                 if self.settled() {
                     // the board took the request in and waits: for its own time (a flash erase)
                     let since = *idle_since.get_or_insert_with(Instant::now);
-                    if since.elapsed() > Duration::from_micros(300) {
+                    if since.elapsed() > Duration::from_micros(50) {
                         let next = self.link.now_s() + NUDGE_S;
                         if let Err(e) = self.clock.advance_to(next, Duration::from_secs(60)) {
                             result = Err(e.into());

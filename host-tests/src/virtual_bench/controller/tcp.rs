@@ -71,11 +71,12 @@ impl StageSim {
                         return;
                     }
                 }
+                // counted before they go: a bench must not think the board has read them all
+                counts[1].fetch_add(reply.len() as u64, Ordering::AcqRel);
+                counts[0].fetch_add(n as u64, Ordering::AcqRel);
                 if !reply.is_empty() && w.write_all(&reply).is_err() {
                     return;
                 }
-                counts[1].fetch_add(reply.len() as u64, Ordering::AcqRel);
-                counts[0].fetch_add(n as u64, Ordering::AcqRel);
             }
         });
         Self {
@@ -85,12 +86,12 @@ impl StageSim {
         }
     }
 
-    /// Bytes the controller has taken in and acted on (its replies already sent).
+    /// Bytes the controller has taken in and acted on (its replies counted in [`Self::bytes_out`]).
     pub fn bytes_in(&self) -> u64 {
         self.bytes[0].load(Ordering::Acquire)
     }
 
-    /// Bytes the controller has sent back.
+    /// Bytes the controller has sent back or is sending.
     pub fn bytes_out(&self) -> u64 {
         self.bytes[1].load(Ordering::Acquire)
     }

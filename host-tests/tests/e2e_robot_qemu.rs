@@ -63,7 +63,7 @@ fn e2e_robot_model_under_qemu() {
         return;
     };
     let stage = StageSim::start(q.connect(1), 3);
-    let _sensors = SensorSim::start(q.connect(2), &temps);
+    let _sensors = SensorSim::start(q.link(), &temps);
     let mut host = q.gcs_host();
     let mut c = q.client();
     // a type K amplifier on each of the model's ten chip-selects, as `nanocal device config` sets

@@ -62,6 +62,18 @@ pub struct Config {
     pub explain: bool,
     /// Continue the campaign in `out`.
     pub resume: bool,
+    /// Faults to stage (tests; none by default).
+    pub faults: Faults,
+}
+
+/// Faults a test stages, to see the campaign meet them (none by default).
+#[derive(Debug, Clone, Default)]
+pub struct Faults {
+    /// The virtual bench's instruments fail (ignored on a real bench).
+    pub bench: crate::virtual_bench::bench::Faults,
+    /// The compensator is reset (its management `RESET`, the firmware's own software reset)
+    /// just before this step: the campaign must notice it in the status and set it up again.
+    pub reset_before_step: Option<usize>,
 }
 
 /// What a finished campaign reports.
@@ -112,6 +124,7 @@ fn open(
     plan: &Plan,
     steps: &[Step],
     resume_at: usize,
+    faults: &Faults,
 ) -> Result<Opened, CampaignError> {
     let axes = plan.training.axes();
     let plan_start = steps.get(resume_at).map_or(0.0, |s| s.t_start_s);
@@ -125,6 +138,7 @@ fn open(
                 crate::twin::examples::TRAINING_START_S,
                 *seed,
                 plan_start - crate::virtual_bench::bench::VirtualBench::SETUP_S,
+                &faults.bench,
             );
             let device = Client::new(
                 vb.management(),
@@ -327,7 +341,7 @@ pub fn run(
     let mut state = match &prior {
         Some(s) if s.stage != Stage::Steps => s.clone(),
         _ => {
-            let opened = open(&spec, &plan, &steps, resume_at)?;
+            let opened = open(&spec, &plan, &steps, resume_at, &cfg.faults)?;
             let Opened {
                 mut links,
                 vbench_pid,
@@ -395,8 +409,16 @@ pub fn run(
             });
             let mut runner =
                 Runner::new(dir, &plan, state, links, gcs_axes, design, recorder, stop)?;
+            runner.reset_before_step = cfg.faults.reset_before_step;
             if prior.is_none() {
-                runner.check_travel()?;
+                if let Err(e) = runner.check_travel() {
+                    // nothing ran: leave no campaign behind, so the fixed plan can start here
+                    drop(runner);
+                    for f in [state::FILE, PLAN, RECORDING] {
+                        let _ = std::fs::remove_file(dir.join(f));
+                    }
+                    return Err(e);
+                }
             }
             let r = runner.run(progress);
             if std::env::var_os("NANOCAL_CAMPAIGN_PROFILE").is_some() {

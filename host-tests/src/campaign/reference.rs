@@ -601,11 +601,23 @@ mod tests {
             vec![(0.0, 1.5), (1.0, 2.5), (2.0, 3.5)]
         );
         let msg = err.to_string();
-        assert!(msg.contains("line 5") && msg.contains("`x` is not a number"), "{msg}");
+        assert!(
+            msg.contains("line 5") && msg.contains("`x` is not a number"),
+            "{msg}"
+        );
         // nothing more: the instrument closed its end
-        assert!(matches!(src.poll(Duration::from_millis(200)), Err(ReferenceError::Closed { .. })));
-        assert!(matches!(open("tcp:127.0.0.1:1", 1, 1.0), Err(ReferenceError::Open { .. })));
-        assert!(matches!(open("carrier-pigeon", 1, 1.0), Err(ReferenceError::BadSpec(_))));
+        assert!(matches!(
+            src.poll(Duration::from_millis(200)),
+            Err(ReferenceError::Closed { .. })
+        ));
+        assert!(matches!(
+            open("tcp:127.0.0.1:1", 1, 1.0),
+            Err(ReferenceError::Open { .. })
+        ));
+        assert!(matches!(
+            open("carrier-pigeon", 1, 1.0),
+            Err(ReferenceError::BadSpec(_))
+        ));
     }
 
     #[test]
@@ -629,7 +641,10 @@ mod tests {
         assert_eq!(got[0].t_s, 4.0);
         assert!((got[0].pos_um[0] - 1.4).abs() < 1e-12);
         f.write_all(b"5,oops,20\n").unwrap();
-        let e = src.poll(Duration::from_millis(200)).unwrap_err().to_string();
+        let e = src
+            .poll(Duration::from_millis(200))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("line 7") && e.contains("`oops`"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
     }

@@ -302,6 +302,8 @@ pub struct Runner<'a> {
     window: Vec<Vec<f64>>,
     /// Wall time spent per part of a step (`NANOCAL_CAMPAIGN_PROFILE=1` prints it).
     profile: Profile,
+    /// Reset the compensator just before this step (a staged fault, for tests).
+    pub reset_before_step: Option<usize>,
 }
 
 /// Wall time per part of the steps, s.
@@ -372,6 +374,7 @@ impl<'a> Runner<'a> {
             aux: Vec::new(),
             window: Vec::new(),
             profile: Profile::default(),
+            reset_before_step: None,
         })
     }
 
@@ -498,10 +501,9 @@ impl<'a> Runner<'a> {
             })?;
             let mut q = [0.0; MAX_AXES];
             let mut xm = [0.0; MAX_AXES];
-            for a in 0..x.len() {
-                q[a] = self.cmd_um[a];
-                xm[a] = x[a];
-            }
+            let n = x.len();
+            q[..n].copy_from_slice(&self.cmd_um[..n]);
+            xm[..n].copy_from_slice(&x);
             let kmz = self.device(move |c| c.set_kmz(q, xm))?;
             self.state.kmz_um = Some(kmz[..x.len()].to_vec());
             self.state.kmz_updates += 1;
@@ -756,9 +758,7 @@ impl<'a> Runner<'a> {
             };
             let waited = self.links.driver.wait_until(step.t_start_s, &self.stop)?;
             lap(&mut self.profile.wait_s);
-            if !waited
-                || self.stop.load(Ordering::Acquire)
-            {
+            if !waited || self.stop.load(Ordering::Acquire) {
                 return Err(CampaignError::Interrupted {
                     step: k,
                     t_s: self.t_now(),
@@ -786,6 +786,10 @@ impl<'a> Runner<'a> {
                 self.state.model_ids = Some((models.static_model.id(), models.adaptive.id()));
                 self.models = Some(models);
                 self.save()?;
+            }
+            if self.reset_before_step == Some(k) {
+                self.reset_before_step = None;
+                self.device(|c| c.reset())?;
             }
             let before = self.state.device_resets;
             let s = self.ready_status(k)?;
@@ -829,7 +833,7 @@ impl<'a> Runner<'a> {
                 let m = mode_of(next.phase);
                 // a KMZ measurement needs bypass until it is sent; else set up for the next step now
                 let keep_bypass = matches!(step.phase, Phase::Kmz { .. });
-                if !(keep_bypass && !m.bypass) && next.phase != Phase::Training {
+                if (m.bypass || !keep_bypass) && next.phase != Phase::Training {
                     if m.model.is_some() && self.models.is_none() {
                         continue; // fitted at the next step's start
                     }

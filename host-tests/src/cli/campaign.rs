@@ -166,6 +166,7 @@ pub fn run(args: CampaignArgs) -> anyhow::Result<()> {
         design,
         explain: !args.no_explain,
         resume: args.resume,
+        faults: Default::default(),
     };
     let stop = Arc::new(AtomicBool::new(false));
     {

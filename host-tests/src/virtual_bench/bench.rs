@@ -55,6 +55,19 @@ impl<S: Write> Write for Counted<S> {
     }
 }
 
+/// Faults the virtual bench stages at plan times, for the campaign's tests of what a bench of
+/// days meets (none by default). A device reset is the campaign's own to stage
+/// ([`crate::campaign::Config::faults`]): the bench has no second management connection.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Faults {
+    /// From this plan time on the interferometer sends nothing more; its connection stays open
+    /// (a laser that lost its beam, a program that hangs), s.
+    pub reference_silent_from_s: Option<f64>,
+    /// From this plan time on the thermocouple on this chip-select is broken: the MAX31856
+    /// reports an open circuit (datasheet, SR bit 0 OPEN, with CR0.OCFAULT enabled), s.
+    pub thermocouple_open: Option<(usize, f64)>,
+}
+
 /// The virtual bench.
 pub struct VirtualBench {
     qemu: Qemu,
@@ -132,6 +145,7 @@ impl VirtualBench {
         start_abs_s: f64,
         stream: u64,
         plan_at_boot_s: f64,
+        faults: &Faults,
     ) -> Self {
         let mut qemu = Qemu::start(&[]);
         let _ = &mut qemu;
@@ -175,12 +189,12 @@ impl VirtualBench {
             .map(|s| s.noise_c)
             .collect();
         let n_sensors = stage.lock().unwrap().sensors().len();
-        for i in 0..n_sensors {
+        for (i, &noise_c) in noise.iter().enumerate().take(n_sensors) {
             let st = stage.clone();
             let source = TempSource(Arc::new(move |bench_s: f64| {
                 st.lock().unwrap().spot_c(i, bench_s - offset_s)
             }));
-            let chip = Max31856::new(20.0).following(source, noise[i], stream ^ (i as u64 + 1));
+            let chip = Max31856::new(20.0).following(source, noise_c, stream ^ (i as u64 + 1));
             buses.spi.push(Some(Box::new(chip)));
         }
         buses.i2c.insert(
@@ -190,8 +204,18 @@ impl VirtualBench {
         buses.adc = vec![Some(2048), None, None, None];
         let buses = Arc::new(Mutex::new(buses));
         let (b, st) = (buses.clone(), stage.clone());
+        let open_tc = faults.thermocouple_open;
         link.attach_bus(Box::new(move |op, target, out, n_in, now_s| {
             let mut b = b.lock().unwrap();
+            if let Some((cs, from_s)) = open_tc {
+                if op == wire::SPI && usize::from(target) == cs && now_s - offset_s >= from_s {
+                    if let Some(Some(chip)) = b.spi.get_mut(cs) {
+                        if let Some(tc) = chip.any_mut().downcast_mut::<Max31856>() {
+                            tc.open = true;
+                        }
+                    }
+                }
+            }
             if op == wire::I2C {
                 let p = st.lock().unwrap().pressure_hpa(now_s - offset_s);
                 if let Some(chip) = b.i2c.get_mut(&super::chips::lps22hb::ADDRESS) {
@@ -208,7 +232,10 @@ impl VirtualBench {
         let stop_reference = Arc::new(AtomicBool::new(false));
         {
             let (link, stage, stop) = (link.clone(), stage.clone(), stop_reference.clone());
-            std::thread::spawn(move || serve_interferometer(listener, link, stage, offset_s, stop));
+            let silent_from_s = faults.reference_silent_from_s.unwrap_or(f64::INFINITY);
+            std::thread::spawn(move || {
+                serve_interferometer(listener, link, stage, offset_s, silent_from_s, stop)
+            });
         }
         clock.lockstep();
         let sent = [Arc::new(AtomicU64::new(0)), Arc::new(AtomicU64::new(0))];
@@ -322,6 +349,7 @@ fn serve_interferometer(
     link: Arc<BenchLink>,
     stage: Arc<Mutex<TwinStage>>,
     offset_s: f64,
+    silent_from_s: f64,
     stop: Arc<AtomicBool>,
 ) {
     let Ok((mut s, _)) = listener.accept() else {
@@ -348,7 +376,7 @@ fn serve_interferometer(
             let end = st.end_s();
             loop {
                 let t = first + k as f64 * period;
-                if t >= now || t > end {
+                if t >= now || t > end || t >= silent_from_s {
                     break;
                 }
                 let m = st.measure(t);

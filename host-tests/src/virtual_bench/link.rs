@@ -79,7 +79,7 @@ impl Page {
     }
 
     fn a32(&self, off: usize) -> &AtomicU32 {
-        assert!(off % 4 == 0 && off + 4 <= bl::PAGE_LEN);
+        assert!(off.is_multiple_of(4) && off + 4 <= bl::PAGE_LEN);
         // SAFETY: aligned, inside the mapping, which outlives `self`.
         unsafe { &*(self.ptr.add(off) as *const AtomicU32) }
     }
@@ -108,7 +108,7 @@ impl Page {
 
     /// Set a u64 field in one store (the board reads it high, low, high).
     pub fn set_u64(&self, off: usize, v: u64) {
-        assert!(off % 8 == 0);
+        assert!(off.is_multiple_of(8));
         // SAFETY: 8-aligned, inside the mapping.
         let a = unsafe { &*(self.ptr.add(off) as *const AtomicU64) };
         a.store(v, Ordering::Release)

@@ -72,7 +72,8 @@ pub struct Faults {
     /// The virtual bench's instruments fail (ignored on a real bench).
     pub bench: crate::virtual_bench::bench::Faults,
     /// The compensator is reset (its management `RESET`, the firmware's own software reset)
-    /// just before this step: the campaign must notice it in the status and set it up again.
+    /// during the hold before this step: the campaign must notice it in the status and set it
+    /// up again.
     pub reset_before_step: Option<usize>,
 }
 

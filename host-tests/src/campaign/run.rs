@@ -302,7 +302,7 @@ pub struct Runner<'a> {
     window: Vec<Vec<f64>>,
     /// Wall time spent per part of a step (`NANOCAL_CAMPAIGN_PROFILE=1` prints it).
     profile: Profile,
-    /// Reset the compensator just before this step (a staged fault, for tests).
+    /// Reset the compensator during the hold before this step (a staged fault, for tests).
     pub reset_before_step: Option<usize>,
 }
 
@@ -764,7 +764,12 @@ impl<'a> Runner<'a> {
                     t_s: self.t_now(),
                 });
             }
-            if k > 0 {
+            if k > 0 && k == start {
+                // a resumed campaign: the rows before step k are on disk (and step k − 1's KMZ
+                // was sent); what the instrument sent of that time since is not a second row
+                let now = self.t_now();
+                self.links.reference.until(step.t_start_s, now)?;
+            } else if k > 0 {
                 let prev = &self.steps[k - 1];
                 let from = prev.t_end_s() - prev.average_last_s;
                 self.collect(step.t_start_s, from)?;
@@ -786,10 +791,6 @@ impl<'a> Runner<'a> {
                 self.state.model_ids = Some((models.static_model.id(), models.adaptive.id()));
                 self.models = Some(models);
                 self.save()?;
-            }
-            if self.reset_before_step == Some(k) {
-                self.reset_before_step = None;
-                self.device(|c| c.reset())?;
             }
             let before = self.state.device_resets;
             let s = self.ready_status(k)?;
@@ -839,6 +840,12 @@ impl<'a> Runner<'a> {
                     }
                     self.apply(k, m)?;
                 }
+            }
+            if self.reset_before_step == Some(k + 1) {
+                // a staged fault, during the hold: the firmware resets once its reply is out
+                // and boots while the bench's time runs to the next step
+                self.reset_before_step = None;
+                self.device(|c| c.reset())?;
             }
         }
         // the last step's end

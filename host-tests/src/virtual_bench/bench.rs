@@ -28,6 +28,10 @@ const COUNTED: [usize; 2] = [0, 3];
 /// Board time the bench lets pass at once while a request waits for the board's own timers.
 const NUDGE_S: f64 = 0.01;
 
+/// Wall time after which an exchange lets board time pass even though the board has started
+/// to answer (a reply the board finishes only after waiting for its own time).
+const ANSWERED_GRACE: Duration = Duration::from_millis(500);
+
 /// A stream that counts the bytes written into the board.
 struct Counted<S> {
     inner: S,
@@ -415,11 +419,28 @@ impl BenchDriver for VirtualBench {
         std::thread::scope(|sc| {
             let h = sc.spawn(op);
             let mut idle_since: Option<Instant> = None;
+            // what the board had sent when the host last wrote to it
+            let mut request: Option<(u64, u32)> = None;
             while !h.is_finished() {
+                let sent: u64 = self.sent.iter().map(|s| s.load(Ordering::Acquire)).sum();
+                let replied: u32 = COUNTED
+                    .iter()
+                    .fold(0u32, |n, &p| n.wrapping_add(self.link.tx_bytes(p)));
+                if request.is_none_or(|(s, _)| s != sent) {
+                    request = Some((sent, replied));
+                }
+                // the board has started to answer the newest request: it needs no more time,
+                // and the fold it answered with must stay the one the next command meets
+                let answered = request.is_some_and(|(_, r)| r != replied);
                 if self.settled() {
                     // the board took the request in and waits: for its own time (a flash erase)
                     let since = *idle_since.get_or_insert_with(Instant::now);
-                    if since.elapsed() > Duration::from_micros(50) {
+                    let wait = if answered {
+                        ANSWERED_GRACE
+                    } else {
+                        Duration::from_micros(50)
+                    };
+                    if since.elapsed() > wait {
                         let next = self.link.now_s() + NUDGE_S;
                         if let Err(e) = self.clock.advance_to(next, Duration::from_secs(60)) {
                             result = Err(e.into());

@@ -21,9 +21,7 @@ fn main() -> anyhow::Result<()> {
         .transpose()?
         .unwrap_or(3);
     let mut cfg = TwinConfig::published_1dof();
-    cfg.effects = vec![EffectSpec::ThermalLag(thermal_lag::Params {
-        tau_s: 1500.0,
-    })];
+    cfg.effects = vec![EffectSpec::ThermalLag(thermal_lag::Params::common(1500.0))];
     // 0:30:480 µm forward/backward with 60 s dwells: 25 cycles = 14.2 h at 1 Hz
     let traj = Trajectory::published_training_1dof(60.0, 25);
     let cols = Twin::new(cfg, traj.duration_s() + 86_400.0, 1).simulate(&traj, 8.0 * 3600.0, 1);

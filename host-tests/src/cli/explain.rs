@@ -19,11 +19,12 @@ pub struct ExplainArgs {
     /// Write the findings as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
-    /// Write residual plots before/after (SVG) into this folder.
+    /// Write residual plots before/after (PNG and SVG) into this folder.
     #[arg(long)]
     pub plots: Option<PathBuf>,
-    /// Minimum BIC drop for an effect to be named.
-    #[arg(long, default_value_t = 20.0)]
+    /// Minimum BIC drop for an effect to be named (sample size = the independent rows behind
+    /// its evidence; 6 = strong evidence).
+    #[arg(long, default_value_t = 6.0)]
     pub min_bic_drop: f64,
 }
 

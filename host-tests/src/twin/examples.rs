@@ -38,7 +38,7 @@ pub fn published_1dof_twin(seed: u64) -> Twin {
             axis: 0,
             alpha_ppm_per_c: 600.0,
         }),
-        EffectSpec::ThermalLag(thermal_lag::Params { tau_s: 1200.0 }),
+        EffectSpec::ThermalLag(thermal_lag::Params::common(1200.0)),
         EffectSpec::UnexplainedDrift(unexplained_drift::Params {
             axis: 0,
             amplitude_nm: 400.0,

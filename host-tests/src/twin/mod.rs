@@ -7,6 +7,7 @@
 //! of switchable physical effects from [`crate::effects`]. An interferometer with noise (and
 //! optional effects of its own) measures the position. Everything is deterministic from a seed.
 
+pub mod drives;
 pub mod examples;
 pub mod room;
 pub mod trajectory;

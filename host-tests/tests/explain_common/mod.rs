@@ -124,3 +124,20 @@ pub fn lively_fast_sensors() -> TwinConfig {
     cfg.thermal_um_per_c = vec![vec![1.2, 1.0, 0.8]];
     cfg
 }
+
+/// A piezo-like stage (0–30 µm, 200 Hz, no geometric error beyond a small cubic) under a
+/// continuous drive through random turning points: amplitude changes, minor loops, partly
+/// inverted strokes (60 legs, 15 s).
+pub fn continuous_drive(effects: Vec<EffectSpec>, seed: u64) -> Columns {
+    let mut r = rng(seed ^ 0xD21E);
+    let mut cfg = TwinConfig::published_1dof();
+    cfg.travel_um = vec![(0.0, 30.0)];
+    cfg.geometric_nm = vec![vec![20.0, -15.0, 10.0]];
+    cfg.sample_period_s = 0.005;
+    cfg.positioning_sigma_nm = 0.0;
+    cfg.interferometer_noise_nm = 3.0;
+    cfg.effects = effects;
+    let points = nanocal::twin::drives::random_turning_points(0.0, 30.0, 60, &mut r);
+    let traj = nanocal::twin::drives::through_turning_points(&points, 50, 0.005);
+    simulate(cfg, &traj, seed)
+}

@@ -4,8 +4,8 @@ use std::env;
 use std::fs;
 use std::path::PathBuf;
 
-/// STM32L475VG: the last 32 KiB of flash are the two model slots (see src/bin/stm32.rs).
-const STM32_MEMORY: &str = "MEMORY\n{\n  FLASH : ORIGIN = 0x08000000, LENGTH = 1024K - 32K\n  RAM   : ORIGIN = 0x20000000, LENGTH = 96K\n}\n";
+/// STM32L475VG: the last 64 KiB of flash (bank 2) hold the store (see src/bin/stm32.rs).
+const STM32_MEMORY: &str = "MEMORY\n{\n  FLASH : ORIGIN = 0x08000000, LENGTH = 1024K - 64K\n  RAM   : ORIGIN = 0x20000000, LENGTH = 96K\n}\n";
 
 /// mps2-an386: 4 MiB ZBT SSRAM1 at 0 (code, the vector table at reset), 4 MiB SSRAM2/3 at
 /// 0x2000_0000 (data).

@@ -40,8 +40,17 @@ cargo clippy --release -- -D warnings
 cargo clippy --release --no-default-features --features qemu -- -D warnings
 cargo fmt --check
 
-# Image sizes (text = flash, data + bss = static RAM), when a size tool is at hand.
-SIZE="$(command -v arm-none-eabi-size || find "$(rustc --print sysroot)" -name llvm-size -type f 2>/dev/null | head -n1 || true)"
-if [ -n "$SIZE" ]; then
-    "$SIZE" target/thumbv7em-none-eabihf/release/nanocal-fw target/thumbv7em-none-eabihf/release/nanocal-fw-qemu
-fi
+# Image sizes, and the STM32 image's budget (issue 9): flash = vector table + text + rodata +
+# data <= 128 KiB, static RAM = data + bss + uninit <= 32 KiB. GNU size reads the ARM ELF's
+# section headers (binutils is on every Debian).
+command -v size >/dev/null || apt_install binutils
+elf=target/thumbv7em-none-eabihf/release/nanocal-fw
+size -A "$elf" target/thumbv7em-none-eabihf/release/nanocal-fw-qemu | grep -E '^(target/.*|\.vector_table|\.text|\.rodata|\.data|\.bss|\.uninit) '
+size -A "$elf" | awk '
+    $1 == ".vector_table" || $1 == ".text" || $1 == ".rodata" { flash += $2 }
+    $1 == ".data" { flash += $2; ram += $2 }
+    $1 == ".bss" || $1 == ".uninit" { ram += $2 }
+    END {
+        printf "STM32 image: flash %d B (%.1f KiB of 128), static RAM %d B (%.1f KiB of 32)\n", flash, flash / 1024, ram, ram / 1024
+        if (flash > 131072 || ram > 32768) { print "STM32 image over budget" > "/dev/stderr"; exit 1 }
+    }'

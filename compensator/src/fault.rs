@@ -199,8 +199,29 @@ impl Faults {
         }
     }
 
+    /// Re-evaluate channel `i`'s hold time at `now_ms` without a reading (a cycle in which it
+    /// gave none): a channel holding its last good value fails once the hold time is over, even
+    /// when no new reading ever comes.
+    pub fn tick(&mut self, i: usize, now_ms: u32) {
+        let p = self.policy;
+        if let Some(c) = self.channels.get_mut(i) {
+            c.tick(&p, now_ms);
+        }
+    }
+
+    /// True when every one of the first `used` channels has a usable value (moves and the
+    /// model's lag filters may start).
+    pub fn all_usable(&self, used: usize) -> bool {
+        used <= MAX_CHANNELS
+            && self
+                .channels
+                .iter()
+                .take(used)
+                .all(|c| c.value_c().is_some())
+    }
+
     /// True when any of the first `used` channels blocks moves.
     pub fn blocks_moves(&self, used: usize) -> bool {
-        self.channels.iter().take(used).any(Channel::blocks_moves)
+        used > MAX_CHANNELS || self.channels.iter().take(used).any(Channel::blocks_moves)
     }
 }

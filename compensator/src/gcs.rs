@@ -1,21 +1,30 @@
-//! PI General Command Set (GCS) line handling: line assembly, command splitting, axis/value
-//! parsing and fixed-point number formatting — the pure part of the inline compensator's proxy.
+//! PI General Command Set (GCS 2.0) syntax: command splitting, mnemonics, axis/value lists,
+//! numbers in fixed point, address prefixes and single-character commands — the pure, byte-level
+//! part of the inline compensator's proxy.
 //!
-//! GCS is ASCII: a command line ends with LF; a multi-line reply ends every non-final line with
-//! a space before the LF. Single-character commands (`#5` = 0x05, `#7`, `#24` = 0x18, …) are one
-//! byte with no LF. An optional address prefix (`<target> [<sender>] `) may precede a command
-//! (daisy chains); it is preserved untouched.
+//! GCS is ASCII (PI's code page is cp1252): a command line ends with LF; a multi-line reply ends
+//! every non-final line with a space before the LF. Single-character commands (`#3` = 0x03 …
+//! `#9`, `#11` = 0x0B, `#24` = 0x18, `#27` = 0x1B) are one control byte with no LF; controllers
+//! act on them at once. An optional address prefix (`<target> [<sender>] `) may precede a command
+//! on a daisy chain; the controller answers with the two swapped (`0 <target> `). Mnemonics are
+//! case-insensitive (`mov 1 10` is `MOV 1 10`).
 //!
-//! Numbers are parsed without `core`'s float parser (smaller code on the microcontroller):
-//! up to 18 significant digits, an optional fraction and exponent.
+//! Positions travel through the proxy as integers in millionths of the controller's unit
+//! ("micros", 1 pm for µm): the host's decimal text is parsed straight into that integer and
+//! forwarded commands are printed from it with six decimals, so MVR sums, exact replies and
+//! formatting never touch software floating point on the microcontroller.
 
 use core::fmt;
 
-/// Longest line the proxy handles (bytes, LF excluded). Longer lines are an error.
-pub const MAX_LINE: usize = 200;
+/// Longest command line the proxy parses (bytes, LF excluded). A longer line that the proxy
+/// would have to rewrite or refuse is refused; any other longer line is streamed through.
+pub const MAX_LINE: usize = 256;
 
 /// Longest GCS axis identifier (bytes).
 pub const MAX_AXIS_ID: usize = 8;
+
+/// Millionths per unit: positions are held as `i64` micros (value × 10⁶).
+pub const MICROS_PER_UNIT: i64 = 1_000_000;
 
 /// Errors of GCS parsing.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -27,10 +36,6 @@ pub enum GcsError {
     BadNumber,
     /// An axis/value list had an axis without a value.
     MissingValue,
-    /// The same axis appeared twice in one command.
-    DuplicateAxis,
-    /// More axis/value pairs than the proxy can hold.
-    TooManyAxes,
     /// The output buffer was too small for the rewritten line.
     OutputFull,
 }
@@ -41,8 +46,6 @@ impl fmt::Display for GcsError {
             GcsError::LineTooLong => "GCS line longer than the proxy's line buffer",
             GcsError::BadNumber => "expected a decimal number",
             GcsError::MissingValue => "expected a value after the axis identifier",
-            GcsError::DuplicateAxis => "axis given twice in one command",
-            GcsError::TooManyAxes => "too many axis/value pairs in one command",
             GcsError::OutputFull => "rewritten line does not fit the output buffer",
         })
     }
@@ -53,6 +56,20 @@ impl fmt::Display for GcsError {
 pub struct LineBuf<const N: usize> {
     buf: [u8; N],
     len: usize,
+}
+
+impl<const N: usize> PartialEq for LineBuf<N> {
+    fn eq(&self, other: &Self) -> bool {
+        self.as_bytes() == other.as_bytes()
+    }
+}
+
+impl<const N: usize> Eq for LineBuf<N> {}
+
+impl<const N: usize> fmt::Debug for LineBuf<N> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{:?}", self.as_bytes().escape_ascii())
+    }
 }
 
 impl<const N: usize> Default for LineBuf<N> {
@@ -85,80 +102,67 @@ impl<const N: usize> LineBuf<N> {
     pub fn is_empty(&self) -> bool {
         self.len == 0
     }
+    /// Bytes that still fit.
+    pub fn room(&self) -> usize {
+        N - self.len
+    }
     /// Append bytes, or fail without writing anything when they do not fit.
+    #[inline]
     pub fn extend(&mut self, bytes: &[u8]) -> Result<(), GcsError> {
         let end = self.len + bytes.len();
         if end > N {
             return Err(GcsError::OutputFull);
         }
-        self.buf[self.len..end].copy_from_slice(bytes);
+        let dst = &mut self.buf[self.len..end];
+        if bytes.len() <= 16 {
+            // the usual few bytes: a loop is cheaper than a call to memcpy
+            for (d, s) in dst.iter_mut().zip(bytes) {
+                *d = *s;
+            }
+        } else {
+            dst.copy_from_slice(bytes);
+        }
         self.len = end;
         Ok(())
     }
     /// Append one byte.
+    #[inline(always)]
     pub fn push(&mut self, b: u8) -> Result<(), GcsError> {
-        self.extend(&[b])
+        if self.len == N {
+            return Err(GcsError::OutputFull);
+        }
+        self.buf[self.len] = b;
+        self.len += 1;
+        Ok(())
+    }
+    /// Drop the first `n` bytes (the rest moves to the front).
+    pub fn consume(&mut self, n: usize) {
+        let n = n.min(self.len);
+        self.buf.copy_within(n..self.len, 0);
+        self.len -= n;
     }
     /// Append an integer in decimal.
     pub fn push_int(&mut self, v: i64) -> Result<(), GcsError> {
+        if v < 0 {
+            self.push(b'-')?;
+        }
+        self.push_u64(v.unsigned_abs())
+    }
+
+    /// Append an unsigned integer in decimal (32-bit hardware division when it fits).
+    pub fn push_u64(&mut self, u: u64) -> Result<(), GcsError> {
+        if let Ok(u) = u32::try_from(u) {
+            return self.push_u32(u);
+        }
         let mut tmp = [0u8; 20];
         let mut i = tmp.len();
-        let neg = v < 0;
-        let mut u = v.unsigned_abs();
-        loop {
+        let mut u = u;
+        while u > 0 {
             i -= 1;
             tmp[i] = b'0' + (u % 10) as u8;
             u /= 10;
-            if u == 0 {
-                break;
-            }
-        }
-        if neg {
-            self.push(b'-')?;
         }
         self.extend(&tmp[i..])
-    }
-    /// Append `v` with exactly `decimals` (≤ 9) digits after the point, rounded half away from
-    /// zero. One f64 multiply and one 64-bit division; the digits are produced in 32 bits.
-    pub fn push_fixed(&mut self, v: f64, decimals: u32) -> Result<(), GcsError> {
-        let decimals = decimals.min(9) as usize;
-        let scaled = v * POW10[decimals];
-        if scaled.is_nan() || scaled.abs() >= 9.0e18 {
-            return Err(GcsError::BadNumber);
-        }
-        let r = if scaled >= 0.0 {
-            (scaled + 0.5) as i64
-        } else {
-            (scaled - 0.5) as i64
-        };
-        let u = r.unsigned_abs();
-        let p = POW10_U32[decimals];
-        let (int, frac) = if u < u64::from(u32::MAX) {
-            let u = u as u32;
-            (u64::from(u / p), u % p)
-        } else {
-            let int = u / u64::from(p);
-            (int, (u - int * u64::from(p)) as u32)
-        };
-        if r < 0 {
-            self.push(b'-')?;
-        }
-        if let Ok(i) = u32::try_from(int) {
-            self.push_u32(i)?;
-        } else {
-            self.push_int(int as i64)?;
-        }
-        if decimals > 0 {
-            self.push(b'.')?;
-            let mut digits = [b'0'; 9];
-            let mut f = frac;
-            for d in digits[..decimals].iter_mut().rev() {
-                *d = b'0' + (f % 10) as u8;
-                f /= 10;
-            }
-            self.extend(&digits[..decimals])?;
-        }
-        Ok(())
     }
 
     /// Append an unsigned 32-bit integer in decimal (hardware division only).
@@ -175,9 +179,104 @@ impl<const N: usize> LineBuf<N> {
         }
         self.extend(&tmp[i..])
     }
+
+    /// Append a position given in micros with exactly six decimals (`-12.500000`).
+    pub fn push_micros(&mut self, v: i64) -> Result<(), GcsError> {
+        self.push_pair(&[], v)
+    }
+
+    /// Append ` <id> <value>` (value in micros, six decimals; with an empty `id`, just the
+    /// value), written straight into the buffer: its length is known before the first digit.
+    pub fn push_pair(&mut self, id: &[u8], v: i64) -> Result<(), GcsError> {
+        let u = v.unsigned_abs();
+        let (int, frac) = match u32::try_from(u) {
+            Ok(u) => (u / 1_000_000, u % 1_000_000),
+            // beyond 4294 units: rare, printed in 64 bits
+            Err(_) => return self.push_pair_wide(id, v),
+        };
+        // int < 4295: at most four digits
+        let n_int = 1 + usize::from(int >= 10) + usize::from(int >= 100) + usize::from(int >= 1000);
+        let head = if id.is_empty() { 0 } else { id.len() + 2 };
+        let total = head + usize::from(v < 0) + n_int + 7;
+        let start = self.len;
+        let dst = self
+            .buf
+            .get_mut(start..start + total)
+            .ok_or(GcsError::OutputFull)?;
+        // two digits at a time from a table: two divisions by constants for six decimals
+        let pair = |x: u32| {
+            let k = 2 * (x as usize % 100);
+            [DIGIT_PAIRS[k], DIGIT_PAIRS[k + 1]]
+        };
+        let dot = total - 7;
+        if let Some(d) = dst.get_mut(dot..total) {
+            let (hi, lo) = (frac / 10_000, frac % 10_000);
+            d[0] = b'.';
+            d[1..3].copy_from_slice(&pair(hi));
+            d[3..5].copy_from_slice(&pair(lo / 100));
+            d[5..7].copy_from_slice(&pair(lo));
+        }
+        let digit = |x: u32| b'0' + (x % 10) as u8;
+        let mut i = dot;
+        let mut w = int;
+        for _ in 0..n_int {
+            i -= 1;
+            dst[i] = digit(w);
+            w /= 10;
+        }
+        if v < 0 {
+            dst[head] = b'-';
+        }
+        if head > 0 {
+            dst[0] = b' ';
+            match id {
+                // the usual one-character identifier, without a call to memcpy
+                [c] => dst[1] = *c,
+                _ => dst[1..1 + id.len()].copy_from_slice(id),
+            }
+            dst[head - 1] = b' ';
+        }
+        self.len = start + total;
+        Ok(())
+    }
+
+    /// [`push_pair`](Self::push_pair) for magnitudes of 2³² micros and more.
+    #[cold]
+    #[inline(never)]
+    fn push_pair_wide(&mut self, id: &[u8], v: i64) -> Result<(), GcsError> {
+        let u = v.unsigned_abs();
+        if !id.is_empty() {
+            self.push(b' ')?;
+            self.extend(id)?;
+            self.push(b' ')?;
+        }
+        if v < 0 {
+            self.push(b'-')?;
+        }
+        self.push_u64(u / 1_000_000)?;
+        let mut digits = [b'.', b'0', b'0', b'0', b'0', b'0', b'0'];
+        let mut f = (u % 1_000_000) as u32;
+        for d in digits[1..].iter_mut().rev() {
+            *d = b'0' + (f % 10) as u8;
+            f /= 10;
+        }
+        self.extend(&digits)
+    }
 }
 
-const POW10_U32: [u32; 10] = [
+/// "00" "01" … "99": the decimal digits of 0..=99 in pairs.
+const DIGIT_PAIRS: [u8; 200] = {
+    let mut t = [0u8; 200];
+    let mut i = 0;
+    while i < 100 {
+        t[2 * i] = b'0' + (i / 10) as u8;
+        t[2 * i + 1] = b'0' + (i % 10) as u8;
+        i += 1;
+    }
+    t
+};
+
+const POW10_U64: [u64; 20] = [
     1,
     10,
     100,
@@ -188,23 +287,32 @@ const POW10_U32: [u32; 10] = [
     10_000_000,
     100_000_000,
     1_000_000_000,
+    10_000_000_000,
+    100_000_000_000,
+    1_000_000_000_000,
+    10_000_000_000_000,
+    100_000_000_000_000,
+    1_000_000_000_000_000,
+    10_000_000_000_000_000,
+    100_000_000_000_000_000,
+    1_000_000_000_000_000_000,
+    10_000_000_000_000_000_000,
 ];
 
-/// 10^-k for k = 0..=22 (multiplying is far cheaper than dividing in soft-float f64; the error
-/// stays within two ulps).
-const NEG_POW10: [f64; 23] = [
-    1e0, 1e-1, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12, 1e-13, 1e-14,
-    1e-15, 1e-16, 1e-17, 1e-18, 1e-19, 1e-20, 1e-21, 1e-22,
-];
+/// Largest magnitude [`parse_micros`] accepts (10¹² units, in micros): far beyond any travel.
+pub const MAX_MICROS: i64 = 1_000_000_000_000_000_000;
 
-const POW10: [f64; 23] = [
-    1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15, 1e16,
-    1e17, 1e18, 1e19, 1e20, 1e21, 1e22,
-];
+/// Decimal digits of a number: `value = digits × 10^exp10`, sign apart.
+struct Decimal {
+    neg: bool,
+    digits: u64,
+    exp10: i32,
+}
 
-/// Parse a decimal number (`-12.5`, `+3`, `.25`, `1e-3`, `4.5E2`). The whole slice must be the
-/// number. Accurate to one rounding for up to 15 significant digits and exponents within ±22.
-pub fn parse_f64(s: &[u8]) -> Result<f64, GcsError> {
+/// Scan a decimal number (`-12.5`, `+3`, `.25`, `1e-3`, `4.5E2`); the whole slice must be the
+/// number. Up to 19 significant digits are kept; further digits are dropped (their magnitude
+/// kept). The first nine digits accumulate in 32 bits.
+fn scan_decimal(s: &[u8]) -> Result<Decimal, GcsError> {
     let mut i = 0;
     let mut neg = false;
     if let Some(&c) = s.first() {
@@ -213,27 +321,54 @@ pub fn parse_f64(s: &[u8]) -> Result<f64, GcsError> {
             i = 1;
         }
     }
-    let mut mant: u64 = 0;
-    let mut digits = 0u32;
+    let mut small: u32 = 0;
+    let mut digits: u64 = 0;
+    let mut n_sig = 0u32;
     let mut exp10: i32 = 0;
     let mut any = false;
-    while i < s.len() && s[i].is_ascii_digit() {
-        push_digit(&mut mant, &mut digits, &mut exp10, s[i] - b'0', false)?;
-        any = true;
+    let mut fraction = false;
+    while i < s.len() {
+        let c = s[i];
+        let d = c.wrapping_sub(b'0');
+        if d <= 9 {
+            any = true;
+            if n_sig < 9 {
+                if n_sig > 0 || d != 0 {
+                    small = small * 10 + u32::from(d);
+                    n_sig += 1;
+                }
+                if fraction {
+                    exp10 -= 1;
+                }
+            } else if n_sig < 19 {
+                if n_sig == 9 {
+                    digits = u64::from(small);
+                }
+                digits = digits * 10 + u64::from(d);
+                n_sig += 1;
+                if fraction {
+                    exp10 -= 1;
+                }
+            } else if !fraction {
+                exp10 += 1;
+            }
+        } else if c == b'.' && !fraction {
+            fraction = true;
+        } else {
+            break;
+        }
         i += 1;
     }
-    if i < s.len() && s[i] == b'.' {
-        i += 1;
-        while i < s.len() && s[i].is_ascii_digit() {
-            push_digit(&mut mant, &mut digits, &mut exp10, s[i] - b'0', true)?;
-            any = true;
-            i += 1;
-        }
+    if n_sig <= 9 {
+        digits = u64::from(small);
     }
     if !any {
         return Err(GcsError::BadNumber);
     }
-    if i < s.len() && (s[i] == b'e' || s[i] == b'E') {
+    if i < s.len() {
+        if s[i] != b'e' && s[i] != b'E' {
+            return Err(GcsError::BadNumber);
+        }
         i += 1;
         let mut eneg = false;
         if i < s.len() && (s[i] == b'-' || s[i] == b'+') {
@@ -250,161 +385,218 @@ pub fn parse_f64(s: &[u8]) -> Result<f64, GcsError> {
             }
             i += 1;
         }
-        if edigits == 0 {
+        if edigits == 0 || i != s.len() {
             return Err(GcsError::BadNumber);
         }
         exp10 += if eneg { -e } else { e };
     }
-    if i != s.len() {
+    Ok(Decimal { neg, digits, exp10 })
+}
+
+/// Parse a decimal number into micros (value × 10⁶), rounded half away from zero. The common
+/// forms (at most six decimals, no exponent) cost one multiplication.
+pub fn parse_micros(s: &[u8]) -> Result<i64, GcsError> {
+    if let Some(v) = parse_micros_short(s) {
+        return Ok(v);
+    }
+    let d = scan_decimal(s)?;
+    let k = d.exp10 + 6;
+    let mag: u64 = if d.digits == 0 {
+        0
+    } else if k >= 0 {
+        let p = *POW10_U64.get(k as usize).ok_or(GcsError::BadNumber)?;
+        match (u32::try_from(d.digits), u32::try_from(p)) {
+            // one 32×32→64 multiplication for the usual lengths
+            (Ok(m), Ok(p)) => u64::from(m) * u64::from(p),
+            _ => d.digits.checked_mul(p).ok_or(GcsError::BadNumber)?,
+        }
+    } else if -k >= 20 {
+        0
+    } else {
+        // round half up on the magnitude (p is even)
+        let p = POW10_U64[(-k) as usize];
+        match (u32::try_from(d.digits), u32::try_from(p)) {
+            // 32-bit hardware division for the usual lengths
+            (Ok(m), Ok(p)) => u64::from(m / p + u32::from(m % p >= p / 2)),
+            _ => d.digits / p + u64::from(d.digits % p >= p / 2),
+        }
+    };
+    if mag > MAX_MICROS as u64 {
         return Err(GcsError::BadNumber);
     }
-    // mantissas below 2^32 convert with the cheaper 32-bit routine
-    let m = match u32::try_from(mant) {
-        Ok(m32) => f64::from(m32),
-        Err(_) => mant as f64,
-    };
-    let v = if mant == 0 {
-        0.0
-    } else if exp10 >= 0 {
-        if exp10 as usize >= POW10.len() {
-            return Err(GcsError::BadNumber);
+    Ok(if d.neg { -(mag as i64) } else { mag as i64 })
+}
+
+/// The usual numbers — `[-+]ddd[.dddddd]`, at most nine integer and six fraction digits — in
+/// 32-bit arithmetic; `None` for anything else (then [`parse_micros`] decides). Inlined where a
+/// target is parsed.
+#[inline(always)]
+pub fn parse_micros_short(s: &[u8]) -> Option<i64> {
+    let mut i = 0;
+    let neg = match s.first() {
+        Some(b'-') => {
+            i = 1;
+            true
         }
-        m * POW10[exp10 as usize]
+        Some(b'+') => {
+            i = 1;
+            false
+        }
+        _ => false,
+    };
+    let digits_start = i;
+    let mut int: u32 = 0;
+    while i < s.len() {
+        let d = s[i].wrapping_sub(b'0');
+        if d > 9 {
+            break;
+        }
+        int = int.wrapping_mul(10).wrapping_add(u32::from(d));
+        i += 1;
+    }
+    let n_int = i - digits_start;
+    if n_int > 9 {
+        return None;
+    }
+    let mut frac: u32 = 0;
+    let mut n_frac = 0usize;
+    if i < s.len() {
+        if s[i] != b'.' {
+            return None;
+        }
+        i += 1;
+        let frac_start = i;
+        while i < s.len() {
+            let d = s[i].wrapping_sub(b'0');
+            if d > 9 {
+                return None;
+            }
+            frac = frac.wrapping_mul(10).wrapping_add(u32::from(d));
+            i += 1;
+        }
+        n_frac = i - frac_start;
+        if n_frac > 6 {
+            return None;
+        }
+    }
+    if n_int + n_frac == 0 {
+        return None;
+    }
+    const SCALE: [u32; 7] = [1_000_000, 100_000, 10_000, 1_000, 100, 10, 1];
+    let mag = u64::from(int) * 1_000_000 + u64::from(frac * SCALE[n_frac]);
+    Some(if neg { -(mag as i64) } else { mag as i64 })
+}
+
+/// Parse a decimal number to `f64` (used where no position is involved, e.g. `CSV?`).
+pub fn parse_f64(s: &[u8]) -> Result<f64, GcsError> {
+    let d = scan_decimal(s)?;
+    let mut v = d.digits as f64;
+    let mut e = d.exp10;
+    while e > 0 {
+        v *= 10.0;
+        e -= 1;
+    }
+    while e < 0 {
+        v /= 10.0;
+        e += 1;
+    }
+    Ok(if d.neg { -v } else { v })
+}
+
+/// The micros nearest to an `f32` value (ties aside): `None` for NaN, infinities and
+/// magnitudes beyond 2⁶² micros. Values below 2²³ units split into whole units and a fraction,
+/// both exact in `f32`, so only the fraction's scaling rounds (by less than 0.07 micros before
+/// the final rounding to an integer); larger values are converted bit by bit.
+#[inline(always)]
+pub fn f32_to_micros(v: f32) -> Option<i64> {
+    if v.abs() < 8_388_608.0 {
+        let whole = v as i32; // truncates towards zero: exact
+        let frac = v - whole as f32; // exact: |frac| < 1 shares v's exponent range
+        let f = frac * 1.0e6;
+        let f = if f >= 0.0 { f + 0.5 } else { f - 0.5 } as i32;
+        return Some(i64::from(whole) * MICROS_PER_UNIT + i64::from(f));
+    }
+    f32_to_micros_exact(v)
+}
+
+/// [`f32_to_micros`] for any magnitude, from the bits: `v · 10⁶ = m · 15625 · 2^(e + 6)`.
+fn f32_to_micros_exact(v: f32) -> Option<i64> {
+    if !v.is_finite() {
+        return None;
+    }
+    let bits = v.to_bits();
+    let neg = bits >> 31 != 0;
+    let exp = ((bits >> 23) & 0xFF) as i32;
+    let frac = u64::from(bits & 0x7F_FFFF);
+    // v = m · 2^(e), m < 2^24
+    let (m, e) = if exp == 0 {
+        (frac, -149)
     } else {
-        let e = (-exp10) as usize;
-        if e >= POW10.len() {
-            // Tiny: two steps keep it finite; precision is irrelevant at this scale.
-            let e2 = e - (POW10.len() - 1);
-            if e2 >= POW10.len() {
-                0.0
-            } else {
-                m / POW10[POW10.len() - 1] / POW10[e2]
-            }
-        } else {
-            m * NEG_POW10[e]
-        }
+        (frac | 0x80_0000, exp - 150)
     };
-    Ok(if neg { -v } else { v })
+    // v · 10⁶ = m · 15625 · 2^(e + 6), and m · 15625 < 2^38
+    let p = m * 15_625;
+    let s = e + 6;
+    let mag = if s >= 0 {
+        if s > 24 {
+            return None;
+        }
+        p << s
+    } else if s < -40 {
+        0
+    } else {
+        let sh = (-s) as u32;
+        (p + (1u64 << (sh - 1))) >> sh
+    };
+    Some(if neg { -(mag as i64) } else { mag as i64 })
 }
 
-fn push_digit(
-    mant: &mut u64,
-    digits: &mut u32,
-    exp10: &mut i32,
-    d: u8,
-    fraction: bool,
-) -> Result<(), GcsError> {
-    if *digits == 0 && d == 0 {
-        // leading zeros carry no precision
-        if fraction {
-            *exp10 -= 1;
-        }
-        return Ok(());
-    }
-    if *digits >= 18 {
-        // further digits are below f64 precision: drop them (but keep the magnitude)
-        if !fraction {
-            *exp10 += 1;
-        }
-        return Ok(());
-    }
-    *mant = *mant * 10 + u64::from(d);
-    *digits += 1;
-    if fraction {
-        *exp10 -= 1;
-    }
-    Ok(())
+/// A micros value as `f32` (|v| < 2⁴⁸: exact halves summed, then one division).
+pub fn micros_to_f32(v: i64) -> f32 {
+    // two exact 24-bit halves: no call to the i64 → f32 conversion routine
+    let hi = (v >> 24) as i32 as f32 * 16_777_216.0;
+    let lo = (v & 0xFF_FFFF) as i32 as f32;
+    (hi + lo) / 1.0e6
 }
 
-/// What one byte fed to a [`LineAssembler`] completed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Feed {
-    /// Nothing complete yet.
-    Pending,
-    /// A line is complete: read it with [`LineAssembler::line`] (LF excluded), then `clear`.
-    Line,
-    /// A single-character command (a control byte at the start of a line).
-    Single(u8),
-    /// The line overflowed [`MAX_LINE`]; it is discarded up to its LF.
-    Overflow,
-}
-
-/// Assembles bytes into LF-terminated lines; recognises GCS single-character commands.
-pub struct LineAssembler {
-    buf: LineBuf<MAX_LINE>,
-    overflow: bool,
-    complete: bool,
-    singles: bool,
-}
-
-impl Default for LineAssembler {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
-impl LineAssembler {
-    /// An empty assembler for the host stream (recognises single-character commands).
-    pub const fn new() -> Self {
-        Self {
-            buf: LineBuf::new(),
-            overflow: false,
-            complete: false,
-            singles: true,
-        }
-    }
-
-    /// An empty assembler for the controller's replies (control bytes are data).
-    pub const fn replies() -> Self {
-        Self {
-            buf: LineBuf::new(),
-            overflow: false,
-            complete: false,
-            singles: false,
-        }
-    }
-
-    /// Feed one byte.
-    pub fn feed(&mut self, b: u8) -> Feed {
-        if self.complete {
-            self.buf.clear();
-            self.complete = false;
-        }
-        if b == b'\n' {
-            if self.overflow {
-                self.overflow = false;
-                self.buf.clear();
-                return Feed::Overflow;
-            }
-            self.complete = true;
-            return Feed::Line;
-        }
-        if self.singles && self.buf.is_empty() && !self.overflow && is_single_char_command(b) {
-            return Feed::Single(b);
-        }
-        if self.overflow {
-            return Feed::Pending;
-        }
-        if self.buf.push(b).is_err() {
-            self.overflow = true;
-        }
-        Feed::Pending
-    }
-
-    /// The completed line (valid after [`Feed::Line`], until the next `feed`).
-    pub fn line(&self) -> &[u8] {
-        self.buf.as_bytes()
-    }
-}
-
-/// True for the control bytes that are GCS single-character commands (#4..#9, #24, #27).
+/// True for the control bytes that are GCS single-character commands PIPython sends: `#3`
+/// (positions, like `POS?`), `#4` (status register), `#5` (motion status), `#6` (position
+/// changed), `#7` (controller ready), `#8` (macro running), `#9` (wave generator running),
+/// `#11` (free dynamic-move buffer), `#24` (stop all), `#27` (system abort). They are never
+/// part of a command line.
 pub fn is_single_char_command(b: u8) -> bool {
-    matches!(b, 0x04..=0x09 | 0x18 | 0x1B)
+    b < 0x20 && (SINGLE_CHAR_MASK >> b) & 1 != 0
 }
 
-/// True when a single-character command is answered by the controller (#24 = stop is not).
+/// Bit n set for control byte n that is a single-character command.
+const SINGLE_CHAR_MASK: u32 = 0b1111111 << 3 | 1 << 0x0B | 1 << 0x18 | 1 << 0x1B;
+
+/// The first byte of `s` that ends a run of line bytes (an LF or a single-character command).
+/// Command text is printable, so four bytes at a time are first tested for any control byte
+/// at all (SWAR: a byte below 0x20 sets its top bit in `(w − 0x20…) & !w`).
+#[inline]
+pub fn find_run_end(s: &[u8]) -> Option<usize> {
+    let mut i = 0;
+    while i + 4 <= s.len() {
+        let w = u32::from_le_bytes([s[i], s[i + 1], s[i + 2], s[i + 3]]);
+        if w.wrapping_sub(0x2020_2020) & !w & 0x8080_8080 != 0 {
+            break;
+        }
+        i += 4;
+    }
+    s[i..].iter().position(|&b| ends_run(b)).map(|p| i + p)
+}
+
+/// True for a byte that ends a run of line bytes: LF or a single-character command.
+#[inline]
+pub fn ends_run(b: u8) -> bool {
+    b < 0x20 && ((SINGLE_CHAR_MASK | 1 << b'\n') >> b) & 1 != 0
+}
+
+/// True when a single-character command is answered by the controller (`#24` and `#27` are
+/// not: they stop, and only set the error code).
 pub fn single_char_has_reply(b: u8) -> bool {
-    b != 0x18
+    !matches!(b, 0x18 | 0x1B)
 }
 
 /// A command line split into address prefix, command word and arguments.
@@ -412,8 +604,10 @@ pub fn single_char_has_reply(b: u8) -> bool {
 pub struct Split<'a> {
     /// Address prefix including its trailing space (`"1 0 "`), or empty.
     pub prefix: &'a [u8],
-    /// The command word (`MOV`, `POS?`, `*IDN?`).
+    /// The command word (`MOV`, `pos?`, `*IDN?`), as sent (any case).
     pub command: &'a [u8],
+    /// [`key`] of the command word.
+    pub key: u32,
     /// Everything after the command word, leading spaces removed.
     pub args: &'a [u8],
 }
@@ -421,35 +615,79 @@ pub struct Split<'a> {
 /// Split a line (LF already removed, a trailing CR is ignored).
 pub fn split(line: &[u8]) -> Split<'_> {
     let line = trim_end(line);
-    let mut start = skip_spaces(line, 0);
-    let prefix_start = start;
-    // up to two all-digit tokens form an address prefix, when a command word follows
-    let mut prefix_end = prefix_start;
-    for _ in 0..2 {
-        let tok_end = token_end(line, start);
-        let tok = &line[start..tok_end];
-        let next = skip_spaces(line, tok_end);
-        if !tok.is_empty() && tok.iter().all(u8::is_ascii_digit) && next < line.len() {
-            prefix_end = next;
-            start = next;
-        } else {
-            break;
+    let n = line.len();
+    let mut i = 0;
+    while i < n && is_space(line[i]) {
+        i += 1;
+    }
+    let start = i;
+    let mut cmd = start;
+    // up to two all-digit tokens form an address prefix, when a command word (a letter or '*')
+    // follows them
+    if i < n && line[i].is_ascii_digit() {
+        let mut j = i;
+        for _ in 0..2 {
+            let t = j;
+            while j < n && line[j].is_ascii_digit() {
+                j += 1;
+            }
+            let mut after = j;
+            while after < n && is_space(line[after]) {
+                after += 1;
+            }
+            if j == t || after == j || after >= n {
+                break;
+            }
+            let c = line[after];
+            if c.is_ascii_alphabetic() || c == b'*' {
+                cmd = after;
+                break;
+            }
+            if !c.is_ascii_digit() {
+                break;
+            }
+            j = after;
         }
     }
-    // a prefix is only a prefix when what follows starts with a letter or '*'
-    if prefix_end > prefix_start {
-        let c = line[prefix_end];
-        if !(c.is_ascii_alphabetic() || c == b'*') {
-            prefix_end = prefix_start;
-            start = prefix_start;
-        }
+    let mut end = cmd;
+    let mut k: u32 = 0;
+    while end < n && !is_space(line[end]) {
+        k = (k << 8) | u32::from(line[end].to_ascii_uppercase());
+        end += 1;
     }
-    let cmd_end = token_end(line, start);
+    if end - cmd > 4 || end == cmd {
+        k = u32::MAX;
+    }
+    let mut args = end;
+    while args < n && is_space(line[args]) {
+        args += 1;
+    }
     Split {
-        prefix: &line[prefix_start..prefix_end],
-        command: &line[start..cmd_end],
-        args: &line[skip_spaces(line, cmd_end)..],
+        prefix: &line[start..cmd],
+        command: &line[cmd..end],
+        key: k,
+        args: &line[args..],
     }
+}
+
+#[inline(always)]
+fn is_space(c: u8) -> bool {
+    c == b' ' || c == b'\t'
+}
+
+/// The reply prefix a controller uses for a command sent with address prefix `prefix`
+/// (`"<target> [<sender>] "`): sender and target swapped (`"1 0 "` → `"0 1 "`, `"2 "` →
+/// `"0 2 "`), empty for an empty prefix. A daisy-chained controller answers this way.
+pub fn reply_prefix(prefix: &[u8], out: &mut LineBuf<16>) {
+    out.clear();
+    let mut t = tokens(prefix);
+    let (Some(target), sender) = (t.next(), t.next()) else {
+        return;
+    };
+    let _ = out.extend(sender.unwrap_or(b"0"));
+    let _ = out.push(b' ');
+    let _ = out.extend(target);
+    let _ = out.push(b' ');
 }
 
 fn trim_end(mut s: &[u8]) -> &[u8] {
@@ -463,24 +701,65 @@ fn trim_end(mut s: &[u8]) -> &[u8] {
     s
 }
 
-fn skip_spaces(s: &[u8], mut i: usize) -> usize {
-    while i < s.len() && (s[i] == b' ' || s[i] == b'\t') {
-        i += 1;
-    }
-    i
+fn skip_spaces(s: &[u8], i: usize) -> usize {
+    let rest = s.get(i..).unwrap_or(&[]);
+    i + rest
+        .iter()
+        .position(|&c| c != b' ' && c != b'\t')
+        .unwrap_or(rest.len())
 }
 
-fn token_end(s: &[u8], mut i: usize) -> usize {
-    while i < s.len() && s[i] != b' ' && s[i] != b'\t' {
-        i += 1;
+/// Whitespace-separated tokens of a slice.
+#[derive(Debug, Clone)]
+pub struct Tokens<'a> {
+    s: &'a [u8],
+    i: usize,
+}
+
+impl<'a> Iterator for Tokens<'a> {
+    type Item = &'a [u8];
+    #[inline]
+    fn next(&mut self) -> Option<&'a [u8]> {
+        let s = self.s;
+        let mut i = self.i;
+        while i < s.len() && is_space(s[i]) {
+            i += 1;
+        }
+        let start = i;
+        while i < s.len() && !is_space(s[i]) {
+            i += 1;
+        }
+        self.i = i;
+        (i > start).then(|| &s[start..i])
     }
-    i
 }
 
 /// Iterator over whitespace-separated tokens.
-pub fn tokens(s: &[u8]) -> impl Iterator<Item = &[u8]> {
-    s.split(|&c| c == b' ' || c == b'\t')
-        .filter(|t| !t.is_empty())
+pub fn tokens(s: &[u8]) -> Tokens<'_> {
+    Tokens { s, i: 0 }
+}
+
+/// A command word folded to upper case and packed into 32 bits, for matching without a
+/// case-sensitive string compare: `key(b"mov") == key(b"MOV")`. Every mnemonic the proxy looks up
+/// has at most four characters; longer words (and the empty word) map to `u32::MAX`.
+pub const fn key(word: &[u8]) -> u32 {
+    if word.len() > 4 || word.is_empty() {
+        return u32::MAX;
+    }
+    let mut k: u32 = 0;
+    let mut i = 0;
+    while i < word.len() {
+        k = (k << 8) | word[i].to_ascii_uppercase() as u32;
+        i += 1;
+    }
+    k
+}
+
+/// True when two axis identifiers name the same axis. PI controllers hold identifiers in upper
+/// case (`SAI` converts new names to upper case), so the comparison ignores ASCII case: a
+/// lower-case spelling of a model axis is never mistaken for an axis the model does not cover.
+pub fn same_axis(a: &[u8], b: &[u8]) -> bool {
+    a.eq_ignore_ascii_case(b)
 }
 
 /// A GCS axis identifier (up to [`MAX_AXIS_ID`] bytes).
@@ -544,9 +823,19 @@ impl AxisMap {
         all[..n].copy_from_slice(&ids[..n]);
         Self { ids: all, n }
     }
-    /// The model axis of a GCS identifier.
+    /// The model axis of a GCS identifier (ASCII case ignored, see [`same_axis`]).
+    #[inline(always)]
     pub fn index(&self, id: &[u8]) -> Option<usize> {
-        self.ids[..self.n].iter().position(|a| a.as_bytes() == id)
+        if let [c] = id {
+            // the usual one-character identifiers
+            let c = c.to_ascii_uppercase();
+            return self.ids[..self.n]
+                .iter()
+                .position(|a| a.len == 1 && a.bytes[0].to_ascii_uppercase() == c);
+        }
+        self.ids[..self.n]
+            .iter()
+            .position(|a| same_axis(a.as_bytes(), id))
     }
     /// The GCS identifier of a model axis.
     pub fn id(&self, axis: usize) -> Option<&[u8]> {
@@ -554,45 +843,29 @@ impl AxisMap {
     }
 }
 
-/// Most axis/value pairs in one command the proxy handles.
-pub const MAX_PAIRS: usize = 8;
+/// One axis/value pair: identifier, value in micros, and the value as sent.
+pub type Pair<'a> = (&'a [u8], i64, &'a [u8]);
 
-/// Axis/value pairs of a `MOV`/`MVR`-style command, in the order given.
-#[derive(Debug, Clone, Copy)]
+/// The `{axis value}` pairs of a `MOV`/`MVR`-style argument list, parsed as they are read.
+#[derive(Debug, Clone)]
 pub struct Pairs<'a> {
-    /// The pairs: identifier bytes and value.
-    pub items: [(&'a [u8], f64); MAX_PAIRS],
-    /// How many of `items` are used.
-    pub n: usize,
+    toks: Tokens<'a>,
 }
 
-impl<'a> Pairs<'a> {
-    /// The used pairs.
-    pub fn as_slice(&self) -> &[(&'a [u8], f64)] {
-        &self.items[..self.n]
+impl<'a> Iterator for Pairs<'a> {
+    type Item = Result<Pair<'a>, GcsError>;
+    fn next(&mut self) -> Option<Self::Item> {
+        let axis = self.toks.next()?;
+        Some(match self.toks.next() {
+            None => Err(GcsError::MissingValue),
+            Some(text) => parse_micros(text).map(|v| (axis, v, text)),
+        })
     }
 }
 
-/// Parse `"1 10.5 2 -3"` into axis/value pairs.
-pub fn parse_pairs(args: &[u8]) -> Result<Pairs<'_>, GcsError> {
-    let mut p = Pairs {
-        items: [(&[][..], 0.0); MAX_PAIRS],
-        n: 0,
-    };
-    let mut it = tokens(args);
-    while let Some(axis) = it.next() {
-        let v = it.next().ok_or(GcsError::MissingValue)?;
-        let v = parse_f64(v)?;
-        if p.as_slice().iter().any(|(a, _)| *a == axis) {
-            return Err(GcsError::DuplicateAxis);
-        }
-        if p.n == MAX_PAIRS {
-            return Err(GcsError::TooManyAxes);
-        }
-        p.items[p.n] = (axis, v);
-        p.n += 1;
-    }
-    Ok(p)
+/// `"1 10.5 2 -3"` as axis/value pairs (values in micros).
+pub fn pairs(args: &[u8]) -> Pairs<'_> {
+    Pairs { toks: tokens(args) }
 }
 
 /// One reply line `"[prefix ]axis=value[ ]"`, split.
@@ -602,21 +875,22 @@ pub struct AxisValue<'a> {
     pub prefix: &'a [u8],
     /// The axis identifier.
     pub axis: &'a [u8],
-    /// The value.
-    pub value: f64,
+    /// The value text after `=` (spaces and CR removed).
+    pub value: &'a [u8],
     /// True when the line ended with a space (more lines of this reply follow).
     pub continued: bool,
 }
 
-/// Parse a reply line of the form `axis=value` (LF removed); `None` when it has another form.
+/// Split a reply line of the form `axis=value` (LF removed); `None` when it has another form.
 pub fn parse_axis_value(line: &[u8]) -> Option<AxisValue<'_>> {
     let line = line.strip_suffix(b"\r").unwrap_or(line);
     let continued = line.last() == Some(&b' ');
     let body = trim_end(line);
     let eq = body.iter().position(|&c| c == b'=')?;
     let left = &body[..eq];
-    let value = parse_f64(&body[eq + 1..]).ok()?;
+    let value = &body[skip_spaces(body, eq + 1)..];
     // the axis is the last token before '='; anything before it is the address prefix
+    let left = trim_end(left);
     let axis_start = left
         .iter()
         .rposition(|&c| c == b' ')
@@ -632,10 +906,4 @@ pub fn parse_axis_value(line: &[u8]) -> Option<AxisValue<'_>> {
         value,
         continued,
     })
-}
-
-/// True when a reply line is not the last of its reply (ends with a space before LF).
-pub fn is_continued(line: &[u8]) -> bool {
-    let line = line.strip_suffix(b"\r").unwrap_or(line);
-    line.last() == Some(&b' ')
 }

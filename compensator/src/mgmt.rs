@@ -14,19 +14,28 @@
 //! | `STATUS` 0x02 | – | [`Status`] |
 //! | `UPLOAD_BEGIN` 0x10 | total_len u32, crc32 u32, format u16 | – |
 //! | `UPLOAD_CHUNK` 0x11 | offset u32, bytes | received u32 |
-//! | `UPLOAD_COMMIT` 0x12 | – | model id u32, slot u8, seq u32 |
+//! | `UPLOAD_COMMIT` 0x12 | – | model id u32, 0 u8 (was: slot), uploads accepted u32 |
 //! | `UPLOAD_ABORT` 0x13 | – | – |
 //! | `SET_KMZ` 0x20 | q_cmd f64×3, x_meas f64×3 | kmz f64×3, stored u8 (model re-committed) |
 //! | `BYPASS` 0x21 | on u8 | – |
+//! | `CONFIG_GET` 0x30 | – | settings ([`crate::settings`] bytes) |
+//! | `CONFIG_SET` 0x31 | settings bytes | – (stored; applied at once, the baud rate at reset) |
+//! | `RESET` 0x32 | – | – (the device resets after replying) |
+//!
+//! `HELLO` data, after the three u16: firmware version (len u8, ASCII), chip UID (12 bytes),
+//! reset cause u8 ([`crate::identity::ResetCause::code`]).
 //!
 //! Result codes: 0 ok; 1..=9 [`crate::upload::UploadError::code`]; [`RESULT_STORAGE`];
-//! [`RESULT_NO_MODEL`]; [`RESULT_BAD_REQUEST`]; [`RESULT_UNKNOWN_KIND`].
+//! [`RESULT_NO_MODEL`]; [`RESULT_BAD_REQUEST`]; [`RESULT_UNKNOWN_KIND`]; [`RESULT_INPUT`] (the
+//! reply data carries [`crate::inputs::InputError::code`]); [`RESULT_SETTINGS`].
 
+use crate::crc32;
 use core::fmt;
-use nanocal_model::blob;
 
-/// Protocol version.
-pub const PROTOCOL: u16 = 1;
+/// Protocol version. 2: identity in HELLO/STATUS, settings, reset, input checks, and
+/// [`Status::slow_outside`] widened from u16 to u32 (a model has up to 23 inputs with envelope
+/// bits).
+pub const PROTOCOL: u16 = 2;
 /// Frame sync bytes.
 pub const SYNC: [u8; 2] = [0xA7, 0x5C];
 /// Largest payload.
@@ -56,6 +65,14 @@ pub mod kind {
     pub const SET_KMZ: u8 = 0x20;
     /// Bypass (1) or enable (0) compensation.
     pub const BYPASS: u8 = 0x21;
+    /// Read the settings.
+    pub const CONFIG_GET: u8 = 0x30;
+    /// Store and apply settings.
+    pub const CONFIG_SET: u8 = 0x31;
+    /// Reset the device.
+    pub const RESET: u8 = 0x32;
+    /// QEMU board only: the firmware hangs in a busy loop (the watchdog test's hung firmware).
+    pub const DEBUG_HANG: u8 = 0x7E;
     /// Bit set in reply kinds.
     pub const REPLY: u8 = 0x80;
 }
@@ -70,6 +87,10 @@ pub const RESULT_NO_MODEL: u8 = 21;
 pub const RESULT_BAD_REQUEST: u8 = 22;
 /// Result: unknown request kind.
 pub const RESULT_UNKNOWN_KIND: u8 = 23;
+/// Result: the model uses an input this board cannot supply (nothing stored).
+pub const RESULT_INPUT: u8 = 24;
+/// Result: settings rejected (malformed or out of range).
+pub const RESULT_SETTINGS: u8 = 25;
 
 /// What a result code means (for people: CLI output, logs).
 pub fn result_meaning(code: u8) -> &'static str {
@@ -88,6 +109,8 @@ pub fn result_meaning(code: u8) -> &'static str {
         RESULT_NO_MODEL => "no model loaded",
         RESULT_BAD_REQUEST => "malformed request",
         RESULT_UNKNOWN_KIND => "unknown request",
+        RESULT_INPUT => "model uses an input this board cannot supply (see `nanocal device config`); nothing stored",
+        RESULT_SETTINGS => "settings rejected (malformed or out of range)",
         _ => "unknown code",
     }
 }
@@ -142,15 +165,14 @@ pub fn encode(kind: u8, seq: u8, payload: &[u8], out: &mut [u8]) -> Result<usize
     out[3] = seq;
     out[4..6].copy_from_slice(&(payload.len() as u16).to_le_bytes());
     out[6..6 + payload.len()].copy_from_slice(payload);
-    let crc = blob::crc32(&out[2..6 + payload.len()]);
+    let crc = crc32(&out[2..6 + payload.len()]);
     out[6 + payload.len()..n].copy_from_slice(&crc.to_le_bytes());
     Ok(n)
 }
 
 /// Byte-wise frame decoder with resynchronisation on the sync bytes.
 pub struct Decoder {
-    buf: [u8; MAX_FRAME],
-    len: usize,
+    buf: heapless::Vec<u8, MAX_FRAME>,
 }
 
 impl Default for Decoder {
@@ -163,41 +185,45 @@ impl Decoder {
     /// Empty decoder.
     pub const fn new() -> Self {
         Self {
-            buf: [0; MAX_FRAME],
-            len: 0,
+            buf: heapless::Vec::new(),
         }
     }
 
     /// Feed one byte. `Some(Ok(()))` when a frame is complete: read it with [`Decoder::frame`]
     /// before the next `feed`. `Some(Err(_))` for a corrupt frame (already discarded).
     pub fn feed(&mut self, b: u8) -> Option<Result<(), FrameError>> {
-        if self.len >= 6 && self.len == self.frame_len() {
-            self.len = 0; // the previous frame was consumed
+        if self.buf.len() >= 6 && self.buf.len() == self.frame_len() {
+            self.buf.clear(); // the previous frame was consumed
         }
-        match self.len {
+        match self.buf.len() {
             0 if b != SYNC[0] => return None,
             1 if b != SYNC[1] => {
-                self.len = usize::from(b == SYNC[0]);
+                self.buf.clear();
+                if b == SYNC[0] {
+                    let _ = self.buf.push(b);
+                }
                 return None;
             }
             _ => {}
         }
-        self.buf[self.len] = b;
-        self.len += 1;
-        if self.len == 6 && self.payload_len() > MAX_PAYLOAD {
-            self.len = 0;
+        if self.buf.push(b).is_err() {
+            self.buf.clear();
             return Some(Err(FrameError::TooLong));
         }
-        if self.len >= 6 && self.len == self.frame_len() {
-            let n = self.len;
+        let n = self.buf.len();
+        if n == 6 && self.payload_len() > MAX_PAYLOAD {
+            self.buf.clear();
+            return Some(Err(FrameError::TooLong));
+        }
+        if n >= 6 && n == self.frame_len() {
             let crc = u32::from_le_bytes([
                 self.buf[n - 4],
                 self.buf[n - 3],
                 self.buf[n - 2],
                 self.buf[n - 1],
             ]);
-            if blob::crc32(&self.buf[2..n - 4]) != crc {
-                self.len = 0;
+            if crc32(&self.buf[2..n - 4]) != crc {
+                self.buf.clear();
                 return Some(Err(FrameError::BadCrc));
             }
             return Some(Ok(()));
@@ -206,6 +232,9 @@ impl Decoder {
     }
 
     fn payload_len(&self) -> usize {
+        if self.buf.len() < 6 {
+            return 0;
+        }
         usize::from(u16::from_le_bytes([self.buf[4], self.buf[5]]))
     }
 
@@ -215,7 +244,10 @@ impl Decoder {
 
     /// The frame completed by the last `feed`.
     pub fn frame(&self) -> Frame<'_> {
-        let n = self.payload_len().min(MAX_PAYLOAD);
+        let n = self
+            .payload_len()
+            .min(MAX_PAYLOAD)
+            .min(self.buf.len().saturating_sub(6));
         Frame {
             kind: self.buf[2],
             seq: self.buf[3],
@@ -348,6 +380,15 @@ pub mod flags {
     pub const EXTRAPOLATING: u16 = 1 << 3;
     /// An upload is in progress.
     pub const UPLOADING: u16 = 1 << 4;
+    /// Moves are refused: the controller's position unit (`PUN?`) is not the model's µm, or
+    /// the controller did not tell it (GCS error 9007 on the host's `ERR?`).
+    pub const UNIT_MISMATCH: u16 = 1 << 5;
+    /// The thermal fold is older than the sensor hold time (sensor task stalled): moves refused.
+    pub const FOLD_STALE: u16 = 1 << 8;
+    /// A host has the GCS port open (USB DTR set).
+    pub const HOST_CONNECTED: u16 = 1 << 9;
+    /// Sensors are warming up: a sensor the model uses has no valid reading yet.
+    pub const WARMING_UP: u16 = 1 << 10;
 }
 
 /// The device's status report.
@@ -357,9 +398,9 @@ pub struct Status {
     pub flags: u16,
     /// Model id (0 without a model).
     pub model_id: u32,
-    /// Storage slot of the model in service (0xFF = none).
+    /// Unused since the store replaced the two slots (always 0xFF); kept for the layout.
     pub slot: u8,
-    /// Commit sequence number of that slot.
+    /// Unused (0); kept for the layout.
     pub slot_seq: u32,
     /// Temperatures in use, °C (NaN when unusable).
     pub temps_c: [f32; STATUS_SENSORS],
@@ -367,8 +408,9 @@ pub struct Status {
     pub sensor_bits: [u8; STATUS_SENSORS],
     /// Sensors configured.
     pub sensors: u8,
-    /// Slow inputs outside the training envelope at the last fold (model input bits).
-    pub slow_outside: u16,
+    /// Slow inputs outside the training envelope at the last fold (model input bits,
+    /// [`nanocal_model::EnvelopeFlags`]: 3 axes, 16 temperatures, 4 aux need a u32).
+    pub slow_outside: u32,
     /// λ_KMZ per axis, µm.
     pub kmz_um: [f64; 3],
     /// Host lines seen.
@@ -391,12 +433,47 @@ pub struct Status {
     pub last_upload_error: u8,
     /// Uptime, ms.
     pub uptime_ms: u32,
+    /// Chip unique ID (96 bits).
+    pub uid: [u8; 12],
+    /// Why the device last reset ([`crate::identity::ResetCause::code`]).
+    pub reset_cause: u8,
+    /// What the status LED shows ([`crate::led::LedState::code`]).
+    pub led: u8,
+    /// Age of the thermal fold in use, ms.
+    pub fold_age_ms: u32,
+    /// Flash double words that failed ECC on read since start-up.
+    pub flash_ecc_errors: u32,
+    /// Times a sensor was found without its configuration and reconfigured.
+    pub sensor_reconfigs: u32,
+    /// Auxiliary inputs in use, in their units (NaN when unusable).
+    pub aux: [f32; STATUS_AUX],
+    /// Per-aux status bits (as [`Status::sensor_bits`]).
+    pub aux_bits: [u8; STATUS_AUX],
 }
+
+/// Auxiliary inputs in a status report.
+pub const STATUS_AUX: usize = 4;
 
 impl Status {
     /// Encoded length.
-    pub const LEN: usize =
-        2 + 4 + 1 + 4 + 4 * STATUS_SENSORS + STATUS_SENSORS + 1 + 2 + 24 + 7 * 4 + 4 + 1 + 4;
+    pub const LEN: usize = 2
+        + 4
+        + 1
+        + 4
+        + 4 * STATUS_SENSORS
+        + STATUS_SENSORS
+        + 1
+        + 4
+        + 24
+        + 7 * 4
+        + 4
+        + 1
+        + 4
+        + 12
+        + 1
+        + 1
+        + 4 * 3
+        + 5 * STATUS_AUX;
 
     /// Encode.
     pub fn encode(&self, w: &mut Writer<'_>) -> Result<(), FrameError> {
@@ -409,7 +486,7 @@ impl Status {
         }
         w.bytes(&self.sensor_bits)?;
         w.u8(self.sensors)?;
-        w.u16(self.slow_outside)?;
+        w.u32(self.slow_outside)?;
         for k in self.kmz_um {
             w.f64(k)?;
         }
@@ -426,7 +503,17 @@ impl Status {
         }
         w.i32(self.pending_error)?;
         w.u8(self.last_upload_error)?;
-        w.u32(self.uptime_ms)
+        w.u32(self.uptime_ms)?;
+        w.bytes(&self.uid)?;
+        w.u8(self.reset_cause)?;
+        w.u8(self.led)?;
+        w.u32(self.fold_age_ms)?;
+        w.u32(self.flash_ecc_errors)?;
+        w.u32(self.sensor_reconfigs)?;
+        for a in self.aux {
+            w.f32(a)?;
+        }
+        w.bytes(&self.aux_bits)
     }
 
     /// Decode.
@@ -443,7 +530,7 @@ impl Status {
         }
         s.sensor_bits.copy_from_slice(r.bytes(STATUS_SENSORS)?);
         s.sensors = r.u8()?;
-        s.slow_outside = r.u16()?;
+        s.slow_outside = r.u32()?;
         for k in s.kmz_um.iter_mut() {
             *k = r.f64()?;
         }
@@ -457,6 +544,16 @@ impl Status {
         s.pending_error = r.i32()?;
         s.last_upload_error = r.u8()?;
         s.uptime_ms = r.u32()?;
+        s.uid.copy_from_slice(r.bytes(12)?);
+        s.reset_cause = r.u8()?;
+        s.led = r.u8()?;
+        s.fold_age_ms = r.u32()?;
+        s.flash_ecc_errors = r.u32()?;
+        s.sensor_reconfigs = r.u32()?;
+        for a in s.aux.iter_mut() {
+            *a = r.f32()?;
+        }
+        s.aux_bits.copy_from_slice(r.bytes(STATUS_AUX)?);
         Ok(s)
     }
 }

@@ -1,13 +1,35 @@
-//! Temperature sensor frames: MAX31856 (thermocouple) and MAX31865 (RTD) SPI register frames —
-//! what to clock out, and how to decode what the chip clocks back, fault bits included.
+//! Temperature amplifiers on SPI: MAX31856 (thermocouple) and MAX31865 (RTD), driven at register
+//! level. [`Driver`] is one chip's state machine: it says which SPI transaction to run next
+//! (configuration burst, fault-latch clear, register dump) and interprets what the chip clocked
+//! back. The firmware only runs the transactions (CS low, bytes, CS high); the host tests run the
+//! same driver against register-level simulations of the chips.
 //!
-//! The same decode runs on the STM32 board (real SPI, one chip-select per sensor) and on the
-//! QEMU board (a serial stand-in carrying the same bytes, see [`bus`]).
+//! What the driver does, and why (each rule is a defect the first firmware had):
+//! - **Configuration bursts write to the right registers.** Both chips auto-increment the address
+//!   within one CS-low transaction (MAX31856 datasheet, "Serial Interface"; MAX31865 datasheet,
+//!   "Serial Interface", Table 1). The MAX31865's writable registers are 80h (configuration) and
+//!   83h–86h (fault thresholds); 81h/82h are the read-only RTD registers. So the thresholds are
+//!   written by a separate burst starting at 83h: a burst starting at 80h would put them two
+//!   registers early and leave the high threshold at 0000h (every conversion a fault).
+//! - **The same mains filter on both chips** ([`Mains`]): MAX31856 CR0 bit 0 (1 = 50 Hz),
+//!   MAX31865 configuration D0 (1 = 50 Hz). The MAX31856's notch is set with CMODE = 0 and auto
+//!   conversion started in a second write (datasheet, CR0: do not change the notch frequency
+//!   while in automatic conversion mode).
+//! - **The MAX31865 fault status is latched** until configuration D1 is written with 1 (and D5,
+//!   D3, D2 with 0): after a fault reading the driver clears it before the next dump.
+//! - **No reading before the first conversion** ([`Driver::first_conversion_ms`]): after
+//!   configuration the conversion registers read 0 until the chip has converted.
+//! - **Configuration read back every cycle.** Every poll dumps the configuration registers with
+//!   the data; a chip that lost its configuration (brown-out, hot-plug: power-on defaults) is a
+//!   fault for that reading and is configured again.
+//! - **An absent chip is a fault, never a temperature**: with MISO pulled up an absent chip
+//!   clocks back FFh (all ones); a dead bus clocks back 00h.
 
 use core::fmt;
 
-/// A sensor fault as reported by the chip (or detected in its frame).
+/// A sensor fault as reported by the chip (or detected in its registers).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[non_exhaustive]
 pub enum SensorFault {
     /// Thermocouple input open (MAX31856 OPEN bit) or RTD input open (MAX31865 REFIN-/RTDIN-).
@@ -21,10 +43,14 @@ pub enum SensorFault {
     /// Reading above the high or below the low threshold (MAX31856 CJHIGH/CJLOW/TCHIGH/TCLOW,
     /// MAX31865 D7/D6).
     Threshold,
-    /// The bus did not answer (timeout, SPI error, all-ones/all-zeros frame).
+    /// The bus did not answer: timeout, SPI error, or the all-ones (absent chip, MISO pull-up)
+    /// or all-zeros register dump.
     NoResponse,
     /// The decoded value is outside the plausible range configured for the channel.
     Implausible,
+    /// The chip's configuration registers differ from what was written (brown-out or
+    /// hot-plug reset it): it is configured again.
+    ConfigLost,
 }
 
 impl fmt::Display for SensorFault {
@@ -37,14 +63,15 @@ impl fmt::Display for SensorFault {
             SensorFault::ColdJunctionRange => "cold-junction temperature out of range",
             SensorFault::ThermocoupleRange => "thermocouple temperature out of range",
             SensorFault::Threshold => "reading beyond the chip's fault threshold",
-            SensorFault::NoResponse => "sensor did not answer on the bus",
+            SensorFault::NoResponse => "sensor did not answer on the bus (absent or unpowered)",
             SensorFault::Implausible => "reading outside the plausible range",
+            SensorFault::ConfigLost => "chip lost its configuration (reconfigured)",
         })
     }
 }
 
 impl SensorFault {
-    /// A stable small code for status reports (bit position in a fault mask).
+    /// A stable small code for status reports (4 bits).
     pub fn code(self) -> u8 {
         match self {
             SensorFault::Open => 1,
@@ -54,43 +81,160 @@ impl SensorFault {
             SensorFault::Threshold => 5,
             SensorFault::NoResponse => 6,
             SensorFault::Implausible => 7,
+            SensorFault::ConfigLost => 8,
         }
+    }
+
+    /// The fault for a status code (inverse of [`SensorFault::code`]).
+    pub fn from_code(code: u8) -> Option<Self> {
+        Some(match code {
+            1 => SensorFault::Open,
+            2 => SensorFault::ShortOrOvervoltage,
+            3 => SensorFault::ColdJunctionRange,
+            4 => SensorFault::ThermocoupleRange,
+            5 => SensorFault::Threshold,
+            6 => SensorFault::NoResponse,
+            7 => SensorFault::Implausible,
+            8 => SensorFault::ConfigLost,
+            _ => return None,
+        })
     }
 }
 
-/// Which chip sits behind a chip-select.
+/// Mains frequency: both chips' digital filters notch it (and its harmonics).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Mains {
+    /// 50 Hz mains (Europe, most of Asia, Africa).
+    #[default]
+    Hz50,
+    /// 60 Hz mains (the Americas, parts of Japan).
+    Hz60,
+}
+
+/// Thermocouple types the MAX31856 linearises (CR1 TC TYPE, datasheet Table "CR1").
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[allow(missing_docs)]
+pub enum TcType {
+    B = 0,
+    E = 1,
+    J = 2,
+    K = 3,
+    N = 4,
+    R = 5,
+    S = 6,
+    T = 7,
+}
+
+impl TcType {
+    /// From the CR1 code (0..=7).
+    pub fn from_code(c: u8) -> Option<Self> {
+        use TcType::*;
+        Some(match c {
+            0 => B,
+            1 => E,
+            2 => J,
+            3 => K,
+            4 => N,
+            5 => R,
+            6 => S,
+            7 => T,
+            _ => return None,
+        })
+    }
+
+    /// The letter.
+    pub fn letter(self) -> char {
+        b"BEJKNRST"[self as usize] as char
+    }
+}
+
+/// RTD wiring (MAX31865 configuration D4: 1 = 3-wire, 0 = 2- or 4-wire).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Wires {
+    /// 2-wire.
+    Two = 2,
+    /// 3-wire.
+    Three = 3,
+    /// 4-wire.
+    Four = 4,
+}
+
+/// Which chip sits behind a chip-select, and how it is wired.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Chip {
     /// MAX31856 thermocouple-to-digital converter.
-    Max31856,
-    /// MAX31865 RTD-to-digital converter with the given reference and nominal resistances (Ω).
+    Max31856 {
+        /// Thermocouple type.
+        tc: TcType,
+    },
+    /// MAX31865 RTD-to-digital converter.
     Max31865 {
-        /// Reference resistor, Ω (430 for PT100 boards, 4300 for PT1000).
+        /// Reference resistor, Ω (430 on PT100 boards, 4300 on PT1000 boards).
         r_ref_ohm: f32,
-        /// RTD resistance at 0 °C, Ω (100 or 1000).
+        /// RTD resistance at 0 °C, Ω (100 for PT100, 1000 for PT1000).
         r0_ohm: f32,
+        /// Wiring.
+        wires: Wires,
     },
 }
 
-/// Length of every frame on the bus (address byte + data), bytes.
-pub const FRAME_LEN: usize = 8;
+impl Chip {
+    /// A type K thermocouple on a MAX31856.
+    pub const K: Chip = Chip::Max31856 { tc: TcType::K };
+    /// A 3-wire PT100 on a MAX31865 with a 430 Ω reference (Adafruit/Maxim evaluation boards).
+    pub const PT100_3W: Chip = Chip::Max31865 {
+        r_ref_ohm: 430.0,
+        r0_ohm: 100.0,
+        wires: Wires::Three,
+    };
+}
 
-/// MAX31856 registers and bits.
+/// Longest SPI transaction the driver runs, bytes (the MAX31856 register dump: address + 16).
+pub const MAX_TXN: usize = 17;
+
+/// MAX31856 registers and bits (datasheet, Table "Register Memory Map" and register
+/// descriptions).
 pub mod max31856 {
-    /// CR0 write address.
-    pub const CR0_WRITE: u8 = 0x80;
+    /// Read addresses 00h..0Fh; write address = read address | 80h.
+    pub const WRITE: u8 = 0x80;
+    /// Register count (00h CR0 … 0Fh SR).
+    pub const REGS: usize = 16;
+    /// CR0 address.
+    pub const CR0: u8 = 0x00;
+    /// CR1.
+    pub const CR1: u8 = 0x01;
+    /// MASK.
+    pub const MASK: u8 = 0x02;
+    /// CJHF (cold-junction high fault threshold, 1 °C/LSB).
+    pub const CJHF: u8 = 0x03;
+    /// CJTH (cold-junction temperature, high byte).
+    pub const CJTH: u8 = 0x0A;
+    /// LTCBH (linearised thermocouple temperature, high byte).
+    pub const LTCBH: u8 = 0x0C;
+    /// SR (fault status).
+    pub const SR: u8 = 0x0F;
     /// CR0: automatic conversion mode.
-    pub const CR0_CMODE_AUTO: u8 = 0x80;
-    /// CR0: open-circuit detection enabled (OCFAULT = 01).
+    pub const CR0_CMODE: u8 = 0x80;
+    /// CR0: one-shot (self-clearing).
+    pub const CR0_1SHOT: u8 = 0x40;
+    /// CR0: open-circuit detection, OCFAULT = 01.
     pub const CR0_OCFAULT_01: u8 = 0x10;
-    /// CR1: type K thermocouple, 1 sample.
-    pub const CR1_TYPE_K: u8 = 0x03;
-    /// CR1: average 4 samples per conversion (AVGSEL = 010): the chip's own noise filter.
+    /// CR0: interrupt (latched) fault mode; 0 = comparator mode.
+    pub const CR0_FAULT_INT: u8 = 0x04;
+    /// CR0: fault status clear (self-clearing).
+    pub const CR0_FAULTCLR: u8 = 0x02;
+    /// CR0: 50 Hz noise rejection (0 = 60 Hz).
+    pub const CR0_50HZ: u8 = 0x01;
+    /// CR1: AVGSEL = 010, four samples averaged per conversion.
     pub const CR1_AVG4: u8 = 0x20;
-    /// MASK register value: assert no FAULT pin (faults are read from SR).
-    pub const MASK_NONE: u8 = 0xFF;
-    /// First register of the read burst: CJTH (cold junction), then CJTL, LTCBH, LTCBM, LTCBL, SR.
-    pub const READ_FROM: u8 = 0x0A;
+    /// Samples averaged (AVGSEL).
+    pub const AVG_SAMPLES: u32 = 4;
+    /// Power-on register values 00h..09h (datasheet register map "default").
+    pub const DEFAULTS: [u8; 10] = [0x00, 0x03, 0xFF, 0x7F, 0xC0, 0x7F, 0xFF, 0x80, 0x00, 0x00];
     /// Status register bits.
     pub const SR_CJ_RANGE: u8 = 0x80;
     /// TC Range.
@@ -111,56 +255,319 @@ pub mod max31856 {
     pub const TC_LSB_C: f32 = 0.0078125;
     /// Cold-junction resolution, °C per LSB of the 14-bit value.
     pub const CJ_LSB_C: f32 = 0.015625;
+    /// Conversion time of one sample, normally-off / first conversion, ms (datasheet,
+    /// Electrical Characteristics, tCONV max: 155 ms at 60 Hz, 185 ms at 50 Hz); each further
+    /// averaged sample adds 33.33 ms (60 Hz) or 40 ms (50 Hz) (CR1 AVGSEL description).
+    pub const FIRST_CONVERSION_MS: [u32; 2] = [185, 155];
+    /// Added per further averaged sample, ms (50 Hz, 60 Hz).
+    pub const PER_SAMPLE_MS: [u32; 2] = [40, 34];
 }
 
-/// MAX31865 registers and bits.
+/// MAX31865 registers and bits (datasheet, Table 1 "Register Names, Addresses, and Defaults").
 pub mod max31865 {
     /// Configuration write address.
     pub const CONFIG_WRITE: u8 = 0x80;
-    /// Config: VBIAS on, auto conversion, 3-wire off, 50 Hz filter.
-    pub const CONFIG_AUTO_50HZ: u8 = 0xC1;
-    /// First register of the read burst: RTD MSB, RTD LSB, HFT MSB/LSB, LFT MSB/LSB, fault status.
-    pub const READ_FROM: u8 = 0x01;
+    /// High fault threshold MSB write address (83h: HFT MSB, 84h HFT LSB, 85h/86h LFT).
+    pub const HFT_WRITE: u8 = 0x83;
+    /// Register count (00h configuration … 07h fault status).
+    pub const REGS: usize = 8;
+    /// RTD MSB read address.
+    pub const RTD_MSB: u8 = 0x01;
+    /// Fault status read address.
+    pub const FAULT: u8 = 0x07;
+    /// Configuration: VBIAS on.
+    pub const CFG_VBIAS: u8 = 0x80;
+    /// Configuration: automatic conversion.
+    pub const CFG_AUTO: u8 = 0x40;
+    /// Configuration: one-shot (self-clearing).
+    pub const CFG_1SHOT: u8 = 0x20;
+    /// Configuration: 3-wire RTD.
+    pub const CFG_3WIRE: u8 = 0x10;
+    /// Configuration: fault detection cycle bits D3:D2.
+    pub const CFG_FAULT_CYCLE: u8 = 0x0C;
+    /// Configuration: fault status clear (self-clearing).
+    pub const CFG_FAULT_CLEAR: u8 = 0x02;
+    /// Configuration: 50 Hz filter (0 = 60 Hz).
+    pub const CFG_50HZ: u8 = 0x01;
+    /// Fault status: RTD above the high threshold.
+    pub const FAULT_HIGH: u8 = 0x80;
+    /// Fault status: RTD below the low threshold.
+    pub const FAULT_LOW: u8 = 0x40;
+    /// Fault status: REFIN- > 0.85 × VBIAS, REFIN- < 0.85 × VBIAS (FORCE- open),
+    /// RTDIN- < 0.85 × VBIAS (FORCE- open).
+    pub const FAULT_OPEN: u8 = 0x38;
+    /// Fault status: over/under-voltage.
+    pub const FAULT_OVUV: u8 = 0x04;
+    /// Power-on register values 00h..07h.
+    pub const DEFAULTS: [u8; 8] = [0x00, 0x00, 0x00, 0xFF, 0xFF, 0x00, 0x00, 0x00];
     /// Callendar–Van Dusen A (IEC 60751).
     pub const CVD_A: f32 = 3.9083e-3;
     /// Callendar–Van Dusen B.
     pub const CVD_B: f32 = -5.775e-7;
+    /// First conversion after automatic mode is entered, ms: the one-shot conversion time
+    /// (datasheet, Electrical Characteristics, tCONV one-shot max: 62.5 ms at 50 Hz, 52 ms at
+    /// 60 Hz); then one conversion every 20 ms (50 Hz) / 16.7 ms (60 Hz).
+    pub const FIRST_CONVERSION_MS: [u32; 2] = [63, 52];
 }
 
-/// The frames to write once at start-up (each [`FRAME_LEN`] bytes, clocked out with CS low).
-pub fn config_frames(chip: Chip) -> [[u8; FRAME_LEN]; 1] {
-    match chip {
-        Chip::Max31856 => [[
-            max31856::CR0_WRITE,
-            max31856::CR0_CMODE_AUTO | max31856::CR0_OCFAULT_01,
-            max31856::CR1_AVG4 | max31856::CR1_TYPE_K,
-            max31856::MASK_NONE,
-            0x7F, // CJHF: +127 °C
-            0xC0, // CJLF: -64 °C
-            0x7F, // LTHFTH
-            0xFF, // LTHFTL
-        ]],
-        Chip::Max31865 { .. } => [[
-            max31865::CONFIG_WRITE,
-            max31865::CONFIG_AUTO_50HZ,
-            0xFF, // HFT MSB
-            0xFF, // HFT LSB
-            0x00, // LFT MSB
-            0x00, // LFT LSB
-            0,
-            0,
-        ]],
+fn mains_index(m: Mains) -> usize {
+    match m {
+        Mains::Hz50 => 0,
+        Mains::Hz60 => 1,
     }
 }
 
-/// The frame to clock out to read a conversion (address byte, then dummies).
-pub fn read_frame(chip: Chip) -> [u8; FRAME_LEN] {
-    let mut f = [0u8; FRAME_LEN];
-    f[0] = match chip {
-        Chip::Max31856 => max31856::READ_FROM,
-        Chip::Max31865 { .. } => max31865::READ_FROM,
-    };
-    f
+/// The values the driver keeps in a MAX31856's registers 00h..08h.
+pub fn max31856_config(tc: TcType, mains: Mains) -> [u8; 9] {
+    use max31856::*;
+    let notch = if mains == Mains::Hz50 { CR0_50HZ } else { 0 };
+    [
+        CR0_CMODE | CR0_OCFAULT_01 | notch, // comparator fault mode: SR follows the input
+        CR1_AVG4 | tc as u8,
+        0xFF, // MASK: FAULT pin not used (faults are read from SR)
+        0x7F, // CJHF +127 °C
+        0xC0, // CJLF −64 °C
+        0x7F, // LTHFT +2047.9375 °C
+        0xFF,
+        0x80, // LTLFT −2048 °C
+        0x00,
+    ]
+}
+
+/// The MAX31865 configuration register value the driver keeps.
+pub fn max31865_config(wires: Wires, mains: Mains) -> u8 {
+    use max31865::*;
+    let w = if wires == Wires::Three { CFG_3WIRE } else { 0 };
+    let notch = if mains == Mains::Hz50 { CFG_50HZ } else { 0 };
+    CFG_VBIAS | CFG_AUTO | w | notch
+}
+
+/// The transactions a driver runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Txn {
+    /// Configuration burst number `n` (0-based).
+    Configure(u8),
+    /// Clear the MAX31865's latched fault status.
+    ClearFault,
+    /// Dump every register (configuration read-back, conversion, status).
+    Poll,
+}
+
+/// What a completed transaction produced.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Outcome {
+    /// Run the next transaction ([`Driver::next`]).
+    Continue,
+    /// Nothing to report this cycle (configuring, waiting for the first conversion).
+    Waiting,
+    /// A reading (or a fault) for this cycle.
+    Reading(Result<Reading, SensorFault>),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum State {
+    /// Configuration burst `n` is next.
+    Configuring(u8),
+    /// Configured at `since_ms`; waiting for the first conversion.
+    Warming { since_ms: u32 },
+    /// Converting: every cycle dumps the registers.
+    Running,
+}
+
+/// One chip's driver (pure: time is passed in).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Driver {
+    chip: Chip,
+    mains: Mains,
+    state: State,
+    clear_fault: bool,
+    /// Times the chip was found without its configuration and configured again.
+    pub reconfigurations: u32,
+}
+
+impl Driver {
+    /// A driver that configures `chip` on its first transaction.
+    pub fn new(chip: Chip, mains: Mains) -> Self {
+        Self {
+            chip,
+            mains,
+            state: State::Configuring(0),
+            clear_fault: false,
+            reconfigurations: 0,
+        }
+    }
+
+    /// The chip driven.
+    pub fn chip(&self) -> Chip {
+        self.chip
+    }
+
+    /// Time from configuration to the first valid conversion, ms (datasheet maximum, see
+    /// [`max31856::FIRST_CONVERSION_MS`], [`max31865::FIRST_CONVERSION_MS`]).
+    pub fn first_conversion_ms(&self) -> u32 {
+        let m = mains_index(self.mains);
+        match self.chip {
+            Chip::Max31856 { .. } => {
+                max31856::FIRST_CONVERSION_MS[m]
+                    + (max31856::AVG_SAMPLES - 1) * max31856::PER_SAMPLE_MS[m]
+            }
+            Chip::Max31865 { .. } => max31865::FIRST_CONVERSION_MS[m],
+        }
+    }
+
+    fn bursts(&self) -> u8 {
+        match self.chip {
+            Chip::Max31856 { .. } => 2,
+            Chip::Max31865 { .. } => 2,
+        }
+    }
+
+    /// The next transaction to run at `now_ms`, or `None` when there is nothing to do this
+    /// cycle (waiting for the first conversion).
+    pub fn next(&mut self, now_ms: u32) -> Option<Txn> {
+        match self.state {
+            State::Configuring(n) => Some(Txn::Configure(n)),
+            State::Warming { since_ms } => {
+                if now_ms.wrapping_sub(since_ms) >= self.first_conversion_ms() {
+                    self.state = State::Running;
+                    self.next(now_ms)
+                } else {
+                    None
+                }
+            }
+            State::Running if self.clear_fault => Some(Txn::ClearFault),
+            State::Running => Some(Txn::Poll),
+        }
+    }
+
+    /// Fill `buf` with the bytes to clock out for `txn`; returns the transaction's length.
+    pub fn fill(&self, txn: Txn, buf: &mut [u8; MAX_TXN]) -> usize {
+        buf.fill(0);
+        match (self.chip, txn) {
+            (Chip::Max31856 { tc }, Txn::Configure(n)) => {
+                let cfg = max31856_config(tc, self.mains);
+                if n == 0 {
+                    // everything, with CMODE = 0 (the notch may only change when not converting)
+                    buf[0] = max31856::WRITE | max31856::CR0;
+                    buf[1..10].copy_from_slice(&cfg);
+                    buf[1] &= !max31856::CR0_CMODE;
+                    10
+                } else {
+                    buf[0] = max31856::WRITE | max31856::CR0;
+                    buf[1] = cfg[0];
+                    2
+                }
+            }
+            (Chip::Max31865 { wires, .. }, Txn::Configure(n)) => {
+                if n == 0 {
+                    buf[0] = max31865::CONFIG_WRITE;
+                    buf[1] = max31865_config(wires, self.mains);
+                    2
+                } else {
+                    // thresholds start at 83h: 81h/82h are the read-only RTD registers
+                    buf[..5].copy_from_slice(&[max31865::HFT_WRITE, 0xFF, 0xFF, 0x00, 0x00]);
+                    5
+                }
+            }
+            (Chip::Max31865 { wires, .. }, Txn::ClearFault) => {
+                buf[0] = max31865::CONFIG_WRITE;
+                buf[1] = max31865_config(wires, self.mains) | max31865::CFG_FAULT_CLEAR;
+                2
+            }
+            (Chip::Max31856 { .. }, Txn::ClearFault) => {
+                // comparator mode: nothing latched; a dump does no harm
+                1 + max31856::REGS
+            }
+            (Chip::Max31856 { .. }, Txn::Poll) => 1 + max31856::REGS,
+            (Chip::Max31865 { .. }, Txn::Poll) => 1 + max31865::REGS,
+        }
+    }
+
+    /// Interpret the bytes clocked in during `txn` (`Err` when the bus failed or timed out).
+    pub fn complete(&mut self, txn: Txn, rx: Result<&[u8], SensorFault>, now_ms: u32) -> Outcome {
+        match txn {
+            Txn::Configure(n) => {
+                if rx.is_err() {
+                    self.state = State::Configuring(0);
+                    return Outcome::Reading(Err(SensorFault::NoResponse));
+                }
+                if n + 1 < self.bursts() {
+                    self.state = State::Configuring(n + 1);
+                    Outcome::Continue
+                } else {
+                    self.state = State::Warming { since_ms: now_ms };
+                    self.clear_fault = matches!(self.chip, Chip::Max31865 { .. });
+                    Outcome::Waiting
+                }
+            }
+            Txn::ClearFault => {
+                self.clear_fault = false;
+                if rx.is_err() {
+                    self.state = State::Configuring(0);
+                    return Outcome::Reading(Err(SensorFault::NoResponse));
+                }
+                Outcome::Continue
+            }
+            Txn::Poll => {
+                let r = match rx {
+                    Ok(b) if !b.is_empty() => self.decode_dump(&b[1..]),
+                    _ => Err(SensorFault::NoResponse),
+                };
+                match r {
+                    Err(SensorFault::NoResponse) | Err(SensorFault::ConfigLost) => {
+                        // absent, unpowered or reset: configure again (hot-plug comes back)
+                        self.state = State::Configuring(0);
+                        if r == Err(SensorFault::ConfigLost) {
+                            self.reconfigurations = self.reconfigurations.wrapping_add(1);
+                        }
+                    }
+                    Err(_) => {
+                        // the MAX31865 keeps its fault bits until cleared
+                        self.clear_fault = matches!(self.chip, Chip::Max31865 { .. });
+                    }
+                    Ok(_) => {}
+                }
+                Outcome::Reading(r)
+            }
+        }
+    }
+
+    /// Decode a register dump (registers from 00h on).
+    pub fn decode_dump(&self, regs: &[u8]) -> Result<Reading, SensorFault> {
+        if regs.iter().all(|&b| b == 0xFF) || regs.iter().all(|&b| b == 0x00) {
+            return Err(SensorFault::NoResponse);
+        }
+        match self.chip {
+            Chip::Max31856 { tc } => {
+                if regs.len() < max31856::REGS {
+                    return Err(SensorFault::NoResponse);
+                }
+                let want = max31856_config(tc, self.mains);
+                let got_cr0 = regs[0] & !(max31856::CR0_1SHOT | max31856::CR0_FAULTCLR);
+                if got_cr0 != want[0] || regs[1..9] != want[1..] {
+                    return Err(SensorFault::ConfigLost);
+                }
+                decode_max31856(&regs[10..16])
+            }
+            Chip::Max31865 {
+                r_ref_ohm,
+                r0_ohm,
+                wires,
+            } => {
+                if regs.len() < max31865::REGS {
+                    return Err(SensorFault::NoResponse);
+                }
+                let want = max31865_config(wires, self.mains);
+                if regs[0] & !(max31865::CFG_1SHOT | max31865::CFG_FAULT_CLEAR) != want
+                    || regs[3..7] != [0xFF, 0xFF, 0x00, 0x00]
+                {
+                    return Err(SensorFault::ConfigLost);
+                }
+                decode_max31865(regs[1], regs[2], regs[7], r_ref_ohm, r0_ohm)
+            }
+        }
+    }
 }
 
 /// A decoded conversion.
@@ -172,20 +579,8 @@ pub struct Reading {
     pub cold_junction_c: f32,
 }
 
-/// Decode the bytes clocked in during [`read_frame`] (byte 0 was clocked in while the address
-/// went out and is ignored).
-pub fn decode(chip: Chip, rx: &[u8; FRAME_LEN]) -> Result<Reading, SensorFault> {
-    let d = &rx[1..];
-    if d.iter().all(|&b| b == 0xFF) || d.iter().all(|&b| b == 0x00) {
-        return Err(SensorFault::NoResponse);
-    }
-    match chip {
-        Chip::Max31856 => decode_max31856(d),
-        Chip::Max31865 { r_ref_ohm, r0_ohm } => decode_max31865(d, r_ref_ohm, r0_ohm),
-    }
-}
-
-fn decode_max31856(d: &[u8]) -> Result<Reading, SensorFault> {
+/// Decode MAX31856 registers 0Ah..0Fh (CJTH, CJTL, LTCBH, LTCBM, LTCBL, SR).
+pub fn decode_max31856(d: &[u8]) -> Result<Reading, SensorFault> {
     use max31856::*;
     let (cjth, cjtl, b2, b1, b0, sr) = (d[0], d[1], d[2], d[3], d[4], d[5]);
     if sr & SR_OPEN != 0 {
@@ -214,13 +609,19 @@ fn decode_max31856(d: &[u8]) -> Result<Reading, SensorFault> {
     })
 }
 
-fn decode_max31865(d: &[u8], r_ref: f32, r0: f32) -> Result<Reading, SensorFault> {
+/// Decode MAX31865 RTD MSB/LSB and fault status.
+pub fn decode_max31865(
+    msb: u8,
+    lsb: u8,
+    fault: u8,
+    r_ref: f32,
+    r0: f32,
+) -> Result<Reading, SensorFault> {
     use max31865::*;
-    let (msb, lsb, fault) = (d[0], d[1], d[6]);
     if lsb & 1 != 0 || fault != 0 {
-        return Err(if fault & 0x38 != 0 {
+        return Err(if fault & FAULT_OPEN != 0 {
             SensorFault::Open
-        } else if fault & 0x04 != 0 {
+        } else if fault & FAULT_OVUV != 0 {
             SensorFault::ShortOrOvervoltage
         } else {
             SensorFault::Threshold
@@ -238,61 +639,4 @@ fn decode_max31865(d: &[u8], r_ref: f32, r0: f32) -> Result<Reading, SensorFault
         temp_c: t,
         cold_junction_c: f32::NAN,
     })
-}
-
-/// Encode a MAX31856 read-burst reply (what the chip clocks out) — for simulators and tests.
-pub fn encode_max31856(temp_c: f32, cold_junction_c: f32, sr: u8) -> [u8; FRAME_LEN] {
-    use max31856::*;
-    let tc = libm::roundf(temp_c / TC_LSB_C) as i32;
-    let tc = tc.clamp(-(1 << 18), (1 << 18) - 1);
-    let raw24 = ((tc << 5) as u32) & 0x00FF_FFFF;
-    let cj = libm::roundf(cold_junction_c / CJ_LSB_C) as i32;
-    let cj = cj.clamp(-(1 << 13), (1 << 13) - 1);
-    let cj16 = ((cj << 2) as u32 & 0xFFFF) as u16;
-    [
-        0xFF,
-        (cj16 >> 8) as u8,
-        cj16 as u8,
-        (raw24 >> 16) as u8,
-        (raw24 >> 8) as u8,
-        raw24 as u8,
-        sr,
-        0xFF,
-    ]
-}
-
-/// The QEMU sensor-bus stand-in: a serial port carrying SPI transfers.
-///
-/// Request (firmware → sensors): `0xA5, cs, n, n bytes` (the bytes clocked out with chip-select
-/// `cs` low). Reply (sensors → firmware): `0x5A, cs, n, n bytes` (the bytes clocked in). A reply
-/// that does not arrive in time is [`SensorFault::NoResponse`].
-pub mod bus {
-    use super::FRAME_LEN;
-
-    /// Request start byte.
-    pub const REQ: u8 = 0xA5;
-    /// Reply start byte.
-    pub const REP: u8 = 0x5A;
-    /// Length of a request or reply on the wire.
-    pub const WIRE_LEN: usize = 3 + FRAME_LEN;
-
-    /// Wrap a transfer for the wire.
-    pub fn request(cs: u8, tx: &[u8; FRAME_LEN]) -> [u8; WIRE_LEN] {
-        let mut w = [0u8; WIRE_LEN];
-        w[0] = REQ;
-        w[1] = cs;
-        w[2] = FRAME_LEN as u8;
-        w[3..].copy_from_slice(tx);
-        w
-    }
-
-    /// Unwrap a reply for chip-select `cs`; `None` when it is malformed or for another chip.
-    pub fn reply(cs: u8, wire: &[u8; WIRE_LEN]) -> Option<[u8; FRAME_LEN]> {
-        if wire[0] != REP || wire[1] != cs || usize::from(wire[2]) != FRAME_LEN {
-            return None;
-        }
-        let mut f = [0u8; FRAME_LEN];
-        f.copy_from_slice(&wire[3..]);
-        Some(f)
-    }
 }

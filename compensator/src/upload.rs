@@ -211,7 +211,7 @@ impl Upload {
             });
         }
         let bytes = &buf[..self.total as usize];
-        let computed = blob::crc32(bytes);
+        let computed = crate::crc32(bytes);
         if computed != self.crc {
             return Err(UploadError::CrcMismatch {
                 expected: self.crc,

@@ -38,12 +38,24 @@ fn main() -> anyhow::Result<()> {
             println!("nanocal-model {}", env!("CARGO_PKG_VERSION"));
             println!("axes                 {}", limits::MAX_AXES);
             println!("temperature inputs   {}", limits::MAX_TEMPS);
-            println!("aux inputs           {}", limits::MAX_AUX);
+            println!(
+                "aux inputs           {} (slow or fast; air pressure hPa, force N, other)",
+                limits::MAX_AUX
+            );
             println!("lag filters          {}", limits::MAX_LAGS);
+            println!(
+                "play operators       {} (hysteresis, 16 per axis on 3 axes)",
+                limits::MAX_PLAY
+            );
             println!("terms                {}", limits::MAX_TERMS);
             println!("power per term       {}", limits::MAX_POWER);
             println!("fold coefficients    {FOLD_CAPACITY}");
-            println!("blob format version  {}", blob::FORMAT_VERSION);
+            println!(
+                "blob format version  {} (reads {} and {})",
+                blob::FORMAT_VERSION,
+                blob::FORMAT_VERSION_1,
+                blob::FORMAT_VERSION
+            );
             println!("largest blob         {} bytes", blob::MAX_BLOB_LEN);
             Ok(())
         }

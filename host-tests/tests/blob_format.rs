@@ -1,10 +1,15 @@
-//! The blob's bytes: golden bytes for format version 1, round trips, CRC check value.
+//! The blob's bytes: golden bytes for format versions 2 and 1, round trips, CRC check value.
 
 use nanocal::published::{coupled_2dof, published_1dof};
 use nanocal_model::blob::{self, BlobError, FORMAT_VERSION, MAX_BLOB_LEN};
-use nanocal_model::{Factor, Input, Model, ModelBuilder, Scaling, Term};
+use nanocal_model::reference::delta_robot_78;
+use nanocal_model::{
+    AuxKind, AuxSpec, Factor, Input, Model, ModelBuilder, Scaling, Term, MAX_AUX, MAX_LAGS,
+    MAX_PLAY, MAX_TEMPS,
+};
 
-/// A small model with one of everything, on round binary numbers so the bytes read easily.
+/// A small model with one of everything version 1 could hold, on round binary numbers so the
+/// bytes read easily.
 fn golden_model() -> Model {
     let mut b = ModelBuilder::new(1, 1, 0)
         .unwrap()
@@ -48,7 +53,7 @@ fn golden_model() -> Model {
     b.build().unwrap()
 }
 
-/// Format version 1, byte for byte. Changing these bytes needs a FORMAT_VERSION bump.
+/// Format version 1, byte for byte, as version 1 wrote it: the decoder still reads it.
 const GOLDEN_V1_HEX: &str = concat!(
     "4e43414c",
     "0100",
@@ -83,6 +88,92 @@ const GOLDEN_V1_HEX: &str = concat!(
     "f533fc72",         // CRC-32/IEEE (zlib) of all bytes above
 );
 
+/// The version 1 golden model plus what version 2 added: a fast force input and a bank of two
+/// play operators, each used by one term.
+fn golden_model_v2() -> Model {
+    let mut b = ModelBuilder::from_model(&golden_model()).id(0xC0FF_EE02);
+    let force = b.add_aux(AuxSpec::fast(AuxKind::ForceN)).unwrap();
+    let mut b = b
+        .scaling(
+            Input::Aux(force),
+            Scaling {
+                centre: 0.0,
+                half_range: 2.0,
+            },
+        )
+        .envelope(Input::Aux(force), -2.0, 2.0);
+    b.play(0, 0.0).unwrap();
+    let p1 = b.play(0, 12.5).unwrap();
+    for (factor, coeff) in [(Factor::Aux(force), 0.125), (Factor::Play(p1), -0.5)] {
+        b.add_term(Term {
+            output: 0,
+            powers: [0; 3],
+            factor,
+            direction: 0,
+            coeff,
+        })
+        .unwrap();
+    }
+    b.build().unwrap()
+}
+
+/// Format version 2, byte for byte. Changing these bytes needs a FORMAT_VERSION bump. The CRC
+/// was checked with an independent implementation (Python's `zlib.crc32`).
+const GOLDEN_V2_HEX: &str = concat!(
+    "4e43414c",
+    "0200",
+    "0000",
+    "24010000", // magic, version 2, reserved, payload 292
+    "02eeffc0",
+    "01010101",
+    "0600",
+    "02",
+    "00", // id, A T X L, 6 terms, 2 play operators, reserved
+    "0000000000004940",
+    "0000000000004940",
+    "0000000000000000",
+    "0000000000005940", // axis 0: centre 50, half range 50, envelope 0 … 100
+    "0000000000003640",
+    "000000000000f03f",
+    "0000000000003540",
+    "0000000000003740", // temp 0: 22, 1, 21 … 23
+    "0000000000000000",
+    "0000000000000040",
+    "00000000000000c0",
+    "0000000000000040", // aux 0: 0, 2, −2 … 2
+    "00000000000014c0",
+    "0000000000405a40", // travel −5 … 105
+    "000000000000e03f",
+    "000000000000d0bf", // λ 0.5, λ_KMZ −0.25
+    "0201000000000000", // aux 0: kind 2 (force, N), flags 1 (fast)
+    "0000000000000000",
+    "0000000000c08240", // lag: sensor 0, τ 600 s
+    "0000000000000000",
+    "0000000000000000", // play 0: axis 0, threshold 0
+    "0000000000000000",
+    "0000000000002940", // play 1: axis 0, threshold 12.5 µm
+    "0001000000000000",
+    "000000000000f83f", // 1.5·u
+    "0000000001000000",
+    "000000000000d0bf", // −0.25·T0
+    "0001000003000000",
+    "000000000000c03f", // 0.125·u·lag0
+    "0000000000000100",
+    "000000000000a03f", // 0.03125·sign(x)
+    "0000000002000000",
+    "000000000000c03f", // 0.125·F (fast aux 0)
+    "0000000004010000",
+    "000000000000e0bf", // −0.5·play1
+    "f1e09bcf",         // CRC-32/IEEE (zlib) of all bytes above
+);
+
+fn unhex(text: &str) -> Vec<u8> {
+    (0..text.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&text[i..i + 2], 16).unwrap())
+        .collect()
+}
+
 fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
@@ -104,23 +195,46 @@ fn crc32_matches_the_standard_check_value() {
 }
 
 #[test]
-fn golden_bytes_of_format_version_1() {
-    assert_eq!(FORMAT_VERSION, 1, "a version bump needs new golden bytes");
-    assert_eq!(hex(&encode(&golden_model())), GOLDEN_V1_HEX);
+fn golden_bytes_of_format_version_2() {
+    assert_eq!(FORMAT_VERSION, 2, "a version bump needs new golden bytes");
+    assert_eq!(hex(&encode(&golden_model_v2())), GOLDEN_V2_HEX);
 }
 
 #[test]
 fn golden_bytes_decode_to_the_golden_model() {
-    let bytes: Vec<u8> = (0..GOLDEN_V1_HEX.len())
-        .step_by(2)
-        .map(|i| u8::from_str_radix(&GOLDEN_V1_HEX[i..i + 2], 16).unwrap())
-        .collect();
-    assert_eq!(blob::decode(&bytes).unwrap(), golden_model());
+    let model = golden_model_v2();
+    assert_eq!(blob::decode(&unhex(GOLDEN_V2_HEX)).unwrap(), model);
+    assert_eq!(model.aux_kind(0), Some(AuxKind::ForceN));
+    assert!(model.is_fast(0));
+    assert_eq!(model.aux_kind(1), None);
+    assert!(!model.is_fast(1));
+    assert_eq!(model.fast_aux_mask(), 1);
+    assert_eq!(model.play_operators().len(), 2);
+}
+
+#[test]
+fn version_1_blobs_still_decode_and_re_encode_as_version_2() {
+    let v1 = unhex(GOLDEN_V1_HEX);
+    let model = blob::decode(&v1).unwrap();
+    assert_eq!(model, golden_model());
+    assert_eq!(model.aux_spec(0), None);
+    let v2 = encode(&model);
+    assert_eq!(&v2[4..6], &2u16.to_le_bytes());
+    // Version 2 adds the play count (0) where version 1 had reserved zeros, and nothing else
+    // for a model without aux inputs or play operators: same bytes but version and CRC.
+    assert_eq!(v2.len(), v1.len());
+    assert_eq!(&v2[6..v2.len() - 4], &v1[6..v1.len() - 4]);
+    assert_eq!(blob::decode(&v2).unwrap(), model);
 }
 
 #[test]
 fn reference_models_round_trip() {
-    for model in [published_1dof().unwrap(), coupled_2dof().unwrap()] {
+    for model in [
+        published_1dof().unwrap(),
+        coupled_2dof().unwrap(),
+        delta_robot_78().unwrap(),
+        golden_model_v2(),
+    ] {
         let bytes = encode(&model);
         assert_eq!(bytes.len(), blob::encoded_len(&model));
         assert_eq!(blob::decode(&bytes).unwrap(), model);
@@ -141,9 +255,24 @@ fn encode_refuses_a_buffer_that_is_too_small() {
 
 #[test]
 fn a_full_model_fits_the_largest_blob() {
-    let mut b = ModelBuilder::new(3, 8, 4).unwrap();
-    for k in 0..8 {
-        b.lag(k, 100.0 * (k + 1) as f64).unwrap();
+    let mut b = ModelBuilder::new(3, MAX_TEMPS, MAX_AUX).unwrap();
+    for k in 0..MAX_LAGS {
+        b.lag((k % MAX_TEMPS) as u8, 100.0 * (k + 1) as f64)
+            .unwrap();
+    }
+    for k in 0..MAX_PLAY {
+        let per_axis = MAX_PLAY / 3;
+        b.play((k / per_axis) as u8, (k % per_axis) as f64).unwrap();
+    }
+    for n in 0..MAX_AUX {
+        let kind = [AuxKind::AirPressureHpa, AuxKind::ForceN][n % 2];
+        b = b.aux_spec(
+            n,
+            AuxSpec {
+                kind,
+                fast: n % 2 == 1,
+            },
+        );
     }
     // Degree ≤ 6 in three axes: 84 monomials per output, so 128 terms fit the fold too.
     let mut n = 0;

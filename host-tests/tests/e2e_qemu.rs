@@ -111,6 +111,9 @@ fn e2e_compensator_under_qemu() {
         );
     };
     host.send("MOV 1 100");
+    // the first move waits for the controller's GCS syntax version and position unit
+    assert_eq!(stage.next_line(Duration::from_secs(10)), "CSV?");
+    assert_eq!(stage.next_line(Duration::from_secs(10)), "PUN? 1");
     let fwd = stage.next_line(Duration::from_secs(10));
     check(stage_value(&fwd, "1"), 100.0, dir0);
 
@@ -255,8 +258,7 @@ fn e2e_compensator_under_qemu() {
     assert!(kmz[0].abs() > 1e-3);
     let s = c.status().unwrap();
     assert_eq!(s.kmz_um[0], kmz[0]);
-    assert_eq!(s.slot_seq, before.slot_seq + 1, "the KMZ change was stored");
-    assert_ne!(s.slot, before.slot, "in the other slot");
+    assert_eq!(before.model_id, s.model_id);
     // and it is in service: the same target now gets a command shifted by Δλ_KMZ
     let shifted = model.eval_f64(&[250.0, 0.0, 0.0], &[0; MAX_AXES], &slow())[0] + kmz[0];
     host.send("MOV 1 250");
@@ -281,6 +283,25 @@ fn e2e_compensator_under_qemu() {
     assert!(text.contains("model: 0x00010001"), "{text}");
     assert!(text.contains("sensor 1:"), "{text}");
     assert!(text.contains("uploads ok 1  rejected 3"), "{text}");
+    assert!(text.contains("chip UID"), "{text}");
+
+    // a reset: the model and its λ_KMZ come back from flash, the reset cause says why
+    let mut c = q.client();
+    c.reset().unwrap();
+    drop(c);
+    std::thread::sleep(Duration::from_millis(500));
+    let mut c = q.client();
+    let h = c.identify().unwrap();
+    assert_eq!(
+        h.reset_cause,
+        nanocal_compensator::identity::ResetCause::Software
+    );
+    let s = wait_until("model reloaded", Duration::from_secs(20), || {
+        let s = c.status().ok()?;
+        (s.flags & flags::MODEL != 0).then_some(s)
+    });
+    assert_eq!(s.model_id, model.id());
+    assert_eq!(s.kmz_um[0], kmz[0], "λ_KMZ stored with the model");
 }
 
 fn stage_value(line: &str, axis: &str) -> f64 {
@@ -313,9 +334,16 @@ fn e2e_coupled_2dof_under_qemu() {
         (s.flags & flags::SENSOR_BLOCK == 0 && s.folds >= 2).then_some(())
     });
 
-    // a single-axis MOV before any full target is refused: the coupled axis' target is unknown
+    // a single-axis MOV before any full target: the coupled axis' target is read from the
+    // controller first (MOV?), then both axes are commanded
     host.send("MOV 1 40");
-    assert_eq!(host.ask("ERR?"), "9004");
+    assert_eq!(host.ask("ERR?"), "0");
+    let seen = stage.drain();
+    assert_eq!(seen[..3], ["CSV?", "PUN? 1 2", "MOV? 1 2"], "{seen:?}");
+    assert!(
+        seen[3].starts_with("MOV 1 ") && seen[3].contains(" 2 "),
+        "{seen:?}"
+    );
 
     host.send("MOV 1 40 2 70");
     let fwd = stage.next_line(Duration::from_secs(10));

@@ -28,15 +28,61 @@ fn require_qemu(test: &str) -> bool {
     false
 }
 
-const REGIONS: [&str; 7] = [
+/// The regions of src/bin/qemu_bench.rs, in order.
+const REGIONS: [&str; 21] = [
     "empty loop (overhead, subtracted)",
     "`Fold::correct`, 1-DoF, 8 terms",
     "`Fold::correct`, 2-DoF, 40 terms",
-    "`MOV` line through the proxy (parse, correct, format), 1-DoF",
+    "`MOV` line through the proxy (host bytes in, corrected line out), 1-DoF, 8 terms",
     "`Model::eval_f64`, 1-DoF (soft-float f64 reference)",
-    "`Fold::inverse`, 1-DoF (POS?/MOV? replies)",
+    "`Fold::inverse`, 1-DoF (POS?/MOV? replies), started at the reply",
     "`Model::fold`, 2-DoF, 40 terms (slow path; N/10 iterations)",
+    "`Fold::correct`, 1-DoF, 8 terms + 16 play operators (walk with reversals)",
+    "`Fold::correct`, 3-DoF, 78 terms (paper 001's robot size), 105 coefficients",
+    "`Fold::correct`, 1-DoF, 8 terms + fast force input (F, x·F)",
+    "`Fold::correct` + `Fold::inverse_from` of its reply started at the target, 1-DoF + 16 play operators",
+    "`Fold::inverse`, 3-DoF, 78 terms",
+    "`Fold::inverse_from`, 1-DoF, started at the last target (reply 3 nm off)",
+    "`Model::fold`, 3-DoF, 78 terms (slow path; N/10 iterations)",
+    "published 1-DoF: `MOV` line + `POS? 1` + its reply 3 nm off the command, mapped",
+    "published 1-DoF: `MOV` line alone (subtracted from the two rounds)",
+    "published 1-DoF: `MOV` line + `MOV? 1` + its reply equal to the command, mapped",
+    "published 1-DoF: `HLT 1` + `POS? 1` + its reply, mapped with no target known",
+    "published 1-DoF: `HLT 1` line alone (subtracted)",
+    "8-term 1-DoF: `MOV` line + `POS? 1` + its reply 3 nm off the command, mapped",
+    "published 1-DoF: `Fold::inverse` (the model's own inverse)",
 ];
+
+/// Derived figures: (name, region, region subtracted).
+const DERIVED: [(&str, usize, usize); 5] = [
+    (
+        "`Fold::inverse_from`, 1-DoF + 16 play operators, started at the last target (state frozen)",
+        10,
+        7,
+    ),
+    (
+        "published 1-DoF: `POS?` mapping (query line + reply mapped; warm start at the target)",
+        14,
+        15,
+    ),
+    (
+        "published 1-DoF: `MOV?` mapping (query line + reply equal to the command sent)",
+        16,
+        15,
+    ),
+    (
+        "published 1-DoF: `POS?` mapping with no target known (cold start at the reply)",
+        17,
+        18,
+    ),
+    (
+        "8-term 1-DoF: `POS?` mapping (warm start at the target)",
+        19,
+        3,
+    ),
+];
+/// Regions that run N/10 iterations.
+const SLOW_REGIONS: [usize; 2] = [6, 13];
 
 #[test]
 #[ignore = "benchmark: run with --ignored --nocapture"]
@@ -102,10 +148,18 @@ fn fw_bench_instructions() {
     let n = 1000.0;
     let overhead = c[0] as f64 / n;
     println!("\n| region | guest instructions per call |\n|---|---:|");
+    let mut per = vec![];
     for (i, name) in REGIONS.iter().enumerate() {
-        let iters = if i == 6 { n / 10.0 } else { n };
-        let per = c[i] as f64 / iters - if i == 0 { 0.0 } else { overhead };
-        println!("| {name} | {per:.0} |");
+        let iters = if SLOW_REGIONS.contains(&i) {
+            n / 10.0
+        } else {
+            n
+        };
+        per.push(c[i] as f64 / iters - if i == 0 { 0.0 } else { overhead });
+        println!("| {name} | {:.0} |", per[i]);
+    }
+    for (name, a, b) in DERIVED {
+        println!("| {name} | {:.0} |", per[a] - per[b]);
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -162,6 +216,12 @@ fn fw_bench_latency_throughput() {
     {
         assert!(Instant::now() < deadline, "sensors never became ready");
         std::thread::sleep(Duration::from_millis(50));
+    }
+    // the first move waits for the controller's syntax version and unit: not measured
+    host.send("MOV 1 10");
+    for want in ["CSV?", "PUN? 1", "MOV 1 "] {
+        let l = stage.next_line(Duration::from_secs(10));
+        assert!(l.starts_with(want), "{l}");
     }
 
     let one_way = |host: &mut fw_sim::GcsHost, k: usize| {

@@ -2,7 +2,7 @@
 //! against the published formulas, everywhere in the training envelope.
 
 use nanocal::published::{coupled_2dof, coupled_2dof_raw, published_1dof, published_1dof_raw};
-use nanocal_model::{Model, SlowInputs, MAX_AXES};
+use nanocal_model::{FastInputs, HysteresisState, Model, SlowInputs, MAX_AXES};
 use proptest::prelude::*;
 
 const F32_TOLERANCE_UM: f64 = 0.05e-3;
@@ -18,7 +18,12 @@ fn fast_path_error_um(model: &Model, x_um: [f64; MAX_AXES], slow: &SlowInputs) -
     let x32 = x_um.map(|v| v as f32);
     let x64 = x32.map(|v| v as f64);
     let fold = model.fold(slow);
-    let fast = fold.correct(&x32, &[0; MAX_AXES]);
+    let fast = fold.correct(
+        &x32,
+        &[0; MAX_AXES],
+        &FastInputs::NONE,
+        &mut HysteresisState::new(),
+    );
     let reference = model.eval_f64(&x64, &[0; MAX_AXES], slow);
     (0..model.axes())
         .map(|a| (fast.q_um[a] as f64 - reference[a]).abs())

@@ -1,7 +1,10 @@
 //! The inverse map (position replies) and its failure modes; the adaptive KMZ offset; envelope flags.
 
 use nanocal::published::{coupled_2dof, published_1dof};
-use nanocal_model::{Factor, Input, InverseError, ModelBuilder, SlowInputs, Term, MAX_AXES};
+use nanocal_model::{
+    Factor, FastInputs, HysteresisState, Input, InverseError, ModelBuilder, SlowInputs, Term,
+    MAX_AXES,
+};
 use proptest::prelude::*;
 
 fn slow_with_temps(temps: &[f64]) -> SlowInputs {
@@ -16,16 +19,16 @@ proptest! {
     #[test]
     fn inverse_undoes_correct_1dof(x_um in 0.0f32..=480.0, t in 21.0f64..=23.0, dir in -1i8..=1) {
         let fold = published_1dof().unwrap().fold(&slow_with_temps(&[t, t + 0.1, t - 0.2, t]));
-        let q = fold.correct(&[x_um, 0.0, 0.0], &[dir, 0, 0]).q_um;
-        let back = fold.inverse(&q, &[dir, 0, 0]).unwrap();
+        let q = fold.correct(&[x_um, 0.0, 0.0], &[dir, 0, 0], &FastInputs::NONE, &mut HysteresisState::new()).q_um;
+        let back = fold.inverse(&q, &[dir, 0, 0], &FastInputs::NONE, &HysteresisState::new()).unwrap();
         prop_assert!((back[0] - x_um).abs() as f64 <= 0.1e-3, "{x_um} -> {} -> {}", q[0], back[0]);
     }
 
     #[test]
     fn inverse_undoes_correct_2dof(x_um in 0.0f32..=80.0, y_um in 0.0f32..=80.0) {
         let fold = coupled_2dof().unwrap().fold(&slow_with_temps(&[22.0, 22.5, 21.5, 23.0]));
-        let q = fold.correct(&[x_um, y_um, 0.0], &[0; MAX_AXES]).q_um;
-        let back = fold.inverse(&q, &[0; MAX_AXES]).unwrap();
+        let q = fold.correct(&[x_um, y_um, 0.0], &[0; MAX_AXES], &FastInputs::NONE, &mut HysteresisState::new()).q_um;
+        let back = fold.inverse(&q, &[0; MAX_AXES], &FastInputs::NONE, &HysteresisState::new()).unwrap();
         prop_assert!((back[0] - x_um).abs() <= 0.1e-3 && (back[1] - y_um).abs() <= 0.1e-3,
             "({x_um}, {y_um}) -> {q:?} -> {back:?}");
     }
@@ -56,13 +59,25 @@ fn inverse_reports_a_non_monotone_model_instead_of_guessing() {
     .unwrap();
     let fold = b.build().unwrap().fold(&SlowInputs::default());
     // The map peaks at q = 2/(3√3) ≈ 0.385: a larger command has no preimage.
-    let err = fold.inverse(&[0.9, 0.0, 0.0], &[0; MAX_AXES]).unwrap_err();
+    let err = fold
+        .inverse(
+            &[0.9, 0.0, 0.0],
+            &[0; MAX_AXES],
+            &FastInputs::NONE,
+            &HysteresisState::new(),
+        )
+        .unwrap_err();
     assert!(
         matches!(err, InverseError::NotConverged | InverseError::Singular),
         "{err:?}"
     );
     assert_eq!(
-        fold.inverse(&[f32::NAN, 0.0, 0.0], &[0; MAX_AXES]),
+        fold.inverse(
+            &[f32::NAN, 0.0, 0.0],
+            &[0; MAX_AXES],
+            &FastInputs::NONE,
+            &HysteresisState::new()
+        ),
         Err(InverseError::NonFinite)
     );
 }
@@ -89,7 +104,12 @@ fn kmz_reference_measurement_re_zeroes_the_model() {
     // And the fast path sees it after a new fold.
     let fast = model
         .fold(&slow)
-        .correct(&[240.37, 0.0, 0.0], &[0; MAX_AXES])
+        .correct(
+            &[240.37, 0.0, 0.0],
+            &[0; MAX_AXES],
+            &FastInputs::NONE,
+            &mut HysteresisState::new(),
+        )
         .q_um[0] as f64;
     assert!((fast - q_sent[0]).abs() < 1e-4);
 }
@@ -110,13 +130,23 @@ fn envelope_flags_name_the_input_that_left_the_training_range() {
         1 << Input::Temp(1).flat_index()
     );
     assert_eq!(
-        fold.correct(&[490.0, 0.0, 0.0], &[0; MAX_AXES])
-            .outside_envelope,
+        fold.correct(
+            &[490.0, 0.0, 0.0],
+            &[0; MAX_AXES],
+            &FastInputs::NONE,
+            &mut HysteresisState::new()
+        )
+        .outside_envelope,
         1
     );
     assert_eq!(
-        fold.correct(&[100.0, 0.0, 0.0], &[0; MAX_AXES])
-            .outside_envelope,
+        fold.correct(
+            &[100.0, 0.0, 0.0],
+            &[0; MAX_AXES],
+            &FastInputs::NONE,
+            &mut HysteresisState::new()
+        )
+        .outside_envelope,
         0
     );
 }
@@ -151,7 +181,14 @@ fn direction_and_lag_terms_reach_the_fast_path() {
     let fold = model.fold(&slow);
     for dir in [-1i8, 0, 1] {
         let x = [50.0f32, 0.0, 0.0];
-        let fast = fold.correct(&x, &[dir, 0, 0]).q_um[0] as f64;
+        let fast = fold
+            .correct(
+                &x,
+                &[dir, 0, 0],
+                &FastInputs::NONE,
+                &mut HysteresisState::new(),
+            )
+            .q_um[0] as f64;
         let reference = model.eval_f64(&[50.0, 0.0, 0.0], &[dir, 0, 0], &slow)[0];
         assert!(
             (fast - reference).abs() < 1e-5,

@@ -1,7 +1,10 @@
 //! The fast path and the inverse on random models — any number of axes, temperature, aux and
 //! direction factors, degrees up to the fold's capacity — against the f64 reference.
 
-use nanocal_model::{Factor, Input, Model, ModelBuilder, ModelError, SlowInputs, Term, MAX_AXES};
+use nanocal_model::{
+    Factor, FastInputs, HysteresisState, Input, Model, ModelBuilder, ModelError, SlowInputs, Term,
+    MAX_AXES,
+};
 use proptest::prelude::*;
 
 /// One random term: output, powers, factor kind/index, direction, coefficient (µm).
@@ -89,7 +92,7 @@ proptest! {
             x32[a] = (frac[a] * 100.0 * (a + 1) as f64) as f32;
         }
         let fold = model.fold(&slow);
-        let fast = fold.correct(&x32, &dir).q_um;
+        let fast = fold.correct(&x32, &dir, &FastInputs::NONE, &mut HysteresisState::new()).q_um;
         let reference = model.eval_f64(&x32.map(f64::from), &dir, &slow);
         // Deviations here reach tens of µm (every term up to 0.5 µm, up to 40 terms): allow a
         // few f32 ulps of the deviation's scale plus the output's own rounding.
@@ -100,8 +103,8 @@ proptest! {
             prop_assert!(err <= tol, "axis {a}: fast {} vs f64 {} (error {err:e}, tolerance {tol:e})", fast[a], reference[a]);
         }
         // Where the model is invertible near x, the inverse brings the command back.
-        if let Ok(back) = fold.inverse(&fast, &dir) {
-            let again = fold.correct(&back, &dir).q_um;
+        if let Ok(back) = fold.inverse(&fast, &dir, &FastInputs::NONE, &HysteresisState::new()) {
+            let again = fold.correct(&back, &dir, &FastInputs::NONE, &mut HysteresisState::new()).q_um;
             for a in 0..axes {
                 prop_assert!((again[a] - fast[a]).abs() as f64 <= 1e-3, "axis {a}: {} -> {} -> {}", fast[a], back[a], again[a]);
             }
@@ -128,6 +131,14 @@ fn a_three_axis_model_with_direction_terms_folds_exactly() {
     let expected = 150.0 + 0.2 * u * v * t0 - 0.05 + 0.01 * u * u * w;
     let q = model.eval_f64(&x.map(f64::from), &[1, -1, 1], &slow)[2];
     assert!((q - expected).abs() < 1e-12, "{q} vs {expected}");
-    let fast = model.fold(&slow).correct(&x, &[1, -1, 1]).q_um[2] as f64;
+    let fast = model
+        .fold(&slow)
+        .correct(
+            &x,
+            &[1, -1, 1],
+            &FastInputs::NONE,
+            &mut HysteresisState::new(),
+        )
+        .q_um[2] as f64;
     assert!((fast - expected).abs() < 2e-5, "{fast} vs {expected}");
 }

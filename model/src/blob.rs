@@ -5,7 +5,7 @@
 //! ```text
 //! offset      size  field
 //! 0           4     magic "NCAL"
-//! 4           2     format version (u16) = FORMAT_VERSION
+//! 4           2     format version (u16) = FORMAT_VERSION (2)
 //! 6           2     reserved, 0
 //! 8           4     payload length N (u32)
 //! 12          N     payload
@@ -14,30 +14,44 @@
 //! payload
 //! +0          4     model id (u32)
 //! +4          1     axes A (1..=3)
-//! +5          1     temperatures T (0..=8)
+//! +5          1     temperatures T (0..=16)
 //! +6          1     aux channels X (0..=4)
-//! +7          1     lag filters L (0..=8)
+//! +7          1     lag filters L (0..=32)
 //! +8          2     terms K (u16, 0..=128)
-//! +10         2     reserved, 0
+//! +10         1     play operators P (0..=48)
+//! +11         1     reserved, 0
 //! +12         32·(A+T+X)  per input, axes then temperatures then aux:
 //!                   centre f64 | half_range f64 | envelope min f64 | envelope max f64
 //! then        16·A  per axis: travel min f64 | travel max f64 (command space, µm)
 //! then        16·A  per axis: offset λ f64 | adaptive offset λ_KMZ f64 (µm)
+//! then        8·X   per aux input: kind u8 (0 other, 1 air pressure hPa, 2 force N) |
+//!                   flags u8 (bit 0: fast, evaluated per command; other bits 0) | 6 reserved, 0
 //! then        16·L  per lag: sensor u8 | 7 reserved bytes, 0 | τ f64 (s)
+//! then        16·P  per play operator: axis u8 | 7 reserved bytes, 0 | threshold f64 (µm);
+//!                   grouped by axis in axis order, thresholds strictly ascending per axis
 //! then        16·K  per term: output u8 | power x u8 | power y u8 | power z u8 |
-//!                   factor kind u8 (0 none, 1 temp, 2 aux, 3 lagged) | factor index u8 |
-//!                   direction u8 (0 none, 1+axis) | reserved u8, 0 | coefficient f64 (µm)
+//!                   factor kind u8 (0 none, 1 temp, 2 aux, 3 lagged, 4 play operator) |
+//!                   factor index u8 | direction u8 (0 none, 1+axis) | reserved u8, 0 |
+//!                   coefficient f64 (µm)
 //! ```
 //!
-//! The decoder checks everything — lengths, CRC, counts, indices, finiteness, reserved bytes —
-//! and returns a typed [`BlobError`]; it never panics, whatever the bytes.
+//! Version history: 1 had no aux descriptors (every aux input of kind "other" and slow), no
+//! play operators (payload bytes +10 and +11 reserved) and at most 8 temperatures and 8 lags.
+//! Version 2 added the aux descriptors, the play operators and factor kind 4, and widened the
+//! counts. The decoder still reads version 1 blobs (a device keeps the models it stored before
+//! an update); the encoder writes version 2 only.
+//!
+//! The decoder checks everything — lengths, CRC, counts, indices, finiteness, reserved bytes,
+//! the order of play operators, the monotonicity of their banks — and returns a typed
+//! [`BlobError`]; it never panics, whatever the bytes.
 
 use core::fmt;
 
 use crate::error::ModelError;
-use crate::input::{Input, Scaling};
+use crate::hysteresis::PlaySpec;
+use crate::input::{AuxKind, AuxSpec, Input, Scaling};
 use crate::lag::LagSpec;
-use crate::limits::{MAX_AUX, MAX_AXES, MAX_INPUTS, MAX_LAGS, MAX_TEMPS, MAX_TERMS};
+use crate::limits::{MAX_AUX, MAX_AXES, MAX_INPUTS, MAX_LAGS, MAX_PLAY, MAX_TEMPS, MAX_TERMS};
 use crate::model::Model;
 use crate::term::{Factor, Term};
 use crate::ModelBuilder;
@@ -45,7 +59,9 @@ use crate::ModelBuilder;
 /// First four bytes of every blob.
 pub const MAGIC: [u8; 4] = *b"NCAL";
 /// Version of the byte layout above; bumped whenever the bytes change.
-pub const FORMAT_VERSION: u16 = 1;
+pub const FORMAT_VERSION: u16 = 2;
+/// The previous version, which the decoder still reads.
+pub const FORMAT_VERSION_1: u16 = 1;
 /// Bytes before the payload.
 pub const HEADER_LEN: usize = 12;
 /// Bytes after the payload (the CRC).
@@ -53,13 +69,19 @@ pub const TRAILER_LEN: usize = 4;
 const PAYLOAD_FIXED_LEN: usize = 12;
 const INPUT_LEN: usize = 32;
 const AXIS_LEN: usize = 32;
+const AUX_LEN: usize = 8;
 const LAG_LEN: usize = 16;
+const PLAY_LEN: usize = 16;
 const TERM_LEN: usize = 16;
+/// Aux flags bit: the input is fast.
+const AUX_FAST: u8 = 1;
 /// Largest payload a valid blob can have.
 pub const MAX_PAYLOAD_LEN: usize = PAYLOAD_FIXED_LEN
     + INPUT_LEN * MAX_INPUTS
     + AXIS_LEN * MAX_AXES
+    + AUX_LEN * MAX_AUX
     + LAG_LEN * MAX_LAGS
+    + PLAY_LEN * MAX_PLAY
     + TERM_LEN * MAX_TERMS;
 /// Largest valid blob, in bytes.
 pub const MAX_BLOB_LEN: usize = HEADER_LEN + MAX_PAYLOAD_LEN + TRAILER_LEN;
@@ -76,7 +98,7 @@ pub enum BlobError {
     },
     /// The first four bytes are not "NCAL".
     BadMagic,
-    /// A format version this build does not read.
+    /// A format version this build does not read (it reads 1 and 2).
     UnsupportedVersion {
         /// Version found.
         found: u16,
@@ -114,6 +136,13 @@ pub enum BlobError {
         /// Kind byte found.
         kind: u8,
     },
+    /// An aux input has an unknown kind.
+    UnknownAuxKind {
+        /// Index of the aux input.
+        aux: u8,
+        /// Kind byte found.
+        kind: u8,
+    },
     /// The bytes describe a model that breaks the model's rules.
     InvalidModel(ModelError),
     /// The output buffer is too small for the encoded model.
@@ -129,7 +158,7 @@ impl fmt::Display for BlobError {
             BlobError::TooShort { len } => write!(f, "blob too short: {len} bytes"),
             BlobError::BadMagic => f.write_str("not a nanocal blob (bad magic)"),
             BlobError::UnsupportedVersion { found } => {
-                write!(f, "blob format version {found} is not supported (this build reads {FORMAT_VERSION})")
+                write!(f, "blob format version {found} is not supported (this build reads {FORMAT_VERSION_1} and {FORMAT_VERSION})")
             }
             BlobError::LengthMismatch { expected, found } => {
                 write!(
@@ -154,6 +183,9 @@ impl fmt::Display for BlobError {
             }
             BlobError::UnknownFactor { term, kind } => {
                 write!(f, "term {term} has unknown factor kind {kind}")
+            }
+            BlobError::UnknownAuxKind { aux, kind } => {
+                write!(f, "aux input {aux} has unknown kind {kind}")
             }
             BlobError::InvalidModel(e) => write!(f, "blob holds an invalid model: {e}"),
             BlobError::BufferTooSmall { needed } => {
@@ -189,25 +221,49 @@ pub fn crc32_update(crc: u32, bytes: &[u8]) -> u32 {
     !c
 }
 
-fn payload_len(axes: usize, temps: usize, aux: usize, lags: usize, terms: usize) -> usize {
-    PAYLOAD_FIXED_LEN
-        + INPUT_LEN * (axes + temps + aux)
-        + AXIS_LEN * axes
-        + LAG_LEN * lags
-        + TERM_LEN * terms
+/// The counts a payload declares.
+#[derive(Clone, Copy)]
+struct Counts {
+    axes: usize,
+    temps: usize,
+    aux: usize,
+    lags: usize,
+    plays: usize,
+    terms: usize,
+}
+
+impl Counts {
+    fn of(model: &Model) -> Counts {
+        Counts {
+            axes: model.axes(),
+            temps: model.temps(),
+            aux: model.aux(),
+            lags: model.lags().len(),
+            plays: model.play_operators().len(),
+            terms: model.terms().len(),
+        }
+    }
+
+    /// Payload length in format `version` (1 has no aux descriptors).
+    fn payload_len(&self, version: u16) -> usize {
+        let aux_descriptors = if version == FORMAT_VERSION_1 {
+            0
+        } else {
+            AUX_LEN * self.aux
+        };
+        PAYLOAD_FIXED_LEN
+            + INPUT_LEN * (self.axes + self.temps + self.aux)
+            + AXIS_LEN * self.axes
+            + aux_descriptors
+            + LAG_LEN * self.lags
+            + PLAY_LEN * self.plays
+            + TERM_LEN * self.terms
+    }
 }
 
 /// Length of the blob `model` encodes to.
 pub fn encoded_len(model: &Model) -> usize {
-    HEADER_LEN
-        + payload_len(
-            model.axes(),
-            model.temps(),
-            model.aux(),
-            model.lags().len(),
-            model.terms().len(),
-        )
-        + TRAILER_LEN
+    HEADER_LEN + Counts::of(model).payload_len(FORMAT_VERSION) + TRAILER_LEN
 }
 
 /// Writes `model` as a blob into `out`; returns the number of bytes written.
@@ -225,7 +281,7 @@ pub fn encode(model: &Model, out: &mut [u8]) -> Result<usize, BlobError> {
     w.u32(model.id());
     w.bytes(&[model.axes, model.temps, model.aux, model.lags]);
     w.u16(model.n_terms);
-    w.u16(0);
+    w.bytes(&[model.plays, 0]);
     for input in model.used_inputs() {
         let s = model.scaling(input);
         let (min, max) = model.envelope(input);
@@ -242,9 +298,18 @@ pub fn encode(model: &Model, out: &mut [u8]) -> Result<usize, BlobError> {
         w.f64(model.offset_um(a));
         w.f64(model.kmz_offset_um(a));
     }
+    for n in 0..model.aux() {
+        let spec = model.aux_spec(n).unwrap_or_default();
+        let flags = if spec.fast { AUX_FAST } else { 0 };
+        w.bytes(&[spec.kind.code(), flags, 0, 0, 0, 0, 0, 0]);
+    }
     for lag in model.lags() {
         w.bytes(&[lag.sensor, 0, 0, 0, 0, 0, 0, 0]);
         w.f64(lag.tau_s);
+    }
+    for op in model.play_operators() {
+        w.bytes(&[op.axis, 0, 0, 0, 0, 0, 0, 0]);
+        w.f64(op.threshold_um);
     }
     for t in model.terms() {
         let (kind, index) = match t.factor {
@@ -252,6 +317,7 @@ pub fn encode(model: &Model, out: &mut [u8]) -> Result<usize, BlobError> {
             Factor::Temp(n) => (1, n),
             Factor::Aux(n) => (2, n),
             Factor::Lagged(n) => (3, n),
+            Factor::Play(n) => (4, n),
         };
         w.bytes(&[
             t.output,
@@ -270,7 +336,7 @@ pub fn encode(model: &Model, out: &mut [u8]) -> Result<usize, BlobError> {
     Ok(total)
 }
 
-/// Reads a blob; every malformation is a typed error, never a panic.
+/// Reads a blob (format version 2, or 1); every malformation is a typed error, never a panic.
 pub fn decode(bytes: &[u8]) -> Result<Model, BlobError> {
     if bytes.len() < HEADER_LEN + TRAILER_LEN {
         return Err(BlobError::TooShort { len: bytes.len() });
@@ -280,7 +346,7 @@ pub fn decode(bytes: &[u8]) -> Result<Model, BlobError> {
         return Err(BlobError::BadMagic);
     }
     let version = r.u16()?;
-    if version != FORMAT_VERSION {
+    if version != FORMAT_VERSION && version != FORMAT_VERSION_1 {
         return Err(BlobError::UnsupportedVersion { found: version });
     }
     r.reserved_u16()?;
@@ -309,21 +375,33 @@ pub fn decode(bytes: &[u8]) -> Result<Model, BlobError> {
     let id = r.u32()?;
     let [axes, temps, aux, lags] = r.bytes::<4>()?;
     let n_terms = r.u16()?;
-    r.reserved_u16()?;
-    let (na, nt, nx, nl, nk) = (
-        axes as usize,
-        temps as usize,
-        aux as usize,
-        lags as usize,
-        n_terms as usize,
-    );
-    if na > MAX_AXES || nt > MAX_TEMPS || nx > MAX_AUX || nl > MAX_LAGS {
+    // Version 1 had a reserved u16 here: zero plays and a zero byte read it the same way.
+    let plays = r.bytes::<1>()?[0];
+    r.reserved_u8()?;
+    let counts = Counts {
+        axes: axes as usize,
+        temps: temps as usize,
+        aux: aux as usize,
+        lags: lags as usize,
+        plays: plays as usize,
+        terms: n_terms as usize,
+    };
+    let (na, nl, np, nk) = (counts.axes, counts.lags, counts.plays, counts.terms);
+    if version == FORMAT_VERSION_1 && np != 0 {
+        return Err(BlobError::ReservedNotZero {
+            offset: HEADER_LEN + 10,
+        });
+    }
+    if na > MAX_AXES || counts.temps > MAX_TEMPS || counts.aux > MAX_AUX || nl > MAX_LAGS {
+        return Err(ModelError::TooManyInputs.into());
+    }
+    if np > MAX_PLAY {
         return Err(ModelError::TooManyInputs.into());
     }
     if nk > MAX_TERMS {
         return Err(ModelError::TooManyTerms.into());
     }
-    let needed = payload_len(na, nt, nx, nl, nk);
+    let needed = counts.payload_len(version);
     if needed != payload {
         return Err(BlobError::PayloadSizeMismatch {
             expected: needed,
@@ -331,7 +409,7 @@ pub fn decode(bytes: &[u8]) -> Result<Model, BlobError> {
         });
     }
 
-    let mut b = ModelBuilder::new(na, nt, nx)?.id(id);
+    let mut b = ModelBuilder::new(na, counts.temps, counts.aux)?.id(id);
     let inputs = (0..axes)
         .map(Input::Axis)
         .chain((0..temps).map(Input::Temp))
@@ -353,6 +431,25 @@ pub fn decode(bytes: &[u8]) -> Result<Model, BlobError> {
         model.offset_um[a] = r.f64()?;
         model.kmz_offset_um[a] = r.f64()?;
     }
+    if version != FORMAT_VERSION_1 {
+        for n in 0..counts.aux {
+            let [code, flags] = r.bytes::<2>()?;
+            let kind = AuxKind::from_code(code).ok_or(BlobError::UnknownAuxKind {
+                aux: n as u8,
+                kind: code,
+            })?;
+            if flags & !AUX_FAST != 0 {
+                return Err(BlobError::ReservedNotZero { offset: r.pos - 1 });
+            }
+            for _ in 0..6 {
+                r.reserved_u8()?;
+            }
+            model.aux_specs[n] = AuxSpec {
+                kind,
+                fast: flags & AUX_FAST != 0,
+            };
+        }
+    }
     model.lags = lags;
     for k in 0..nl {
         let sensor = r.bytes::<1>()?[0];
@@ -364,6 +461,17 @@ pub fn decode(bytes: &[u8]) -> Result<Model, BlobError> {
             tau_s: r.f64()?,
         };
     }
+    model.plays = plays;
+    for k in 0..np {
+        let axis = r.bytes::<1>()?[0];
+        for _ in 0..7 {
+            r.reserved_u8()?;
+        }
+        model.play_specs[k] = PlaySpec {
+            axis,
+            threshold_um: r.f64()?,
+        };
+    }
     model.n_terms = n_terms;
     for k in 0..nk {
         let [output, px, py, pz, kind, index, direction] = r.bytes::<7>()?;
@@ -373,6 +481,7 @@ pub fn decode(bytes: &[u8]) -> Result<Model, BlobError> {
             1 => Factor::Temp(index),
             2 => Factor::Aux(index),
             3 => Factor::Lagged(index),
+            4 if version != FORMAT_VERSION_1 => Factor::Play(index),
             _ => {
                 return Err(BlobError::UnknownFactor {
                     term: k as u16,

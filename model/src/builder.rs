@@ -1,9 +1,12 @@
 //! Building a model: in scaled terms (what a fit produces) or in raw units (what papers publish).
 
 use crate::error::ModelError;
-use crate::input::{Input, Range, Scaling};
+use crate::hysteresis::PlaySpec;
+use crate::input::{AuxSpec, Input, Range, Scaling};
 use crate::lag::LagSpec;
-use crate::limits::{MAX_AUX, MAX_AXES, MAX_INPUTS, MAX_LAGS, MAX_POWER, MAX_TEMPS, MAX_TERMS};
+use crate::limits::{
+    MAX_AUX, MAX_AXES, MAX_INPUTS, MAX_LAGS, MAX_PLAY, MAX_POWER, MAX_TEMPS, MAX_TERMS,
+};
 use crate::model::{powi, Model};
 use crate::term::{Factor, Term};
 
@@ -15,7 +18,7 @@ pub struct ModelBuilder {
 
 impl ModelBuilder {
     /// An empty model with the given numbers of axes, temperature and aux inputs; identity
-    /// scalings, unbounded envelope and travel.
+    /// scalings, unbounded envelope and travel, aux inputs of kind "other" and slow.
     pub fn new(axes: usize, temps: usize, aux: usize) -> Result<Self, ModelError> {
         if axes == 0 {
             return Err(ModelError::NoAxes);
@@ -30,6 +33,8 @@ impl ModelBuilder {
                 temps: temps as u8,
                 aux: aux as u8,
                 lags: 0,
+                plays: 0,
+                aux_specs: [AuxSpec::default(); MAX_AUX],
                 scaling: [Scaling::IDENTITY; MAX_INPUTS],
                 envelope: [Range::UNBOUNDED; MAX_INPUTS],
                 travel_um: [Range::UNBOUNDED; MAX_AXES],
@@ -39,6 +44,10 @@ impl ModelBuilder {
                     sensor: 0,
                     tau_s: 1.0,
                 }; MAX_LAGS],
+                play_specs: [PlaySpec {
+                    axis: 0,
+                    threshold_um: 0.0,
+                }; MAX_PLAY],
                 terms: [Term {
                     output: 0,
                     powers: [0; MAX_AXES],
@@ -49,6 +58,26 @@ impl ModelBuilder {
                 n_terms: 0,
             },
         })
+    }
+
+    /// A builder that starts from an existing model, to extend it (e.g. with a play-operator
+    /// bank or another aux input).
+    pub fn from_model(model: &Model) -> Self {
+        ModelBuilder {
+            model: model.clone(),
+        }
+    }
+
+    /// Adds an aux input (after the existing ones) with identity scaling and an unbounded
+    /// envelope; returns its index for [`Factor::Aux`].
+    pub fn add_aux(&mut self, spec: AuxSpec) -> Result<u8, ModelError> {
+        let n = self.model.aux;
+        if n as usize >= MAX_AUX {
+            return Err(ModelError::TooManyInputs);
+        }
+        self.model.aux += 1;
+        self.model.aux_specs[n as usize] = spec;
+        Ok(n)
     }
 
     /// Sets the model's identifier.
@@ -74,6 +103,15 @@ impl ModelBuilder {
     pub fn trained_range(self, input: Input, min: f64, max: f64) -> Self {
         self.scaling(input, Scaling::from_range(min, max))
             .envelope(input, min, max)
+    }
+
+    /// Declares what aux input `n` measures and whether it is fast (evaluated per command) or
+    /// slow (folded). Ignored for an aux input the model does not have.
+    pub fn aux_spec(mut self, n: usize, spec: AuxSpec) -> Self {
+        if n < self.model.aux() {
+            self.model.aux_specs[n] = spec;
+        }
+        self
     }
 
     /// Sets the stage travel of an axis in command space, µm.
@@ -106,6 +144,34 @@ impl ModelBuilder {
         self.model.lag_specs[k as usize] = LagSpec { sensor, tau_s };
         self.model.lags += 1;
         Ok(k)
+    }
+
+    /// Declares a play operator (hysteresis) fed by the target of `axis`, with threshold
+    /// `threshold_um`; returns its index for [`Factor::Play`]. Declare each axis' operators
+    /// together, axes in order, thresholds strictly ascending (see [`crate::hysteresis`]).
+    pub fn play(&mut self, axis: u8, threshold_um: f64) -> Result<u8, ModelError> {
+        let k = self.model.plays;
+        if k as usize >= MAX_PLAY {
+            return Err(ModelError::TooManyInputs);
+        }
+        self.model.play_specs[k as usize] = PlaySpec { axis, threshold_um };
+        self.model.plays += 1;
+        if let Err(e) = self.model.validate_play_operators() {
+            self.model.plays -= 1;
+            return Err(e);
+        }
+        Ok(k)
+    }
+
+    /// Declares the play-operator bank of `axis` in raw units: for each `(threshold_um,
+    /// weight)`, an operator and the term `weight · y` on the axis' own command (`weight` is
+    /// dimensionless, µm of command per µm of operator output). Set the axis' scaling first.
+    pub fn play_bank(&mut self, axis: u8, bank: &[(f64, f64)]) -> Result<(), ModelError> {
+        for &(threshold_um, weight) in bank {
+            let k = self.play(axis, threshold_um)?;
+            self.add_raw_term(axis, [0; MAX_AXES], Factor::Play(k), 0, weight)?;
+        }
+        Ok(())
     }
 
     /// Adds a term on scaled inputs. A term with no powers, factor or direction is a constant
@@ -196,6 +262,7 @@ impl ModelBuilder {
             Factor::Temp(n) => Input::Temp(n),
             Factor::Aux(n) => Input::Aux(n),
             Factor::Lagged(k) => Input::Temp(self.model.lag_specs[k as usize].sensor),
+            Factor::Play(k) => Input::Axis(self.model.play_specs[k as usize].axis),
             Factor::None => Input::Axis(0),
         }
     }

@@ -46,6 +46,26 @@ pub enum ModelError {
         /// Index of the lag filter.
         lag: u8,
     },
+    /// A play operator names an axis the model does not have, has a negative or non-finite
+    /// threshold, or is out of order (operators go grouped by axis in axis order, thresholds
+    /// strictly ascending within an axis).
+    InvalidPlay {
+        /// Index of the play operator.
+        operator: u8,
+    },
+    /// A play-operator term has position powers, a direction, or an output other than the
+    /// operator's own axis.
+    InvalidPlayTerm {
+        /// Index of the offending term.
+        term: u16,
+    },
+    /// An axis' play operators would flatten or reverse a branch of `q(x)`: with thresholds
+    /// ascending, `1 + Σ_{i ≤ j} w_i` falls below `MIN_BANK_SLOPE` (the inverse would not be
+    /// well posed).
+    BankNotMonotone {
+        /// The axis.
+        axis: u8,
+    },
 }
 
 impl fmt::Display for ModelError {
@@ -76,6 +96,21 @@ impl fmt::Display for ModelError {
             ModelError::InvalidLag { lag } => {
                 write!(f, "lag filter {lag} has an unknown sensor or τ ≤ 0")
             }
+            ModelError::InvalidPlay { operator } => write!(
+                f,
+                "play operator {operator} has an unknown axis, a negative or non-finite threshold, \
+                 or is out of order (grouped by axis, thresholds strictly ascending)"
+            ),
+            ModelError::InvalidPlayTerm { term } => write!(
+                f,
+                "term {term} uses a play operator with position powers, a direction or another \
+                 axis' output"
+            ),
+            ModelError::BankNotMonotone { axis } => write!(
+                f,
+                "the play operators of axis {axis} make a branch of q(x) flat or falling \
+                 (1 + partial sum of weights below the minimum slope)"
+            ),
         }
     }
 }

@@ -2,9 +2,13 @@
 
 use crate::error::ModelError;
 use crate::fold::{FoldShape, FOLD_CAPACITY};
-use crate::input::{EnvelopeFlags, Input, Range, Scaling, SlowInputs};
+use crate::hysteresis::{HysteresisState, PlaySpec, MIN_BANK_SLOPE};
+use crate::input::{AuxKind, AuxSpec, EnvelopeFlags, Input, Range, Scaling, SlowInputs};
 use crate::lag::LagSpec;
-use crate::limits::{MAX_AUX, MAX_AXES, MAX_INPUTS, MAX_LAGS, MAX_POWER, MAX_TEMPS, MAX_TERMS};
+use crate::limits::{
+    MAX_AUX, MAX_AXES, MAX_INPUTS, MAX_LAGS, MAX_PLAY, MAX_POWER, MAX_TEMPS, MAX_TERMS,
+};
+use crate::play::play;
 use crate::term::{approach_sign, Factor, Term};
 
 /// A calibration model mapping calibrated target positions `x` (µm) to the commands `q` (µm)
@@ -12,7 +16,9 @@ use crate::term::{approach_sign, Factor, Term};
 ///
 /// `q_o = λ_o + λ_KMZ,o + Σ_terms coeff · Π_a u_a^p_a · factor · sign`
 ///
-/// with every input centred and scaled (`u = (v − centre)/half_range`). Fixed capacity, no heap.
+/// with every input centred and scaled (`u = (v − centre)/half_range`). A factor is a
+/// temperature, a lagged temperature, an aux input (slow or fast, see [`AuxSpec`]) or the output
+/// of a play operator (hysteresis, see [`crate::hysteresis`]). Fixed capacity, no heap.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Model {
     pub(crate) id: u32,
@@ -20,6 +26,9 @@ pub struct Model {
     pub(crate) temps: u8,
     pub(crate) aux: u8,
     pub(crate) lags: u8,
+    pub(crate) plays: u8,
+    /// Kind and speed of every aux input.
+    pub(crate) aux_specs: [AuxSpec; MAX_AUX],
     /// Scaling of every input in flat order (axes, temperatures, aux).
     pub(crate) scaling: [Scaling; MAX_INPUTS],
     /// Training envelope of every input in flat order.
@@ -28,6 +37,7 @@ pub struct Model {
     pub(crate) offset_um: [f64; MAX_AXES],
     pub(crate) kmz_offset_um: [f64; MAX_AXES],
     pub(crate) lag_specs: [LagSpec; MAX_LAGS],
+    pub(crate) play_specs: [PlaySpec; MAX_PLAY],
     pub(crate) terms: [Term; MAX_TERMS],
     pub(crate) n_terms: u16,
 }
@@ -45,12 +55,14 @@ pub struct ScaledInputs {
     pub aux: [f64; MAX_AUX],
     /// Scaled lag-filter outputs (scaled like the sensor they follow).
     pub lagged: [f64; MAX_LAGS],
+    /// Scaled play-operator outputs (scaled like the axis that feeds them).
+    pub play: [f64; MAX_PLAY],
 }
 
 impl Term {
     /// The term's regressor (everything but the coefficient) at `inputs`.
     pub fn value(&self, inputs: &ScaledInputs) -> f64 {
-        let mut v = self.slow_factor(inputs);
+        let mut v = self.factor_value(inputs);
         if self.direction > 0 {
             v *= inputs.sign[(self.direction - 1) as usize];
         }
@@ -60,13 +72,14 @@ impl Term {
         v
     }
 
-    /// The slow factor's scaled value (1 for [`Factor::None`]).
-    pub(crate) fn slow_factor(&self, inputs: &ScaledInputs) -> f64 {
+    /// The factor's scaled value (1 for [`Factor::None`]).
+    pub(crate) fn factor_value(&self, inputs: &ScaledInputs) -> f64 {
         match self.factor {
             Factor::None => 1.0,
             Factor::Temp(n) => inputs.temps[n as usize],
             Factor::Aux(n) => inputs.aux[n as usize],
             Factor::Lagged(n) => inputs.lagged[n as usize],
+            Factor::Play(n) => inputs.play[n as usize],
         }
     }
 }
@@ -102,6 +115,33 @@ impl Model {
     pub fn lags(&self) -> &[LagSpec] {
         &self.lag_specs[..self.lags as usize]
     }
+    /// The declared play operators (hysteresis), grouped by axis, thresholds ascending.
+    pub fn play_operators(&self) -> &[PlaySpec] {
+        &self.play_specs[..self.plays as usize]
+    }
+    /// Whether the model has play operators: its fast path then carries state
+    /// ([`HysteresisState`]) from command to command.
+    pub fn has_hysteresis(&self) -> bool {
+        self.plays > 0
+    }
+    /// Kind and speed of aux input `n`, `None` for an aux input the model does not have.
+    pub fn aux_spec(&self, n: usize) -> Option<AuxSpec> {
+        self.aux_specs[..self.aux()].get(n).copied()
+    }
+    /// What aux input `n` measures (its unit), `None` for an aux input the model does not have.
+    /// A device checks it can supply every aux input of a model before putting it in service.
+    pub fn aux_kind(&self, n: usize) -> Option<AuxKind> {
+        self.aux_spec(n).map(|s| s.kind)
+    }
+    /// Whether aux input `n` is fast: supplied per command in [`crate::FastInputs`] and
+    /// evaluated by the fast path, not folded.
+    pub fn is_fast(&self, n: usize) -> bool {
+        self.aux_spec(n).is_some_and(|s| s.fast)
+    }
+    /// Bit `n` set for every fast aux input.
+    pub fn fast_aux_mask(&self) -> u8 {
+        (0..self.aux()).fold(0, |m, n| if self.is_fast(n) { m | 1 << n } else { m })
+    }
     /// The terms.
     pub fn terms(&self) -> &[Term] {
         &self.terms[..self.n_terms as usize]
@@ -136,7 +176,8 @@ impl Model {
         }
     }
 
-    /// Scales raw inputs for evaluation.
+    /// Scales raw inputs for evaluation, with the play operators as a fresh hysteresis state
+    /// leaves them after this command (each at its input: see [`Model::scale_with_state`]).
     pub fn scale(
         &self,
         x_um: &[f64; MAX_AXES],
@@ -149,6 +190,7 @@ impl Model {
             temps: [0.0; MAX_TEMPS],
             aux: [0.0; MAX_AUX],
             lagged: [0.0; MAX_LAGS],
+            play: [0.0; MAX_PLAY],
         };
         for a in 0..self.axes() {
             s.axes[a] = self.scaling(Input::Axis(a as u8)).apply(x_um[a]);
@@ -165,11 +207,45 @@ impl Model {
                 .scaling(Input::Temp(spec.sensor))
                 .apply(slow.lagged_c[k]);
         }
+        for (k, spec) in self.play_operators().iter().enumerate() {
+            s.play[k] = s.axes[(spec.axis as usize).min(MAX_AXES - 1)];
+        }
+        s
+    }
+
+    /// Scales raw inputs for evaluation, stepping the play operators of `state` with this
+    /// command first (the f64 reference of what [`crate::Fold::correct`] does with its state).
+    pub fn scale_with_state(
+        &self,
+        x_um: &[f64; MAX_AXES],
+        dir: &[i8; MAX_AXES],
+        slow: &SlowInputs,
+        state: &mut HysteresisState<f64>,
+    ) -> ScaledInputs {
+        let mut s = self.scale(x_um, dir, slow);
+        let mut v = [0.0; MAX_AXES];
+        for a in 0..self.axes() {
+            v[a] = x_um[a] - self.scaling[a].centre;
+        }
+        let ops = self.play_operators();
+        for (k, spec) in ops.iter().enumerate() {
+            let a = (spec.axis as usize).min(MAX_AXES - 1);
+            let y = if state.primed {
+                play(state.outputs[k], v[a], spec.threshold_um)
+            } else {
+                v[a]
+            };
+            state.outputs[k] = y;
+            s.play[k] = y / self.scaling[a].half_range;
+        }
+        state.primed |= !ops.is_empty();
         s
     }
 
     /// Reference evaluation in f64: the commands `q` (µm) for calibrated targets `x` (µm).
-    /// Outputs beyond [`Model::axes`] are 0.
+    /// Outputs beyond [`Model::axes`] are 0. Every aux input, fast ones included, is read from
+    /// `slow.aux`; play operators are as a fresh state leaves them (the first command after a
+    /// reset): use [`Model::eval_f64_with_state`] along a sequence of commands.
     pub fn eval_f64(
         &self,
         x_um: &[f64; MAX_AXES],
@@ -177,6 +253,18 @@ impl Model {
         slow: &SlowInputs,
     ) -> [f64; MAX_AXES] {
         self.eval_scaled(&self.scale(x_um, dir, slow))
+    }
+
+    /// Reference evaluation in f64 of one command of a sequence: steps the play operators of
+    /// `state` with the targets, then evaluates (as [`crate::Fold::correct`] does in f32).
+    pub fn eval_f64_with_state(
+        &self,
+        x_um: &[f64; MAX_AXES],
+        dir: &[i8; MAX_AXES],
+        slow: &SlowInputs,
+        state: &mut HysteresisState<f64>,
+    ) -> [f64; MAX_AXES] {
+        self.eval_scaled(&self.scale_with_state(x_um, dir, slow, state))
     }
 
     /// Evaluation on inputs already scaled by [`Model::scale`].
@@ -191,22 +279,30 @@ impl Model {
         q
     }
 
-    /// Which inputs lie outside the training envelope (axes of `x_um`, temperatures and aux).
+    /// Which inputs lie outside the training envelope (axes of `x_um`, temperatures and every
+    /// aux input, fast ones included, from `slow.aux`).
     pub fn check_envelope(&self, x_um: &[f64; MAX_AXES], slow: &SlowInputs) -> EnvelopeFlags {
         let mut flags = self.slow_envelope_flags(slow).0;
-        for a in 0..self.axes() {
-            if !self.envelope[a].contains(x_um[a]) {
-                flags |= 1 << Input::Axis(a as u8).flat_index();
+        let axes = (0..self.axes).map(|a| (Input::Axis(a), x_um[a as usize]));
+        let fast = (0..self.aux)
+            .filter(|&n| self.is_fast(n as usize))
+            .map(|n| (Input::Aux(n), slow.aux[n as usize]));
+        for (input, v) in axes.chain(fast) {
+            if !self.envelope[input.flat_index()].contains(v) {
+                flags |= 1 << input.flat_index();
             }
         }
         EnvelopeFlags(flags)
     }
 
-    /// Which temperature and aux inputs lie outside the training envelope.
+    /// Which temperature and slow aux inputs lie outside the training envelope (what a fold
+    /// knows; fast aux inputs are checked per command by [`crate::Fold::correct`]).
     pub fn slow_envelope_flags(&self, slow: &SlowInputs) -> EnvelopeFlags {
-        let mut flags = 0u16;
+        let mut flags = 0u32;
         let temps = (0..self.temps).map(|t| (Input::Temp(t), slow.temps_c[t as usize]));
-        let aux = (0..self.aux).map(|n| (Input::Aux(n), slow.aux[n as usize]));
+        let aux = (0..self.aux)
+            .filter(|&n| !self.is_fast(n as usize))
+            .map(|n| (Input::Aux(n), slow.aux[n as usize]));
         for (input, v) in temps.chain(aux) {
             if !self.envelope[input.flat_index()].contains(v) {
                 flags |= 1 << input.flat_index();
@@ -238,7 +334,12 @@ impl Model {
         if axes == 0 {
             return Err(ModelError::NoAxes);
         }
-        if axes > MAX_AXES || temps > MAX_TEMPS || aux > MAX_AUX || self.lags as usize > MAX_LAGS {
+        if axes > MAX_AXES
+            || temps > MAX_TEMPS
+            || aux > MAX_AUX
+            || self.lags as usize > MAX_LAGS
+            || self.plays as usize > MAX_PLAY
+        {
             return Err(ModelError::TooManyInputs);
         }
         if self.n_terms as usize > MAX_TERMS {
@@ -266,10 +367,12 @@ impl Model {
                 return Err(ModelError::InvalidLag { lag: k as u8 });
             }
         }
+        self.validate_play_operators()?;
         for (i, term) in self.terms().iter().enumerate() {
             self.validate_term(term, i as u16)?;
         }
-        let fold = FoldShape::of(axes, self.terms());
+        self.validate_bank_slopes()?;
+        let fold = FoldShape::of(axes, self.terms(), self.fast_aux_mask());
         if fold.coefficients > FOLD_CAPACITY {
             return Err(ModelError::FoldTooLarge {
                 coefficients: fold.coefficients as u16,
@@ -288,9 +391,16 @@ impl Model {
             Factor::Temp(n) => (n as usize) < self.temps(),
             Factor::Aux(n) => (n as usize) < self.aux(),
             Factor::Lagged(n) => n < self.lags,
+            Factor::Play(n) => n < self.plays,
         };
         if !factor_ok {
             return Err(out_of_range);
+        }
+        if let Factor::Play(n) = term.factor {
+            let own_axis = self.play_specs[n as usize].axis;
+            if term.output != own_axis || term.degree() > 0 || term.direction != 0 {
+                return Err(ModelError::InvalidPlayTerm { term: index });
+            }
         }
         for (a, &p) in term.powers.iter().enumerate() {
             if p > 0 && a >= self.axes() {
@@ -302,6 +412,55 @@ impl Model {
         }
         if !term.coeff.is_finite() {
             return Err(ModelError::NonFinite);
+        }
+        Ok(())
+    }
+
+    /// Play operators: each on an axis of the model, threshold finite and ≥ 0, grouped by axis
+    /// in axis order with thresholds strictly ascending within an axis.
+    pub(crate) fn validate_play_operators(&self) -> Result<(), ModelError> {
+        let ops = self.play_operators();
+        for (k, spec) in ops.iter().enumerate() {
+            let valid = (spec.axis as usize) < self.axes()
+                && spec.threshold_um.is_finite()
+                && spec.threshold_um >= 0.0;
+            let ordered = match k.checked_sub(1).map(|p| ops[p]) {
+                None => true,
+                Some(prev) => {
+                    prev.axis < spec.axis
+                        || (prev.axis == spec.axis && prev.threshold_um < spec.threshold_um)
+                }
+            };
+            if !(valid && ordered) {
+                return Err(ModelError::InvalidPlay { operator: k as u8 });
+            }
+        }
+        Ok(())
+    }
+
+    /// The weights `w_k = coeff/h_a` of each play operator (terms validated).
+    pub(crate) fn play_weights(&self) -> [f64; MAX_PLAY] {
+        let mut w = [0.0; MAX_PLAY];
+        for term in self.terms() {
+            if let Factor::Play(k) = term.factor {
+                let k = (k as usize).min(MAX_PLAY - 1);
+                let a = (self.play_specs[k].axis as usize).min(MAX_AXES - 1);
+                w[k] += term.coeff / self.scaling[a].half_range;
+            }
+        }
+        w
+    }
+
+    /// Every axis' bank keeps `1 + Σ_{i ≤ j} w_i ≥ MIN_BANK_SLOPE` (see [`crate::hysteresis`]).
+    fn validate_bank_slopes(&self) -> Result<(), ModelError> {
+        let w = self.play_weights();
+        let mut slope = [1.0f64; MAX_AXES];
+        for (k, spec) in self.play_operators().iter().enumerate() {
+            let a = (spec.axis as usize).min(MAX_AXES - 1);
+            slope[a] += w[k];
+            if slope[a].is_nan() || slope[a] < MIN_BANK_SLOPE {
+                return Err(ModelError::BankNotMonotone { axis: a as u8 });
+            }
         }
         Ok(())
     }

@@ -1,9 +1,11 @@
-//! A term of the model: coefficient × position monomial × optional slow factor × optional sign of
+//! A term of the model: coefficient × position monomial × optional factor × optional sign of
 //! approach, contributing to one output axis.
 
 use crate::limits::MAX_AXES;
 
-/// What a term multiplies its position monomial with: a slow input, scaled like that input.
+/// What a term multiplies its position monomial with, scaled like the input it comes from.
+/// Temperatures, lagged temperatures and slow aux inputs are folded by [`crate::Model::fold`];
+/// fast aux inputs and play operators are evaluated per command by [`crate::Fold::correct`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Factor {
@@ -15,6 +17,9 @@ pub enum Factor {
     Aux(u8),
     /// Output of lag filter `n` (a lagged copy of one temperature sensor).
     Lagged(u8),
+    /// Output of play operator `n` (hysteresis, see [`crate::hysteresis`]), scaled like the
+    /// axis that feeds it. Only alone on its axis' own output: no powers, no direction.
+    Play(u8),
 }
 
 /// One term: `coeff × Π_a u_a^powers[a] × factor × sign(approach on axis direction−1)`.

@@ -1,10 +1,24 @@
-//! Host link and stage link: bytes ↔ lines ↔ proxy.
+//! Host link and stage link: bytes ↔ `nanocal_compensator::proxy::Proxy`.
+//!
+//! Both links hand the proxy whole read buffers; the proxy takes as much as it can before it has
+//! output (one line, one single-character command, one reply or a buffer-full of relayed
+//! bytes), the link sends that output and hands over the rest. Replies stream through as they
+//! arrive; a line the proxy holds until the controller answered its own query is resumed from
+//! the stage link, which also gives the proxy the time for its reply timeout.
 
-use super::{read_some, Shared, PIPE_LEN};
+use super::{read_some, Core, Shared, PIPE_LEN};
 use embassy_futures::join::join;
+use embassy_futures::select::{select, Either};
+use embassy_time::{Instant, Timer};
 use embedded_io_async::{Read, Write};
-use nanocal_compensator::gcs::{Feed, LineAssembler};
-use nanocal_compensator::proxy::{Out, Route};
+use nanocal_compensator::proxy::Output;
+
+/// How often the stage link lets the proxy check its reply timeout, ms.
+const POLL_MS: u64 = 50;
+
+fn now_ms() -> u32 {
+    Instant::now().as_millis() as u32
+}
 
 async fn pump<W: Write>(pipe: &embassy_sync::pipe::Pipe<super::Cs, PIPE_LEN>, tx: &mut W) -> ! {
     let mut buf = [0u8; 128];
@@ -17,62 +31,109 @@ async fn pump<W: Write>(pipe: &embassy_sync::pipe::Pipe<super::Cs, PIPE_LEN>, tx
     }
 }
 
-async fn route(sh: &Shared, route: Route, out: &Out) {
-    match route {
-        Route::Stage => sh.to_stage.write_all(out.as_bytes()).await,
-        Route::Host => sh.to_host.write_all(out.as_bytes()).await,
-        Route::None => {}
+/// Send what the proxy produced: commands to the stage controller, answers to the host — unless
+/// nobody has the host port open: what would be queued belongs to no connection.
+async fn send(sh: &Shared, out: &Output) {
+    if !out.to_stage.is_empty() {
+        sh.to_stage.write_all(out.to_stage.as_bytes()).await;
+    }
+    let host_connected = sh
+        .host_connected
+        .load(core::sync::atomic::Ordering::Relaxed);
+    if !out.to_host.is_empty() && host_connected {
+        sh.to_host.write_all(out.to_host.as_bytes()).await;
     }
 }
 
-/// The host link: GCS lines from the host go through the proxy to the stage controller (or are
-/// answered by the proxy itself); bytes for the host are written out.
+/// Hand `buf` to the proxy through `step` until it has taken all of it, sending what it
+/// produces each time. (When it takes nothing and produces nothing, a held line fills its
+/// input: wait for the controller's answer.)
+async fn feed(
+    sh: &Shared,
+    buf: &[u8],
+    out: &mut Output,
+    step: impl Fn(&mut Core, &[u8], &mut Output) -> usize,
+) {
+    let mut i = 0;
+    while i < buf.len() {
+        let used = sh.core.lock(|c| step(&mut c.borrow_mut(), &buf[i..], out));
+        i += used;
+        send(sh, out).await;
+        if used == 0 && out.is_empty() {
+            Timer::after_millis(1).await;
+        }
+    }
+}
+
+/// Host lines received earlier that the proxy can process now (after the controller answered
+/// a held line's query), and the proxy's own answers that are due.
+async fn resume(sh: &Shared, out: &mut Output) {
+    loop {
+        let worked = sh.core.lock(|c| {
+            let mut c = c.borrow_mut();
+            let c = &mut *c;
+            if !c.proxy.has_work() {
+                return false;
+            }
+            c.proxy.host_bytes(c.comp.as_ref(), &[], now_ms(), out);
+            true
+        });
+        if !worked {
+            return;
+        }
+        send(sh, out).await;
+    }
+}
+
+/// The host link: GCS commands from the host go through the proxy to the stage controller (or
+/// are answered by the proxy itself).
 pub async fn host_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) -> ! {
     let rx_loop = async {
-        let mut asm = LineAssembler::new();
-        let mut out = Out::new();
+        let mut out = Output::new();
         let mut buf = [0u8; 64];
         loop {
-            let n = read_some(&mut rx, &mut buf).await;
-            for &b in &buf[..n] {
-                let feed = asm.feed(b);
-                if feed == Feed::Pending {
+            let n = match select(read_some(&mut rx, &mut buf), sh.host_hangup.wait()).await {
+                Either::First(n) => n,
+                Either::Second(()) => {
+                    // the host closed the port: nothing of that connection survives it
+                    super::end_host_session(sh);
                     continue;
                 }
-                let r = sh.core.lock(|c| {
-                    let mut c = c.borrow_mut();
-                    let c = &mut *c;
-                    c.proxy
-                        .host_feed(c.comp.as_ref(), feed, asm.line(), &mut out)
-                });
-                route(sh, r, &out).await;
-            }
+            };
+            feed(sh, &buf[..n], &mut out, |c, b, out| {
+                c.proxy.host_bytes(c.comp.as_ref(), b, now_ms(), out)
+            })
+            .await;
         }
     };
     join(rx_loop, pump(&sh.to_host, &mut tx)).await;
     unreachable!()
 }
 
-/// The stage link: replies from the controller go through the proxy (POS?/MOV? mapped back) to
-/// the host; bytes for the controller are written out.
+/// The stage link: replies from the controller go through the proxy (positions mapped back) to
+/// the host.
 pub async fn stage_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) -> ! {
     let rx_loop = async {
-        let mut asm = LineAssembler::replies();
-        let mut out = Out::new();
+        let mut out = Output::new();
         let mut buf = [0u8; 64];
         loop {
-            let n = read_some(&mut rx, &mut buf).await;
-            for &b in &buf[..n] {
-                let r = match asm.feed(b) {
-                    Feed::Line => sh.core.lock(|c| {
+            match select(read_some(&mut rx, &mut buf), Timer::after_millis(POLL_MS)).await {
+                Either::First(n) => {
+                    feed(sh, &buf[..n], &mut out, |c, b, out| {
+                        c.proxy.stage_bytes(c.comp.as_ref(), b, now_ms(), out)
+                    })
+                    .await
+                }
+                Either::Second(()) => {
+                    sh.core.lock(|c| {
                         let mut c = c.borrow_mut();
                         let c = &mut *c;
-                        c.proxy.stage_line(c.comp.as_ref(), asm.line(), &mut out)
-                    }),
-                    _ => Route::None,
-                };
-                route(sh, r, &out).await;
+                        c.proxy.poll(c.comp.as_ref(), now_ms(), &mut out)
+                    });
+                    send(sh, &out).await;
+                }
             }
+            resume(sh, &mut out).await;
         }
     };
     join(rx_loop, pump(&sh.to_stage, &mut tx)).await;

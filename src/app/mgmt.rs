@@ -1,43 +1,73 @@
-//! The management task: status, chunked upload with two-slot commit, KMZ, bypass.
+//! The management task: identity, status, chunked upload into the store, KMZ, bypass,
+//! settings, reset.
 
-use super::{read_some, Comp, Shared};
-use embassy_time::Instant;
+use super::supervisor::led_state;
+use super::{fresh_proxy, now_ms, read_some, Comp, Shared};
+use core::sync::atomic::Ordering;
 use embedded_io_async::{Read, Write};
+use embedded_storage_async::nor_flash::NorFlash;
+use nanocal_compensator::inputs;
 use nanocal_compensator::mgmt::{self, flags, kind, Decoder, Reader, Status, Writer};
 use nanocal_compensator::proxy::Gate;
-use nanocal_compensator::slots::{self, SlotStorage};
+use nanocal_compensator::settings::{self, Settings};
+use nanocal_compensator::store::Store;
 use nanocal_compensator::upload::Upload;
 use nanocal_model::{blob, MAX_AXES};
 
-/// Load the newest valid model from storage into service (at start-up).
-pub fn load_from_storage<S: SlotStorage>(storage: &mut S, buf: &mut [u8], sh: &Shared) {
-    let found = slots::load_newest(storage, buf, |b| blob::decode(b).is_ok());
-    match found {
-        Some(a) => match blob::decode(&buf[..a.len]) {
-            Ok(model) => {
-                info!(
-                    "model {=u32} loaded from slot {=usize} (seq {=u32})",
-                    model.id(),
-                    a.slot,
-                    a.seq
-                );
-                sh.install(model, Some(a));
-            }
-            Err(_) => warn!("stored model vanished between checks"),
+/// Firmware version reported in HELLO.
+pub const VERSION: &str = env!("CARGO_PKG_VERSION");
+
+/// The settings stored, or the defaults (logged) when none are stored or they do not decode.
+pub async fn load_settings<F: NorFlash>(store: &mut Store<F>) -> Settings {
+    let mut b = [0u8; settings::LEN];
+    match store.load_settings(&mut b).await {
+        Ok(Some(n)) => match Settings::decode(&b[..n]) {
+            Ok(s) => return s,
+            Err(_) => warn!("stored settings do not decode; defaults in force"),
         },
-        None => info!("no stored model"),
+        Ok(None) => info!("no stored settings; defaults in force"),
+        Err(_) => warn!("settings unreadable; defaults in force"),
     }
+    Settings::default()
 }
 
-/// Run the management channel. `buf` receives uploads (at least the largest blob).
-pub async fn management<R: Read, W: Write, S: SlotStorage>(
+/// Load the stored model (and its KMZ) into service.
+async fn load_model<F: NorFlash>(store: &mut Store<F>, buf: &mut [u8], sh: &Shared) {
+    let n = match store.load_model(buf).await {
+        Ok(Some(n)) => n,
+        Ok(None) => {
+            info!("no stored model");
+            return;
+        }
+        Err(_) => {
+            warn!("model store unreadable");
+            return;
+        }
+    };
+    let Ok(mut model) = blob::decode(&buf[..n]) else {
+        warn!("stored model does not decode");
+        return;
+    };
+    if let Ok(Some(k)) = store.load_kmz(model.id()).await {
+        for (a, v) in k.iter().enumerate().take(model.axes()) {
+            model.set_kmz_offset_um(a, *v);
+        }
+    }
+    info!("model {=u32} loaded", model.id());
+    sh.install(model);
+}
+
+/// Run the management channel. `buf` receives uploads (at least the largest blob); `reset`
+/// resets the device (after the reply to a `RESET` went out).
+pub async fn management<R: Read, W: Write, F: NorFlash>(
     mut rx: R,
     mut tx: W,
-    mut storage: S,
+    store: &mut Store<F>,
     buf: &mut [u8],
+    reset: fn() -> !,
     sh: &Shared,
 ) -> ! {
-    load_from_storage(&mut storage, buf, sh);
+    load_model(store, buf, sh).await;
     let mut dec = Decoder::new();
     let mut upload = Upload::new();
     let mut inbuf = [0u8; 64];
@@ -50,18 +80,18 @@ pub async fn management<R: Read, W: Write, S: SlotStorage>(
                 Some(Ok(())) => {
                     let f = dec.frame();
                     let (k, seq) = (f.kind, f.seq);
-                    let len = handle(
-                        f.kind,
-                        f.payload,
-                        &mut reply,
-                        &mut upload,
-                        &mut storage,
-                        buf,
-                        sh,
-                    );
+                    let mut payload = [0u8; mgmt::MAX_PAYLOAD];
+                    let pl = f.payload.len();
+                    payload[..pl].copy_from_slice(f.payload);
+                    let len =
+                        handle(k, &payload[..pl], &mut reply, &mut upload, store, buf, sh).await;
                     if let Ok(m) = mgmt::encode(k | kind::REPLY, seq, &reply[..len], &mut frame) {
                         let _ = tx.write_all(&frame[..m]).await;
                         let _ = tx.flush().await;
+                    }
+                    if k == kind::RESET {
+                        embassy_time::Timer::after_millis(50).await;
+                        reset();
                     }
                 }
                 Some(Err(_)) => warn!("management frame dropped (CRC or length)"),
@@ -71,12 +101,12 @@ pub async fn management<R: Read, W: Write, S: SlotStorage>(
     }
 }
 
-fn handle<S: SlotStorage>(
+async fn handle<F: NorFlash>(
     k: u8,
     payload: &[u8],
     reply: &mut [u8],
     upload: &mut Upload,
-    storage: &mut S,
+    store: &mut Store<F>,
     buf: &mut [u8],
     sh: &Shared,
 ) -> usize {
@@ -88,6 +118,10 @@ fn handle<S: SlotStorage>(
             let _ = w.u16(mgmt::PROTOCOL);
             let _ = w.u16(blob::FORMAT_VERSION);
             let _ = w.u16(mgmt::MAX_CHUNK as u16);
+            let _ = w.u8(VERSION.len() as u8);
+            let _ = w.bytes(VERSION.as_bytes());
+            let _ = w.bytes(&sh.identity.uid);
+            let _ = w.u8(sh.identity.reset_cause.code());
             return w.len();
         }
         kind::STATUS => {
@@ -119,24 +153,42 @@ fn handle<S: SlotStorage>(
         },
         kind::UPLOAD_COMMIT => match upload.finish(buf) {
             Ok((model, len)) => {
-                let current = sh.model.lock(|m| m.borrow().active);
-                match slots::commit(storage, current, &buf[..len]) {
-                    Ok(active) => {
-                        let id = model.id();
-                        sh.install(model, Some(active));
-                        sh.model.lock(|m| {
-                            let mut m = m.borrow_mut();
-                            m.uploads_ok = m.uploads_ok.wrapping_add(1);
-                        });
-                        info!("model {=u32} committed to slot {=usize}", id, active.slot);
-                        let _ = w.u8(mgmt::RESULT_OK);
-                        let _ = w.u32(id);
-                        let _ = w.u8(active.slot as u8);
-                        let _ = w.u32(active.seq);
-                        return w.len();
-                    }
-                    Err(_) => reject(sh, mgmt::RESULT_STORAGE),
+                let settings = sh.settings.lock(|s| *s.borrow());
+                let board = sh.board.lock(|b| *b.borrow());
+                if let Err(e) = inputs::check(&model, &settings, &board) {
+                    warn!(
+                        "upload refused: model input not supplied (code {=u8})",
+                        e.code()
+                    );
+                    let _ = w.u8(reject(sh, mgmt::RESULT_INPUT));
+                    let _ = w.u8(e.code());
+                    return w.len();
                 }
+                let id = model.id();
+                let mut kmz = [0.0; MAX_AXES];
+                for (a, v) in kmz.iter_mut().enumerate().take(model.axes()) {
+                    *v = model.kmz_offset_um(a);
+                }
+                // the model, then its own λ_KMZ (an older KMZ item for the same id must not
+                // come back at the next boot)
+                let stored = match store.save_model(&buf[..len]).await {
+                    Ok(()) => store.save_kmz(id, &kmz).await.is_ok(),
+                    Err(_) => false,
+                };
+                if stored {
+                    sh.install(model);
+                    sh.model.lock(|m| {
+                        let mut m = m.borrow_mut();
+                        m.uploads_ok = m.uploads_ok.wrapping_add(1);
+                    });
+                    info!("model {=u32} stored and installed", id);
+                    let _ = w.u8(mgmt::RESULT_OK);
+                    let _ = w.u32(id);
+                    let _ = w.u8(0);
+                    let _ = w.u32(sh.model.lock(|m| m.borrow().uploads_ok));
+                    return w.len();
+                }
+                reject(sh, mgmt::RESULT_STORAGE)
             }
             Err(e) => reject(sh, e.code()),
         },
@@ -162,20 +214,26 @@ fn handle<S: SlotStorage>(
                     let mut m = m.borrow_mut();
                     let m = &mut *m;
                     let slow = m.slow;
+                    let ready = m.inputs_ready;
                     let model = m.model.as_mut()?;
                     model.set_kmz_from_reference(&q, &x, &dir, &slow);
                     let mut k = [0.0; MAX_AXES];
                     for (a, v) in k.iter_mut().enumerate().take(model.axes()) {
                         *v = model.kmz_offset_um(a);
                     }
-                    // the next command already uses the new offset
-                    Some((k, Comp::new(model, &slow)))
+                    // the next command already uses the new offset (if the inputs are valid)
+                    Some((k, model.id(), ready.then(|| Comp::new(model, &slow))))
                 });
                 match kmz {
-                    Some((k, comp)) => {
-                        sh.core.lock(|c| c.borrow_mut().comp = Some(comp));
+                    Some((k, id, comp)) => {
+                        if let Some(comp) = comp {
+                            sh.core.lock(|c| c.borrow_mut().comp = Some(comp));
+                        }
                         sh.refold.signal(());
-                        let persisted = persist(storage, sh);
+                        let persisted = store.save_kmz(id, &k).await.is_ok();
+                        if !persisted {
+                            warn!("KMZ change not stored");
+                        }
                         let _ = w.u8(mgmt::RESULT_OK);
                         for v in k {
                             let _ = w.f64(v);
@@ -194,38 +252,45 @@ fn handle<S: SlotStorage>(
             }
             Err(_) => mgmt::RESULT_BAD_REQUEST,
         },
+        kind::CONFIG_GET => {
+            let s = sh.settings.lock(|s| *s.borrow());
+            let _ = w.u8(mgmt::RESULT_OK);
+            let _ = w.bytes(&s.encode());
+            return w.len();
+        }
+        kind::CONFIG_SET => match Settings::decode(payload) {
+            Ok(s) => match store.save_settings(&s.encode()).await {
+                Ok(()) => {
+                    apply_settings(sh, s);
+                    mgmt::RESULT_OK
+                }
+                Err(_) => mgmt::RESULT_STORAGE,
+            },
+            Err(_) => mgmt::RESULT_SETTINGS,
+        },
+        kind::RESET => mgmt::RESULT_OK,
+        #[cfg(feature = "qemu")]
+        kind::DEBUG_HANG => loop {
+            // a hung firmware, for the watchdog test: only the watchdog gets out of here
+            core::hint::spin_loop();
+        },
         _ => mgmt::RESULT_UNKNOWN_KIND,
     };
     let _ = w.u8(code);
     w.len()
 }
 
-/// Store the model in service (e.g. after a KMZ change) to the other slot; the blob is built
-/// on the stack, so an upload in progress is not disturbed. False when it could not be stored
-/// (the change stays in RAM).
-fn persist<S: SlotStorage>(storage: &mut S, sh: &Shared) -> bool {
-    let mut bytes = [0u8; blob::MAX_BLOB_LEN];
-    let (len, current) = sh.model.lock(|m| {
-        let m = m.borrow();
-        let len = m
-            .model
-            .as_ref()
-            .map(|model| blob::encode(model, &mut bytes));
-        (len, m.active)
+/// Put new settings in force: sensors are reconfigured at once, the axis names take effect on
+/// the next line, the stage baud rate at the next reset.
+fn apply_settings(sh: &Shared, s: Settings) {
+    sh.settings.lock(|x| *x.borrow_mut() = s);
+    sh.core.lock(|c| {
+        let mut c = c.borrow_mut();
+        let keep = (c.proxy.bypass, c.proxy.gate, c.proxy.counters);
+        c.proxy = fresh_proxy(&s);
+        (c.proxy.bypass, c.proxy.gate, c.proxy.counters) = keep;
     });
-    let Some(Ok(len)) = len else {
-        return false;
-    };
-    match slots::commit(storage, current, &bytes[..len]) {
-        Ok(active) => {
-            sh.model.lock(|m| m.borrow_mut().active = Some(active));
-            true
-        }
-        Err(_) => {
-            warn!("KMZ change not stored");
-            false
-        }
-    }
+    sh.settings_changed.signal(());
 }
 
 fn reject(sh: &Shared, code: u8) -> u8 {
@@ -239,9 +304,14 @@ fn reject(sh: &Shared, code: u8) -> u8 {
 }
 
 fn status(sh: &Shared, upload: &Upload) -> Status {
+    let now = now_ms();
     let mut s = Status {
-        uptime_ms: Instant::now().as_millis() as u32,
+        uptime_ms: now,
         slot: 0xFF,
+        uid: sh.identity.uid,
+        reset_cause: sh.identity.reset_cause.code(),
+        led: led_state(sh).code(),
+        flash_ecc_errors: sh.flash_ecc_errors.load(Ordering::Relaxed),
         ..Default::default()
     };
     sh.model.lock(|m| {
@@ -252,12 +322,10 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
             for a in 0..model.axes().min(3) {
                 s.kmz_um[a] = model.kmz_offset_um(a);
             }
+            if !m.inputs_ready {
+                s.flags |= flags::WARMING_UP;
+            }
         }
-        if let Some(a) = m.active {
-            s.slot = a.slot as u8;
-            s.slot_seq = a.seq;
-        }
-        s.sensors = m.sensors;
         for (i, ch) in m
             .faults
             .channels
@@ -268,6 +336,16 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
             s.temps_c[i] = ch.value_c().unwrap_or(f32::NAN);
             s.sensor_bits[i] = ch.status_bits();
         }
+        for (i, ch) in m
+            .aux_faults
+            .channels
+            .iter()
+            .enumerate()
+            .take(mgmt::STATUS_AUX)
+        {
+            s.aux[i] = ch.value_c().unwrap_or(f32::NAN);
+            s.aux_bits[i] = ch.status_bits();
+        }
         s.slow_outside = m.slow_outside;
         if m.slow_outside != 0 {
             s.flags |= flags::EXTRAPOLATING;
@@ -276,7 +354,16 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
         s.uploads_ok = m.uploads_ok;
         s.uploads_rejected = m.uploads_rejected;
         s.last_upload_error = m.last_upload_error;
+        s.sensor_reconfigs = m.sensor_reconfigs;
     });
+    s.sensors = sh.settings.lock(|x| {
+        let x = x.borrow();
+        x.sensors
+            .iter()
+            .rposition(|c| c.is_some())
+            .map_or(0, |i| i as u8 + 1)
+    });
+    let limit = super::supervisor::stale_limit_ms(sh);
     sh.core.lock(|c| {
         let c = c.borrow();
         if c.proxy.bypass {
@@ -285,6 +372,15 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
         if c.proxy.gate == Gate::SensorFault {
             s.flags |= flags::SENSOR_BLOCK;
         }
+        if c.comp.is_some() {
+            s.fold_age_ms = now.wrapping_sub(c.folded_at_ms);
+            if s.fold_age_ms > limit {
+                s.flags |= flags::FOLD_STALE;
+            }
+        }
+        if c.proxy.unit_mismatch() {
+            s.flags |= flags::UNIT_MISMATCH;
+        }
         let k = c.proxy.counters;
         s.host_lines = k.host_lines;
         s.moves = k.moves;
@@ -292,6 +388,9 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
         s.mapped_replies = k.mapped_replies;
         s.pending_error = c.proxy.pending_error();
     });
+    if sh.host_connected.load(Ordering::Relaxed) {
+        s.flags |= flags::HOST_CONNECTED;
+    }
     if upload.is_active() {
         s.flags |= flags::UPLOADING;
     }

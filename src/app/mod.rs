@@ -1,32 +1,40 @@
 //! The board-agnostic application: shared state and one async function per concern. Boards wrap
-//! each in an `#[embassy_executor::task]` with their concrete link, sensor and storage types.
+//! each in an `#[embassy_executor::task]` with their concrete link, bus and storage types.
 //!
 //! ```text
 //! host link ─▶ line assembler ─▶ Proxy (GCS parse, Fold::correct, format) ─▶ to_stage ─▶ stage link
 //! host link ◀─ to_host ◀─ Proxy (Fold::inverse for POS?/MOV?) ◀─ line assembler ◀─ stage link
-//! sensors ─▶ fault policy ─▶ lag filters ─▶ Model::fold (slow path) ─▶ Core.comp, Core.proxy.gate
-//! management ─▶ upload / two-slot commit / KMZ / bypass / status
+//! sensors ─▶ drivers ─▶ fault policy ─▶ lag filters ─▶ Model::fold ─▶ Core.comp, Core.proxy.gate
+//! management ─▶ upload / store / KMZ / bypass / settings / status
+//! supervisor ─▶ fold freshness, status LED, watchdog
 //! ```
 //! The command path only takes the `core` lock for the time of one line; it never waits for the
-//! sensor bus or flash.
+//! sensor bus or flash (flash erases run on bank 2 while code runs from bank 1, and the store
+//! awaits the controller instead of spinning).
 
 mod links;
 mod mgmt;
 mod sensors;
+mod supervisor;
 
 pub use links::{host_link, stage_link};
-pub use mgmt::management;
-pub use sensors::{sensors, SensorBus};
+pub use mgmt::{load_settings, management, VERSION};
+pub use sensors::{sensors, InputBus};
+pub use supervisor::{supervisor, Board};
 
 use core::cell::RefCell;
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, ThreadModeRawMutex};
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::pipe::Pipe;
 use embassy_sync::signal::Signal;
-use nanocal_compensator::fault::{Faults, Policy};
-use nanocal_compensator::proxy::{FoldCorrector, Proxy};
-use nanocal_compensator::slots::Active;
-use nanocal_model::{Model, SlowInputs, MAX_TEMPS};
+use nanocal_compensator::fault::{Faults, Policy, MAX_CHANNELS};
+use nanocal_compensator::gcs::AxisMap;
+use nanocal_compensator::identity::ResetCause;
+use nanocal_compensator::inputs;
+use nanocal_compensator::proxy::{FoldCorrector, Gate, Proxy};
+use nanocal_compensator::settings::Settings;
+use nanocal_model::{Model, SlowInputs, MAX_AUX};
 
 /// Reads at least one byte into `buf`. An error or end of input (host unplugged, a UART
 /// framing error) is retried after a short pause instead of ending the task: the compensator
@@ -50,26 +58,36 @@ pub type Comp = FoldCorrector;
 pub struct Core {
     /// The GCS proxy.
     pub proxy: Proxy,
-    /// The model's fast path (None until a model is loaded).
+    /// The model's fast path (None until a model is loaded and every input it uses has a
+    /// valid reading).
     pub comp: Option<Comp>,
+    /// When `comp` was folded, ms since boot.
+    pub folded_at_ms: u32,
+}
+
+/// Who the device is.
+#[derive(Clone, Copy)]
+pub struct Identity {
+    /// Chip UID.
+    pub uid: [u8; 12],
+    /// Why it last reset.
+    pub reset_cause: ResetCause,
 }
 
 /// The model and everything the slow path and management need.
 pub struct ModelState {
     /// The model in service.
     pub model: Option<Model>,
-    /// Increases with every model change (the sensor task resets its lag filters on change).
+    /// Increases with every model change (the sensor task restarts its lag filters on change).
     pub generation: u32,
-    /// Storage slot of the model in service.
-    pub active: Option<Active>,
     /// Slow inputs of the last fold.
     pub slow: SlowInputs,
-    /// Sensor fault policy state.
+    /// Temperature fault policy state.
     pub faults: Faults,
-    /// Sensors configured on the board.
-    pub sensors: u8,
+    /// Aux-input fault policy state.
+    pub aux_faults: Faults,
     /// Slow inputs outside the envelope at the last fold.
-    pub slow_outside: u16,
+    pub slow_outside: u32,
     /// Folds computed.
     pub folds: u32,
     /// Uploads accepted.
@@ -78,6 +96,10 @@ pub struct ModelState {
     pub uploads_rejected: u32,
     /// Result code of the last rejected upload.
     pub last_upload_error: u8,
+    /// Sensor chips found without their configuration and reconfigured.
+    pub sensor_reconfigs: u32,
+    /// Every input the model uses has a valid reading (lag filters primed).
+    pub inputs_ready: bool,
 }
 
 /// Mutex for state shared between tasks of the one thread-mode executor (no interrupt masking).
@@ -91,59 +113,136 @@ pub struct Shared {
     pub core: Mutex<M, RefCell<Core>>,
     /// Slow-path and management state.
     pub model: Mutex<M, RefCell<ModelState>>,
+    /// Settings in force.
+    pub settings: Mutex<M, RefCell<Settings>>,
+    /// Sources the board found.
+    pub board: Mutex<M, RefCell<inputs::Board>>,
+    /// Identity.
+    pub identity: Identity,
     /// Ask the sensor task to refold now (model or KMZ changed).
     pub refold: Signal<Cs, ()>,
+    /// Settings changed: the sensor task reconfigures its chips.
+    pub settings_changed: Signal<Cs, ()>,
     /// Bytes for the host.
     pub to_host: Pipe<Cs, PIPE_LEN>,
     /// Bytes for the stage controller.
     pub to_stage: Pipe<Cs, PIPE_LEN>,
+    /// The host has the GCS port open (USB DTR; always true on links without line state).
+    pub host_connected: AtomicBool,
+    /// The host closed the GCS port: the host link drops what belongs to that connection.
+    pub host_hangup: Signal<Cs, ()>,
+    /// Heartbeat of the sensor task (ms since boot of its last completed cycle).
+    pub sensor_beat_ms: AtomicU32,
+    /// Flash double words that failed ECC on read.
+    pub flash_ecc_errors: AtomicU32,
 }
 
 impl Shared {
-    /// Fresh state: no model, all sensors unknown.
-    pub fn new(sensors: u8, policy: Policy) -> Self {
+    /// Fresh state: no model, all sensors unknown, the given settings.
+    pub fn new(settings: Settings, identity: Identity) -> Self {
+        let aux_policy = Policy {
+            min_c: f32::MIN,
+            max_c: f32::MAX,
+            ..Policy::default()
+        };
         Self {
             core: Mutex::new(RefCell::new(Core {
-                proxy: Proxy::default(),
+                proxy: fresh_proxy(&settings),
                 comp: None,
+                folded_at_ms: 0,
             })),
             model: Mutex::new(RefCell::new(ModelState {
                 model: None,
                 generation: 0,
-                active: None,
                 slow: SlowInputs::default(),
-                faults: Faults::new(policy),
-                sensors,
+                faults: Faults::new(Policy::default()),
+                aux_faults: Faults::new(aux_policy),
                 slow_outside: 0,
                 folds: 0,
                 uploads_ok: 0,
                 uploads_rejected: 0,
                 last_upload_error: 0,
+                sensor_reconfigs: 0,
+                inputs_ready: false,
             })),
+            settings: Mutex::new(RefCell::new(settings)),
+            board: Mutex::new(RefCell::new(inputs::Board::default())),
+            identity,
             refold: Signal::new(),
+            settings_changed: Signal::new(),
             to_host: Pipe::new(),
             to_stage: Pipe::new(),
+            host_connected: AtomicBool::new(true),
+            host_hangup: Signal::new(),
+            sensor_beat_ms: AtomicU32::new(0),
+            flash_ecc_errors: AtomicU32::new(0),
         }
     }
 
-    /// Put `model` in service (already stored): fold it at the current temperatures at once so
-    /// the command path never runs an old fold against a new model, and tell the sensor task.
-    pub fn install(&self, model: Model, active: Option<Active>) {
-        let comp = self.model.lock(|m| {
+    /// Put `model` in service (already stored). It runs only once every input it uses has a
+    /// valid reading: until the sensor task folds it, moves are refused and replies pass
+    /// unmapped (never a fold at 0 °C temperatures that were never read).
+    pub fn install(&self, model: Model) {
+        self.model.lock(|m| {
             let mut m = m.borrow_mut();
-            // the new model's lag filters start primed at the current temperatures
-            for (k, spec) in model.lags().iter().enumerate() {
-                let t = m.slow.temps_c[usize::from(spec.sensor).min(MAX_TEMPS - 1)];
-                m.slow.lagged_c[k] = t;
-            }
-            let comp = Comp::new(&model, &m.slow);
             m.model = Some(model);
-            m.active = active;
             m.generation = m.generation.wrapping_add(1);
-            m.folds = m.folds.wrapping_add(1);
-            comp
+            m.inputs_ready = false;
         });
-        self.core.lock(|c| c.borrow_mut().comp = Some(comp));
+        self.core.lock(|c| {
+            let mut c = c.borrow_mut();
+            c.comp = None;
+            c.proxy.gate = Gate::SensorFault;
+        });
         self.refold.signal(());
+    }
+
+    /// Used channels (temperatures) of the model in service.
+    pub fn used_temps(&self) -> usize {
+        self.model
+            .lock(|m| m.borrow().model.as_ref().map(|x| x.temps()).unwrap_or(0))
+            .min(MAX_CHANNELS + 1)
+    }
+}
+
+/// A proxy with the settings' axis names and nothing else remembered.
+pub fn fresh_proxy(settings: &Settings) -> Proxy {
+    Proxy::new(AxisMap::new(&settings.axis_names))
+}
+
+/// Aux inputs the status reports.
+pub const AUX: usize = MAX_AUX;
+
+/// Milliseconds since boot (wraps after 49 days; every comparison uses `wrapping_sub`).
+pub fn now_ms() -> u32 {
+    embassy_time::Instant::now().as_millis() as u32
+}
+
+/// Count a flash ECC error (the board's NMI handler or its storage wrapper calls this).
+pub fn count_ecc(sh: &Shared, n: u32) {
+    sh.flash_ecc_errors.fetch_add(n, Ordering::Relaxed);
+}
+
+/// The host closed the GCS port (USB DTR dropped): drop the bytes queued for it and start the
+/// proxy afresh (no half-collected reply, pending error or query attribution carries over to
+/// the next connection); bypass, the move gate and the counters stay.
+pub fn end_host_session(sh: &Shared) {
+    sh.to_host.clear();
+    sh.core.lock(|c| {
+        let mut c = c.borrow_mut();
+        let keep = (c.proxy.bypass, c.proxy.gate, c.proxy.counters);
+        let settings = sh.settings.lock(|s| *s.borrow());
+        c.proxy = fresh_proxy(&settings);
+        (c.proxy.bypass, c.proxy.gate, c.proxy.counters) = keep;
+    });
+}
+
+/// Tell the application the host's line state (USB CDC SET_CONTROL_LINE_STATE, DTR bit): a
+/// fall ends the host session.
+pub fn host_line_state(sh: &Shared, dtr: bool) {
+    let was = sh.host_connected.swap(dtr, Ordering::Relaxed);
+    if was && !dtr {
+        end_host_session(sh);
+        sh.host_hangup.signal(());
     }
 }

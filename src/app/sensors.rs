@@ -1,81 +1,244 @@
-//! The sensor task: sample every sensor, apply the fault policy, run the lag filters and fold
-//! the model (the slow path). Publishes the fold and the move gate to the command path.
+//! The sensor task: drive every amplifier at register level (configure, wait for the first
+//! conversion, dump and check its registers every cycle), read the aux sources (barometer,
+//! ADC), apply the fault policy, run the lag filters and fold the model (the slow path).
+//! Publishes the fold and the move gate to the command path.
+//!
+//! Every bus transaction has a timeout, so a hung bus is a sensor fault, never a hung task;
+//! channels without a reading in a cycle have their hold time checked all the same.
 
-use super::{Comp, Shared};
-use embassy_futures::select::select;
-use embassy_time::{Duration, Instant, Timer};
+use super::{now_ms, Comp, Shared};
+use core::sync::atomic::Ordering;
+use embassy_futures::select::{select3, Either3};
+use embassy_time::{with_timeout, Duration, Instant, Timer};
 use nanocal_compensator::fault::MAX_CHANNELS;
+use nanocal_compensator::lps22hb;
 use nanocal_compensator::proxy::Gate;
-use nanocal_compensator::sensor::{self, Chip, SensorFault, FRAME_LEN};
-use nanocal_model::LagBank;
+use nanocal_compensator::sensor::{Driver, Outcome, SensorFault, MAX_TXN};
+use nanocal_compensator::settings::{AuxSource, Settings};
+use nanocal_model::{LagBank, MAX_AUX};
 
-/// A bus that clocks a frame in and out of the sensor behind chip-select `cs`.
+/// The buses the inputs hang on.
 #[allow(async_fn_in_trait)]
-pub trait SensorBus {
-    /// Full-duplex transfer: `frame` is sent and replaced by the bytes received.
-    async fn transfer(&mut self, cs: u8, frame: &mut [u8; FRAME_LEN]) -> Result<(), SensorFault>;
+pub trait InputBus {
+    /// One SPI transaction with chip-select `cs` low for all of `buf` (sent, and replaced by
+    /// the bytes received).
+    async fn spi(&mut self, cs: u8, buf: &mut [u8]) -> Result<(), ()>;
+    /// An I2C write of `w` then a read into `r` (repeated start) at 7-bit address `addr`.
+    async fn i2c(&mut self, addr: u8, w: &[u8], r: &mut [u8]) -> Result<(), ()>;
+    /// One ADC conversion of `channel` (12-bit code).
+    async fn adc(&mut self, channel: u8) -> Result<u16, ()>;
+    /// ADC channels the board has (bit per channel).
+    fn adc_channels(&self) -> u32;
 }
 
-/// Run the sensor task for the chips on chip-selects `0..chips.len()`.
-pub async fn sensors<B: SensorBus>(mut bus: B, chips: &[Chip], period: Duration, sh: &Shared) -> ! {
-    let chips = &chips[..chips.len().min(MAX_CHANNELS)];
-    for (cs, &chip) in chips.iter().enumerate() {
-        for mut f in sensor::config_frames(chip) {
-            if bus.transfer(cs as u8, &mut f).await.is_err() {
-                warn!("sensor {=usize}: configuration not acknowledged", cs);
-            }
+fn drivers(s: &Settings) -> [Option<Driver>; MAX_CHANNELS] {
+    let mut d = [None; MAX_CHANNELS];
+    for (i, c) in s.sensors.iter().enumerate().take(MAX_CHANNELS) {
+        d[i] = c.map(|chip| Driver::new(chip, s.mains));
+    }
+    d
+}
+
+async fn run_driver<B: InputBus>(
+    d: &mut Driver,
+    bus: &mut B,
+    cs: u8,
+    now: u32,
+    timeout: Duration,
+) -> Option<Result<f32, SensorFault>> {
+    let mut buf = [0u8; MAX_TXN];
+    for _ in 0..4 {
+        let txn = d.next(now)?;
+        let n = d.fill(txn, &mut buf);
+        let rx = match with_timeout(timeout, bus.spi(cs, &mut buf[..n])).await {
+            Ok(Ok(())) => Ok(&buf[..n]),
+            _ => Err(SensorFault::NoResponse),
+        };
+        match d.complete(txn, rx, now) {
+            Outcome::Continue => continue,
+            Outcome::Waiting => return None,
+            Outcome::Reading(r) => return Some(r.map(|x| x.temp_c)),
         }
     }
+    None
+}
+
+/// The barometer's state.
+#[derive(Default)]
+struct Baro {
+    ever_converted: bool,
+}
+
+impl Baro {
+    async fn probe<B: InputBus>(bus: &mut B, timeout: Duration) -> bool {
+        let mut id = [0u8; 1];
+        matches!(
+            with_timeout(
+                timeout,
+                bus.i2c(lps22hb::ADDRESS, &[lps22hb::WHO_AM_I], &mut id)
+            )
+            .await,
+            Ok(Ok(()))
+        ) && id[0] == lps22hb::ID
+    }
+
+    async fn read<B: InputBus>(
+        &mut self,
+        bus: &mut B,
+        timeout: Duration,
+    ) -> Option<Result<f32, SensorFault>> {
+        let a = lps22hb::ADDRESS;
+        let mut ctrl = [0u8; 1];
+        if with_timeout(timeout, bus.i2c(a, &[lps22hb::CTRL_REG1], &mut ctrl))
+            .await
+            .ok()?
+            .is_err()
+        {
+            return Some(Err(SensorFault::NoResponse));
+        }
+        if ctrl[0] != lps22hb::CTRL_REG1_VALUE {
+            // power-on default (or it was reset): start conversions and wait for the first
+            self.ever_converted = false;
+            let w = [lps22hb::CTRL_REG1, lps22hb::CTRL_REG1_VALUE];
+            let _ = with_timeout(timeout, bus.i2c(a, &w, &mut [])).await;
+            return None;
+        }
+        let mut burst = [0u8; lps22hb::BURST];
+        match with_timeout(timeout, bus.i2c(a, &[lps22hb::STATUS], &mut burst)).await {
+            Ok(Ok(())) => {}
+            _ => return Some(Err(SensorFault::NoResponse)),
+        }
+        let v = lps22hb::decode(&burst, self.ever_converted);
+        self.ever_converted |= burst[0] & 0x01 != 0;
+        match v {
+            Some(hpa) => Some(Ok(hpa)),
+            None if !self.ever_converted => None,
+            None => Some(Err(SensorFault::Implausible)),
+        }
+    }
+}
+
+/// Run the sensor task. `timeout` bounds every bus transaction.
+pub async fn sensors<B: InputBus>(mut bus: B, timeout: Duration, sh: &Shared) -> ! {
+    let mut settings = sh.settings.lock(|s| *s.borrow());
+    let mut drv = drivers(&settings);
+    let barometer = Baro::probe(&mut bus, timeout).await;
+    let adc_channels = bus.adc_channels();
+    sh.board.lock(|b| {
+        let mut b = b.borrow_mut();
+        b.barometer = barometer;
+        b.adc_channels = adc_channels;
+    });
+    info!("barometer: {=bool}", barometer);
+    let mut baro = Baro::default();
     let mut lags: Option<(u32, LagBank)> = None;
     let mut last = Instant::now();
     loop {
-        select(Timer::after(period), sh.refold.wait()).await;
+        let period = Duration::from_millis(u64::from(settings.sample_period_ms));
+        if let Either3::Third(()) = select3(
+            Timer::after(period),
+            sh.refold.wait(),
+            sh.settings_changed.wait(),
+        )
+        .await
+        {
+            settings = sh.settings.lock(|s| *s.borrow());
+            drv = drivers(&settings);
+        }
         let now = Instant::now();
-        let now_ms = now.as_millis() as u32;
+        let ms = now_ms();
         let dt_s = (now - last).as_micros() as f64 * 1e-6;
         last = now;
         // sample outside any lock
-        let mut readings = [Err(SensorFault::NoResponse); MAX_CHANNELS];
-        for (cs, &chip) in chips.iter().enumerate() {
-            let mut f = sensor::read_frame(chip);
-            readings[cs] = match bus.transfer(cs as u8, &mut f).await {
-                Ok(()) => sensor::decode(chip, &f).map(|r| r.temp_c),
-                Err(e) => Err(e),
+        let mut readings = [None; MAX_CHANNELS];
+        let mut reconfigs = 0;
+        for (cs, d) in drv.iter_mut().enumerate() {
+            if let Some(d) = d {
+                let before = d.reconfigurations;
+                readings[cs] = run_driver(d, &mut bus, cs as u8, ms, timeout).await;
+                reconfigs += d.reconfigurations.wrapping_sub(before);
+            }
+        }
+        let mut aux = [None; MAX_AUX];
+        for (i, src) in settings.aux.iter().enumerate() {
+            aux[i] = match *src {
+                AuxSource::None => None,
+                AuxSource::AirPressure => baro.read(&mut bus, timeout).await,
+                AuxSource::Force {
+                    channel,
+                    scale_n_per_count,
+                    offset_n,
+                } => Some(match with_timeout(timeout, bus.adc(channel)).await {
+                    Ok(Ok(code)) => Ok(offset_n + scale_n_per_count * f32::from(code)),
+                    _ => Err(SensorFault::NoResponse),
+                }),
             };
         }
         let update = sh.model.lock(|m| {
             let mut m = m.borrow_mut();
             let m = &mut *m;
-            for (cs, r) in readings.iter().enumerate().take(chips.len()) {
-                m.faults.update(cs, *r, now_ms);
+            m.sensor_reconfigs = m.sensor_reconfigs.wrapping_add(reconfigs);
+            for (cs, r) in readings.iter().enumerate() {
+                match r {
+                    Some(r) => m.faults.update(cs, *r, ms),
+                    None => m.faults.tick(cs, ms),
+                }
+            }
+            for (i, r) in aux.iter().enumerate() {
+                match r {
+                    Some(r) => m.aux_faults.update(i, *r, ms),
+                    None => m.aux_faults.tick(i, ms),
+                }
             }
             for (i, ch) in m.faults.channels.iter().enumerate() {
                 if let Some(t) = ch.value_c() {
                     m.slow.temps_c[i] = f64::from(t);
                 }
             }
+            for (i, ch) in m.aux_faults.channels.iter().take(MAX_AUX).enumerate() {
+                if let Some(v) = ch.value_c() {
+                    m.slow.aux[i] = f64::from(v);
+                }
+            }
             let model = m.model.as_ref()?;
+            let (temps, auxn) = (model.temps(), model.aux());
+            let ready = m.faults.all_usable(temps) && m.aux_faults.all_usable(auxn);
+            if !ready {
+                // never prime lag filters or fold on inputs that were never read
+                if !m.inputs_ready {
+                    lags = None;
+                }
+                return Some(None);
+            }
+            m.inputs_ready = true;
             let bank = match &mut lags {
                 Some((g, bank)) if *g == m.generation => bank,
+                // a new bank primes on these (valid) readings
                 _ => &mut lags.insert((m.generation, LagBank::new(model.lags()))).1,
             };
             bank.update(&m.slow.temps_c, dt_s, &mut m.slow.lagged_c);
             let comp = Comp::new(model, &m.slow);
             m.slow_outside = comp.fold.slow_outside_envelope();
             m.folds = m.folds.wrapping_add(1);
-            let blocked = m.faults.blocks_moves(model.temps());
-            Some((comp, blocked))
+            let blocked = m.faults.blocks_moves(temps) || m.aux_faults.blocks_moves(auxn);
+            Some(Some((comp, blocked)))
         });
-        if let Some((comp, blocked)) = update {
-            sh.core.lock(|c| {
+        match update {
+            Some(Some((comp, blocked))) => sh.core.lock(|c| {
                 let mut c = c.borrow_mut();
                 c.comp = Some(comp);
+                c.folded_at_ms = ms;
                 c.proxy.gate = if blocked {
                     Gate::SensorFault
                 } else {
                     Gate::Open
                 };
-            });
+            }),
+            Some(None) => sh
+                .core
+                .lock(|c| c.borrow_mut().proxy.gate = Gate::SensorFault),
+            None => {}
         }
+        sh.sensor_beat_ms.store(now_ms(), Ordering::Relaxed);
     }
 }

@@ -1,29 +1,30 @@
-//! QEMU `mps2-an386` board: host link on serial0, stage link on serial1, sensor-bus stand-in
-//! on serial2, management on serial3; RAM-emulated flash for the two model slots.
+//! QEMU `mps2-an386` board: host link on serial0, stage link on serial1, the bus stand-in
+//! (SPI/I2C/ADC to simulated chips) on serial2, management on serial3, the host link's line
+//! state (USB DTR stand-in) on serial4; CMSDK watchdog, FPGA LED 0 as the status LED, the L4
+//! flash model in RAM that survives a system reset.
 #![no_std]
 #![no_main]
 
 use cortex_m_rt::exception;
 use cortex_m_semihosting::{debug, hprintln};
 use embassy_executor::Spawner;
-use embassy_time::Duration;
-use nanocal_compensator::fault::Policy;
-use nanocal_compensator::sensor::Chip;
-use nanocal_compensator::slots::RamFlash;
-use nanocal_fw::app::{self, Shared};
-use nanocal_fw::qemu::sensor_bus::SerialSensorBus;
+use embassy_time::{Duration, Timer};
+use nanocal_compensator::l4flash::L4Nor;
+use nanocal_compensator::store::Store;
+use nanocal_fw::app::{self, Identity, Shared};
+use nanocal_fw::qemu::board::{self, TimedFlash};
+use nanocal_fw::qemu::sensor_bus::SerialBus;
 use nanocal_fw::qemu::uart::{Uart, UartRx, UartTx};
 use nanocal_fw::qemu::{self, time};
 use nanocal_model::blob;
 use static_cell::StaticCell;
 
-/// Sensors on the stand-in bus (chip-selects 0..4).
-const CHIPS: [Chip; 4] = [Chip::Max31856; 4];
-/// Slot size of the emulated flash.
-const SLOT: usize = 8192;
+/// Store erase unit: four 2 KiB pages (a whole blob fits one unit).
+const ERASE: usize = 8 * 1024;
+type Flash = L4Nor<TimedFlash, ERASE>;
 
 static SHARED: StaticCell<Shared> = StaticCell::new();
-static FLASH: StaticCell<RamFlash<SLOT>> = StaticCell::new();
+static STORE: StaticCell<Store<Flash>> = StaticCell::new();
 static UPLOAD: StaticCell<[u8; blob::MAX_BLOB_LEN]> = StaticCell::new();
 
 #[exception]
@@ -56,19 +57,49 @@ async fn stage_link_task(rx: UartRx, tx: UartTx, sh: &'static Shared) {
 }
 
 #[embassy_executor::task]
-async fn sensor_task(bus: SerialSensorBus<UartRx, UartTx>, sh: &'static Shared) {
-    app::sensors(bus, &CHIPS, Duration::from_millis(100), sh).await
+async fn sensor_task(bus: SerialBus<UartRx, UartTx>, sh: &'static Shared) {
+    app::sensors(bus, Duration::from_millis(300), sh).await
 }
 
 #[embassy_executor::task]
 async fn management_task(
     rx: UartRx,
     tx: UartTx,
-    flash: &'static mut RamFlash<SLOT>,
+    store: &'static mut Store<Flash>,
     buf: &'static mut [u8; blob::MAX_BLOB_LEN],
     sh: &'static Shared,
 ) {
-    app::management(rx, tx, flash, buf, sh).await
+    app::management(rx, tx, store, buf, board::software_reset, sh).await
+}
+
+/// The host link's line state: the bench sends C0h | bits of USB CDC SET_CONTROL_LINE_STATE's
+/// wValue (bit 0 DTR, bit 1 RTS) whenever its GCS client opens or closes the port.
+#[embassy_executor::task]
+async fn line_state_task(mut rx: UartRx, sh: &'static Shared) {
+    loop {
+        while let Some(b) = rx.try_read() {
+            if b & 0xF0 == 0xC0 {
+                app::host_line_state(sh, b & 1 != 0);
+            }
+        }
+        Timer::after_millis(5).await;
+    }
+}
+
+struct QemuBoard;
+
+impl app::Board for QemuBoard {
+    fn set_led(&mut self, on: bool) {
+        board::set_led(on);
+    }
+    fn pet_watchdog(&mut self) {
+        board::watchdog_pet();
+    }
+}
+
+#[embassy_executor::task]
+async fn supervisor_task(sh: &'static Shared) {
+    app::supervisor(QemuBoard, sh).await
 }
 
 #[embassy_executor::main]
@@ -77,26 +108,41 @@ async fn main(spawner: Spawner) {
         panic!("core peripherals taken twice");
     };
     time::init(cp.SYST);
-    hprintln!("nanocal-fw (qemu mps2-an386) up");
-    let sh: &'static Shared = SHARED.init(Shared::new(CHIPS.len() as u8, Policy::default()));
+    let cause = board::reset_cause();
+    hprintln!(
+        "nanocal-fw (qemu mps2-an386) up; reset cause {}",
+        cause.code()
+    );
+    board::watchdog_start(2000);
+    // SAFETY: called once, here.
+    let flash = unsafe { board::flash(cause) };
+    let store = STORE.init(Store::new(L4Nor::new(TimedFlash(flash))));
+    let settings = app::load_settings(store).await;
+    let identity = Identity {
+        uid: *b"QEMU-mps2-an",
+        reset_cause: cause,
+    };
+    let sh: &'static Shared = SHARED.init(Shared::new(settings, identity));
     // SAFETY: each UART index is taken exactly once, here.
-    let (host, stage, sensors, mgmt) = unsafe {
+    let (host, stage, sensors, mgmt, line) = unsafe {
         (
             Uart::new(0, 115_200),
-            Uart::new(1, 115_200),
+            Uart::new(1, settings.stage_baud),
             Uart::new(2, 115_200),
             Uart::new(3, 115_200),
+            Uart::new(4, 115_200),
         )
     };
     let (hrx, htx) = host.split();
     let (srx, stx) = stage.split();
     let (brx, btx) = sensors.split();
     let (mrx, mtx) = mgmt.split();
-    let bus = SerialSensorBus::new(brx, btx, Duration::from_millis(200));
-    let flash = FLASH.init(RamFlash::new());
+    let (lrx, _) = line.split();
     let buf = UPLOAD.init([0; blob::MAX_BLOB_LEN]);
-    spawner.spawn(management_task(mrx, mtx, flash, buf, sh).expect("task pool"));
-    spawner.spawn(sensor_task(bus, sh).expect("task pool"));
+    spawner.spawn(supervisor_task(sh).expect("task pool"));
+    spawner.spawn(management_task(mrx, mtx, store, buf, sh).expect("task pool"));
+    spawner.spawn(sensor_task(SerialBus::new(brx, btx), sh).expect("task pool"));
     spawner.spawn(stage_link_task(srx, stx, sh).expect("task pool"));
     spawner.spawn(host_link_task(hrx, htx, sh).expect("task pool"));
+    spawner.spawn(line_state_task(lrx, sh).expect("task pool"));
 }

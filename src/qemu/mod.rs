@@ -1,6 +1,8 @@
-//! The QEMU `mps2-an386` board's drivers (Cortex-M4F, 25 MHz): CMSDK APB UARTs and a SysTick
-//! time driver at 10 kHz. Only what the compensator needs; no third-party HAL exists for it.
+//! The QEMU `mps2-an386` board's drivers (Cortex-M4F, 25 MHz): CMSDK APB UARTs, a SysTick
+//! time driver at 10 kHz, the bus stand-in, watchdog, LED, storage. Only what the compensator
+//! needs; no third-party HAL exists for it.
 
+pub mod board;
 pub mod sensor_bus;
 pub mod time;
 pub mod uart;

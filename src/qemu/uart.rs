@@ -26,10 +26,16 @@ const CTRL_RX_EN: u32 = 1 << 1;
 const CTRL_RX_INT: u32 = 1 << 3;
 const INT_RX: u32 = 1 << 1;
 
-/// UARTs the board uses.
-pub const COUNT: usize = 4;
-const BASES: [usize; COUNT] = [0x4000_4000, 0x4000_5000, 0x4000_6000, 0x4000_7000];
-const RX_IRQS: [u16; COUNT] = [0, 2, 4, 18];
+/// UARTs the board uses (UART4 is polled: [`UartRx::try_read`]).
+pub const COUNT: usize = 5;
+const BASES: [usize; COUNT] = [
+    0x4000_4000,
+    0x4000_5000,
+    0x4000_6000,
+    0x4000_7000,
+    0x4000_9000,
+];
+const RX_IRQS: [u16; COUNT] = [0, 2, 4, 18, 20];
 
 static WAKERS: [AtomicWaker; COUNT] = [const { AtomicWaker::new() }; COUNT];
 
@@ -71,7 +77,9 @@ impl Uart {
         write(n, BAUDDIV, (super::SYSCLK_HZ / baud.max(1)).max(16));
         write(n, CTRL, CTRL_TX_EN | CTRL_RX_EN);
         // SAFETY: the handler only wakes a waker; no mask-based critical section relies on it.
-        unsafe { NVIC::unmask(Irq(RX_IRQS[n])) };
+        if n < 4 {
+            unsafe { NVIC::unmask(Irq(RX_IRQS[n])) };
+        }
         Self { n }
     }
 
@@ -102,6 +110,13 @@ pub fn on_interrupt(irqn: i16) {
             write(n, INTCLEAR, INT_RX);
             WAKERS[n].wake();
         }
+    }
+}
+
+impl UartRx {
+    /// A received byte, if one is waiting (no interrupt needed).
+    pub fn try_read(&mut self) -> Option<u8> {
+        (read(self.n, STATE) & STATE_RX_FULL != 0).then(|| read(self.n, DATA) as u8)
     }
 }
 

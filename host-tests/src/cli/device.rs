@@ -1,14 +1,18 @@
-//! `nanocal device upload|status|kmz|bypass`: the inline compensator's management channel.
+//! `nanocal device upload|status|kmz|bypass|config|reset`: the inline compensator's management
+//! channel.
 
-use crate::device::{format_status, Client};
-use anyhow::Context;
+use crate::device::{format_settings, format_status, uid_hex, Client};
+use anyhow::{bail, Context};
 use clap::Subcommand;
+use nanocal_compensator::gcs::AxisId;
+use nanocal_compensator::sensor::{Chip, Mains, TcType, Wires};
+use nanocal_compensator::settings::{AuxSource, Settings, StageUnit};
 use std::path::PathBuf;
 
 /// Device subcommands.
 #[derive(Subcommand, Debug)]
 pub enum DeviceCommand {
-    /// Upload a model blob: verified in the device's RAM, committed to flash, put in service.
+    /// Upload a model blob: verified in the device's RAM, stored in flash, put in service.
     Upload {
         /// Management port: a serial device (e.g. /dev/ttyACM1) or tcp:HOST:PORT (QEMU board).
         #[arg(long)]
@@ -16,7 +20,8 @@ pub enum DeviceCommand {
         /// The blob file (nanocal fit output).
         blob: PathBuf,
     },
-    /// Show the device's status: model, temperatures, faults, extrapolation, KMZ, counters.
+    /// Show the device's identity and status: firmware, chip UID, last reset cause, model,
+    /// temperatures, faults, extrapolation, KMZ, counters.
     Status {
         /// Management port.
         #[arg(long)]
@@ -43,6 +48,43 @@ pub enum DeviceCommand {
         #[arg(value_parser = ["on", "off"])]
         state: String,
     },
+    /// Show the device's settings, or change them (stored in flash, applied at once; the stage
+    /// baud rate at the next reset).
+    Config {
+        /// Management port.
+        #[arg(long)]
+        port: String,
+        /// Stage link baud rate (8N1).
+        #[arg(long)]
+        stage_baud: Option<u32>,
+        /// Mains frequency: 50 or 60.
+        #[arg(long)]
+        mains: Option<u32>,
+        /// Sensor sampling period, ms (50..=60000).
+        #[arg(long)]
+        sample_period_ms: Option<u16>,
+        /// Unit of the controller's positions: um, mm or nm.
+        #[arg(long)]
+        stage_unit: Option<String>,
+        /// GCS axis names of model axes 0,1,2 (comma separated), e.g. X,Y,Z.
+        #[arg(long, value_delimiter = ',')]
+        axes: Option<Vec<String>>,
+        /// Amplifier on a chip-select: CS=none, CS=tc:TYPE (MAX31856, TYPE one of B E J K N R S
+        /// T), CS=pt100:WIRES or CS=pt1000:WIRES (MAX31865, 2/3/4 wires, R_ref 430/4300 Ω),
+        /// or CS=rtd:R0:RREF:WIRES. Repeatable.
+        #[arg(long)]
+        sensor: Vec<String>,
+        /// Source of an aux model input: I=none, I=pressure (LPS22HB, hPa) or
+        /// I=force:CHANNEL:N_PER_COUNT:OFFSET_N. Repeatable.
+        #[arg(long)]
+        aux: Vec<String>,
+    },
+    /// Reset the device.
+    Reset {
+        /// Management port.
+        #[arg(long)]
+        port: String,
+    },
 }
 
 fn axes(v: &[f64], what: &str) -> anyhow::Result<[f64; 3]> {
@@ -56,6 +98,134 @@ fn axes(v: &[f64], what: &str) -> anyhow::Result<[f64; 3]> {
     Ok(a)
 }
 
+/// Parse a `--sensor CS=SPEC` argument.
+pub fn parse_sensor(arg: &str) -> anyhow::Result<(usize, Option<Chip>)> {
+    let (cs, spec) = arg
+        .split_once('=')
+        .with_context(|| format!("--sensor {arg}: expected CS=SPEC"))?;
+    let cs: usize = cs
+        .parse()
+        .with_context(|| format!("--sensor {arg}: chip-select"))?;
+    anyhow::ensure!(
+        cs < nanocal_compensator::settings::SENSORS,
+        "--sensor {arg}: chip-select 0..=7"
+    );
+    let p: Vec<&str> = spec.split(':').collect();
+    let wires = |w: &str| -> anyhow::Result<Wires> {
+        Ok(match w {
+            "2" => Wires::Two,
+            "3" => Wires::Three,
+            "4" => Wires::Four,
+            _ => bail!("--sensor {arg}: wires must be 2, 3 or 4"),
+        })
+    };
+    let chip = match p.as_slice() {
+        ["none"] => None,
+        ["tc", t] => {
+            let code = "BEJKNRST"
+                .find(&t.to_ascii_uppercase())
+                .filter(|_| t.len() == 1)
+                .with_context(|| format!("--sensor {arg}: thermocouple type B E J K N R S or T"))?;
+            Some(Chip::Max31856 { tc: TcType::from_code(code as u8).unwrap() })
+        }
+        ["pt100", w] => Some(Chip::Max31865 { r_ref_ohm: 430.0, r0_ohm: 100.0, wires: wires(w)? }),
+        ["pt1000", w] => Some(Chip::Max31865 { r_ref_ohm: 4300.0, r0_ohm: 1000.0, wires: wires(w)? }),
+        ["rtd", r0, rref, w] => Some(Chip::Max31865 {
+            r0_ohm: r0.parse().with_context(|| format!("--sensor {arg}: R0"))?,
+            r_ref_ohm: rref.parse().with_context(|| format!("--sensor {arg}: R_ref"))?,
+            wires: wires(w)?,
+        }),
+        _ => bail!("--sensor {arg}: expected none, tc:TYPE, pt100:WIRES, pt1000:WIRES or rtd:R0:RREF:WIRES"),
+    };
+    Ok((cs, chip))
+}
+
+/// Parse an `--aux I=SPEC` argument.
+pub fn parse_aux(arg: &str) -> anyhow::Result<(usize, AuxSource)> {
+    let (i, spec) = arg
+        .split_once('=')
+        .with_context(|| format!("--aux {arg}: expected I=SPEC"))?;
+    let i: usize = i.parse().with_context(|| format!("--aux {arg}: index"))?;
+    anyhow::ensure!(
+        i < nanocal_model::MAX_AUX,
+        "--aux {arg}: index 0..{}",
+        nanocal_model::MAX_AUX
+    );
+    let p: Vec<&str> = spec.split(':').collect();
+    let src = match p.as_slice() {
+        ["none"] => AuxSource::None,
+        ["pressure"] => AuxSource::AirPressure,
+        ["force", ch, scale, off] => AuxSource::Force {
+            channel: ch
+                .parse()
+                .with_context(|| format!("--aux {arg}: channel"))?,
+            scale_n_per_count: scale
+                .parse()
+                .with_context(|| format!("--aux {arg}: N per count"))?,
+            offset_n: off
+                .parse()
+                .with_context(|| format!("--aux {arg}: offset"))?,
+        },
+        _ => bail!("--aux {arg}: expected none, pressure or force:CHANNEL:N_PER_COUNT:OFFSET_N"),
+    };
+    Ok((i, src))
+}
+
+/// Apply the `config` options to `s`; true when anything changed.
+#[allow(clippy::too_many_arguments)]
+pub fn edit_settings(
+    s: &mut Settings,
+    stage_baud: Option<u32>,
+    mains: Option<u32>,
+    sample_period_ms: Option<u16>,
+    stage_unit: Option<&str>,
+    axes: Option<&[String]>,
+    sensors: &[String],
+    aux: &[String],
+) -> anyhow::Result<bool> {
+    let before = *s;
+    if let Some(b) = stage_baud {
+        s.stage_baud = b;
+    }
+    if let Some(m) = mains {
+        s.mains = match m {
+            50 => Mains::Hz50,
+            60 => Mains::Hz60,
+            _ => bail!("--mains {m}: 50 or 60"),
+        };
+    }
+    if let Some(p) = sample_period_ms {
+        s.sample_period_ms = p;
+    }
+    if let Some(u) = stage_unit {
+        s.stage_unit = match u {
+            "um" | "µm" => StageUnit::Um,
+            "mm" => StageUnit::Mm,
+            "nm" => StageUnit::Nm,
+            _ => bail!("--stage-unit {u}: um, mm or nm"),
+        };
+    }
+    if let Some(a) = axes {
+        anyhow::ensure!((1..=3).contains(&a.len()), "--axes: 1 to 3 names");
+        for (i, n) in a.iter().enumerate() {
+            s.axis_names[i] = AxisId::new(n.as_bytes()).with_context(|| {
+                format!("--axes: {n:?} is not a GCS axis name (1..8 characters)")
+            })?;
+        }
+    }
+    for a in sensors {
+        let (cs, chip) = parse_sensor(a)?;
+        s.sensors[cs] = chip;
+    }
+    for a in aux {
+        let (i, src) = parse_aux(a)?;
+        s.aux[i] = src;
+    }
+    s.validate()
+        .map_err(|e| anyhow::anyhow!("settings rejected: {e}"))?;
+    Ok(*s != before)
+}
+
 /// Run a device subcommand.
 pub fn run(cmd: DeviceCommand) -> anyhow::Result<()> {
     match cmd {
@@ -64,13 +234,20 @@ pub fn run(cmd: DeviceCommand) -> anyhow::Result<()> {
                 std::fs::read(&blob).with_context(|| format!("reading {}", blob.display()))?;
             let mut c = Client::open(&port)?;
             let r = c.upload(&bytes)?;
-            println!(
-                "model {:#010x} in service (slot {}, seq {})",
-                r.model_id, r.slot, r.seq
-            );
+            println!("model {:#010x} stored and in service", r.model_id);
         }
         DeviceCommand::Status { port } => {
-            let s = Client::open(&port)?.status()?;
+            let mut c = Client::open(&port)?;
+            let h = c.identify()?;
+            println!(
+                "firmware {} (protocol {}, blob format {})  chip UID {}  last reset: {}",
+                h.firmware,
+                h.protocol,
+                h.blob_format,
+                uid_hex(&h.uid),
+                h.reset_cause
+            );
+            let s = c.status()?;
             print!("{}", format_status(&s));
         }
         DeviceCommand::Kmz {
@@ -87,6 +264,38 @@ pub fn run(cmd: DeviceCommand) -> anyhow::Result<()> {
             let on = state == "on";
             Client::open(&port)?.bypass(on)?;
             println!("compensation {}", if on { "bypassed" } else { "enabled" });
+        }
+        DeviceCommand::Config {
+            port,
+            stage_baud,
+            mains,
+            sample_period_ms,
+            stage_unit,
+            axes,
+            sensor,
+            aux,
+        } => {
+            let mut c = Client::open(&port)?;
+            let mut s = c.config()?;
+            let changed = edit_settings(
+                &mut s,
+                stage_baud,
+                mains,
+                sample_period_ms,
+                stage_unit.as_deref(),
+                axes.as_deref(),
+                &sensor,
+                &aux,
+            )?;
+            if changed {
+                c.set_config(&s)?;
+                println!("settings stored:");
+            }
+            print!("{}", format_settings(&c.config()?));
+        }
+        DeviceCommand::Reset { port } => {
+            Client::open(&port)?.reset()?;
+            println!("device reset");
         }
     }
     Ok(())

@@ -3,7 +3,9 @@
 //! stream. The protocol itself (frames, status layout) lives in `nanocal_compensator::mgmt`, shared
 //! with the firmware.
 
+use nanocal_compensator::identity::ResetCause;
 use nanocal_compensator::mgmt::{self, kind, Decoder, Reader, Status};
+use nanocal_compensator::settings::Settings;
 use nanocal_model::{blob, MAX_AXES};
 use std::io::{self, Read, Write};
 use std::net::TcpStream;
@@ -80,6 +82,30 @@ pub struct Client {
     dec: Decoder,
     /// How long to wait for each reply.
     pub timeout: Duration,
+}
+
+/// What HELLO tells.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Hello {
+    /// Management protocol version.
+    pub protocol: u16,
+    /// Blob format version the firmware reads.
+    pub blob_format: u16,
+    /// Largest upload chunk.
+    pub max_chunk: u16,
+    /// Firmware version.
+    pub firmware: String,
+    /// Chip unique ID.
+    pub uid: [u8; 12],
+    /// Why the device last reset.
+    pub reset_cause: ResetCause,
+}
+
+/// The chip UID as the USB serial number shows it (24 hex digits).
+pub fn uid_hex(uid: &[u8; 12]) -> String {
+    let mut b = [0u8; 24];
+    nanocal_compensator::identity::usb_serial(uid, &mut b);
+    String::from_utf8_lossy(&b).into_owned()
 }
 
 /// Result of a committed upload.
@@ -182,14 +208,51 @@ impl Client {
 
     /// Protocol version, blob format version and largest chunk of the firmware.
     pub fn hello(&mut self) -> Result<(u16, u16, u16), DeviceError> {
+        let h = self.identify()?;
+        Ok((h.protocol, h.blob_format, h.max_chunk))
+    }
+
+    /// Everything HELLO tells: versions, firmware, chip UID, reset cause.
+    pub fn identify(&mut self) -> Result<Hello, DeviceError> {
         let d = self.request(kind::HELLO, &[])?;
         let mut r = Reader::new(&d);
         let p = |e: mgmt::FrameError| DeviceError::Protocol(kind::HELLO, e.to_string());
-        Ok((
+        let (protocol, blob_format, max_chunk) = (
             r.u16().map_err(p)?,
             r.u16().map_err(p)?,
             r.u16().map_err(p)?,
-        ))
+        );
+        let n = r.u8().map_err(p)?;
+        let firmware = String::from_utf8_lossy(r.bytes(usize::from(n)).map_err(p)?).into_owned();
+        let mut uid = [0u8; 12];
+        uid.copy_from_slice(r.bytes(12).map_err(p)?);
+        let reset_cause = ResetCause::from_code(r.u8().map_err(p)?);
+        Ok(Hello {
+            protocol,
+            blob_format,
+            max_chunk,
+            firmware,
+            uid,
+            reset_cause,
+        })
+    }
+
+    /// The device's settings.
+    pub fn config(&mut self) -> Result<Settings, DeviceError> {
+        let d = self.request(kind::CONFIG_GET, &[])?;
+        Settings::decode(&d).map_err(|e| DeviceError::Protocol(kind::CONFIG_GET, e.to_string()))
+    }
+
+    /// Store and apply settings (checked on the host first, and again by the device).
+    pub fn set_config(&mut self, s: &Settings) -> Result<(), DeviceError> {
+        s.validate()
+            .map_err(|e| DeviceError::Protocol(kind::CONFIG_SET, e.to_string()))?;
+        self.request(kind::CONFIG_SET, &s.encode()).map(|_| ())
+    }
+
+    /// Reset the device (it answers first).
+    pub fn reset(&mut self) -> Result<(), DeviceError> {
+        self.request(kind::RESET, &[]).map(|_| ())
     }
 
     /// The device's status.
@@ -283,17 +346,47 @@ pub fn format_status(s: &Status) -> String {
     let mut o = String::new();
     let flag = |f: u16| if s.flags & f != 0 { "yes" } else { "no" };
     o += &format!(
+        "chip UID: {}  last reset: {}\n",
+        uid_hex(&s.uid),
+        ResetCause::from_code(s.reset_cause)
+    );
+    o += &format!(
+        "status LED: {}  host port open: {}\n",
+        match s.led {
+            1 => "compensating (on)",
+            2 => "bypass (slow blink)",
+            3 => "no model (short flash)",
+            4 => "fault (fast blink)",
+            _ => "?",
+        },
+        flag(flags::HOST_CONNECTED)
+    );
+    o += &format!(
         "model: {}\n",
         if s.flags & flags::MODEL != 0 {
-            format!("{:#010x} (slot {}, seq {})", s.model_id, s.slot, s.slot_seq)
+            format!("{:#010x}", s.model_id)
         } else {
             "none".into()
         }
     );
     o += &format!("compensation bypassed: {}\n", flag(flags::BYPASS));
     o += &format!(
+        "sensors warming up (no first reading yet): {}  fold age {} ms{}\n",
+        flag(flags::WARMING_UP),
+        s.fold_age_ms,
+        if s.flags & flags::FOLD_STALE != 0 {
+            " (STALE: moves refused)"
+        } else {
+            ""
+        }
+    );
+    o += &format!(
         "moves blocked by a sensor fault: {}\n",
         flag(flags::SENSOR_BLOCK)
+    );
+    o += &format!(
+        "moves refused, controller unit is not the model's µm: {}\n",
+        flag(flags::UNIT_MISMATCH)
     );
     o += &format!(
         "extrapolating (slow inputs outside the training envelope): {} (bits {:#06x})\n",
@@ -312,12 +405,26 @@ pub fn format_status(s: &Status) -> String {
             "sensor {i}: {:>9.4} °C  {state}{}\n",
             s.temps_c[i],
             if bits >> 4 != 0 {
-                format!(" (last fault code {})", bits >> 4)
+                format!(
+                    " (last fault: {})",
+                    nanocal_compensator::sensor::SensorFault::from_code(bits >> 4)
+                        .map(|f| f.to_string())
+                        .unwrap_or_else(|| format!("code {}", bits >> 4))
+                )
             } else {
                 String::new()
             }
         );
     }
+    for i in 0..s.aux.len() {
+        if s.aux_bits[i] & 0x0F != 4 || !s.aux[i].is_nan() {
+            o += &format!("aux {i}: {:>9.4}  bits {:#04x}\n", s.aux[i], s.aux_bits[i]);
+        }
+    }
+    o += &format!(
+        "flash ECC errors read: {}  sensor reconfigurations: {}\n",
+        s.flash_ecc_errors, s.sensor_reconfigs
+    );
     o += &format!(
         "λ_KMZ µm: {:.6} {:.6} {:.6}\n",
         s.kmz_um[0], s.kmz_um[1], s.kmz_um[2]
@@ -338,5 +445,58 @@ pub fn format_status(s: &Status) -> String {
         s.pending_error,
         f64::from(s.uptime_ms) / 1000.0
     );
+    o
+}
+
+/// A human-readable settings report.
+pub fn format_settings(s: &Settings) -> String {
+    use nanocal_compensator::sensor::{Chip, Mains};
+    use nanocal_compensator::settings::AuxSource;
+    let mut o = String::new();
+    o += &format!(
+        "stage baud: {} (8N1; applied at the next reset)\n",
+        s.stage_baud
+    );
+    o += &format!("stage unit: {}\n", s.stage_unit.name());
+    let names: Vec<String> = s
+        .axis_names
+        .iter()
+        .map(|a| String::from_utf8_lossy(a.as_bytes()).into_owned())
+        .collect();
+    o += &format!("GCS axis names (model axes 0,1,2): {}\n", names.join(","));
+    o += &format!(
+        "mains: {} Hz  sample period: {} ms\n",
+        if s.mains == Mains::Hz50 { 50 } else { 60 },
+        s.sample_period_ms
+    );
+    for (cs, c) in s.sensors.iter().enumerate() {
+        let d = match c {
+            None => "none".to_string(),
+            Some(Chip::Max31856 { tc }) => format!("MAX31856, type {} thermocouple", tc.letter()),
+            Some(Chip::Max31865 {
+                r_ref_ohm,
+                r0_ohm,
+                wires,
+            }) => format!(
+                "MAX31865, PT{} {}-wire, R_ref {} Ω",
+                r0_ohm.round() as u32,
+                *wires as u8,
+                r_ref_ohm
+            ),
+        };
+        o += &format!("sensor CS{cs}: {d}\n");
+    }
+    for (i, a) in s.aux.iter().enumerate() {
+        let d = match a {
+            AuxSource::None => "none".to_string(),
+            AuxSource::AirPressure => "air pressure, hPa (LPS22HB)".to_string(),
+            AuxSource::Force {
+                channel,
+                scale_n_per_count,
+                offset_n,
+            } => format!("force, N = {offset_n} + {scale_n_per_count} × ADC{channel}"),
+        };
+        o += &format!("aux {i}: {d}\n");
+    }
     o
 }

@@ -2,10 +2,14 @@
 //! board as a process, a simulated stage controller on the stage link, simulated sensor chips on
 //! the sensor bus. The end-to-end tests, the firmware benchmarks and `campaign --virtual` share it.
 
+pub mod chips;
 pub mod controller;
 pub mod qemu;
 pub mod sensors;
 
-pub use controller::StageSim;
+pub use controller::{
+    AxisConfig, Clock, Config, Controller, Event, IdealPlant, ManualClock, Plant, StageSim,
+    SystemClock,
+};
 pub use qemu::{bench_elf, have_qemu, qemu_elf, repo_root, Elf, GcsHost, Qemu};
-pub use sensors::SensorSim;
+pub use sensors::{Buses, SensorSim};

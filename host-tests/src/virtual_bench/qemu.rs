@@ -144,11 +144,16 @@ fn free_port() -> u16 {
         .expect("a free local port")
 }
 
+/// Serial ports of the QEMU board: 0 host (GCS), 1 stage, 2 bus stand-in, 3 management,
+/// 4 the host link's line state (USB DTR stand-in).
+pub const SERIALS: usize = 5;
+
 /// A running QEMU with the firmware; killed on drop.
 pub struct Qemu {
     child: Child,
-    ports: [u16; 4],
+    ports: [u16; SERIALS],
     streams: [Option<TcpStream>; 3],
+    line: Option<TcpStream>,
     log: PathBuf,
 }
 
@@ -168,7 +173,13 @@ impl Qemu {
     /// Start QEMU with extra arguments (e.g. a TCG plugin).
     pub fn start(extra: &[String]) -> Self {
         let elf = qemu_elf();
-        let ports = [free_port(), free_port(), free_port(), free_port()];
+        let ports = [
+            free_port(),
+            free_port(),
+            free_port(),
+            free_port(),
+            free_port(),
+        ];
         let log = std::env::temp_dir().join(format!(
             "nanocal-qemu-{}-{}.log",
             std::process::id(),
@@ -194,12 +205,39 @@ impl Qemu {
             child,
             ports,
             streams: [None, None, None],
+            line: None,
             log,
         };
         for i in 0..3 {
             q.streams[i] = Some(q.dial(i));
         }
+        q.line = Some(q.dial(4));
         q
+    }
+
+    /// The host opens (`true`) or closes (`false`) the GCS port: the line state a USB host
+    /// sends with CDC SET_CONTROL_LINE_STATE (DTR, bit 0), carried to the board on serial4.
+    pub fn set_dtr(&mut self, on: bool) {
+        let l = self.line.as_mut().expect("line-state port");
+        l.write_all(&[0xC0 | u8::from(on)])
+            .expect("line-state port");
+    }
+
+    /// Send raw bytes to a serial port the test still owns (e.g. the bus stand-in's).
+    pub fn port(&self, i: usize) -> u16 {
+        self.ports[i]
+    }
+
+    /// Wait for QEMU to exit (e.g. after a semihosting exit); its status.
+    pub fn wait_exit(&mut self, timeout: Duration) -> Option<std::process::ExitStatus> {
+        let deadline = Instant::now() + timeout;
+        while Instant::now() < deadline {
+            if let Ok(Some(st)) = self.child.try_wait() {
+                return Some(st);
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        None
     }
 
     fn dial(&mut self, i: usize) -> TcpStream {
@@ -222,7 +260,7 @@ impl Qemu {
         std::fs::read_to_string(&self.log).unwrap_or_default()
     }
 
-    /// Take the connection to serial `i` (0 host, 1 stage, 2 sensors).
+    /// Take the connection to serial `i` (0 host, 1 stage, 2 bus stand-in).
     pub fn connect(&mut self, i: usize) -> TcpStream {
         self.streams[i].take().expect("serial port taken once")
     }
@@ -230,6 +268,11 @@ impl Qemu {
     /// The GCS host side (serial0).
     pub fn gcs_host(&mut self) -> GcsHost {
         GcsHost::new(self.connect(0))
+    }
+
+    /// A new GCS host connection on serial0 (after the previous one was dropped).
+    pub fn reconnect_gcs(&mut self) -> GcsHost {
+        GcsHost::new(self.dial(0))
     }
 
     /// Give up the test's own connection to serial0 and return its port, for an external GCS

@@ -1,69 +1,215 @@
-//! Simulated temperature-amplifier chips behind the QEMU board's serial sensor bus.
+//! The QEMU board's peripheral-bus stand-in, host side: serves byte-exact SPI, I2C and ADC
+//! transactions ([`nanocal_compensator::wire`]) from register-level chip simulations
+//! ([`super::chips`]). A chip-select without a chip answers FFh (the board's MISO pull-up); an
+//! I2C address without a chip is not acknowledged; the whole bus can be made to stop answering.
 
-use nanocal_compensator::sensor::{self, bus, FRAME_LEN};
+use super::chips::{I2cChip, Lps22hb, Max31856, Max31865, SpiChip};
+use nanocal_compensator::wire;
+use std::collections::HashMap;
 use std::io::{Read, Write};
 use std::net::TcpStream;
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Instant;
 
-/// Simulated MAX31856 chips on the sensor-bus stand-in.
+/// What hangs on the buses.
+#[derive(Default)]
+pub struct Buses {
+    /// SPI chips by chip-select (None: nothing fitted, MISO pulled up).
+    pub spi: Vec<Option<Box<dyn SpiChip>>>,
+    /// I2C chips by 7-bit address.
+    pub i2c: HashMap<u8, Box<dyn I2cChip>>,
+    /// ADC channels: 12-bit code per channel (None: no such channel answers).
+    pub adc: Vec<Option<u16>>,
+    /// The bus answers nothing (a hung bus: the firmware's timeouts must catch it).
+    pub dead: bool,
+    /// Transactions served, by op.
+    pub served: [u64; 4],
+}
+
+impl Buses {
+    /// The SPI chip on chip-select `cs`, as its concrete type.
+    pub fn spi_mut<T: 'static>(&mut self, cs: usize) -> &mut T {
+        let chip = self.spi[cs].as_mut().expect("a chip on that chip-select");
+        chip.any_mut()
+            .downcast_mut::<T>()
+            .expect("chip of that type")
+    }
+
+    /// Serve one transaction; `None` when there is no answer.
+    pub fn serve(
+        &mut self,
+        op: u8,
+        target: u8,
+        out: &[u8],
+        n_in: usize,
+        now_s: f64,
+    ) -> Option<(u8, Vec<u8>)> {
+        if self.dead {
+            return None;
+        }
+        if let Some(c) = self.served.get_mut(usize::from(op)) {
+            *c += 1;
+        }
+        match op {
+            wire::SPI => {
+                let mut rx = vec![0xFF; out.len()];
+                if let Some(Some(chip)) = self.spi.get_mut(usize::from(target)) {
+                    chip.select(now_s);
+                    for (i, &b) in out.iter().enumerate() {
+                        rx[i] = chip.exchange(b);
+                    }
+                    chip.deselect(now_s);
+                }
+                Some((wire::OK, rx))
+            }
+            wire::I2C => match self.i2c.get_mut(&target) {
+                None => Some((wire::NACK, vec![])),
+                Some(chip) => {
+                    if !out.is_empty() {
+                        chip.write(out, now_s);
+                    }
+                    let mut rx = vec![0u8; n_in];
+                    if n_in > 0 {
+                        chip.read(&mut rx, now_s);
+                    }
+                    Some((wire::OK, rx))
+                }
+            },
+            wire::ADC => {
+                let code = self.adc.get(usize::from(target)).copied().flatten()?;
+                Some((wire::OK, code.to_le_bytes().to_vec()))
+            }
+            _ => None,
+        }
+    }
+}
+
+/// Simulated chips behind the QEMU board's bus stand-in (serial2).
 pub struct SensorSim {
-    state: Arc<Mutex<(Vec<f32>, Vec<u8>)>>,
+    buses: Arc<Mutex<Buses>>,
+    t0: Instant,
 }
 
 impl SensorSim {
-    /// Serve `s` with the given temperatures on chip-selects 0.. .
+    /// Serve `s` with MAX31856 thermocouple amplifiers (type K) at the given temperatures on
+    /// chip-selects 0.., the board's LPS22HB at 1013.25 hPa, and ADC channel 0 at mid-scale.
     pub fn start(s: TcpStream, temps: &[f32]) -> Self {
-        let state = Arc::new(Mutex::new((temps.to_vec(), vec![0u8; temps.len()])));
-        let st = state.clone();
-        std::thread::spawn(move || {
-            let mut r = s.try_clone().unwrap();
-            let mut w = s;
-            let mut buf: Vec<u8> = Vec::new();
-            let mut b = [0u8; 256];
-            loop {
-                let n = match r.read(&mut b) {
-                    Ok(0) | Err(_) => return,
-                    Ok(n) => n,
-                };
-                buf.extend_from_slice(&b[..n]);
-                loop {
-                    while !buf.is_empty() && buf[0] != bus::REQ {
-                        buf.remove(0);
-                    }
-                    if buf.len() < bus::WIRE_LEN {
-                        break;
-                    }
-                    let req: Vec<u8> = buf.drain(..bus::WIRE_LEN).collect();
-                    let cs = req[1];
-                    let tx = &req[3..];
-                    let data: [u8; FRAME_LEN] = {
-                        let s = st.lock().unwrap();
-                        match s.0.get(cs as usize) {
-                            Some(&t) if tx[0] == sensor::max31856::READ_FROM => {
-                                sensor::encode_max31856(t, 25.0, s.1[cs as usize])
-                            }
-                            Some(_) => [0xFF; FRAME_LEN], // configuration write
-                            None => continue,             // no chip: no answer
-                        }
-                    };
-                    let mut rep = vec![bus::REP, cs, FRAME_LEN as u8];
-                    rep.extend_from_slice(&data);
-                    if w.write_all(&rep).is_err() {
-                        return;
-                    }
+        let mut b = Buses::default();
+        for &t in temps {
+            b.spi.push(Some(Box::new(Max31856::new(f64::from(t)))));
+        }
+        b.i2c.insert(
+            super::chips::lps22hb::ADDRESS,
+            Box::new(Lps22hb::new(1013.25)),
+        );
+        b.adc = vec![Some(2048), None, None, None];
+        Self::start_with(s, b)
+    }
+
+    /// Serve `s` with the given buses.
+    pub fn start_with(s: TcpStream, buses: Buses) -> Self {
+        let buses = Arc::new(Mutex::new(buses));
+        let t0 = Instant::now();
+        let bs = buses.clone();
+        std::thread::spawn(move || serve(s, bs, t0));
+        Self { buses, t0 }
+    }
+
+    /// The buses (to change what the chips see).
+    pub fn buses(&self) -> MutexGuard<'_, Buses> {
+        self.buses.lock().unwrap()
+    }
+
+    /// Seconds since the bench started.
+    pub fn now_s(&self) -> f64 {
+        self.t0.elapsed().as_secs_f64()
+    }
+
+    /// Set the fault condition of the MAX31856 on `cs` from status-register bits (OPEN: the
+    /// thermocouple breaks; OVUV: shorted).
+    pub fn set_status(&self, cs: usize, sr: u8) {
+        let mut b = self.buses();
+        let c: &mut Max31856 = b.spi_mut(cs);
+        c.open = sr & 0x01 != 0;
+        c.shorted = sr & 0x02 != 0;
+    }
+
+    /// Set the temperature of the chip on `cs` (MAX31856 or MAX31865).
+    pub fn set_temp(&self, cs: usize, t: f32) {
+        let mut b = self.buses();
+        let chip = b.spi[cs].as_mut().expect("chip");
+        let any = chip.any_mut();
+        if let Some(c) = any.downcast_mut::<Max31856>() {
+            c.temp_c = f64::from(t);
+        } else if let Some(c) = any.downcast_mut::<Max31865>() {
+            c.temp_c = f64::from(t);
+        }
+    }
+
+    /// Unplug the chip on `cs` (MISO then reads the pull-up); returns it.
+    pub fn unplug(&self, cs: usize) -> Option<Box<dyn SpiChip>> {
+        self.buses().spi[cs].take()
+    }
+
+    /// Plug a chip into `cs` (it starts from power-on defaults, as a hot-plugged chip does).
+    pub fn plug(&self, cs: usize, mut chip: Box<dyn SpiChip>) {
+        let now = self.now_s();
+        chip.power_on_reset(now);
+        self.buses().spi[cs] = Some(chip);
+    }
+
+    /// A brown-out of the chip on `cs`: its registers return to their power-on values.
+    pub fn brownout(&self, cs: usize) {
+        let now = self.now_s();
+        if let Some(c) = self.buses().spi[cs].as_mut() {
+            c.power_on_reset(now);
+        }
+    }
+}
+
+fn serve(s: TcpStream, buses: Arc<Mutex<Buses>>, t0: Instant) {
+    let mut r = match s.try_clone() {
+        Ok(r) => r,
+        Err(_) => return,
+    };
+    let mut w = s;
+    let mut buf: Vec<u8> = Vec::new();
+    let mut b = [0u8; 256];
+    loop {
+        let n = match r.read(&mut b) {
+            Ok(0) | Err(_) => return,
+            Ok(n) => n,
+        };
+        buf.extend_from_slice(&b[..n]);
+        loop {
+            while !buf.is_empty() && buf[0] != wire::REQ {
+                buf.remove(0);
+            }
+            if buf.len() < wire::HEADER {
+                break;
+            }
+            let (op, target, n_out, n_in) =
+                (buf[1], buf[2], usize::from(buf[3]), usize::from(buf[4]));
+            if n_out > wire::MAX_DATA || n_in > wire::MAX_DATA {
+                buf.remove(0);
+                continue;
+            }
+            if buf.len() < wire::HEADER + n_out {
+                break;
+            }
+            let req: Vec<u8> = buf.drain(..wire::HEADER + n_out).collect();
+            let now = t0.elapsed().as_secs_f64();
+            let answer = buses
+                .lock()
+                .unwrap()
+                .serve(op, target, &req[wire::HEADER..], n_in, now);
+            if let Some((status, data)) = answer {
+                let mut rep = vec![wire::REP, op, target, status, data.len() as u8];
+                rep.extend_from_slice(&data);
+                if w.write_all(&rep).is_err() {
+                    return;
                 }
             }
-        });
-        Self { state }
-    }
-
-    /// Set the status register (fault bits) of chip `cs`.
-    pub fn set_status(&self, cs: usize, sr: u8) {
-        self.state.lock().unwrap().1[cs] = sr;
-    }
-
-    /// Set the temperature of chip `cs`.
-    pub fn set_temp(&self, cs: usize, t: f32) {
-        self.state.lock().unwrap().0[cs] = t;
+        }
     }
 }

@@ -1,0 +1,58 @@
+//! The status LED (LD2 on the B-L475E-IOT01A): what the device is doing, at a glance.
+//!
+//! | state | LED |
+//! |---|---|
+//! | compensating | on |
+//! | bypass | slow blink (1 s on, 1 s off) |
+//! | no model | short flash every 2 s |
+//! | fault (moves refused: sensor failed, stale or warming up) | fast blink (5 Hz) |
+
+/// What the LED shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum LedState {
+    /// A model is in service and moves are corrected.
+    Compensating,
+    /// Compensation bypassed: commands pass untouched.
+    Bypass,
+    /// No model loaded.
+    NoModel,
+    /// Moves are refused (a sensor failed, the fold is stale, or sensors are warming up).
+    Fault,
+}
+
+impl LedState {
+    /// The state for the device's conditions (bypass shows even with a fault: it is what the
+    /// stage gets).
+    pub fn of(model: bool, bypass: bool, moves_refused: bool) -> Self {
+        if bypass {
+            LedState::Bypass
+        } else if !model {
+            LedState::NoModel
+        } else if moves_refused {
+            LedState::Fault
+        } else {
+            LedState::Compensating
+        }
+    }
+
+    /// Whether the LED is lit `t_ms` into the pattern.
+    pub fn lit(self, t_ms: u32) -> bool {
+        match self {
+            LedState::Compensating => true,
+            LedState::Bypass => t_ms % 2000 < 1000,
+            LedState::NoModel => t_ms % 2000 < 100,
+            LedState::Fault => t_ms % 200 < 100,
+        }
+    }
+
+    /// Stable code for the status report.
+    pub fn code(self) -> u8 {
+        match self {
+            LedState::Compensating => 1,
+            LedState::Bypass => 2,
+            LedState::NoModel => 3,
+            LedState::Fault => 4,
+        }
+    }
+}

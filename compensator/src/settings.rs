@@ -1,0 +1,325 @@
+//! The device's persistent settings: what is wired to the board and how the stage controller
+//! talks. Set over the management channel (`nanocal device config`), stored in flash next to
+//! the model, shown in status.
+//!
+//! ```text
+//! offset  0  magic "NCST" | version u8 (= VERSION)
+//!         5  stage_baud u32 LE
+//!         9  sensors: SENSORS × { kind u8 (0 none, 1 MAX31856, 2 MAX31865) | a u8 (TC type 0..7
+//!            B E J K N R S T, or RTD wires 2/3/4) | r_ref_ohm f32 | r0_ohm f32 }   (10 bytes each)
+//!        89  mains u8 (50 or 60) | sample_period_ms u16 | stage_unit u8 (0 µm, 1 mm, 2 nm)
+//!        93  axis names: 3 × { len u8 | 8 bytes }                                    (9 bytes each)
+//!       120  aux sources: MAX_AUX × { kind u8 (0 none, 1 air pressure hPa, 2 force N) | channel u8
+//!            | scale f32 | offset f32 }                                            (10 bytes each)
+//!       160  crc32 u32 LE (CRC-32/ISO-HDLC of bytes 0..160)
+//! ```
+
+use crate::gcs::{AxisId, MAP_AXES};
+use crate::sensor::{Chip, Mains, TcType, Wires};
+use core::fmt;
+use nanocal_model::MAX_AUX;
+
+/// Chip-selects the board has for temperature amplifiers.
+pub const SENSORS: usize = 8;
+/// Settings magic.
+pub const MAGIC: [u8; 4] = *b"NCST";
+/// Layout version; bumped whenever the bytes change.
+pub const VERSION: u8 = 1;
+/// Encoded length.
+pub const LEN: usize = 164;
+
+/// Unit of the stage controller's positions (the model works in µm).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum StageUnit {
+    /// Micrometres (PI's default for most piezo stages).
+    #[default]
+    Um,
+    /// Millimetres (PI's default for most motorised stages).
+    Mm,
+    /// Nanometres.
+    Nm,
+}
+
+impl StageUnit {
+    /// Micrometres per stage unit.
+    pub fn um_per_unit(self) -> f64 {
+        match self {
+            StageUnit::Um => 1.0,
+            StageUnit::Mm => 1000.0,
+            StageUnit::Nm => 1e-3,
+        }
+    }
+    /// Name as written on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            StageUnit::Um => "um",
+            StageUnit::Mm => "mm",
+            StageUnit::Nm => "nm",
+        }
+    }
+}
+
+/// Where an auxiliary model input comes from on this board.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum AuxSource {
+    /// Nothing: a model using this aux channel is refused at upload.
+    #[default]
+    None,
+    /// Air pressure, hPa, from the board's LPS22HB barometer.
+    AirPressure,
+    /// Force, N, from an ADC channel: `force_n = offset_n + scale_n_per_count × code`.
+    Force {
+        /// ADC channel.
+        channel: u8,
+        /// N per ADC count.
+        scale_n_per_count: f32,
+        /// N at code 0.
+        offset_n: f32,
+    },
+}
+
+/// Everything the user configures.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Settings {
+    /// Stage link baud rate (8N1).
+    pub stage_baud: u32,
+    /// Amplifier behind each chip-select (`None` = nothing fitted).
+    pub sensors: [Option<Chip>; SENSORS],
+    /// Mains frequency the amplifiers' filters reject.
+    pub mains: Mains,
+    /// Sensor sampling period, ms.
+    pub sample_period_ms: u16,
+    /// Unit of the controller's positions.
+    pub stage_unit: StageUnit,
+    /// GCS identifiers of model axes 0, 1, 2.
+    pub axis_names: [AxisId; MAP_AXES],
+    /// Source of each auxiliary model input (until blob v2 names kinds, see
+    /// [`crate::inputs::aux_source`]).
+    pub aux: [AuxSource; MAX_AUX],
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        let mut sensors = [None; SENSORS];
+        for s in sensors.iter_mut().take(4) {
+            *s = Some(Chip::K);
+        }
+        let name = |c: u8| AxisId::new(&[c]).unwrap_or_else(|| unreachable!());
+        Self {
+            stage_baud: 115_200,
+            sensors,
+            mains: Mains::Hz50,
+            sample_period_ms: 250,
+            stage_unit: StageUnit::Um,
+            axis_names: [name(b'1'), name(b'2'), name(b'3')],
+            aux: [AuxSource::None; MAX_AUX],
+        }
+    }
+}
+
+/// Why settings bytes or values were refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum SettingsError {
+    /// Wrong length.
+    Length,
+    /// Not settings (magic).
+    Magic,
+    /// Written by another layout version.
+    Version(u8),
+    /// CRC mismatch (torn or corrupted record).
+    Crc,
+    /// A field holds a value outside its range (byte offset of the field).
+    Field(u16),
+}
+
+impl fmt::Display for SettingsError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            SettingsError::Length => write!(f, "settings record is not {LEN} bytes"),
+            SettingsError::Magic => f.write_str("settings record has no NCST magic"),
+            SettingsError::Version(v) => {
+                write!(f, "settings layout version {v}, expected {VERSION}")
+            }
+            SettingsError::Crc => f.write_str("settings record CRC mismatch"),
+            SettingsError::Field(o) => write!(f, "settings field at byte {o} out of range"),
+        }
+    }
+}
+
+const SENSOR_AT: usize = 9;
+const MAINS_AT: usize = SENSOR_AT + 10 * SENSORS;
+const AXES_AT: usize = MAINS_AT + 4;
+const AUX_AT: usize = AXES_AT + 9 * MAP_AXES;
+const CRC_AT: usize = AUX_AT + 10 * MAX_AUX;
+const _: () = assert!(CRC_AT + 4 == LEN);
+
+impl Settings {
+    /// Check ranges: baud 1200..=1 Mbaud, period 50 ms..=60 s, resistors positive.
+    pub fn validate(&self) -> Result<(), SettingsError> {
+        if !(1200..=1_000_000).contains(&self.stage_baud) {
+            return Err(SettingsError::Field(5));
+        }
+        for (i, s) in self.sensors.iter().enumerate() {
+            if let Some(Chip::Max31865 {
+                r_ref_ohm, r0_ohm, ..
+            }) = s
+            {
+                let ok = |v: f32| v.is_finite() && v > 0.0;
+                if !ok(*r_ref_ohm) || !ok(*r0_ohm) {
+                    return Err(SettingsError::Field((SENSOR_AT + 10 * i) as u16));
+                }
+            }
+        }
+        if !(50..=60_000).contains(&self.sample_period_ms) {
+            return Err(SettingsError::Field(MAINS_AT as u16 + 1));
+        }
+        for (i, a) in self.aux.iter().enumerate() {
+            if let AuxSource::Force {
+                scale_n_per_count,
+                offset_n,
+                ..
+            } = a
+            {
+                if !scale_n_per_count.is_finite() || !offset_n.is_finite() {
+                    return Err(SettingsError::Field((AUX_AT + 10 * i) as u16));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Encode (see the layout in the module docs).
+    pub fn encode(&self) -> [u8; LEN] {
+        let mut b = [0u8; LEN];
+        b[..4].copy_from_slice(&MAGIC);
+        b[4] = VERSION;
+        b[5..9].copy_from_slice(&self.stage_baud.to_le_bytes());
+        for (i, s) in self.sensors.iter().enumerate() {
+            let o = SENSOR_AT + 10 * i;
+            let (kind, a, rr, r0) = match *s {
+                None => (0, 0, 0.0, 0.0),
+                Some(Chip::Max31856 { tc }) => (1, tc as u8, 0.0, 0.0),
+                Some(Chip::Max31865 {
+                    r_ref_ohm,
+                    r0_ohm,
+                    wires,
+                }) => (2, wires as u8, r_ref_ohm, r0_ohm),
+            };
+            b[o] = kind;
+            b[o + 1] = a;
+            b[o + 2..o + 6].copy_from_slice(&f32::to_le_bytes(rr));
+            b[o + 6..o + 10].copy_from_slice(&f32::to_le_bytes(r0));
+        }
+        b[MAINS_AT] = match self.mains {
+            Mains::Hz50 => 50,
+            Mains::Hz60 => 60,
+        };
+        b[MAINS_AT + 1..MAINS_AT + 3].copy_from_slice(&self.sample_period_ms.to_le_bytes());
+        b[MAINS_AT + 3] = self.stage_unit as u8;
+        for (i, id) in self.axis_names.iter().enumerate() {
+            let o = AXES_AT + 9 * i;
+            let s = id.as_bytes();
+            b[o] = s.len() as u8;
+            b[o + 1..o + 1 + s.len()].copy_from_slice(s);
+        }
+        for (i, a) in self.aux.iter().enumerate() {
+            let o = AUX_AT + 10 * i;
+            let (kind, ch, sc, off) = match *a {
+                AuxSource::None => (0, 0, 0.0, 0.0),
+                AuxSource::AirPressure => (1, 0, 0.0, 0.0),
+                AuxSource::Force {
+                    channel,
+                    scale_n_per_count,
+                    offset_n,
+                } => (2, channel, scale_n_per_count, offset_n),
+            };
+            b[o] = kind;
+            b[o + 1] = ch;
+            b[o + 2..o + 6].copy_from_slice(&f32::to_le_bytes(sc));
+            b[o + 6..o + 10].copy_from_slice(&f32::to_le_bytes(off));
+        }
+        let crc = crate::crc32(&b[..CRC_AT]);
+        b[CRC_AT..].copy_from_slice(&crc.to_le_bytes());
+        b
+    }
+
+    /// Decode and validate.
+    pub fn decode(b: &[u8]) -> Result<Self, SettingsError> {
+        if b.len() != LEN {
+            return Err(SettingsError::Length);
+        }
+        if b[..4] != MAGIC {
+            return Err(SettingsError::Magic);
+        }
+        if b[4] != VERSION {
+            return Err(SettingsError::Version(b[4]));
+        }
+        let crc = u32::from_le_bytes([b[CRC_AT], b[CRC_AT + 1], b[CRC_AT + 2], b[CRC_AT + 3]]);
+        if crate::crc32(&b[..CRC_AT]) != crc {
+            return Err(SettingsError::Crc);
+        }
+        let f32_at = |o: usize| f32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]);
+        let mut s = Settings {
+            stage_baud: u32::from_le_bytes([b[5], b[6], b[7], b[8]]),
+            ..Settings::default()
+        };
+        for i in 0..SENSORS {
+            let o = SENSOR_AT + 10 * i;
+            let bad = SettingsError::Field(o as u16);
+            s.sensors[i] = match b[o] {
+                0 => None,
+                1 => Some(Chip::Max31856 {
+                    tc: TcType::from_code(b[o + 1]).ok_or(bad)?,
+                }),
+                2 => Some(Chip::Max31865 {
+                    wires: match b[o + 1] {
+                        2 => Wires::Two,
+                        3 => Wires::Three,
+                        4 => Wires::Four,
+                        _ => return Err(bad),
+                    },
+                    r_ref_ohm: f32_at(o + 2),
+                    r0_ohm: f32_at(o + 6),
+                }),
+                _ => return Err(bad),
+            };
+        }
+        s.mains = match b[MAINS_AT] {
+            50 => Mains::Hz50,
+            60 => Mains::Hz60,
+            _ => return Err(SettingsError::Field(MAINS_AT as u16)),
+        };
+        s.sample_period_ms = u16::from_le_bytes([b[MAINS_AT + 1], b[MAINS_AT + 2]]);
+        s.stage_unit = match b[MAINS_AT + 3] {
+            0 => StageUnit::Um,
+            1 => StageUnit::Mm,
+            2 => StageUnit::Nm,
+            _ => return Err(SettingsError::Field(MAINS_AT as u16 + 3)),
+        };
+        for i in 0..MAP_AXES {
+            let o = AXES_AT + 9 * i;
+            let n = usize::from(b[o]).min(8);
+            s.axis_names[i] =
+                AxisId::new(&b[o + 1..o + 1 + n]).ok_or(SettingsError::Field(o as u16))?;
+        }
+        for i in 0..MAX_AUX {
+            let o = AUX_AT + 10 * i;
+            s.aux[i] = match b[o] {
+                0 => AuxSource::None,
+                1 => AuxSource::AirPressure,
+                2 => AuxSource::Force {
+                    channel: b[o + 1],
+                    scale_n_per_count: f32_at(o + 2),
+                    offset_n: f32_at(o + 6),
+                },
+                _ => return Err(SettingsError::Field(o as u16)),
+            };
+        }
+        s.validate()?;
+        Ok(s)
+    }
+}

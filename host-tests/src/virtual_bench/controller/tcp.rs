@@ -1,0 +1,97 @@
+//! The simulated controller on a byte stream (the QEMU board's stage link, a TCP socket).
+
+use super::device::{Config, Controller, Event};
+use super::plant::{IdealPlant, SystemClock};
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::sync::mpsc::{channel, Receiver};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+/// A [`Controller`] served on a socket by a thread: every line (and single character) it
+/// receives is recorded before it answers.
+pub struct StageSim {
+    lines: Receiver<String>,
+    ctl: Arc<Mutex<Controller>>,
+}
+
+impl StageSim {
+    /// An E-727 with `axes` axes, servo already on, on ideal stages that arrive at once, and
+    /// the wall clock.
+    pub fn start(s: TcpStream, axes: usize) -> Self {
+        let mut cfg = Config::e727(axes).ready();
+        for a in &mut cfg.axes {
+            a.velocity = 1e12;
+        }
+        Self::serve(s, cfg)
+    }
+
+    /// A controller with configuration `cfg` on ideal stages and the wall clock.
+    pub fn serve(s: TcpStream, cfg: Config) -> Self {
+        let start: Vec<f64> = cfg.axes.iter().map(|a| a.start).collect();
+        let ctl = Controller::new(
+            cfg,
+            Box::new(IdealPlant::new(&start)),
+            Arc::new(SystemClock::new()),
+        );
+        Self::serve_controller(s, ctl)
+    }
+
+    /// Any controller (its own plant and clock).
+    pub fn serve_controller(s: TcpStream, ctl: Controller) -> Self {
+        let (tx, rx) = channel();
+        let ctl = Arc::new(Mutex::new(ctl));
+        let c2 = ctl.clone();
+        std::thread::spawn(move || {
+            let mut r = match s.try_clone() {
+                Ok(r) => r,
+                Err(_) => return,
+            };
+            let mut w = s;
+            let mut b = [0u8; 512];
+            loop {
+                let n = match r.read(&mut b) {
+                    Ok(0) | Err(_) => return,
+                    Ok(n) => n,
+                };
+                let (reply, received) = {
+                    let mut c = c2.lock().expect("controller lock");
+                    let reply = c.input(&b[..n]);
+                    (reply, c.take_received())
+                };
+                // record before replying, so a host that saw the reply sees the record
+                for l in received {
+                    if tx.send(l).is_err() {
+                        return;
+                    }
+                }
+                if !reply.is_empty() && w.write_all(&reply).is_err() {
+                    return;
+                }
+            }
+        });
+        Self { lines: rx, ctl }
+    }
+
+    /// The next line the controller received (`#5` for a single character).
+    pub fn next_line(&self, timeout: Duration) -> String {
+        self.lines
+            .recv_timeout(timeout)
+            .expect("the controller received nothing in time")
+    }
+
+    /// Lines received so far, without waiting.
+    pub fn drain(&self) -> Vec<String> {
+        self.lines.try_iter().collect()
+    }
+
+    /// What happened to the stage since the last call.
+    pub fn events(&self) -> Vec<Event> {
+        self.with(|c| c.take_events())
+    }
+
+    /// Work on the controller itself (positions, targets, configuration).
+    pub fn with<R>(&self, f: impl FnOnce(&mut Controller) -> R) -> R {
+        f(&mut self.ctl.lock().expect("controller lock"))
+    }
+}

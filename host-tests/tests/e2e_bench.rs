@@ -1,0 +1,279 @@
+//! The QEMU firmware on the virtual bench with register-level chips: what a real bench does to
+//! a board that the first firmware did not survive. Each test names the defect it catches.
+//!
+//! Skipped with a loud message without qemu-system-arm, except in CI (`CI` set).
+
+mod fw_sim;
+
+use fw_sim::{Qemu, SensorSim, StageSim};
+use nanocal::virtual_bench::chips::Max31856;
+use nanocal_compensator::identity::ResetCause;
+use nanocal_compensator::mgmt::{self, flags};
+use nanocal_compensator::settings::AuxSource;
+use nanocal_model::{blob, Factor, Input, Model, ModelBuilder};
+use std::time::{Duration, Instant};
+
+const TEMPS_C: [f32; 4] = [22.0, 22.125, 21.875, 22.25];
+
+fn wait_until<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<T>) -> T {
+    let deadline = Instant::now() + timeout;
+    loop {
+        if let Some(v) = f() {
+            return v;
+        }
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn blob_of(m: &Model) -> Vec<u8> {
+    let mut b = vec![0u8; blob::MAX_BLOB_LEN];
+    let n = blob::encode(m, &mut b).unwrap();
+    b.truncate(n);
+    b
+}
+
+/// 1 axis, temperature 0 and air pressure (aux 0).
+fn pressure_model() -> Model {
+    let mut b = ModelBuilder::new(1, 1, 1)
+        .unwrap()
+        .id(0x0002_0001)
+        .trained_range(Input::Axis(0), 0.0, 500.0)
+        .trained_range(Input::Temp(0), 20.0, 24.0)
+        .trained_range(Input::Aux(0), 950.0, 1050.0)
+        .travel_um(0, -10.0, 510.0);
+    b.add_raw_term(0, [1, 0, 0], Factor::None, 0, 1.0).unwrap();
+    b.add_raw_term(0, [0; 3], Factor::Temp(0), 0, 0.1).unwrap();
+    b.add_raw_term(0, [0; 3], Factor::Aux(0), 0, 0.002).unwrap();
+    b.build().unwrap()
+}
+
+#[test]
+fn e2e_first_conversion_absent_chip_brownout_and_dead_bus() {
+    let Some(mut q) = Qemu::start_or_skip("e2e_first_conversion_absent_chip_brownout_and_dead_bus")
+    else {
+        return;
+    };
+    let _stage = StageSim::start(q.connect(1), 1);
+    let sensors = SensorSim::start(q.connect(2), &TEMPS_C);
+    let mut host = q.gcs_host();
+    let mut c = q.client();
+    let model = nanocal::published::published_1dof().unwrap();
+    c.upload(&blob_of(&model)).unwrap();
+    // defect: moves went out before the sensors' first conversions (fold at 0 °C)
+    let s = c.status().unwrap();
+    if s.flags & flags::WARMING_UP != 0 {
+        host.send("MOV 1 10");
+        let e = host.ask("ERR?");
+        assert!(
+            e == "9002" || e == "9003",
+            "moves refused while warming up: {e}"
+        );
+    }
+    let s = wait_until("first conversions", Duration::from_secs(20), || {
+        let s = c.status().ok()?;
+        (s.flags & (flags::WARMING_UP | flags::SENSOR_BLOCK) == 0 && s.folds >= 1).then_some(s)
+    });
+    for (i, t) in TEMPS_C.iter().enumerate() {
+        assert_eq!(
+            s.temps_c[i], *t,
+            "sensor {i}: the first fold uses real readings"
+        );
+    }
+    let conversions = sensors.buses().spi_mut::<Max31856>(0).conversions;
+    assert!(
+        conversions >= 1,
+        "the simulated chip converted ({conversions})"
+    );
+
+    // defect: an absent chip (MISO pull-up: FFh) decoded as a temperature
+    let chip = sensors.unplug(2).unwrap();
+    let s = wait_until("absent chip fails", Duration::from_secs(30), || {
+        let s = c.status().ok()?;
+        (s.sensor_bits[2] & 0x0F == 2).then_some(s)
+    });
+    assert!(s.temps_c[2].is_nan());
+    assert_eq!(s.sensor_bits[2] >> 4, 6, "no response");
+    assert_ne!(s.flags & flags::SENSOR_BLOCK, 0);
+    host.send("MOV 1 20");
+    assert_eq!(host.ask("ERR?"), "9002");
+    // hot-plug: the chip comes back at power-on defaults and is configured again
+    sensors.plug(2, chip);
+    wait_until("hot-plugged chip back", Duration::from_secs(30), || {
+        let s = c.status().ok()?;
+        (s.flags & flags::SENSOR_BLOCK == 0).then_some(())
+    });
+
+    // defect: configured once, never checked; a brown-out left the chip unconfigured
+    let before = c.status().unwrap().sensor_reconfigs;
+    sensors.brownout(1);
+    wait_until(
+        "reconfiguration after a brown-out",
+        Duration::from_secs(30),
+        || {
+            let s = c.status().ok()?;
+            (s.sensor_reconfigs > before && s.sensor_bits[1] & 0x0F == 0).then_some(())
+        },
+    );
+
+    // defect: no SPI timeout and no hold-time check: a dead bus froze the fold for ever
+    sensors.buses().dead = true;
+    let s = wait_until("dead bus blocks moves", Duration::from_secs(40), || {
+        let s = c.status().ok()?;
+        (s.flags & flags::SENSOR_BLOCK != 0).then_some(s)
+    });
+    assert!(
+        s.sensor_bits[..4].iter().all(|b| b & 0x0F == 2),
+        "{:?}",
+        s.sensor_bits
+    );
+    host.send("MOV 1 30");
+    assert_eq!(host.ask("ERR?"), "9002");
+    sensors.buses().dead = false;
+    wait_until("recovery", Duration::from_secs(40), || {
+        let s = c.status().ok()?;
+        (s.flags & flags::SENSOR_BLOCK == 0).then_some(())
+    });
+}
+
+#[test]
+fn e2e_host_session_ends_when_the_port_closes() {
+    // defect: when the host closed the port, what belonged to that connection (a half line,
+    // a pending error, queued replies) came out on the next connection
+    let Some(mut q) = Qemu::start_or_skip("e2e_host_session_ends_when_the_port_closes") else {
+        return;
+    };
+    let stage = StageSim::start(q.connect(1), 1);
+    let _sensors = SensorSim::start(q.connect(2), &TEMPS_C);
+    let mut host = q.gcs_host();
+    q.set_dtr(true);
+    // no model: a MOV leaves error 9003 pending for the next ERR?
+    host.send("MOV 1 10");
+    // and a half line
+    host.send_raw(b"VEL 1 1");
+    std::thread::sleep(Duration::from_millis(300));
+    q.set_dtr(false);
+    drop(host);
+    std::thread::sleep(Duration::from_millis(300));
+    q.set_dtr(true);
+    // a host raises DTR when it opens the port, before it writes anything
+    let mut c = q.client();
+    wait_until("DTR seen", Duration::from_secs(10), || {
+        let st = c.status().ok()?;
+        (st.flags & flags::HOST_CONNECTED != 0).then_some(())
+    });
+    drop(c);
+    let mut host = q.reconnect_gcs();
+    host.send("SVO 1 1");
+    assert_eq!(
+        stage.next_line(Duration::from_secs(10)),
+        "SVO 1 1",
+        "the closed connection's half line did not join the new one"
+    );
+    assert_eq!(
+        host.ask("ERR?"),
+        "0",
+        "no error carried over from the closed connection"
+    );
+}
+
+#[test]
+fn e2e_watchdog_resets_a_hung_firmware_and_settings_persist() {
+    // defect: no watchdog: a hung firmware stayed hung with the last fold in use
+    let Some(mut q) =
+        Qemu::start_or_skip("e2e_watchdog_resets_a_hung_firmware_and_settings_persist")
+    else {
+        return;
+    };
+    let _stage = StageSim::start(q.connect(1), 1);
+    let _sensors = SensorSim::start(q.connect(2), &TEMPS_C);
+    let mut c = q.client();
+    let h = c.identify().unwrap();
+    assert_eq!(h.reset_cause, ResetCause::PowerOn);
+    assert!(!h.firmware.is_empty());
+    // settings over management, stored
+    let mut s = c.config().unwrap();
+    s.sample_period_ms = 200;
+    s.aux[0] = AuxSource::AirPressure;
+    c.set_config(&s).unwrap();
+    // the hang: the device never answers this one
+    c.timeout = Duration::from_millis(500);
+    assert!(c.request(mgmt::kind::DEBUG_HANG, &[]).is_err());
+    drop(c);
+    let mut c = q.client();
+    let h = c.identify().unwrap();
+    assert_eq!(
+        h.reset_cause,
+        ResetCause::Watchdog,
+        "the watchdog reset the hung board"
+    );
+    let back = c.config().unwrap();
+    assert_eq!(back, s, "settings survived the reset");
+}
+
+#[test]
+fn e2e_model_inputs_must_be_supplied() {
+    // issue 11: the firmware supplies every input a model uses or refuses it at upload
+    let Some(mut q) = Qemu::start_or_skip("e2e_model_inputs_must_be_supplied") else {
+        return;
+    };
+    let stage = StageSim::start(q.connect(1), 1);
+    let sensors = SensorSim::start(q.connect(2), &TEMPS_C);
+    let mut host = q.gcs_host();
+    let mut c = q.client();
+    let model = pressure_model();
+    let e = c.upload(&blob_of(&model)).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            nanocal::device::DeviceError::Refused {
+                code: mgmt::RESULT_INPUT,
+                ..
+            }
+        ),
+        "{e}"
+    );
+    assert_eq!(
+        c.status().unwrap().flags & flags::MODEL,
+        0,
+        "nothing stored"
+    );
+    let mut s = c.config().unwrap();
+    s.aux[0] = AuxSource::AirPressure;
+    c.set_config(&s).unwrap();
+    c.upload(&blob_of(&model)).unwrap();
+    let st = wait_until("pressure read and folded", Duration::from_secs(30), || {
+        let st = c.status().ok()?;
+        (st.flags & (flags::SENSOR_BLOCK | flags::WARMING_UP) == 0 && !st.aux[0].is_nan())
+            .then_some(st)
+    });
+    assert!(
+        (st.aux[0] - 1013.25).abs() < 0.01,
+        "LPS22HB pressure {}",
+        st.aux[0]
+    );
+    host.send("MOV 1 100");
+    // the first move waits for the controller's syntax version and unit (CSV?, PUN?)
+    let fwd = loop {
+        let l = stage.next_line(Duration::from_secs(10));
+        if l.starts_with("MOV") {
+            break l;
+        }
+    };
+    let mut slow = nanocal_model::SlowInputs::default();
+    slow.temps_c[0] = f64::from(TEMPS_C[0]);
+    slow.aux[0] = f64::from(st.aux[0]);
+    let want = model.eval_f64(&[100.0, 0.0, 0.0], &[0; 3], &slow)[0];
+    let got: f64 = fwd.split_whitespace().nth(2).unwrap().parse().unwrap();
+    assert!((got - want).abs() < 1e-4, "{got} vs {want}");
+    // the barometer stops answering: pressure is a failed input, moves refused (no default)
+    sensors.buses().i2c.clear();
+    wait_until(
+        "missing pressure blocks moves",
+        Duration::from_secs(40),
+        || {
+            let st = c.status().ok()?;
+            (st.flags & flags::SENSOR_BLOCK != 0).then_some(())
+        },
+    );
+}

@@ -1,0 +1,454 @@
+//! The amplifier drivers (`nanocal_compensator::sensor::Driver`) against register-level
+//! simulations of the chips (`nanocal::virtual_bench::chips`, written from the datasheets), and
+//! the other pure device rules of issue 9. Each test names the defect of the first firmware it
+//! catches.
+
+use nanocal::virtual_bench::chips::I2cChip;
+use nanocal::virtual_bench::chips::{Lps22hb, Max31856, Max31865, SpiChip};
+use nanocal_compensator::clock::{self, ClockStep};
+use nanocal_compensator::fault::{ChannelState, Faults, Policy};
+use nanocal_compensator::identity::{self, ResetCause};
+use nanocal_compensator::inputs::{self, Board, InputError};
+use nanocal_compensator::led::LedState;
+use nanocal_compensator::lps22hb;
+use nanocal_compensator::sensor::{
+    Chip, Driver, Mains, Outcome, SensorFault, TcType, Wires, MAX_TXN,
+};
+use nanocal_compensator::settings::{AuxSource, Settings, StageUnit};
+
+/// One SPI transaction with the chip (None: nothing on the chip-select, MISO pulled up).
+fn spi(chip: Option<&mut (dyn SpiChip + '_)>, buf: &mut [u8], now_s: f64) {
+    match chip {
+        Some(c) => {
+            c.select(now_s);
+            for b in buf.iter_mut() {
+                *b = c.exchange(*b);
+            }
+            c.deselect(now_s);
+        }
+        None => buf.fill(0xFF),
+    }
+}
+
+/// Run the driver for one sensor cycle at `now_ms`, as the firmware's sensor task does.
+#[allow(clippy::option_as_ref_deref)] // as_deref_mut would keep the borrow for the loop
+fn cycle(
+    d: &mut Driver,
+    mut chip: Option<&mut (dyn SpiChip + '_)>,
+    now_ms: u32,
+) -> Option<Result<f32, SensorFault>> {
+    let mut buf = [0u8; MAX_TXN];
+    for _ in 0..4 {
+        let txn = d.next(now_ms)?;
+        let n = d.fill(txn, &mut buf);
+        spi(
+            chip.as_mut().map(|c| &mut **c),
+            &mut buf[..n],
+            f64::from(now_ms) * 1e-3,
+        );
+        match d.complete(txn, Ok(&buf[..n]), now_ms) {
+            Outcome::Continue => continue,
+            Outcome::Waiting => return None,
+            Outcome::Reading(r) => return Some(r.map(|x| x.temp_c)),
+        }
+    }
+    None
+}
+
+const PT100: Chip = Chip::Max31865 {
+    r_ref_ohm: 430.0,
+    r0_ohm: 100.0,
+    wires: Wires::Three,
+};
+
+/// Cycles every 250 ms from `t0_ms` until a reading; (time, reading).
+fn first_reading(
+    d: &mut Driver,
+    chip: &mut dyn SpiChip,
+    t0_ms: u32,
+) -> (u32, Result<f32, SensorFault>) {
+    for k in 0..40 {
+        let t = t0_ms + 250 * k;
+        if let Some(r) = cycle(d, Some(chip), t) {
+            return (t, r);
+        }
+    }
+    panic!("no reading in 10 s");
+}
+
+#[test]
+fn max31865_fault_thresholds_land_in_their_registers() {
+    // defect: the configuration burst started at 80h and auto-incremented through the
+    // read-only RTD registers, so HFT got 0000h and every conversion was a fault
+    let mut chip = Max31865::new(21.5, 100.0, 430.0);
+    let mut d = Driver::new(PT100, Mains::Hz50);
+    let (_, r) = first_reading(&mut d, &mut chip, 0);
+    assert_eq!(
+        &chip.regs()[3..7],
+        &[0xFF, 0xFF, 0x00, 0x00],
+        "HFT FFFFh, LFT 0000h"
+    );
+    let t = r.expect("a PT100 at 21.5 °C reads without a fault");
+    assert!((t - 21.5).abs() < 0.05, "{t}");
+
+    // the old burst against the same chip model: the simulator shows the defect
+    let mut old = Max31865::new(21.5, 100.0, 430.0);
+    let mut burst = [0x80, 0xC1, 0xFF, 0xFF, 0x00, 0x00, 0, 0];
+    spi(Some(&mut old), &mut burst, 0.0);
+    assert_eq!(
+        &old.regs()[3..5],
+        &[0x00, 0x00],
+        "old burst: high threshold 0000h"
+    );
+    let mut dump = [0u8; 9];
+    spi(Some(&mut old), &mut dump, 1.0);
+    assert_ne!(
+        dump[8] & 0x80,
+        0,
+        "old burst: every conversion above the high threshold"
+    );
+}
+
+#[test]
+fn max31865_fault_latch_is_cleared_after_the_fault_goes() {
+    // defect: the MAX31865's fault status latches until D1 is written; the old driver never
+    // cleared it, so one open-wire glitch blocked moves until a power cycle
+    let mut chip = Max31865::new(22.0, 100.0, 430.0);
+    let mut d = Driver::new(PT100, Mains::Hz50);
+    let (t, r) = first_reading(&mut d, &mut chip, 0);
+    assert!(r.is_ok());
+    chip.open = true;
+    let r = cycle(&mut d, Some(&mut chip), t + 250).unwrap();
+    assert_eq!(r, Err(SensorFault::Open));
+    chip.open = false;
+    // still latched in the chip until the driver clears it
+    assert_ne!(chip.regs()[7], 0);
+    let r = cycle(&mut d, Some(&mut chip), t + 500).unwrap();
+    let v = r.expect("fault latch cleared, reading good again");
+    assert!((v - 22.0).abs() < 0.05);
+    assert_eq!(chip.regs()[7], 0);
+}
+
+#[test]
+fn both_chips_notch_the_configured_mains() {
+    // defect: the MAX31856 ran its 60 Hz filter while the MAX31865 ran 50 Hz
+    for (mains, bit) in [(Mains::Hz50, 1u8), (Mains::Hz60, 0)] {
+        let mut tc = Max31856::new(22.0);
+        let mut d = Driver::new(Chip::K, mains);
+        let _ = first_reading(&mut d, &mut tc, 0);
+        assert_eq!(tc.regs()[0] & 1, bit, "MAX31856 CR0 notch for {mains:?}");
+        assert_eq!(tc.regs()[0] & 0x80, 0x80, "auto conversion on");
+        let mut rtd = Max31865::new(22.0, 100.0, 430.0);
+        let mut d = Driver::new(PT100, mains);
+        let _ = first_reading(&mut d, &mut rtd, 0);
+        assert_eq!(rtd.regs()[0] & 1, bit, "MAX31865 notch for {mains:?}");
+    }
+}
+
+#[test]
+fn no_reading_before_the_first_conversion() {
+    // defect: the first read came before the chip's first conversion and returned the
+    // power-on zeros (0 °C), on which the lag filters primed
+    let mut chip = Max31856::new(23.25);
+    let mut d = Driver::new(Chip::Max31856 { tc: TcType::K }, Mains::Hz50);
+    assert_eq!(cycle(&mut d, Some(&mut chip), 0), None, "configuring");
+    // the chip has not converted yet: its registers still hold zeros
+    assert_eq!(&chip.regs()[0x0C..0x0F], &[0, 0, 0]);
+    let (t, r) = first_reading(&mut d, &mut chip, 0);
+    assert!(t >= d.first_conversion_ms(), "first reading at {t} ms");
+    assert!(chip.conversions >= 1);
+    assert_eq!(r, Ok(23.25), "the first reading is the real temperature");
+}
+
+#[test]
+fn an_absent_chip_is_a_fault_never_a_temperature() {
+    // defect: an absent chip (MISO pulled up, all ones) or a dead bus (all zeros) decoded as
+    // a temperature
+    for chip in [Chip::K, PT100] {
+        let mut d = Driver::new(chip, Mains::Hz50);
+        let mut seen = vec![];
+        for k in 0..20 {
+            if let Some(r) = cycle(&mut d, None, 250 * k) {
+                seen.push(r);
+            }
+        }
+        assert!(!seen.is_empty());
+        assert!(
+            seen.iter().all(|r| *r == Err(SensorFault::NoResponse)),
+            "{chip:?}: {seen:?}"
+        );
+    }
+}
+
+#[test]
+fn a_chip_that_lost_its_configuration_is_reconfigured() {
+    // defect: chips were configured once; after a brown-out or hot-plug the chip sat in its
+    // power-on state (not converting) and was read as if configured
+    let mut chip = Max31856::new(22.0);
+    let mut d = Driver::new(Chip::K, Mains::Hz50);
+    let (t, r) = first_reading(&mut d, &mut chip, 0);
+    assert_eq!(r, Ok(22.0));
+    chip.power_on_reset(f64::from(t) * 1e-3);
+    let r = cycle(&mut d, Some(&mut chip), t + 250).unwrap();
+    assert_eq!(r, Err(SensorFault::ConfigLost));
+    assert_eq!(d.reconfigurations, 1);
+    let (_, r) = first_reading(&mut d, &mut chip, t + 500);
+    assert_eq!(r, Ok(22.0), "configured again and converting");
+}
+
+#[test]
+fn max31856_faults_follow_the_input_in_comparator_mode() {
+    let mut chip = Max31856::new(22.0);
+    let mut d = Driver::new(Chip::K, Mains::Hz50);
+    let (t, _) = first_reading(&mut d, &mut chip, 0);
+    chip.open = true;
+    let (t2, r) = first_reading(&mut d, &mut chip, t + 250);
+    assert_eq!(r, Err(SensorFault::Open));
+    chip.open = false;
+    let (_, r) = first_reading(&mut d, &mut chip, t2 + 250);
+    assert_eq!(r, Ok(22.0));
+}
+
+#[test]
+fn lps22hb_pressure_after_its_first_conversion() {
+    let mut chip = Lps22hb::new(1013.25);
+    let mut id = [0u8];
+    chip.write(&[lps22hb::WHO_AM_I], 0.0);
+    chip.read(&mut id, 0.0);
+    assert_eq!(id[0], lps22hb::ID);
+    let mut burst = [0u8; lps22hb::BURST];
+    chip.write(&[lps22hb::STATUS], 0.0);
+    chip.read(&mut burst, 0.0);
+    assert_eq!(
+        lps22hb::decode(&burst, false),
+        None,
+        "power-down: no conversion yet"
+    );
+    chip.write(&[lps22hb::CTRL_REG1, lps22hb::CTRL_REG1_VALUE], 0.0);
+    chip.write(&[lps22hb::STATUS], 1.5);
+    chip.read(&mut burst, 1.5);
+    let p = lps22hb::decode(&burst, false).expect("converted at 1 Hz");
+    assert!((p - 1013.25).abs() <= 1.0 / 4096.0, "{p}");
+}
+
+#[test]
+fn a_holding_channel_fails_without_new_readings() {
+    // defect: Channel::tick was never called; a channel whose readings stopped coming held
+    // its last value for ever
+    let mut f = Faults::new(Policy {
+        hold_ms: 1000,
+        ..Policy::default()
+    });
+    f.update(0, Ok(22.0), 0);
+    f.update(0, Err(SensorFault::NoResponse), 100);
+    assert!(matches!(f.channels[0].state, ChannelState::Holding { .. }));
+    f.tick(0, 1200);
+    assert!(f.blocks_moves(1), "hold time over with no reading at all");
+    assert!(!f.all_usable(1));
+}
+
+#[test]
+fn boot_sets_flash_latency_before_the_msi_goes_to_48_mhz() {
+    // defect: embassy-stm32 0.6.0 rcc/l.rs (init): MSI is switched to the configured range
+    // (48 MHz) while it is the system clock, and FLASH_ACR.LATENCY is written only after the
+    // PLL is set up, just before the final switch. Replayed against RM0351 Table 12:
+    let embassy_060 = [
+        ClockStep::Hclk(48_000_000), // msi_enable(RANGE48M) with MSI as SYSCLK
+        ClockStep::SetLatency(4),    // latency for the final 80 MHz
+        ClockStep::Hclk(80_000_000), // switch to PLL
+    ];
+    assert_eq!(
+        clock::first_violation(&embassy_060),
+        Some(0),
+        "0 WS at 48 MHz"
+    );
+    let mut fixed = vec![ClockStep::SetLatency(clock::BOOT_WAIT_STATES)];
+    fixed.extend_from_slice(&embassy_060);
+    assert_eq!(clock::first_violation(&fixed), None);
+    assert_eq!(clock::wait_states_range1(80_000_000), 4);
+    assert_eq!(clock::wait_states_range1(16_000_000), 0);
+}
+
+#[test]
+fn the_stm32_tick_divides_its_timer_clock() {
+    // defect: tick-hz-32_768 on an 80 MHz timer: prescaler 2441 → 32 773 Hz, 14 s/day fast
+    assert!(clock::tick_error_ppm(80_000_000, 32_768) * 86_400e-6 > 14.0);
+    let manifest =
+        std::fs::read_to_string(nanocal::virtual_bench::repo_root().join("Cargo.toml")).unwrap();
+    let stm32 = manifest
+        .split("\nstm32 = [")
+        .nth(1)
+        .expect("stm32 feature")
+        .split(']')
+        .next()
+        .unwrap();
+    let tick: u32 = stm32
+        .split("tick-hz-")
+        .nth(1)
+        .expect("the stm32 feature picks a tick")
+        .split('"')
+        .next()
+        .unwrap()
+        .replace('_', "")
+        .parse()
+        .unwrap();
+    assert_eq!(80_000_000 % tick, 0, "tick {tick} Hz must divide 80 MHz");
+    assert_eq!(clock::tick_error_ppm(80_000_000, tick), 0.0);
+}
+
+#[test]
+fn reset_cause_from_rcc_csr_and_serial_from_uid() {
+    // RM0351 §6.4.29 RCC_CSR; a power-on sets BORRSTF and PINRSTF together
+    assert_eq!(
+        ResetCause::from_rcc_csr((1 << 27) | (1 << 26)),
+        ResetCause::PowerOn
+    );
+    assert_eq!(ResetCause::from_rcc_csr(1 << 26), ResetCause::Pin);
+    assert_eq!(
+        ResetCause::from_rcc_csr((1 << 29) | (1 << 26)),
+        ResetCause::Watchdog
+    );
+    assert_eq!(
+        ResetCause::from_rcc_csr((1 << 28) | (1 << 26)),
+        ResetCause::Software
+    );
+    for c in 0..8 {
+        assert_eq!(
+            ResetCause::from_code(ResetCause::from_code(c).code()).code(),
+            ResetCause::from_code(c).code()
+        );
+    }
+    // defect: every board enumerated with serial "0001"
+    let (mut a, mut b) = ([0u8; 24], [0u8; 24]);
+    identity::usb_serial(&[0x12, 0x34, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0x01], &mut a);
+    identity::usb_serial(&[0x12, 0x34, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0x02], &mut b);
+    assert_eq!(&a, b"123400000000000000000001");
+    assert_ne!(a, b);
+}
+
+#[test]
+fn settings_round_trip_and_reject_what_they_must() {
+    let mut s = Settings {
+        stage_baud: 57_600,
+        mains: Mains::Hz60,
+        ..Default::default()
+    };
+    s.sensors[5] = Some(Chip::Max31865 {
+        r_ref_ohm: 4300.0,
+        r0_ohm: 1000.0,
+        wires: Wires::Four,
+    });
+    s.sensors[1] = Some(Chip::Max31856 { tc: TcType::T });
+    s.stage_unit = StageUnit::Mm;
+    s.axis_names[0] = nanocal_compensator::gcs::AxisId::new(b"X").unwrap();
+    s.aux[0] = AuxSource::AirPressure;
+    s.aux[1] = AuxSource::Force {
+        channel: 0,
+        scale_n_per_count: 0.01,
+        offset_n: -20.48,
+    };
+    let b = s.encode();
+    assert_eq!(Settings::decode(&b), Ok(s));
+    let mut torn = b;
+    torn[20] ^= 1;
+    assert!(
+        Settings::decode(&torn).is_err(),
+        "CRC catches a changed byte"
+    );
+    let mut bad = s;
+    bad.sample_period_ms = 10;
+    assert!(
+        Settings::decode(&bad.encode()).is_err(),
+        "period out of range"
+    );
+    // CRC-32 from the crc crate equals the blob's CRC-32 (the golden bytes stay)
+    for data in [&b""[..], b"123456789", &b[..]] {
+        assert_eq!(
+            nanocal_compensator::crc32(data),
+            nanocal_model::blob::crc32(data)
+        );
+    }
+    assert_eq!(nanocal_compensator::crc32(b"123456789"), 0xCBF4_3926);
+}
+
+#[test]
+fn a_model_using_an_input_the_board_cannot_supply_is_refused() {
+    let model = nanocal::published::published_1dof().unwrap();
+    let board = Board {
+        barometer: true,
+        adc_channels: 1,
+    };
+    let mut s = Settings::default();
+    assert_eq!(
+        inputs::check(&model, &s, &board),
+        Ok(()),
+        "temps 0..{} configured",
+        model.temps()
+    );
+    if model.temps() > 0 {
+        s.sensors[model.temps() - 1] = None;
+        assert_eq!(
+            inputs::check(&model, &s, &board),
+            Err(InputError::NoTemperatureSensor {
+                index: model.temps() as u8 - 1
+            })
+        );
+    }
+    // an aux-using model: built by the model's own builder
+    let aux_model = pressure_model();
+    let s = Settings::default();
+    assert_eq!(
+        inputs::check(&aux_model, &s, &board),
+        Err(InputError::NoAuxSource { index: 0 })
+    );
+    let mut s2 = s;
+    s2.aux[0] = AuxSource::AirPressure;
+    assert_eq!(inputs::check(&aux_model, &s2, &board), Ok(()));
+    let no_baro = Board {
+        barometer: false,
+        adc_channels: 1,
+    };
+    assert_eq!(
+        inputs::check(&aux_model, &s2, &no_baro),
+        Err(InputError::NoBarometer { index: 0 })
+    );
+    s2.aux[0] = AuxSource::Force {
+        channel: 3,
+        scale_n_per_count: 1.0,
+        offset_n: 0.0,
+    };
+    assert_eq!(
+        inputs::check(&aux_model, &s2, &board),
+        Err(InputError::NoAdcChannel {
+            index: 0,
+            channel: 3
+        })
+    );
+}
+
+#[test]
+fn led_shows_what_the_stage_gets() {
+    assert_eq!(LedState::of(true, false, false), LedState::Compensating);
+    assert_eq!(LedState::of(true, true, true), LedState::Bypass);
+    assert_eq!(LedState::of(false, false, true), LedState::NoModel);
+    assert_eq!(LedState::of(true, false, true), LedState::Fault);
+    assert!((0..2000).all(|t| LedState::Compensating.lit(t)));
+    let fast = (0..1000).filter(|&t| LedState::Fault.lit(t)).count();
+    assert_eq!(fast, 500);
+}
+
+/// A 1-axis model with one temperature and one aux input (air pressure, hPa).
+fn pressure_model() -> nanocal_model::Model {
+    use nanocal_model::{Factor, Input, ModelBuilder};
+    let mut b = ModelBuilder::new(1, 1, 1)
+        .unwrap()
+        .id(0x0002_0001)
+        .trained_range(Input::Axis(0), 0.0, 100.0)
+        .trained_range(Input::Temp(0), 20.0, 24.0)
+        .trained_range(Input::Aux(0), 950.0, 1050.0)
+        .travel_um(0, -10.0, 110.0);
+    b.add_raw_term(0, [1, 0, 0], Factor::None, 0, 1.0).unwrap();
+    b.add_raw_term(0, [0; 3], Factor::Temp(0), 0, 0.1).unwrap();
+    b.add_raw_term(0, [0; 3], Factor::Aux(0), 0, 0.002).unwrap();
+    b.build().unwrap()
+}

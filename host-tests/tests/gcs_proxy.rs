@@ -1,0 +1,570 @@
+//! The GCS proxy natively, point by point of what a PI host and controller do (issue 10): GCS
+//! syntax (numbers, mnemonics, addresses), moves in every form corrected against the f64
+//! reference, commands refused while compensating, targets forgotten and re-seeded, single
+//! characters, queries in flight, long replies, `ERR?` addresses, units, GCS 3.0.
+//!
+//! Most tests run the proxy against the simulated controller (`nanocal::virtual_bench`) in one
+//! process (`proxy_rig`): what the proxy sends is executed, the controller's replies come back.
+
+mod proxy_rig;
+
+use nanocal::published::{coupled_2dof, published_1dof};
+use nanocal::virtual_bench::{Config, Event};
+use nanocal_compensator::command::{self, Action};
+use nanocal_compensator::gcs::{self, LineBuf};
+use nanocal_compensator::proxy::{codes, FoldCorrector, Gate, Output, Proxy, REPLY_TIMEOUT_MS};
+use nanocal_model::{Model, MAX_AXES};
+use proptest::prelude::*;
+use proxy_rig::{everything, slow, text, value, Rig};
+
+const TEMPS: [f64; 4] = [22.0, 22.1, 21.9, 22.3];
+
+fn f64_command(model: &Model, x: [f64; 3]) -> [f64; 3] {
+    model.eval_f64(&x, &[0; MAX_AXES], &slow(&TEMPS))
+}
+
+/// A rig on a 3-axis controller (axis 3 outside the model) with the published 1-DoF model.
+fn rig_1dof() -> (Rig, Model) {
+    let m = published_1dof().unwrap();
+    (Rig::new(everything(3), Some(&m), &TEMPS), m)
+}
+
+fn targets(events: &[Event]) -> Vec<(usize, f64, String)> {
+    events
+        .iter()
+        .filter_map(|e| match e {
+            Event::Target { axis, value, by } => Some((*axis, *value, by.clone())),
+            _ => None,
+        })
+        .collect()
+}
+
+// ---------------------------------------------------------------- syntax
+
+#[test]
+fn numbers_parse_into_micros_like_gcs_writes_them() {
+    for (s, v) in [
+        ("0", 0),
+        ("12.5", 12_500_000),
+        ("-3", -3_000_000),
+        ("+4.25", 4_250_000),
+        (".5", 500_000),
+        ("1e-3", 1_000),
+        ("4.5E2", 450_000_000),
+        ("123.456789", 123_456_789),
+        ("0.000100", 100),
+        // more decimals than a micro: rounded half away from zero
+        ("1.0000005", 1_000_001),
+        ("-1.0000005", -1_000_001),
+        ("1.00000049", 1_000_000),
+        // PIPython's '.12g' of a float
+        ("123.456789012", 123_456_789),
+        ("1.23456789012e-05", 12),
+    ] {
+        assert_eq!(gcs::parse_micros(s.as_bytes()), Ok(v), "{s}");
+    }
+    for s in [
+        "", "-", "1.2.3", "abc", "1e", "1e1234", "--1", "1 ", "1,5", "0x10",
+    ] {
+        assert!(gcs::parse_micros(s.as_bytes()).is_err(), "{s}");
+    }
+}
+
+proptest! {
+    #[test]
+    fn micros_print_and_parse_back(v in -4.0e15f64..4.0e15) {
+        let m = v as i64;
+        let mut b = LineBuf::<40>::new();
+        b.push_micros(m).unwrap();
+        let t = text(b.as_bytes());
+        prop_assert_eq!(gcs::parse_micros(b.as_bytes()), Ok(m), "{}", t);
+        // six decimals, always
+        prop_assert_eq!(t.split('.').nth(1).map(str::len), Some(6));
+    }
+
+    #[test]
+    fn f32_to_micros_is_the_nearest_micro(v in -8.0e6f32..8.0e6) {
+        let m = gcs::f32_to_micros(v).unwrap();
+        let exact = f64::from(v) * 1e6;
+        prop_assert!((m as f64 - exact).abs() <= 0.5 + 0.07, "{v}: {m} vs {exact}");
+    }
+
+    #[test]
+    fn decimal_text_parses_like_f64(v in -1.0e6f64..1.0e6, decimals in 0usize..9) {
+        let s = format!("{v:.decimals$}");
+        let m = gcs::parse_micros(s.as_bytes()).unwrap();
+        let want = (s.parse::<f64>().unwrap() * 1e6).round();
+        prop_assert!((m as f64 - want).abs() <= 1.0, "{s}: {m} vs {want}");
+    }
+
+    #[test]
+    fn syntax_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..60)) {
+        let _ = gcs::parse_micros(&bytes);
+        let _ = gcs::parse_f64(&bytes);
+        let _ = gcs::pairs(&bytes).count();
+        let _ = gcs::parse_axis_value(&bytes);
+        let _ = gcs::split(&bytes);
+        let _ = command::action(&bytes);
+    }
+}
+
+#[test]
+fn split_keeps_address_prefix_and_args() {
+    let s = gcs::split(b"1 0 MOV 1 10.5 2 3");
+    assert_eq!(
+        (s.prefix, s.command, s.args),
+        (&b"1 0 "[..], &b"MOV"[..], &b"1 10.5 2 3"[..])
+    );
+    assert_eq!(s.key, gcs::key(b"mov"));
+    let s = gcs::split(b"  pos?\r");
+    assert_eq!(
+        (s.prefix, s.command, s.args),
+        (&b""[..], &b"pos?"[..], &b""[..])
+    );
+    // digits not followed by a command word are no prefix
+    let s = gcs::split(b"1 2 3 MOV");
+    assert_eq!((s.prefix, s.command), (&b""[..], &b"1"[..]));
+    let av = gcs::parse_axis_value(b"0 1 2=12.5 ").unwrap();
+    assert_eq!(
+        (av.prefix, av.axis, av.value, av.continued),
+        (&b"0 1 "[..], &b"2"[..], &b"12.5"[..], true)
+    );
+    let mut p = LineBuf::<16>::new();
+    gcs::reply_prefix(b"1 0 ", &mut p);
+    assert_eq!(p.as_bytes(), b"0 1 ");
+    gcs::reply_prefix(b"2 ", &mut p);
+    assert_eq!(p.as_bytes(), b"0 2 ");
+}
+
+#[test]
+fn mnemonics_are_case_insensitive_and_every_listed_command_is_classified() {
+    assert_eq!(
+        command::action(b"mov"),
+        Action::Move(command::MoveKind::Absolute)
+    );
+    assert_eq!(
+        command::action(b"Pos?"),
+        Action::PositionQuery { target: false }
+    );
+    assert_eq!(command::action(b"*IDN?"), Action::Pass);
+    for (word, act) in command::table() {
+        let lower: Vec<u8> = word.to_ascii_lowercase();
+        assert_eq!(command::action(&lower), act, "{}", text(word));
+    }
+}
+
+// ---------------------------------------------------------------- moves
+
+#[test]
+fn every_move_form_is_corrected_like_the_f64_reference() {
+    let (mut r, m) = rig_1dof();
+    // the first move waits for the controller's syntax version and unit
+    r.line("MOV 1 100");
+    let rx = r.received();
+    assert_eq!(rx[..2], ["CSV?", "PUN? 1"]);
+    assert!(rx[2].starts_with("MOV 1 ") && rx.len() == 3, "{rx:?}");
+    let q = f64_command(&m, [100.0, 0.0, 0.0])[0];
+    let t = targets(&r.events());
+    assert!((t[0].1 - q).abs() <= 1e-4, "{t:?} vs {q}");
+    // lower case, extra spaces, CR, an address prefix, a mixed axis list
+    for (line, x) in [
+        ("mov 1 120", 120.0),
+        // (a tab is #9, a single-character command, never a separator)
+        ("Mov  1    140.5\r", 140.5),
+        ("1 0 MOV 1 160 3 42", 160.0),
+        ("mvr 1 -10", 150.0),
+        ("MVE 1 200", 200.0),
+        ("goh 1", 0.0),
+    ] {
+        r.line(line);
+        let t = targets(&r.events());
+        let got = t
+            .iter()
+            .find(|e| e.0 == 0)
+            .unwrap_or_else(|| panic!("{line}: {t:?}"));
+        let want = f64_command(&m, [x, 0.0, 0.0])[0];
+        assert!((got.1 - want).abs() <= 1e-4, "{line}: {} vs {want}", got.1);
+        assert_ne!(got.2, "GOH", "{line}: a model axis never goes home raw");
+        assert_eq!(r.proxy.pending_error(), 0, "{line}");
+    }
+    // the axis the model does not cover keeps the host's own value, in the same line
+    let rx = r.received();
+    assert!(
+        rx.iter()
+            .any(|l| l.starts_with("1 0 MOV 1 ") && l.ends_with(" 3 42")),
+        "{rx:?}"
+    );
+    assert!(rx.iter().any(|l| l.starts_with("MVE 1 ")), "{rx:?}");
+    assert_eq!(r.proxy.targets_um()[0], Some(0.0));
+    // a move of other axes only passes untouched
+    r.line("MOV 3 7");
+    assert_eq!(r.received(), ["MOV 3 7"]);
+}
+
+#[test]
+fn coupled_axes_are_re_commanded() {
+    let m = coupled_2dof().unwrap();
+    let mut r = Rig::new(everything(3), Some(&m), &TEMPS);
+    r.line("MOV 1 40 2 70");
+    r.events();
+    // one axis moves: the other is re-commanded too (coupling)
+    r.line("MOV 1 50");
+    let t = targets(&r.events());
+    let want = f64_command(&m, [50.0, 70.0, 0.0]);
+    assert_eq!(t.len(), 2, "{t:?}");
+    for (a, v, _) in &t {
+        assert!((v - want[*a]).abs() <= 1e-4, "{t:?} vs {want:?}");
+    }
+    // a single axis before any target is known: the other is read from the controller
+    let mut r = Rig::new(everything(3), Some(&m), &TEMPS);
+    r.line("MOV 1 40");
+    let rx = r.received();
+    assert_eq!(rx[..3], ["CSV?", "PUN? 1 2", "MOV? 1 2"], "{rx:?}");
+}
+
+#[test]
+fn goh_of_all_axes_sends_the_model_axes_to_their_corrected_home() {
+    let (mut r, m) = rig_1dof();
+    r.line("MOV 1 100");
+    r.received();
+    r.events();
+    // the controller's other axes are read from SAI? and go home as they are
+    r.line("GOH");
+    let rx = r.received();
+    assert_eq!(rx[0], "SAI?", "{rx:?}");
+    assert!(rx[1].starts_with("MOV 1 ") && rx[2] == "GOH 2 3", "{rx:?}");
+    let t = targets(&r.events());
+    let want = f64_command(&m, [0.0, 0.0, 0.0])[0];
+    assert!(
+        t.iter().any(|e| e.0 == 2 && e.1 == 0.0 && e.2 == "GOH"),
+        "{t:?}"
+    );
+    let home = t.iter().find(|e| e.0 == 0).unwrap();
+    assert!((home.1 - want).abs() <= 1e-4 && home.2 == "MOV", "{t:?}");
+}
+
+#[test]
+fn commands_that_move_uncorrected_are_refused_while_compensating() {
+    let (mut r, _) = rig_1dof();
+    r.line("MOV 1 100");
+    r.received();
+    r.events();
+    for line in [
+        "STE 1 5",
+        "IMP 1 5",
+        "SVA 1 30",
+        "svr 1 2",
+        "SMO 1 100",
+        "WGO 1 1",
+        "WAV 1 X LIN 100 20 0 100 0 0",
+        "WTR 1 10 1",
+        "MAC START scan",
+        "mac nstart scan 3",
+        "MAC BEG m",
+        "MAC DEF m",
+        "OMA 1 20",
+        "JOG 1 3",
+        "DFH 1",
+        "POS 1 3",
+        "ATZ 1 0",
+        "SAI 1 X",
+        "TGS",
+        "FSA 1 10 2 10",
+        "STE",
+    ] {
+        r.line(line);
+        assert_eq!(
+            r.line("ERR?"),
+            format!("{}\n", codes::REFUSED_WHILE_COMPENSATING),
+            "{line}"
+        );
+    }
+    assert!(r.received().is_empty(), "nothing reached the controller");
+    assert!(r.events().is_empty());
+    // on an axis the model does not cover, and stopping a generator, pass
+    r.line("STE 3 5");
+    r.line("WGO 1 0");
+    assert_eq!(r.received(), ["STE 3 5", "WGO 1 0"]);
+    // in bypass everything passes (and the proxy forgets the targets it can no longer trust)
+    r.proxy.bypass = true;
+    r.line("STE 1 5");
+    assert_eq!(r.received(), ["STE 1 5"]);
+    assert_eq!(r.proxy.targets_um()[0], None);
+}
+
+#[test]
+fn targets_are_forgotten_after_stops_and_re_seeded_from_the_controller() {
+    let (mut r, m) = rig_1dof();
+    for stop in [
+        "HLT 1", "STP", "\x18", "FRF 1", "FNL", "FPL 1", "SVO 1 0", "\x1b",
+    ] {
+        r.line("SVO 1 1");
+        r.line("MOV 1 100");
+        r.received();
+        r.events();
+        // half-way through the move, the stop: the controller's target is where it stopped
+        r.clock.advance(0.5 * 100.0 / 50_000.0);
+        if stop.len() == 1 {
+            r.host(stop.as_bytes());
+        } else {
+            r.line(stop);
+        }
+        r.wait_ms(100); // referencing moves end
+        assert_eq!(r.proxy.targets_um()[0], None, "{stop}");
+        r.line("SVO 1 1");
+        let q_now = r.ctl.target(0);
+        r.received();
+        r.events();
+        // MVR needs the base: the proxy asks the controller's MOV? first; the base is the
+        // calibrated position of the controller's target
+        let x_base = invert_f64(&m, q_now);
+        let delta = ((100.0 - x_base) * 1e3).round() / 1e3;
+        r.line(&format!("MVR 1 {delta}"));
+        let rx = r.received();
+        assert_eq!(rx[0], "MOV? 1", "{stop}: {rx:?}");
+        let t = targets(&r.events());
+        let want = f64_command(&m, [x_base + delta, 0.0, 0.0])[0];
+        assert_eq!(t.len(), 1, "{stop}: {t:?} {rx:?}");
+        assert!(
+            (t[0].1 - want).abs() <= 2e-4,
+            "{stop}: {} vs {want}",
+            t[0].1
+        );
+        r.line("ERR?");
+    }
+}
+
+/// The f64 inverse of the 1-DoF model by bisection (independent of the proxy's chord method).
+fn invert_f64(m: &Model, q: f64) -> f64 {
+    let f = |x: f64| f64_command(m, [x, 0.0, 0.0])[0];
+    let (mut lo, mut hi) = (-100.0, 600.0);
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if f(mid) < q {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+// ---------------------------------------------------------------- replies
+
+#[test]
+fn position_replies_map_back_and_several_queries_may_be_in_flight() {
+    let m = coupled_2dof().unwrap();
+    let mut r = Rig::new(everything(3), Some(&m), &TEMPS);
+    r.line("MOV 1 50 2 70 3 12");
+    r.wait_ms(10);
+    // back to back, in one write: each reply mapped, in order
+    let out = text(&r.host(b"POS? 1\nPOS? 2\nmov? 1 2 3\n\x03pos?\n"));
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!(lines.len(), 2 + 3 + 3 + 3, "{out}");
+    let near = |l: &str, axis: &str, x: f64| {
+        let v = value(l, axis);
+        assert!((v - x).abs() <= 2e-4, "{axis}: {v} vs {x} in {out}");
+    };
+    near(lines[0], "1", 50.0);
+    near(lines[1], "2", 70.0);
+    near(lines[2], "1", 50.0);
+    near(lines[3], "2", 70.0);
+    // the axis outside the model is relayed as the controller said it
+    assert_eq!(lines[4], "3=12.0000000");
+    // #3 is mapped like POS?
+    near(lines[5], "1", 50.0);
+    near(lines[6], "2", 70.0);
+    near(lines[8], "1", 50.0);
+    // MOV? of exactly what was sent maps back to the target exactly
+    assert_eq!(lines[2].trim(), "1=50.000000");
+    assert!(
+        lines[2].ends_with(' ') && !lines[4].ends_with(' '),
+        "framing kept: {out}"
+    );
+}
+
+#[test]
+fn single_character_commands_pass_at_once_even_inside_a_line() {
+    let (mut r, _) = rig_1dof();
+    r.line("*IDN?");
+    r.received();
+    // #5 in the middle of a line goes first; the line follows when its LF arrives
+    let out = r.host(b"ONT\x05? 1\n");
+    assert_eq!(r.received(), ["#5", "ONT? 1"]);
+    assert_eq!(text(&out), "0\n1=1\n");
+    for b in [0x04u8, 0x06, 0x07, 0x08, 0x09, 0x0B] {
+        let out = r.host(&[b]);
+        assert_eq!(r.received(), [format!("#{b}")]);
+        assert!(out.ends_with(b"\n") && out.len() >= 2, "#{b}: {out:?}");
+    }
+    // #24 and #27 have no reply
+    assert!(r.host(&[0x18]).is_empty());
+    assert_eq!(r.line("ERR?"), "10\n");
+}
+
+#[test]
+fn a_reply_longer_than_any_buffer_is_relayed_whole() {
+    let (mut r, _) = rig_1dof();
+    let help = r.line("HLP?");
+    assert!(help.len() > 4 * 1024, "{}", help.len());
+    assert!(help.starts_with("The following commands are valid: \n"));
+    assert!(help.ends_with("end of help\n"));
+    assert_eq!(help.lines().count(), r.ctl.config().commands.len() + 2);
+    // a host line longer than the proxy's line buffer passes when it needs no rewriting
+    let long = format!("SPA? {}", "1 0x07000000 ".repeat(40));
+    let mut proxy = Proxy::default();
+    let mut out = Output::new();
+    let mut sent = vec![];
+    let mut i = 0;
+    let bytes = format!("{long}\n");
+    while i < bytes.len() {
+        i += proxy.host_bytes(None::<&FoldCorrector>, &bytes.as_bytes()[i..], 0, &mut out);
+        sent.extend_from_slice(out.to_stage.as_bytes());
+    }
+    assert_eq!(text(&sent), bytes);
+    // a move that long is refused (it would have to be rewritten)
+    let long_mov = format!("MOV 1 1{}\n", " ".repeat(300));
+    let mut i = 0;
+    let mut sent = vec![];
+    while i < long_mov.len() {
+        i += proxy.host_bytes(
+            None::<&FoldCorrector>,
+            &long_mov.as_bytes()[i..],
+            0,
+            &mut out,
+        );
+        sent.extend_from_slice(out.to_stage.as_bytes());
+    }
+    assert!(sent.is_empty());
+    assert_eq!(proxy.pending_error(), codes::LINE_TOO_LONG);
+}
+
+#[test]
+fn the_proxys_own_err_answer_swaps_the_address_prefix() {
+    let (mut r, _) = rig_1dof();
+    r.line("MOV 1 490"); // outside the envelope
+    assert_eq!(r.line("1 0 ERR?"), "0 1 9001\n");
+    r.line("MOV 1 490");
+    assert_eq!(r.line("1 ERR?"), "0 1 9001\n");
+    // the controller answers the same way
+    assert_eq!(r.line("1 0 ERR?"), "0 1 0\n");
+    // in turn: an answer of the proxy's own waits for the replies due before it
+    r.line("MOV 1 490");
+    let out = r.host(b"POS? 3\nERR?\n");
+    assert_eq!(text(&out), "3=250.0000000\n9001\n");
+}
+
+#[test]
+fn an_unanswered_query_is_given_up_and_later_replies_keep_their_attribution() {
+    let (mut r, _) = rig_1dof();
+    r.line("MOV 1 100");
+    // the controller does not know FOO? (error 2, no reply)
+    assert_eq!(r.line("FOO?"), "");
+    assert_eq!(r.proxy.in_flight(), 1);
+    r.settle();
+    assert_eq!(r.proxy.in_flight(), 0);
+    assert_eq!(r.proxy.counters.unanswered, 1);
+    let v = value(&r.line("POS? 1"), "1");
+    assert!((v - 100.0).abs() < 2e-4, "{v}");
+}
+
+// ---------------------------------------------------------------- controller
+
+#[test]
+fn a_controller_in_millimetres_refuses_moves_with_a_clear_error() {
+    let m = published_1dof().unwrap();
+    let mut r = Rig::new(Config::c867(1, "mm").ready(), Some(&m), &TEMPS);
+    r.line("MOV 1 100");
+    assert_eq!(r.received(), ["CSV?", "PUN? 1"]);
+    assert!(r.events().is_empty(), "nothing moved");
+    assert_eq!(r.line("ERR?"), format!("{}\n", codes::UNIT_MISMATCH));
+    assert!(r.proxy.unit_mismatch());
+    // switched to µm on the controller: the proxy reads the unit again
+    r.line("CCL 1 advanced");
+    r.line("PUN 1 UM");
+    r.line("MOV 1 100");
+    assert!(!r.proxy.unit_mismatch());
+    assert_eq!(targets(&r.events()).len(), 1);
+}
+
+#[test]
+fn a_gcs_3_controller_is_refused_not_mangled() {
+    let m = published_1dof().unwrap();
+    let mut cfg = everything(3);
+    cfg.syntax_version = "3.0".into();
+    let mut r = Rig::new(cfg, Some(&m), &TEMPS);
+    // PIPython asks CSV? first; the proxy reads the answer on the way
+    assert_eq!(r.line("CSV?"), "3.0\n");
+    assert!(r.proxy.gcs3());
+    r.line("MOV 1 100");
+    assert_eq!(r.line("ERR?"), format!("{}\n", codes::GCS3));
+    assert!(r.events().is_empty());
+    // replies pass untouched
+    assert_eq!(r.line("POS? 1"), "1=250.0000000\n");
+}
+
+#[test]
+fn refusals_without_model_with_a_failed_sensor_and_outside_the_travel() {
+    let m = published_1dof().unwrap();
+    let mut r = Rig::new(everything(1), None, &TEMPS);
+    r.line("MOV 1 10");
+    assert_eq!(r.line("ERR?"), format!("{}\n", codes::NO_MODEL));
+    r.line("STE 1 1");
+    assert_eq!(r.line("ERR?"), format!("{}\n", codes::NO_MODEL));
+    let mut r = Rig::new(everything(1), Some(&m), &TEMPS);
+    r.proxy.gate = Gate::SensorFault;
+    r.line("MOV 1 10");
+    assert_eq!(r.line("ERR?"), format!("{}\n", codes::SENSOR_FAULT));
+    r.proxy.gate = Gate::Open;
+    r.comp.as_mut().unwrap().travel_um[0] = (0.0, 100.0);
+    r.line("MOV 1 300");
+    assert_eq!(r.line("ERR?"), format!("{}\n", codes::POS_OUT_OF_LIMITS));
+    for (line, code) in [
+        ("MOV 1 x", codes::PARAM_SYNTAX),
+        ("MOV 1", codes::PARAM_SYNTAX),
+        ("MOV", codes::PARAM_SYNTAX),
+        ("MOV 1 10 1 20", codes::INVALID_AXIS),
+    ] {
+        r.line(line);
+        assert_eq!(r.line("ERR?"), format!("{code}\n"), "{line}");
+    }
+    assert!(targets(&r.events()).is_empty());
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(1_000))]
+
+    /// Whatever the host and the controller send, the proxy neither panics nor loses bytes
+    /// beyond its bounds.
+    #[test]
+    fn proxy_never_panics_on_any_bytes(
+        host in proptest::collection::vec(any::<u8>(), 0..400),
+        stage in proptest::collection::vec(any::<u8>(), 0..400),
+        prefix in prop_oneof![Just("MOV 1 "), Just("MVR 1 "), Just("POS? "), Just("1="), Just("")],
+        cut in 1usize..50,
+    ) {
+        let model = published_1dof().unwrap();
+        let c = FoldCorrector::new(&model, &slow(&TEMPS));
+        let mut p = Proxy::default();
+        let mut out = Output::new();
+        let mut h = prefix.as_bytes().to_vec();
+        h.extend_from_slice(&host);
+        for (k, chunk) in h.chunks(cut).enumerate() {
+            let mut i = 0;
+            let mut stalls = 0;
+            while i < chunk.len() && stalls < 3 {
+                let used = p.host_bytes(Some(&c), &chunk[i..], k as u32, &mut out);
+                if used == 0 && out.is_empty() { stalls += 1; p.poll(Some(&c), (k as u32 + 1) * 5_000, &mut out); }
+                i += used;
+            }
+            let s = &stage[..stage.len().min(k * cut)];
+            let mut j = 0;
+            while j < s.len() {
+                let used = p.stage_bytes(Some(&c), &s[j..], k as u32, &mut out);
+                if used == 0 { break; }
+                j += used;
+            }
+        }
+        p.poll(Some(&c), 10 * REPLY_TIMEOUT_MS, &mut out);
+    }
+}

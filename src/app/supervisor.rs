@@ -1,0 +1,57 @@
+//! The supervisor task: refuses moves on a stale fold, drives the status LED, and pets the
+//! watchdog only while the sensor task makes progress — a hung sensor task or a blocked
+//! executor resets the board (IWDG on the STM32, the CMSDK watchdog on QEMU).
+
+use super::{now_ms, Shared};
+use core::sync::atomic::Ordering;
+use embassy_time::Timer;
+use nanocal_compensator::led::LedState;
+use nanocal_compensator::proxy::Gate;
+
+/// What the supervisor drives on a board.
+pub trait Board {
+    /// Light (or not) the status LED.
+    fn set_led(&mut self, on: bool);
+    /// Reload the watchdog.
+    fn pet_watchdog(&mut self);
+}
+
+/// Longest a fold may age before moves are refused, ms: two sample periods plus a bus-timeout
+/// allowance for eight chips and the aux sources.
+pub fn stale_limit_ms(sh: &Shared) -> u32 {
+    let period = sh.settings.lock(|s| u32::from(s.borrow().sample_period_ms));
+    2 * period + 4000
+}
+
+/// What the LED shows now.
+pub fn led_state(sh: &Shared) -> LedState {
+    let model = sh.model.lock(|m| m.borrow().model.is_some());
+    let (bypass, refused) = sh.core.lock(|c| {
+        let c = c.borrow();
+        (
+            c.proxy.bypass,
+            c.proxy.gate != Gate::Open || c.comp.is_none(),
+        )
+    });
+    LedState::of(model, bypass, refused)
+}
+
+/// Run the supervisor.
+pub async fn supervisor<B: Board>(mut board: B, sh: &Shared) -> ! {
+    loop {
+        Timer::after_millis(50).await;
+        let now = now_ms();
+        let limit = stale_limit_ms(sh);
+        sh.core.lock(|c| {
+            let mut c = c.borrow_mut();
+            if c.comp.is_some() && now.wrapping_sub(c.folded_at_ms) > limit {
+                c.proxy.gate = Gate::SensorFault;
+            }
+        });
+        board.set_led(led_state(sh).lit(now));
+        let beat = sh.sensor_beat_ms.load(Ordering::Relaxed);
+        if now.wrapping_sub(beat) <= limit || now < limit {
+            board.pet_watchdog();
+        }
+    }
+}

@@ -1,0 +1,118 @@
+//! The rest of the QEMU board: CMSDK APB watchdog, FPGA LED, reset cause, storage in RAM that
+//! survives a system reset, the host-link line state.
+//!
+//! CMSDK APB watchdog (ARM DDI 0479, "Cortex-M System Design Kit", §4.4; QEMU
+//! `cmsdk-apb-watchdog` at 0x4000_8000 on mps2-an386): LOAD 00h, VALUE 04h, CONTROL 08h (bit 0
+//! INTEN, bit 1 RESEN), INTCLR 0Ch (clears the interrupt and reloads), LOCK C00h (1ACCE551h
+//! unlocks). The counter runs at the 25 MHz system clock; the first expiry raises its interrupt,
+//! a second expiry with the interrupt still set resets the system.
+
+use core::mem::MaybeUninit;
+use core::ptr::{addr_of_mut, read_volatile, write_volatile};
+use nanocal_compensator::identity::ResetCause;
+use nanocal_compensator::l4flash::{FlashError, L4Sim, RawFlash, DWORD, ERASE_PAGE_US};
+
+const WDOG: usize = 0x4000_8000;
+const FPGAIO_LED: usize = 0x4002_8000;
+
+fn w(addr: usize, v: u32) {
+    // SAFETY: MMIO register of the board, 32-bit access.
+    unsafe { write_volatile(addr as *mut u32, v) }
+}
+
+/// Start the watchdog: a hang of more than `timeout_ms` (twice, interrupt then reset) resets.
+pub fn watchdog_start(timeout_ms: u32) {
+    w(WDOG + 0xC00, 0x1ACC_E551);
+    w(WDOG, super::SYSCLK_HZ / 1000 * timeout_ms);
+    w(WDOG + 0x08, 0b11);
+    w(WDOG + 0xC00, 0);
+}
+
+/// Reload the watchdog.
+pub fn watchdog_pet() {
+    w(WDOG + 0xC00, 0x1ACC_E551);
+    w(WDOG + 0x0C, 1);
+    w(WDOG + 0xC00, 0);
+}
+
+/// Light FPGA LED 0.
+pub fn set_led(on: bool) {
+    w(FPGAIO_LED, u32::from(on));
+}
+
+const MAGIC: u32 = 0x4E43_424F; // "NCBO"
+const SOFT: u32 = 0x534F_4654; // "SOFT"
+
+#[link_section = ".uninit.NANOCAL_BOOT"]
+static mut BOOT: MaybeUninit<[u32; 2]> = MaybeUninit::uninit();
+
+/// Why this boot happened: RAM survives QEMU's system reset (only the image is reloaded), so a
+/// marker in `.uninit` tells a warm reset from a power-on, and a software reset leaves a second
+/// marker; a warm reset without it is the watchdog's.
+pub fn reset_cause() -> ResetCause {
+    // SAFETY: single-threaded, before any task runs; plain words.
+    unsafe {
+        let p = addr_of_mut!(BOOT) as *mut u32;
+        let (magic, soft) = (read_volatile(p), read_volatile(p.add(1)));
+        write_volatile(p, MAGIC);
+        write_volatile(p.add(1), 0);
+        match (magic == MAGIC, soft == SOFT) {
+            (false, _) => ResetCause::PowerOn,
+            (true, true) => ResetCause::Software,
+            (true, false) => ResetCause::Watchdog,
+        }
+    }
+}
+
+/// Reset the system (software reset).
+pub fn software_reset() -> ! {
+    // SAFETY: as above.
+    unsafe { write_volatile((addr_of_mut!(BOOT) as *mut u32).add(1), SOFT) };
+    cortex_m::peripheral::SCB::sys_reset()
+}
+
+/// Storage size of the board, bytes.
+pub const FLASH_SIZE: usize = 64 * 1024;
+
+#[link_section = ".uninit.NANOCAL_FLASH"]
+static mut FLASH: MaybeUninit<L4Sim<FLASH_SIZE>> = MaybeUninit::uninit();
+
+/// The simulated L4 flash: kept across resets (not across QEMU restarts); erased at power-on.
+///
+/// # Safety
+/// Call once.
+pub unsafe fn flash(cause: ResetCause) -> &'static mut L4Sim<FLASH_SIZE> {
+    // SAFETY: called once; initialised on power-on, otherwise as the last boot left it.
+    unsafe {
+        let f = &mut *addr_of_mut!(FLASH);
+        if cause == ResetCause::PowerOn {
+            f.write(L4Sim::new());
+        }
+        let f = f.assume_init_mut();
+        f.power_on();
+        f
+    }
+}
+
+/// The simulated flash with the controller's timing: erases take their time asynchronously
+/// (the executor serves the command path meanwhile, as read-while-write does on the L4).
+pub struct TimedFlash(pub &'static mut L4Sim<FLASH_SIZE>);
+
+impl RawFlash for TimedFlash {
+    fn capacity(&self) -> usize {
+        FLASH_SIZE
+    }
+    fn read_dword(&mut self, offset: u32) -> [u8; DWORD] {
+        self.0.read_dword(offset)
+    }
+    fn take_ecc_error(&mut self) -> bool {
+        self.0.take_ecc_error()
+    }
+    async fn erase_page(&mut self, offset: u32) -> Result<(), FlashError> {
+        embassy_time::Timer::after_micros(u64::from(ERASE_PAGE_US)).await;
+        self.0.erase_now(offset)
+    }
+    async fn program_dword(&mut self, offset: u32, data: [u8; DWORD]) -> Result<(), FlashError> {
+        self.0.program_now(offset, data)
+    }
+}

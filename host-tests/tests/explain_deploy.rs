@@ -25,10 +25,18 @@ fn build_with(
         let k = mb.lag(sensor, tau).unwrap();
         first_lag.get_or_insert(k);
     }
+    let mut first_play = None;
+    for &(axis, r) in &b.plays {
+        let k = mb.play(axis, r).unwrap();
+        first_play.get_or_insert(k);
+    }
     for (i, t) in b.terms.iter().enumerate() {
         let mut t = *t;
         if let Factor::Lagged(k) = t.factor {
             t.factor = Factor::Lagged(k + first_lag.unwrap());
+        }
+        if let Factor::Play(k) = t.factor {
+            t.factor = Factor::Play(k + first_play.unwrap());
         }
         t.coeff = 1e-3 * (i + 1) as f64;
         mb.add_term(t).unwrap();
@@ -86,6 +94,7 @@ fn deployable_effects_build_into_the_blob_and_round_trip() {
     };
     let deployable = [
         "thermal_lag",
+        "hysteresis",
         "thermal_position_interaction",
         "air_refraction",
         "geometric_order",
@@ -109,12 +118,6 @@ fn deployable_effects_build_into_the_blob_and_round_trip() {
             let n = blob::encode(&model, &mut buf).unwrap();
             let back = blob::decode(&buf[..n]).unwrap();
             assert_eq!(back, model, "{}", c.name());
-        } else if c.name() == "hysteresis" {
-            // the play-operator bank goes to blob v2 (not in the v1 term list)
-            let b = b.expect("hysteresis hands over its operators");
-            assert!(b.terms.is_empty());
-            assert_eq!(b.play.len(), 2);
-            assert!(c.deploy().contains("play-operator bank"), "{}", c.deploy());
         } else {
             assert!(b.is_none(), "{} has no model terms", c.name());
             assert!(
@@ -175,7 +178,28 @@ fn a_found_hysteresis_hands_over_a_play_operator_bank() {
     let cmd = cols.get("cmd_x").unwrap().to_vec();
     let rep = explain_columns(cols);
     let e = effect(&rep, "x", "hysteresis").unwrap_or_else(|| panic!("{}", rep.to_text()));
-    let ops = &e.blob.as_ref().unwrap().play;
+    let blob_terms = e.blob.as_ref().unwrap();
+    // declared in the blob (v2): thresholds on the axis, one Factor::Play term each
+    assert_eq!(
+        blob_terms.plays,
+        blob_terms
+            .play
+            .iter()
+            .map(|o| (o.axis, o.threshold_um))
+            .collect::<Vec<_>>()
+    );
+    let ctx = BlobContext {
+        output: 0,
+        axes: 1,
+        temps: 4,
+        pressure_aux: None,
+    };
+    let model = build_with(&ctx, 0, blob_terms);
+    assert_eq!(model.play_operators().len(), blob_terms.plays.len());
+    let mut buf = vec![0u8; blob::MAX_BLOB_LEN];
+    let n = blob::encode(&model, &mut buf).unwrap();
+    assert_eq!(blob::decode(&buf[..n]).unwrap(), model);
+    let ops = &blob_terms.play;
     assert!(!ops.is_empty() && ops.len() <= 16);
     assert!(ops
         .windows(2)

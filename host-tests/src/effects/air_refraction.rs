@@ -92,6 +92,7 @@ impl super::Candidate for Candidate {
         let p = nanocal_model::Factor::Aux(ctx.pressure_aux?);
         Some(super::BlobTerms {
             lags: Vec::new(),
+            plays: Vec::new(),
             play: Vec::new(),
             terms: vec![
                 super::term(ctx.output, [0; 3], p, 0),

@@ -116,6 +116,7 @@ impl super::Candidate for Candidate {
         }
         (!terms.is_empty()).then_some(super::BlobTerms {
             lags: Vec::new(),
+            plays: Vec::new(),
             play: Vec::new(),
             terms,
         })

@@ -97,7 +97,7 @@ impl super::Candidate for Candidate {
         "rate-independent hysteresis: where the stage ends up depends on where it came from (the history of reversals), not on how fast — a Prandtl–Ishlinskii sum of play operators"
     }
     fn deploy(&self) -> &'static str {
-        "blob v2: a per-axis play-operator bank fed by the axis position (thresholds r_i µm, weights w_i, listed under blob); the v1 blob has no operator bank"
+        "in the blob (v2): a play-operator bank on the axis, fed by its target (declared thresholds r_i in µm, terms with Factor::Play(k)); the fit sets the correction's weights, the fast path steps the operators with the same play function"
     }
     fn applies(&self, d: &Data, ch: usize) -> bool {
         d.channels[ch].dir.is_some() && d.channels[ch].u.is_some()
@@ -207,9 +207,17 @@ impl super::Candidate for Candidate {
         let Detail::Play(bank) = &f.proposal.detail else {
             return None;
         };
+        let plays: Vec<(u8, f64)> = bank
+            .thresholds_um
+            .iter()
+            .map(|&r| (ctx.output, r))
+            .collect();
         Some(super::BlobTerms {
             lags: Vec::new(),
-            terms: Vec::new(),
+            terms: (0..plays.len() as u8)
+                .map(|k| super::term(ctx.output, [0; 3], nanocal_model::Factor::Play(k), 0))
+                .collect(),
+            plays,
             play: bank
                 .thresholds_um
                 .iter()

@@ -294,9 +294,11 @@ pub struct BlobContext {
     pub pressure_aux: Option<u8>,
 }
 
-/// One play operator for the compensator's per-axis operator bank: the positioning error it
-/// carries is `weight × (F_r[x] − x)` with x the axis' commanded position in µm and F_r the
-/// play operator of threshold r ([`nanocal_model::play::play`]) started at the first command.
+/// One play operator as explain identified it: the positioning error it carries is
+/// `weight × (F_r[x] − x)` with x the axis' commanded position in µm and F_r the play operator
+/// of threshold r ([`nanocal_model::play::play`]) started at the first command. The blob
+/// declares the same thresholds ([`BlobTerms::plays`]); the correction's weights are the
+/// fit's to set (to first order, −weight on `F_r` plus a linear term).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct PlayOperator {
     /// Axis whose commanded position feeds the operator.
@@ -317,7 +319,11 @@ pub struct BlobTerms {
     pub lags: Vec<(u8, f64)>,
     /// Term shapes.
     pub terms: Vec<nanocal_model::Term>,
-    /// Play operators (thresholds ascending, fitted weights) for a per-axis operator bank.
+    /// Play operators to declare first, (axis, threshold in µm), grouped by axis, thresholds
+    /// ascending (`ModelBuilder::play`); `Factor::Play(k)` in `terms` counts from the first of
+    /// these (add the model's existing operator count).
+    pub plays: Vec<(u8, f64)>,
+    /// The identified operators with their fitted (error) weights, for a person and the fit.
     pub play: Vec<PlayOperator>,
 }
 

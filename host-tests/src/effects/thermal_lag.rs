@@ -543,6 +543,7 @@ impl super::Candidate for Candidate {
             terms: (0..usable.len() as u8)
                 .map(|k| super::term(ctx.output, [0; 3], nanocal_model::Factor::Lagged(k), 0))
                 .collect(),
+            plays: Vec::new(),
             play: Vec::new(),
         })
     }

@@ -90,6 +90,7 @@ impl super::Candidate for Candidate {
     fn blob_terms(&self, ctx: &super::BlobContext, _f: &super::Fitted) -> Option<super::BlobTerms> {
         Some(super::BlobTerms {
             lags: Vec::new(),
+            plays: Vec::new(),
             play: Vec::new(),
             terms: (0..ctx.temps)
                 .map(|i| {

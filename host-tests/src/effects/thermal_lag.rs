@@ -94,6 +94,8 @@ const DISTINCT: f64 = 3.0;
 const SCREEN_POINTS: usize = 12;
 /// Sensors whose best grid point is refined between grid points in each forward step.
 const REFINE_SENSORS: usize = 3;
+/// Most rounds of refining every τ with the others fixed and pruning again.
+const REFINE_SWEEPS: usize = 4;
 /// Relative drop of held-out RMS a further lag term must bring.
 const MIN_TERM_CV_GAIN: f64 = 0.005;
 
@@ -122,6 +124,29 @@ fn clear(taken: &[f64], tau: f64) -> bool {
     taken
         .iter()
         .all(|&t| tau > t * DISTINCT || tau < t / DISTINCT)
+}
+
+/// One sweep of coordinate descent: each term's τ searched over its whole range with the other
+/// terms fixed (with its 1σ when `sigma`).
+fn refine(s: &Search, terms: &mut [LagTerm], cols: &mut [Vec<f64>], sigma: bool) {
+    for j in 0..terms.len() {
+        let mut b = s.basis.clone();
+        for (k, c) in cols.iter().enumerate() {
+            if k != j {
+                b.add_column(c);
+            }
+        }
+        let taken: Vec<f64> = terms
+            .iter()
+            .enumerate()
+            .filter(|(k, t)| *k != j && t.sensor == terms[j].sensor)
+            .map(|(_, t)| t.tau.value)
+            .collect();
+        if let Some((tau, _)) = best_tau(s, &b, terms[j].sensor, &taken, sigma, None) {
+            cols[j] = lag_column(s.d, terms[j].sensor, tau.value);
+            terms[j].tau = tau;
+        }
+    }
 }
 
 /// Evidence for a set of lag columns on top of the model: the BIC change (two parameters per
@@ -414,30 +439,29 @@ impl super::Candidate for Candidate {
             cols.push(col);
             terms.push(term);
         }
-        prune(s, &mut terms, &mut cols);
-        drop_implausible(s, &mut terms, &mut cols)?;
-        if terms.is_empty() {
-            return Ok(None);
-        }
-        // refine each τ with the other terms fixed (one sweep), which also gives each its 1σ
-        for j in 0..terms.len() {
-            let mut b = s.basis.clone();
-            for (k, c) in cols.iter().enumerate() {
-                if k != j {
-                    b.add_column(c);
-                }
+        // settle: refine each τ with the other terms fixed (coordinate descent; greedy
+        // selection picks a τ that the later terms make suboptimal), then prune again, until
+        // the set stops changing; a last sweep gives each τ its 1σ
+        let mut last: Vec<(usize, f64)> = Vec::new();
+        for _ in 0..REFINE_SWEEPS {
+            prune(s, &mut terms, &mut cols);
+            drop_implausible(s, &mut terms, &mut cols)?;
+            if terms.is_empty() {
+                return Ok(None);
             }
-            let taken: Vec<f64> = terms
-                .iter()
-                .enumerate()
-                .filter(|(k, t)| *k != j && t.sensor == terms[j].sensor)
-                .map(|(_, t)| t.tau.value)
-                .collect();
-            if let Some((tau, _)) = best_tau(s, &b, terms[j].sensor, &taken, true, None) {
-                cols[j] = lag_column(d, terms[j].sensor, tau.value);
-                terms[j].tau = tau;
+            refine(s, &mut terms, &mut cols, false);
+            let now: Vec<(usize, f64)> = terms.iter().map(|t| (t.sensor, t.tau.value)).collect();
+            let settled = now.len() == last.len()
+                && now
+                    .iter()
+                    .zip(&last)
+                    .all(|(a, b)| a.0 == b.0 && (a.1 / b.1 - 1.0).abs() < 0.02);
+            last = now;
+            if settled {
+                break;
             }
         }
+        refine(s, &mut terms, &mut cols, true);
         Ok(Some(Proposal {
             regs: cols,
             thetas: terms.iter().map(|t| t.tau.clone()).collect(),

@@ -34,27 +34,35 @@ impl Params {
     pub fn produce(&self, ctx: &SimContext) -> Vec<Vec<f64>> {
         let mut out = zeros(ctx);
         let mut rng = ChaCha8Rng::seed_from_u64(ctx.seed ^ 0x5EED_D21F);
-        let t_end = ctx.t_abs_s.last().copied().unwrap_or(0.0);
-        let mut switches = Vec::new();
-        let mut t = 0.0;
-        while t <= t_end {
-            t += -self.switch_period_s * rng.gen_range(f64::MIN_POSITIVE..1.0f64).ln();
-            switches.push(t);
-        }
-        let mut on = vec![0.0; ctx.t_s.len()];
-        let mut i = 0;
-        for (k, &ta) in ctx.t_abs_s.iter().enumerate() {
-            while i < switches.len() && switches[i] <= ta {
-                i += 1;
-            }
-            on[k] = (i % 2) as f64;
-        }
+        let on = telegraph(&ctx.t_abs_s, self.switch_period_s, &mut rng);
         let heat = lag_series(&ctx.t_s, &on, self.tau_s, Some(0.0));
         for (o, h) in out[self.axis].iter_mut().zip(heat) {
             *o = self.amplitude_nm * 1e-3 * h;
         }
         out
     }
+}
+
+/// A source switching on (1) and off (0) at random: exponentially distributed on and off
+/// periods of mean `mean_period_s`, off at absolute time 0, sampled at `t_abs_s`.
+pub fn telegraph(t_abs_s: &[f64], mean_period_s: f64, rng: &mut ChaCha8Rng) -> Vec<f64> {
+    let t_end = t_abs_s.last().copied().unwrap_or(0.0);
+    let mut switches = Vec::new();
+    let mut t = 0.0;
+    while t <= t_end {
+        t += -mean_period_s * rng.gen_range(f64::MIN_POSITIVE..1.0f64).ln();
+        switches.push(t);
+    }
+    let mut i = 0;
+    t_abs_s
+        .iter()
+        .map(|&ta| {
+            while i < switches.len() && switches[i] <= ta {
+                i += 1;
+            }
+            (i % 2) as f64
+        })
+        .collect()
 }
 
 /// The explain candidate: a smooth function of time (cosines up to order K, time scale T/K)

@@ -50,14 +50,17 @@ pub const PERIODS_NM: [f64; 4] = [HENE_HALF_WAVELENGTH_NM, 266.0, 390.0, 775.0];
 /// The explain candidate: sin/cos of 2πx/P and 4πx/P of the measured position, P from a short list.
 pub struct Candidate;
 
-/// The fringe periods the recording can tell from geometry.
+/// The fringe periods the recording can tell from geometry: the stage drifted through half a
+/// fringe at the same commanded pose, or a fine scan (poses closer than a third of a period)
+/// covered at least two periods.
 fn periods(d: &Data, ch: usize) -> Vec<f64> {
     let range_nm = within_pose_range_nm(d, ch);
     let spacing_nm = fine_pose_spacing_nm(d, ch);
+    let travel_nm = travel_nm(d, ch);
     PERIODS_NM
         .iter()
         .copied()
-        .filter(|p| range_nm >= 0.5 * p || spacing_nm <= p / 3.0)
+        .filter(|p| range_nm >= 0.5 * p || (spacing_nm <= p / 3.0 && travel_nm >= 2.0 * p))
         .collect()
 }
 
@@ -165,6 +168,12 @@ fn within_pose_range_nm(d: &Data, ch: usize) -> f64 {
     }
     ranges.sort_by(f64::total_cmp);
     ranges[ranges.len() / 2]
+}
+
+/// Commanded travel of this axis, nm (0 when not commanded): a fine scan tells a periodic
+/// error from a smooth function of position only over a few periods.
+fn travel_nm(d: &Data, ch: usize) -> f64 {
+    2.0 * d.channels[ch].half_range_um * 1e3 * f64::from(u8::from(d.channels[ch].u.is_some()))
 }
 
 /// Median spacing between neighbouring distinct commanded poses of this axis when there are at

@@ -75,6 +75,12 @@ pub fn update_interval_s(t_s: &[f64], v: &[f64]) -> f64 {
 /// Rows where `moved` is true start a new pose of a step-and-hold procedure: a jump there is
 /// the error at the new pose (one pose can be off by itself), so no excursion may start, end
 /// or lie across one.
+///
+/// "Back" allows for the series moving on meanwhile: within half the jump threshold, or within
+/// a tenth of the excursion's own size (a 4 mm glitch in a probe rising 30 µm per row).
+/// An excursion to values the rest of the series never comes near (beyond its whole range by
+/// more than the threshold: a homing error, a dropped-to-zero reading) may last longer, up to a
+/// tenth of the record — no physics takes a reading there and back again.
 pub fn glitch_rows(
     v: &[f64],
     q: Option<f64>,
@@ -109,29 +115,55 @@ pub fn glitch_rows(
     if thr.is_nan() || thr <= 0.0 {
         return Vec::new();
     }
+    // first the short excursions; then, with those masked, the long ones far outside the rest
+    let short = excursions(v, &d, thr, max_run, max_run, moved, None);
+    let masked: Vec<f64> = {
+        let mut m = v.to_vec();
+        for &i in &short {
+            m[i] = f64::NAN;
+        }
+        m
+    };
+    let far = FarRange::new(&masked);
+    let mut out = excursions(v, &d, thr, max_run, max_run.max(n / 10), moved, Some(&far));
+    out.extend(short);
+    out.sort_unstable();
+    out.dedup();
+    out
+}
+
+/// The excursion scan of [`glitch_rows`]: runs up to `max_run` rows, or up to `long_run` rows
+/// when they lie beyond the range `far` of everything else.
+fn excursions(
+    v: &[f64],
+    d: &[f64],
+    thr: f64,
+    max_run: usize,
+    long_run: usize,
+    moved: Option<&[bool]>,
+    far: Option<&FarRange>,
+) -> Vec<usize> {
+    let n = v.len();
+    let at_move = |k: usize| moved.is_some_and(|m| m[k]);
     let mut out = Vec::new();
     let mut i = 1;
     while i < n {
-        if d[i - 1].abs() <= thr {
-            i += 1;
-            continue;
-        }
-        let at_move = |k: usize| moved.is_some_and(|m| m[k]);
-        if at_move(i) {
+        if d[i - 1].abs() <= thr || at_move(i) {
             i += 1;
             continue;
         }
         let before = v[i - 1];
-        // look for the return: the first row back within thr/2 of the level before
-        let end = (i + max_run).min(n - 1);
+        let back_within = (0.5 * thr).max(0.1 * (v[i] - before).abs());
+        // look for the return: the first row back near the level before
+        let end = (i + long_run).min(n - 1);
         let found = (i + 1..=end)
             .take_while(|&j| !at_move(j))
-            .find(|&j| (v[j] - before).abs() <= 0.5 * thr);
+            .find(|&j| (v[j] - before).abs() <= back_within);
         match found {
             Some(j)
                 if (i..j).all(|k| {
-                    (v[k] - before).abs() > 0.5 * thr && (v[k] - v[j]).abs() > 0.5 * thr
-                }) =>
+                    (v[k] - before).abs() > back_within && (v[k] - v[j]).abs() > back_within
+                }) && (j - i <= max_run || far.is_some_and(|f| f.outside(i, j, thr))) =>
             {
                 out.extend(i..j);
                 i = j + 1;
@@ -140,6 +172,50 @@ pub fn glitch_rows(
         }
     }
     out
+}
+
+/// Prefix and suffix extremes of a series: whether a run of rows lies beyond the range of all
+/// the other rows.
+struct FarRange<'a> {
+    v: &'a [f64],
+    pre_min: Vec<f64>,
+    pre_max: Vec<f64>,
+    suf_min: Vec<f64>,
+    suf_max: Vec<f64>,
+}
+
+impl<'a> FarRange<'a> {
+    fn new(v: &'a [f64]) -> Self {
+        let n = v.len();
+        let (mut pre_min, mut pre_max) =
+            (vec![f64::INFINITY; n + 1], vec![f64::NEG_INFINITY; n + 1]);
+        for i in 0..n {
+            pre_min[i + 1] = pre_min[i].min(v[i]);
+            pre_max[i + 1] = pre_max[i].max(v[i]);
+        }
+        let (mut suf_min, mut suf_max) =
+            (vec![f64::INFINITY; n + 1], vec![f64::NEG_INFINITY; n + 1]);
+        for i in (0..n).rev() {
+            suf_min[i] = suf_min[i + 1].min(v[i]);
+            suf_max[i] = suf_max[i + 1].max(v[i]);
+        }
+        FarRange {
+            v,
+            pre_min,
+            pre_max,
+            suf_min,
+            suf_max,
+        }
+    }
+
+    /// Whether every row of `a..b` lies more than `margin` beyond the range of the rows
+    /// outside `a..b`, all on the same side.
+    fn outside(&self, a: usize, b: usize, margin: f64) -> bool {
+        let lo = self.pre_min[a].min(self.suf_min[b]);
+        let hi = self.pre_max[a].max(self.suf_max[b]);
+        let run = &self.v[a..b];
+        run.iter().all(|&x| x > hi + margin) || run.iter().all(|&x| x < lo - margin)
+    }
 }
 
 /// Rows as a person reads them: data rows counted from 1 (the header is not a data row),
@@ -219,6 +295,34 @@ mod tests {
         }
         assert!(!glitch_rows(&staircase, None, 30, None).is_empty());
         assert!(glitch_rows(&staircase, None, 30, Some(&moved)).is_empty());
+        // a probe rising fast: a 4.3 mm mis-trigger while it moves 30 µm a row, and eleven
+        // readings 4.3 mm off where only five may pass as a glitch by length alone
+        let mut rising: Vec<f64> = (0..300)
+            .map(|i| 15.0 * i as f64 + 8.0 * ((i * 37) % 5) as f64)
+            .collect();
+        rising[40] += 4300.0;
+        for x in rising.iter_mut().skip(120).take(11) {
+            *x += 4300.0 + 15.0 * 300.0;
+        }
+        let want: Vec<usize> = [40].into_iter().chain(120..131).collect();
+        assert_eq!(glitch_rows(&rising, None, 5, None), want);
+        // a level that goes away for twenty rows and comes back inside the series' own range
+        // is a change of level, not a glitch, when only five rows may be a glitch
+        let mut level = vec![0.0; 300];
+        for (i, x) in level.iter_mut().enumerate() {
+            *x = if i < 100 {
+                0.0
+            } else if i < 200 {
+                10.0 * (i - 100) as f64 / 100.0
+            } else {
+                10.0
+            };
+            *x += 0.01 * ((i * 7919) % 11) as f64;
+        }
+        for x in level.iter_mut().skip(50).take(20) {
+            *x += 8.0;
+        }
+        assert!(glitch_rows(&level, None, 5, None).is_empty());
     }
 
     #[test]

@@ -227,7 +227,7 @@ impl Room {
                 if s.local_heater_c != 0.0 {
                     // switching times from the room's realisation and the spot's index
                     let seed = (self.hvac_phase.to_bits() ^ (i as u64).wrapping_mul(0x9E37_79B9))
-                        .wrapping_add(0xEA7E_5);
+                        .wrapping_add(0x000E_A7E5);
                     let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed);
                     let on = crate::effects::unexplained_drift::telegraph(
                         t_abs_s,

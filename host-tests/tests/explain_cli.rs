@@ -72,3 +72,28 @@ fn simulate_then_explain_writes_json_and_plots() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("thermal_lag"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// The real 40 s piezo recording through the binary: the header tells its length in seconds
+/// (the issue saw "0.0 h"), and a continuous sine revisits no pose, so no ISO 9283 figures.
+#[test]
+fn a_record_of_seconds_is_introduced_in_seconds() {
+    let csv = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data/piezo-hysteresis/recording.csv");
+    let out = Command::new(env!("CARGO_BIN_EXE_nanocal"))
+        .arg("explain")
+        .arg(&csv)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let header = text.lines().next().unwrap_or_default();
+    assert!(
+        header.contains(" s, ") && !header.contains(" h,"),
+        "{header}"
+    );
+    assert!(!text.contains("ISO 9283"), "{text}");
+}

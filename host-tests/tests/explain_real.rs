@@ -2,7 +2,7 @@
 //! says what physics is in it). Every assertion names what the data's README tells us the
 //! machine does, so a pass means explain found that physics, not that it reproduced itself.
 
-use nanocal::explain::{explain, Data, EffectReport, Report, Settings};
+use nanocal::explain::{explain, ChannelReport, Data, EffectReport, Report, Settings};
 use nanocal::recording::Recording;
 
 fn shared(rel: &str) -> std::path::PathBuf {
@@ -16,6 +16,47 @@ fn explain_file(rel: &str) -> Report {
     let rec = Recording::read_path(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
     let data = Data::from_recording(&rec, None).unwrap();
     explain(&data, &Settings::default()).unwrap()
+}
+
+/// The headline must say which of the two it is, and say it truly: structure that no
+/// candidate explains is listed exactly when the headline says it remains.
+fn assert_headline_tells_what_remains(c: &ChannelReport, what: &str) {
+    let h = c.headline();
+    if c.unexplained.is_empty() {
+        assert!(
+            h.contains("nothing significant remains") && !h.contains("structure remains"),
+            "{what}: {h}"
+        );
+    } else {
+        assert!(
+            h.contains("structure remains that no candidate explains")
+                && !h.contains("nothing significant"),
+            "{what}: {h}"
+        );
+    }
+}
+
+/// The values of the searched-range bounds that `name` hit, as the evidence reports them
+/// ("tau_s at the bottom of the searched range (99.2): an upper bound").
+fn bounds_hit(e: &EffectReport, name: &str) -> Vec<f64> {
+    let key = format!("{name} at the ");
+    e.evidence
+        .match_indices(&key)
+        .filter_map(|(i, _)| {
+            let rest = &e.evidence[i..];
+            let open = rest.find("range (")? + "range (".len();
+            let close = open + rest[open..].find(')')?;
+            rest[open..close].parse().ok()
+        })
+        .collect()
+}
+
+/// Standard deviation of the second differences / √6: the white-noise level of a series
+/// whose drift is smooth, computed here independently of explain.
+fn second_difference_noise(v: &[f64]) -> f64 {
+    let d2: Vec<f64> = v.windows(3).map(|w| w[2] - 2.0 * w[1] + w[0]).collect();
+    let m = d2.iter().sum::<f64>() / d2.len() as f64;
+    (d2.iter().map(|x| (x - m).powi(2)).sum::<f64>() / d2.len() as f64).sqrt() / 6f64.sqrt()
 }
 
 fn param(e: &EffectReport, name: &str) -> f64 {
@@ -46,6 +87,20 @@ fn zprobe_drift_is_a_thermal_lag_of_minutes() {
         let rep = explain_file(&format!("zprobe-drift/{name}"));
         let c = &rep.channels[0];
         let text = rep.to_text();
+        assert_headline_tells_what_remains(c, &name);
+        // …and not inflated: within 1.5× of the larger of step/√12 and the white noise of
+        // the readings' second differences (the issue saw 71 nm floors and σ in the thousands)
+        let z = Recording::read_path(&f)
+            .unwrap()
+            .column("meas_z")
+            .unwrap()
+            .to_vec();
+        let independent_um = (1.25 / 12f64.sqrt()).max(second_difference_noise(&z));
+        assert!(
+            c.noise_floor.sample_um <= 1.5 * independent_um,
+            "{name}: floor {} µm, readings' own {independent_um} µm\n{text}",
+            c.noise_floor.sample_um
+        );
         // readings on a 1.25 µm grid: the floor is at least 1.25/√12 µm
         assert!(
             (c.quant_step_um.unwrap() - 1.25).abs() < 1e-9,
@@ -70,6 +125,13 @@ fn zprobe_drift_is_a_thermal_lag_of_minutes() {
             (60.0..=30.0 * 60.0).contains(&tau),
             "{name}: main τ {tau} s is not minutes\n{text}"
         );
+        // a τ the data determined, not the edge of the search
+        assert!(
+            bounds_hit(lag, "tau_s")
+                .iter()
+                .all(|b| (tau - b).abs() > 0.03 * b),
+            "{name}: main τ {tau} s sits on a search bound\n{text}"
+        );
         // and it predicts held-out blocks better by a good margin
         assert!(
             lag.rms_after_nm < 0.9 * lag.rms_before_nm,
@@ -92,6 +154,7 @@ fn piezo_hysteresis_is_named_first_with_its_width_and_sense() {
     let c = &rep.channels[0];
     let first = c.effects.first().unwrap_or_else(|| panic!("{text}"));
     assert_eq!(first.name, "hysteresis", "{text}");
+    assert_headline_tells_what_remains(c, "piezo");
     let hw = param(first, "half_width_nm");
     assert!((3000.0..7000.0).contains(&hw), "half width {hw} nm\n{text}");
     assert_eq!(param(first, "loop_sense"), 1.0, "{text}");
@@ -124,7 +187,10 @@ fn spindle_shows_a_thermal_lag_on_all_five_channels() {
     let rep = explain_file("spindle-thermal/recording.csv");
     let text = rep.to_text();
     assert_eq!(rep.channels.len(), 5);
+    let rec = Recording::read_path(shared("spindle-thermal/recording.csv")).unwrap();
+    assert_eq!(rec.temp_columns().len(), 16, "the README's sixteen sensors");
     for c in &rep.channels {
+        assert_headline_tells_what_remains(c, &c.channel);
         let lag = c
             .effects
             .iter()

@@ -42,10 +42,10 @@ pub fn run(args: ExplainArgs) -> Result<()> {
     let data = Data::from_recording(&rec, sim.as_ref())
         .with_context(|| format!("{}", args.recording.display()))?;
     println!(
-        "explain {}: {} rows, {:.1} h, {} channel(s), {} temperature(s), aux: {}",
+        "explain {}: {} rows over {}, {} channel(s), {} temperature(s), aux: {}",
         args.recording.display(),
         data.rows(),
-        data.duration_s() / 3600.0,
+        crate::explain::units::duration(data.duration_s()),
         data.channels.len(),
         data.temps.len(),
         if data.aux.is_empty() {

@@ -8,7 +8,6 @@
 #![no_main]
 
 use defmt_rtt as _;
-use panic_probe as _;
 
 use core::ptr::{read_volatile, write_volatile};
 use core::sync::atomic::{AtomicBool, Ordering};
@@ -102,6 +101,19 @@ unsafe fn NonMaskableInt() {
     loop {
         cortex_m::asm::nop();
     }
+}
+
+/// A panic logs where it happened (defmt over RTT; the message would pull in `core::fmt`,
+/// about 3 KiB of flash, for the few panics the firmware has, all on start-up paths) and ends in
+/// a permanent UDF, which probe-rs reports with a backtrace; without a probe the IWDG resets
+/// the board.
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    match info.location() {
+        Some(l) => defmt::error!("panic at {=str}:{=u32}", l.file(), l.line()),
+        None => defmt::error!("panic"),
+    }
+    cortex_m::asm::udf()
 }
 
 /// The store's flash: bank 2, erased and programmed through the controller's registers with

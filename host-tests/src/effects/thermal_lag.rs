@@ -197,6 +197,29 @@ fn prune(s: &Search, terms: &mut Vec<LagTerm>, cols: &mut Vec<Vec<f64>>) {
     }
 }
 
+/// A sentence when term `j`'s τ sits on the [`DISTINCT`] separation from another τ of the
+/// same sensor (within 3 %): the pair is held apart by the search, the data would put them
+/// closer, so neither value is an estimate of its own.
+fn held_apart_note(terms: &[LagTerm], j: usize) -> Option<String> {
+    let t = terms[j].tau.value;
+    let other = terms
+        .iter()
+        .enumerate()
+        .find(|(k, o)| {
+            let r = if o.tau.value > t {
+                o.tau.value / t
+            } else {
+                t / o.tau.value
+            };
+            *k != j && o.sensor == terms[j].sensor && r < DISTINCT * 1.03
+        })?
+        .1;
+    Some(format!(
+        "held {DISTINCT}× apart from this sensor's other τ ({}): the data would put them closer, so neither is an estimate of its own",
+        duration(other.tau.value)
+    ))
+}
+
 /// A lag term moves the prediction by at most this many times the thermal displacement the
 /// temperatures explain statically (see [`drop_implausible`]).
 const MAX_TERM_OF_STATIC: f64 = 5.0;
@@ -535,6 +558,7 @@ impl super::Candidate for Candidate {
                 let bound = t
                     .tau
                     .bound_note()
+                    .or_else(|| held_apart_note(terms, j))
                     .map(|b| format!(" [{b}]"))
                     .unwrap_or_default();
                 format!(

@@ -151,22 +151,37 @@ pub struct Frame<'a> {
     pub payload: &'a [u8],
 }
 
+/// Where a frame's payload starts.
+pub const PAYLOAD_AT: usize = 6;
+
 /// Encode a frame into `out`; returns its length.
 pub fn encode(kind: u8, seq: u8, payload: &[u8], out: &mut [u8]) -> Result<usize, FrameError> {
     if payload.len() > MAX_PAYLOAD {
         return Err(FrameError::TooLong);
     }
-    let n = payload.len() + OVERHEAD;
+    if out.len() < payload.len() + OVERHEAD {
+        return Err(FrameError::OutputFull);
+    }
+    out[PAYLOAD_AT..PAYLOAD_AT + payload.len()].copy_from_slice(payload);
+    seal(kind, seq, payload.len(), out)
+}
+
+/// Complete a frame whose `len` payload bytes were written in place at
+/// `out[PAYLOAD_AT..]` (no second buffer): sync, header and CRC; returns the frame's length.
+pub fn seal(kind: u8, seq: u8, len: usize, out: &mut [u8]) -> Result<usize, FrameError> {
+    if len > MAX_PAYLOAD {
+        return Err(FrameError::TooLong);
+    }
+    let n = len + OVERHEAD;
     if out.len() < n {
         return Err(FrameError::OutputFull);
     }
     out[0..2].copy_from_slice(&SYNC);
     out[2] = kind;
     out[3] = seq;
-    out[4..6].copy_from_slice(&(payload.len() as u16).to_le_bytes());
-    out[6..6 + payload.len()].copy_from_slice(payload);
-    let crc = crc32(&out[2..6 + payload.len()]);
-    out[6 + payload.len()..n].copy_from_slice(&crc.to_le_bytes());
+    out[4..6].copy_from_slice(&(len as u16).to_le_bytes());
+    let crc = crc32(&out[2..PAYLOAD_AT + len]);
+    out[PAYLOAD_AT + len..n].copy_from_slice(&crc.to_le_bytes());
     Ok(n)
 }
 

@@ -9,6 +9,13 @@
 //!
 //! The KMZ item carries the id of the model it belongs to, so λ_KMZ of an old model is never
 //! applied to a new one.
+//!
+//! The store's scratch buffer (every item passes through it, so it holds the largest: a blob)
+//! doubles as the upload buffer: a blob is either being received or being written, never both.
+//! Between store operations the caller may keep bytes in [`Store::buffer`]; every operation
+//! overwrites them. The model is therefore stored from its decoded form
+//! ([`Store::save_model_with`] encodes it into the scratch, again after every page migration
+//! that reused the scratch), not from the received bytes.
 
 use core::fmt;
 use embedded_storage_async::nor_flash::NorFlash;
@@ -16,7 +23,21 @@ use nanocal_model::{blob, MAX_AXES};
 use sequential_storage::cache::{Cache, Uncached};
 
 type NoCache = Cache<Uncached, Uncached, Uncached, u8>;
-use sequential_storage::map::{MapConfig, MapStorage};
+use sequential_storage::map::{MapConfig, MapStorage, SerializationError, Value};
+
+/// A value produced by an encoder straight into the map's data buffer (possibly several times:
+/// a page migration reuses the buffer before the item is written).
+struct Encoded<F: Fn(&mut [u8]) -> Option<usize>>(F);
+
+impl<'a, F: Fn(&mut [u8]) -> Option<usize>> Value<'a> for Encoded<F> {
+    fn serialize_into(&self, buffer: &mut [u8]) -> Result<usize, SerializationError> {
+        (self.0)(buffer).ok_or(SerializationError::InvalidData)
+    }
+    fn deserialize_from(_: &'a [u8]) -> Result<(Self, usize), SerializationError> {
+        // only ever written; items are read back as bytes
+        Err(SerializationError::InvalidFormat)
+    }
+}
 
 /// Item keys.
 pub mod key {
@@ -93,6 +114,12 @@ impl<F: NorFlash> Store<F> {
         self.map.flash()
     }
 
+    /// The scratch buffer ([`SCRATCH`] bytes), free for the caller between store operations
+    /// (e.g. an upload being received); every load or save overwrites it.
+    pub fn buffer(&mut self) -> &mut [u8] {
+        &mut self.scratch
+    }
+
     async fn fetch(&mut self, k: u8, out: &mut [u8]) -> Result<Option<usize>, StoreError> {
         let v: Option<&[u8]> = self
             .map
@@ -119,6 +146,34 @@ impl<F: NorFlash> Store<F> {
     /// The stored model blob into `out`; its length.
     pub async fn load_model(&mut self, out: &mut [u8]) -> Result<Option<usize>, StoreError> {
         self.fetch(key::MODEL, out).await
+    }
+
+    /// The stored model blob, handed to `f` where it lies (in the scratch, no copy).
+    pub async fn load_model_with<R>(
+        &mut self,
+        f: impl FnOnce(&[u8]) -> R,
+    ) -> Result<Option<R>, StoreError> {
+        let k = key::MODEL;
+        let v: Option<&[u8]> = self
+            .map
+            .fetch_item(&mut self.scratch, &k)
+            .await
+            .map_err(err)?;
+        Ok(v.map(f))
+    }
+
+    /// Store the model blob that `encode` writes into the buffer it is given (returning its
+    /// length, `None` if it cannot): called once or, when the store must first migrate items
+    /// through the scratch, again after that.
+    pub async fn save_model_with(
+        &mut self,
+        encode: impl Fn(&mut [u8]) -> Option<usize>,
+    ) -> Result<(), StoreError> {
+        let k = key::MODEL;
+        self.map
+            .store_item(&mut self.scratch, &k, &Encoded(encode))
+            .await
+            .map_err(err)
     }
 
     /// Store a model blob (its KMZ item, if any, no longer matches its id and is ignored).

@@ -1,6 +1,22 @@
 //! `nanocal simulate` → `nanocal explain --json --plots` end to end, through the binary.
 
+use std::ffi::OsStr;
 use std::process::Command;
+
+/// `nanocal explain ARGS`, which must succeed; its standard output.
+fn explain_ok(args: &[&OsStr]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_nanocal"))
+        .arg("explain")
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).to_string()
+}
 
 #[test]
 fn simulate_then_explain_writes_json_and_plots() {
@@ -29,21 +45,13 @@ fn simulate_then_explain_writes_json_and_plots() {
     );
     let json = dir.join("out.json");
     let plots = dir.join("plots");
-    let out = Command::new(bin)
-        .arg("explain")
-        .arg(&csv)
-        .arg("--json")
-        .arg(&json)
-        .arg("--plots")
-        .arg(&plots)
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&out.stdout).to_string();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let text = explain_ok(&[
+        csv.as_os_str(),
+        "--json".as_ref(),
+        json.as_os_str(),
+        "--plots".as_ref(),
+        plots.as_os_str(),
+    ]);
     assert!(
         text.contains("name: hysteresis") && text.contains("ISO 9283"),
         "{text}"
@@ -71,4 +79,19 @@ fn simulate_then_explain_writes_json_and_plots() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("thermal_lag"));
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The real 40 s piezo recording through the binary: the header tells its length in seconds
+/// (the issue saw "0.0 h"), and a continuous sine revisits no pose, so no ISO 9283 figures.
+#[test]
+fn a_record_of_seconds_is_introduced_in_seconds() {
+    let csv = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data/piezo-hysteresis/recording.csv");
+    let text = explain_ok(&[csv.as_os_str()]);
+    let header = text.lines().next().unwrap_or_default();
+    assert!(
+        header.contains(" s, ") && !header.contains(" h,"),
+        "{header}"
+    );
+    assert!(!text.contains("ISO 9283"), "{text}");
 }

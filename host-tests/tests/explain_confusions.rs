@@ -49,6 +49,7 @@ fn hysteresis_is_not_mistaken_for_creep() {
                 axis: 0,
                 half_width_nm,
                 slope_nm: 0.0,
+                ..Default::default()
             })],
             6,
             seed,
@@ -110,7 +111,7 @@ fn thermal_lag_is_not_reported_as_unexplained_drift() {
         let mut r = rng(seed);
         let tau_s = draw(&mut r, 900.0, 2400.0);
         let mut cfg = lively_fast_sensors();
-        cfg.effects = vec![EffectSpec::ThermalLag(thermal_lag::Params { tau_s })];
+        cfg.effects = vec![EffectSpec::ThermalLag(thermal_lag::Params::common(tau_s))];
         let rep = explain_columns(simulate(
             cfg,
             &Trajectory::published_training_1dof(60.0, 10),

@@ -29,7 +29,7 @@ fn thermal_lag_is_named_and_tau_recovered() {
         let mut r = rng(seed);
         let tau_s = draw(&mut r, 600.0, 2400.0);
         let mut cfg = lively_fast_sensors();
-        cfg.effects = vec![EffectSpec::ThermalLag(thermal_lag::Params { tau_s })];
+        cfg.effects = vec![EffectSpec::ThermalLag(thermal_lag::Params::common(tau_s))];
         let rep = explain_columns(simulate(
             cfg,
             &Trajectory::published_training_1dof(60.0, 10),
@@ -59,6 +59,7 @@ fn hysteresis_is_named_and_width_recovered() {
                 axis: 0,
                 half_width_nm,
                 slope_nm,
+                ..Default::default()
             })],
             6,
             seed,
@@ -66,16 +67,28 @@ fn hysteresis_is_named_and_width_recovered() {
         assert_names(&rep, &["hysteresis"], "hidden hysteresis");
         assert_improves(&rep, "x", "hysteresis");
         let e = effect(&rep, "x", "hysteresis").unwrap();
+        // the width is reported as a width (≥ 0) with the loop's sense: a stage that stops
+        // further forward when it came forward (half_width_nm > 0 in the twin) is ahead of the
+        // command on the way up — a clockwise loop (sense −1)
         assert_close(
             param(e, "half_width_nm"),
-            half_width_nm,
+            half_width_nm.abs(),
             0.15,
-            2.0,
+            2.0 + slope_nm.abs(),
             "half_width_nm",
         );
-        let s = e.params.iter().find(|p| p.name == "slope_nm").unwrap();
-        assert!(s.sigma.is_finite() && s.sigma < 3.0, "slope σ {}", s.sigma);
-        assert_close(s.value, slope_nm, 0.0, 3.0 * s.sigma, "slope_nm");
+        assert_eq!(
+            param(e, "loop_sense"),
+            -half_width_nm.signum(),
+            "{}",
+            e.summary
+        );
+        let word = if half_width_nm > 0.0 {
+            "clockwise loop"
+        } else {
+            "counter-clockwise loop"
+        };
+        assert!(e.summary.starts_with(word), "{}", e.summary);
     }
 }
 

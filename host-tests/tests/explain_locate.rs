@@ -13,6 +13,7 @@ fn direction_dependence_is_located_before_it_is_named() {
             axis: 0,
             half_width_nm: 25.0,
             slope_nm: 0.0,
+            ..Default::default()
         })],
         6,
         71,

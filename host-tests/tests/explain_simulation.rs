@@ -17,6 +17,7 @@ fn what_the_simulation_left_out_is_named() {
         axis: 0,
         half_width_nm: 20.0,
         slope_nm: 0.0,
+        ..Default::default()
     })];
     let without = TwinConfig::published_1dof();
     // same room (seed), independent noise (stream)

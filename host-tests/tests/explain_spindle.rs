@@ -46,9 +46,11 @@ fn spindle_displacement_lags_the_temperatures() {
             "{}: τ needs an uncertainty",
             c.channel
         );
-        // and modelling it cuts the held-out residual by at least 40 %
+        // and modelling it cuts the held-out residual by at least a quarter (the lag set is
+        // kept physically plausible: no terms cancelling each other far beyond the static
+        // thermal displacement, which a freer fit would use to cut more)
         assert!(
-            first.rms_after_nm < 0.6 * first.rms_before_nm,
+            first.rms_after_nm < 0.75 * first.rms_before_nm,
             "{}: {} → {} nm",
             c.channel,
             first.rms_before_nm,

@@ -71,6 +71,7 @@ fn hysteresis_effect_separates_forward_and_backward() {
         axis: 0,
         half_width_nm: 25.0,
         slope_nm: 0.0,
+        ..Default::default()
     }));
     let twin = Twin::new(cfg.clone(), 86_400.0, 1);
     let traj = Trajectory::published_training_1dof(10.0, 1);

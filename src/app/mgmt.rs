@@ -31,64 +31,118 @@ pub async fn load_settings<F: NorFlash>(store: &mut Store<F>) -> Settings {
     Settings::default()
 }
 
-/// Load the stored model (and its KMZ) into service.
-async fn load_model<F: NorFlash>(store: &mut Store<F>, buf: &mut [u8], sh: &Shared) {
-    let n = match store.load_model(buf).await {
-        Ok(Some(n)) => n,
+/// Put the stored model (with its stored KMZ) in service, or none if none is stored or it does
+/// not decode. The blob is decoded where the store read it (its scratch), outside any future.
+async fn load_model<F: NorFlash>(store: &mut Store<F>, sh: &Shared) {
+    let id = match store.load_model_with(|b| stage_blob(sh, b)).await {
+        Ok(Some(Some(id))) => id,
+        Ok(Some(None)) => {
+            warn!("stored model does not decode");
+            sh.clear_model();
+            return;
+        }
         Ok(None) => {
             info!("no stored model");
+            sh.clear_model();
             return;
         }
         Err(_) => {
             warn!("model store unreadable");
+            sh.clear_model();
             return;
         }
     };
-    let Ok(mut model) = blob::decode(&buf[..n]) else {
-        warn!("stored model does not decode");
-        return;
-    };
-    if let Ok(Some(k)) = store.load_kmz(model.id()).await {
-        for (a, v) in k.iter().enumerate().take(model.axes()) {
-            model.set_kmz_offset_um(a, *v);
-        }
+    if let Ok(Some(k)) = store.load_kmz(id).await {
+        sh.model.lock(|m| {
+            if let Some(model) = m.borrow_mut().model.as_mut() {
+                for (a, v) in k.iter().enumerate().take(model.axes()) {
+                    model.set_kmz_offset_um(a, *v);
+                }
+            }
+        });
     }
-    info!("model {=u32} loaded", model.id());
-    sh.install(model);
+    info!("model {=u32} loaded", id);
+    sh.release();
 }
 
-/// Run the management channel. `buf` receives uploads (at least the largest blob); `reset`
-/// resets the device (after the reply to a `RESET` went out).
+/// Decode a stored blob and stage it; its id.
+fn stage_blob(sh: &Shared, bytes: &[u8]) -> Option<u32> {
+    let model = blob::decode(bytes).ok()?;
+    let id = model.id();
+    sh.stage(model);
+    Some(id)
+}
+
+/// Why a finished upload is not staged.
+enum Refused {
+    Upload(u8),
+    Input(u8),
+}
+
+/// Verify and decode a finished upload (in `buf`), check that the board supplies its inputs
+/// and stage it; its id and λ_KMZ. Synchronous, so the decoded model never lives in the
+/// management task's future.
+fn stage_upload(
+    sh: &Shared,
+    upload: &mut Upload,
+    buf: &[u8],
+) -> Result<(u32, [f64; MAX_AXES]), Refused> {
+    let (model, _) = upload.finish(buf).map_err(|e| Refused::Upload(e.code()))?;
+    let settings = sh.settings.lock(|s| *s.borrow());
+    let board = sh.board.lock(|b| *b.borrow());
+    inputs::check(&model, &settings, &board).map_err(|e| Refused::Input(e.code()))?;
+    let mut kmz = [0.0; MAX_AXES];
+    for (a, v) in kmz.iter_mut().enumerate().take(model.axes()) {
+        *v = model.kmz_offset_um(a);
+    }
+    let id = model.id();
+    sh.stage(model);
+    Ok((id, kmz))
+}
+
+/// Encode the staged model into `out` (the store's scratch); its length.
+fn encode_staged(sh: &Shared, out: &mut [u8]) -> Option<usize> {
+    sh.model.lock(|m| {
+        let m = m.borrow();
+        blob::encode(m.model.as_ref()?, out).ok()
+    })
+}
+
+/// Run the management channel. The store's scratch receives uploads (a blob is either being
+/// received or being written); `reset` resets the device (after the reply to a `RESET` went
+/// out).
 pub async fn management<R: Read, W: Write, F: NorFlash>(
     mut rx: R,
     mut tx: W,
     store: &mut Store<F>,
-    buf: &mut [u8],
     reset: fn() -> !,
     sh: &Shared,
 ) -> ! {
-    load_model(store, buf, sh).await;
     let mut dec = Decoder::new();
     let mut upload = Upload::new();
     let mut inbuf = [0u8; 64];
-    let mut reply = [0u8; mgmt::MAX_PAYLOAD];
     let mut frame = [0u8; mgmt::MAX_FRAME];
+    let mut load = true;
     loop {
+        // at start, and after a staged model could not be stored: what the store holds runs,
+        // as after the next reset
+        if load {
+            load_model(store, sh).await;
+            load = false;
+        }
         let n = read_some(&mut rx, &mut inbuf).await;
         for &b in &inbuf[..n] {
             match dec.feed(b) {
                 Some(Ok(())) => {
                     let f = dec.frame();
                     let (k, seq) = (f.kind, f.seq);
-                    let mut payload = [0u8; mgmt::MAX_PAYLOAD];
-                    let pl = f.payload.len();
-                    payload[..pl].copy_from_slice(f.payload);
-                    let len =
-                        handle(k, &payload[..pl], &mut reply, &mut upload, store, buf, sh).await;
-                    if let Ok(m) = mgmt::encode(k | kind::REPLY, seq, &reply[..len], &mut frame) {
+                    let reply = &mut frame[mgmt::PAYLOAD_AT..][..mgmt::MAX_PAYLOAD];
+                    let len = handle(k, f.payload, reply, &mut upload, store, sh).await;
+                    if let Ok(m) = mgmt::seal(k | kind::REPLY, seq, len, &mut frame) {
                         let _ = tx.write_all(&frame[..m]).await;
                         let _ = tx.flush().await;
                     }
+                    load = sh.model.lock(|m| m.borrow().pending);
                     if k == kind::RESET {
                         embassy_time::Timer::after_millis(50).await;
                         reset();
@@ -107,11 +161,15 @@ async fn handle<F: NorFlash>(
     reply: &mut [u8],
     upload: &mut Upload,
     store: &mut Store<F>,
-    buf: &mut [u8],
     sh: &Shared,
 ) -> usize {
     let mut w = Writer::new(reply);
     let mut r = Reader::new(payload);
+    if matches!(k, kind::SET_KMZ | kind::CONFIG_SET) && upload.is_active() {
+        // the store's scratch holds the upload: writing anything else overwrites it
+        upload.abort();
+        warn!("upload aborted by a store write");
+    }
     let code = match k {
         kind::HELLO => {
             let _ = w.u8(mgmt::RESULT_OK);
@@ -131,14 +189,16 @@ async fn handle<F: NorFlash>(
             return w.len();
         }
         kind::UPLOAD_BEGIN => match (r.u32(), r.u32(), r.u16()) {
-            (Ok(len), Ok(crc), Ok(ver)) => match upload.begin(len, crc, ver, buf.len()) {
-                Ok(()) => mgmt::RESULT_OK,
-                Err(e) => reject(sh, e.code()),
-            },
+            (Ok(len), Ok(crc), Ok(ver)) => {
+                match upload.begin(len, crc, ver, store.buffer().len()) {
+                    Ok(()) => mgmt::RESULT_OK,
+                    Err(e) => reject(sh, e.code()),
+                }
+            }
             _ => mgmt::RESULT_BAD_REQUEST,
         },
         kind::UPLOAD_CHUNK => match r.u32() {
-            Ok(offset) => match upload.chunk(buf, offset, r.rest()) {
+            Ok(offset) => match upload.chunk(store.buffer(), offset, r.rest()) {
                 Ok(received) => {
                     let _ = w.u8(mgmt::RESULT_OK);
                     let _ = w.u32(received);
@@ -151,32 +211,17 @@ async fn handle<F: NorFlash>(
             },
             Err(_) => mgmt::RESULT_BAD_REQUEST,
         },
-        kind::UPLOAD_COMMIT => match upload.finish(buf) {
-            Ok((model, len)) => {
-                let settings = sh.settings.lock(|s| *s.borrow());
-                let board = sh.board.lock(|b| *b.borrow());
-                if let Err(e) = inputs::check(&model, &settings, &board) {
-                    warn!(
-                        "upload refused: model input not supplied (code {=u8})",
-                        e.code()
-                    );
-                    let _ = w.u8(reject(sh, mgmt::RESULT_INPUT));
-                    let _ = w.u8(e.code());
-                    return w.len();
-                }
-                let id = model.id();
-                let mut kmz = [0.0; MAX_AXES];
-                for (a, v) in kmz.iter_mut().enumerate().take(model.axes()) {
-                    *v = model.kmz_offset_um(a);
-                }
+        kind::UPLOAD_COMMIT => match stage_upload(sh, upload, store.buffer()) {
+            Ok((id, kmz)) => {
                 // the model, then its own λ_KMZ (an older KMZ item for the same id must not
-                // come back at the next boot)
-                let stored = match store.save_model(&buf[..len]).await {
+                // come back at the next boot); the model is encoded again from its decoded
+                // form, since the scratch that received it is the store's working buffer
+                let stored = match store.save_model_with(|out| encode_staged(sh, out)).await {
                     Ok(()) => store.save_kmz(id, &kmz).await.is_ok(),
                     Err(_) => false,
                 };
                 if stored {
-                    sh.install(model);
+                    sh.release();
                     sh.model.lock(|m| {
                         let mut m = m.borrow_mut();
                         m.uploads_ok = m.uploads_ok.wrapping_add(1);
@@ -188,9 +233,19 @@ async fn handle<F: NorFlash>(
                     let _ = w.u32(sh.model.lock(|m| m.borrow().uploads_ok));
                     return w.len();
                 }
+                // still pending: the management loop puts what the store holds back in service
                 reject(sh, mgmt::RESULT_STORAGE)
             }
-            Err(e) => reject(sh, e.code()),
+            Err(Refused::Upload(code)) => reject(sh, code),
+            Err(Refused::Input(code)) => {
+                warn!(
+                    "upload refused: model input not supplied (code {=u8})",
+                    code
+                );
+                let _ = w.u8(reject(sh, mgmt::RESULT_INPUT));
+                let _ = w.u8(code);
+                return w.len();
+            }
         },
         kind::UPLOAD_ABORT => {
             upload.abort();
@@ -209,27 +264,8 @@ async fn handle<F: NorFlash>(
             if !ok {
                 mgmt::RESULT_BAD_REQUEST
             } else {
-                let dir = [0i8; MAX_AXES];
-                let kmz = sh.model.lock(|m| {
-                    let mut m = m.borrow_mut();
-                    let m = &mut *m;
-                    let slow = m.slow;
-                    let ready = m.inputs_ready;
-                    let model = m.model.as_mut()?;
-                    model.set_kmz_from_reference(&q, &x, &dir, &slow);
-                    let mut k = [0.0; MAX_AXES];
-                    for (a, v) in k.iter_mut().enumerate().take(model.axes()) {
-                        *v = model.kmz_offset_um(a);
-                    }
-                    // the next command already uses the new offset (if the inputs are valid)
-                    Some((k, model.id(), ready.then(|| Comp::new(model, &slow))))
-                });
-                match kmz {
-                    Some((k, id, comp)) => {
-                        if let Some(comp) = comp {
-                            sh.core.lock(|c| c.borrow_mut().comp = Some(comp));
-                        }
-                        sh.refold.signal(());
+                match apply_kmz(sh, &q, &x) {
+                    Some((k, id)) => {
                         let persisted = store.save_kmz(id, &k).await.is_ok();
                         if !persisted {
                             warn!("KMZ change not stored");
@@ -278,6 +314,36 @@ async fn handle<F: NorFlash>(
     };
     let _ = w.u8(code);
     w.len()
+}
+
+/// Re-measure λ_KMZ of the model in service at a reference pose (command `q` sent, `x`
+/// measured); the next command already uses it (when the inputs are valid, the fast path is
+/// folded again at once). The new offsets and the model's id; `None` without a model.
+fn apply_kmz(
+    sh: &Shared,
+    q: &[f64; MAX_AXES],
+    x: &[f64; MAX_AXES],
+) -> Option<([f64; MAX_AXES], u32)> {
+    let dir = [0i8; MAX_AXES];
+    let kmz = sh.model.lock(|m| {
+        let mut m = m.borrow_mut();
+        let m = &mut *m;
+        let slow = m.slow;
+        let live = m.inputs_ready && !m.pending;
+        let model = m.model.as_mut()?;
+        model.set_kmz_from_reference(q, x, &dir, &slow);
+        let mut k = [0.0; MAX_AXES];
+        for (a, v) in k.iter_mut().enumerate().take(model.axes()) {
+            *v = model.kmz_offset_um(a);
+        }
+        if live {
+            let comp = Comp::new(model, &slow);
+            sh.core.lock(|c| c.borrow_mut().comp = Some(comp));
+        }
+        Some((k, model.id()))
+    });
+    sh.refold.signal(());
+    kmz
 }
 
 /// Put new settings in force: sensors are reconfigured at once, the axis names take effect on

@@ -100,6 +100,9 @@ pub struct ModelState {
     pub sensor_reconfigs: u32,
     /// Every input the model uses has a valid reading (lag filters primed).
     pub inputs_ready: bool,
+    /// `model` was received but is not in the store yet: it is not folded (no move uses it)
+    /// until the store has it ([`Shared::release`]).
+    pub pending: bool,
 }
 
 /// Mutex for state shared between tasks of the one thread-mode executor (no interrupt masking).
@@ -164,6 +167,7 @@ impl Shared {
                 last_upload_error: 0,
                 sensor_reconfigs: 0,
                 inputs_ready: false,
+                pending: false,
             })),
             settings: Mutex::new(RefCell::new(settings)),
             board: Mutex::new(RefCell::new(inputs::Board::default())),
@@ -179,22 +183,42 @@ impl Shared {
         }
     }
 
-    /// Put `model` in service (already stored). It runs only once every input it uses has a
-    /// valid reading: until the sensor task folds it, moves are refused and replies pass
-    /// unmapped (never a fold at 0 °C temperatures that were never read).
-    pub fn install(&self, model: Model) {
+    /// Take `model` as the model of the device, not yet in service: the previous one is out of
+    /// service at once, and `model` runs only once it is released ([`Shared::release`], when the
+    /// store has it) and every input it uses has a valid reading: until the sensor task folds
+    /// it, moves are refused and replies pass unmapped (never a fold at 0 °C temperatures that
+    /// were never read).
+    pub fn stage(&self, model: Model) {
         self.model.lock(|m| {
             let mut m = m.borrow_mut();
             m.model = Some(model);
             m.generation = m.generation.wrapping_add(1);
             m.inputs_ready = false;
+            m.pending = true;
         });
         self.core.lock(|c| {
             let mut c = c.borrow_mut();
             c.comp = None;
             c.proxy.gate = Gate::SensorFault;
         });
+    }
+
+    /// The staged model is in the store: the sensor task may fold it.
+    pub fn release(&self) {
+        self.model.lock(|m| m.borrow_mut().pending = false);
         self.refold.signal(());
+    }
+
+    /// No model (the staged one could not be stored and none is stored).
+    pub fn clear_model(&self) {
+        self.model.lock(|m| {
+            let mut m = m.borrow_mut();
+            m.model = None;
+            m.generation = m.generation.wrapping_add(1);
+            m.inputs_ready = false;
+            m.pending = false;
+        });
+        self.core.lock(|c| c.borrow_mut().comp = None);
     }
 
     /// Used channels (temperatures) of the model in service.

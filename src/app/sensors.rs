@@ -201,6 +201,10 @@ pub async fn sensors<B: InputBus>(mut bus: B, timeout: Duration, sh: &Shared) ->
                 }
             }
             let model = m.model.as_ref()?;
+            if m.pending {
+                // received, not stored yet: no move may use it
+                return Some(None);
+            }
             let (temps, auxn) = (model.temps(), model.aux());
             let ready = m.faults.all_usable(temps) && m.aux_faults.all_usable(auxn);
             if !ready {

@@ -18,7 +18,6 @@ use nanocal_fw::qemu::board::{self, TimedFlash};
 use nanocal_fw::qemu::sensor_bus::MailboxBus;
 use nanocal_fw::qemu::uart::{self, Uart, UartRx, UartTx};
 use nanocal_fw::qemu::{self, executor, time};
-use nanocal_model::blob;
 use static_cell::StaticCell;
 
 /// Store erase unit: four 2 KiB pages (a whole blob fits one unit).
@@ -27,7 +26,6 @@ type Flash = L4Nor<TimedFlash, ERASE>;
 
 static SHARED: StaticCell<Shared> = StaticCell::new();
 static STORE: StaticCell<Store<Flash>> = StaticCell::new();
-static UPLOAD: StaticCell<[u8; blob::MAX_BLOB_LEN]> = StaticCell::new();
 
 #[exception]
 fn SysTick() {
@@ -68,10 +66,9 @@ async fn management_task(
     rx: UartRx,
     tx: UartTx,
     store: &'static mut Store<Flash>,
-    buf: &'static mut [u8; blob::MAX_BLOB_LEN],
     sh: &'static Shared,
 ) {
-    app::management(rx, tx, store, buf, board::software_reset, sh).await
+    app::management(rx, tx, store, board::software_reset, sh).await
 }
 
 /// The host link's line state: the bench sends C0h | bits of USB CDC SET_CONTROL_LINE_STATE's
@@ -156,9 +153,8 @@ async fn boot_task(spawner: Spawner, cause: nanocal_compensator::identity::Reset
     let (srx, stx) = stage.split();
     let (mrx, mtx) = mgmt.split();
     let (lrx, _) = line.split();
-    let buf = UPLOAD.init([0; blob::MAX_BLOB_LEN]);
     spawner.spawn(supervisor_task(sh).expect("task pool"));
-    spawner.spawn(management_task(mrx, mtx, store, buf, sh).expect("task pool"));
+    spawner.spawn(management_task(mrx, mtx, store, sh).expect("task pool"));
     spawner.spawn(sensor_task(MailboxBus::new(), sh).expect("task pool"));
     spawner.spawn(stage_link_task(srx, stx, sh).expect("task pool"));
     spawner.spawn(host_link_task(hrx, htx, sh).expect("task pool"));

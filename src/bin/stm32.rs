@@ -8,7 +8,6 @@
 #![no_main]
 
 use defmt_rtt as _;
-use panic_probe as _;
 
 use core::ptr::{read_volatile, write_volatile};
 use core::sync::atomic::{AtomicBool, Ordering};
@@ -32,7 +31,6 @@ use nanocal_compensator::identity::{self, ResetCause};
 use nanocal_compensator::l4flash::{FlashError, L4Nor, RawFlash, DWORD, PAGE};
 use nanocal_compensator::store::Store;
 use nanocal_fw::app::{self, Identity, InputBus, Shared};
-use nanocal_model::blob;
 use static_cell::StaticCell;
 
 bind_interrupts!(struct Irqs {
@@ -103,6 +101,19 @@ unsafe fn NonMaskableInt() {
     loop {
         cortex_m::asm::nop();
     }
+}
+
+/// A panic logs where it happened (defmt over RTT; the message would pull in `core::fmt`,
+/// about 3 KiB of flash, for the few panics the firmware has, all on start-up paths) and ends in
+/// a permanent UDF, which probe-rs reports with a backtrace; without a probe the IWDG resets
+/// the board.
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    match info.location() {
+        Some(l) => defmt::error!("panic at {=str}:{=u32}", l.file(), l.line()),
+        None => defmt::error!("panic"),
+    }
+    cortex_m::asm::udf()
 }
 
 /// The store's flash: bank 2, erased and programmed through the controller's registers with
@@ -265,7 +276,6 @@ type UsbRx = BufferedReceiver<'static, UsbDriver>;
 
 static SHARED: StaticCell<Shared> = StaticCell::new();
 static STORE: StaticCell<Store<Flash>> = StaticCell::new();
-static UPLOAD: StaticCell<[u8; blob::MAX_BLOB_LEN]> = StaticCell::new();
 static SERIAL: StaticCell<[u8; 24]> = StaticCell::new();
 
 #[embassy_executor::task]
@@ -310,10 +320,9 @@ async fn management_task(
     rx: UsbRx,
     tx: UsbTx,
     store: &'static mut Store<Flash>,
-    buf: &'static mut [u8; blob::MAX_BLOB_LEN],
     sh: &'static Shared,
 ) {
-    app::management(rx, tx, store, buf, reset, sh).await
+    app::management(rx, tx, store, reset, sh).await
 }
 
 struct Stm32Board {
@@ -500,7 +509,6 @@ async fn main(spawner: Spawner) {
     };
 
     let led = Output::new(p.PB14, Level::Low, Speed::Low); // LD2
-    let buf = UPLOAD.init([0; blob::MAX_BLOB_LEN]);
 
     // Until the host opens an interface its reads fail and the tasks back off and retry.
     let gcs_rx = gcs_rx.into_buffered(GCS_RX.init([0; 64]));
@@ -508,7 +516,7 @@ async fn main(spawner: Spawner) {
     spawner.spawn(supervisor_task(Stm32Board { led, wdg }, sh).expect("task pool"));
     spawner.spawn(usb_task(usb).expect("task pool"));
     spawner.spawn(line_state_task(gcs_ctl, sh).expect("task pool"));
-    spawner.spawn(management_task(mgmt_rx, UsbTx(mgmt_tx), store, buf, sh).expect("task pool"));
+    spawner.spawn(management_task(mgmt_rx, UsbTx(mgmt_tx), store, sh).expect("task pool"));
     spawner.spawn(sensor_task(bus, sh).expect("task pool"));
     spawner.spawn(stage_link_task(stage_rx, stage_tx, sh).expect("task pool"));
     spawner.spawn(host_link_task(gcs_rx, UsbTx(gcs_tx), sh).expect("task pool"));

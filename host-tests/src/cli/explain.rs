@@ -19,11 +19,12 @@ pub struct ExplainArgs {
     /// Write the findings as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
-    /// Write residual plots before/after (SVG) into this folder.
+    /// Write residual plots before/after (PNG and SVG) into this folder.
     #[arg(long)]
     pub plots: Option<PathBuf>,
-    /// Minimum BIC drop for an effect to be named.
-    #[arg(long, default_value_t = 20.0)]
+    /// Minimum BIC drop for an effect to be named (sample size = the independent rows behind
+    /// its evidence; 6 = strong evidence).
+    #[arg(long, default_value_t = 6.0)]
     pub min_bic_drop: f64,
 }
 
@@ -41,10 +42,10 @@ pub fn run(args: ExplainArgs) -> Result<()> {
     let data = Data::from_recording(&rec, sim.as_ref())
         .with_context(|| format!("{}", args.recording.display()))?;
     println!(
-        "explain {}: {} rows, {:.1} h, {} channel(s), {} temperature(s), aux: {}",
+        "explain {}: {} rows over {}, {} channel(s), {} temperature(s), aux: {}",
         args.recording.display(),
         data.rows(),
-        data.duration_s() / 3600.0,
+        crate::explain::units::duration(data.duration_s()),
         data.channels.len(),
         data.temps.len(),
         if data.aux.is_empty() {

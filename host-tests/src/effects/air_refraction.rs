@@ -4,7 +4,10 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
+use super::Proposal;
 use crate::explain::data::Data;
+use crate::explain::search::Search;
+use crate::explain::ExplainError;
 use crate::twin::SimContext;
 
 /// The effect's name.
@@ -40,6 +43,18 @@ impl Params {
 /// The explain candidate: Δp and u × Δp; dead path from the Edlén sensitivity.
 pub struct Candidate;
 
+/// The extension's regressor columns.
+fn regressors(d: &Data, ch: usize) -> Vec<Vec<f64>> {
+    let p = &d.pressure_hpa.as_ref().unwrap().1;
+    let m = p.iter().sum::<f64>() / p.len() as f64;
+    let dp: Vec<f64> = p.iter().map(|v| v - m).collect();
+    let mut out = vec![dp.clone()];
+    if let Some(u) = &d.channels[ch].u {
+        out.push(u.iter().zip(&dp).map(|(u, p)| u * p).collect());
+    }
+    out
+}
+
 impl super::Candidate for Candidate {
     fn name(&self) -> &'static str {
         NAME
@@ -57,15 +72,8 @@ impl super::Candidate for Candidate {
             hi - lo > 0.2
         })
     }
-    fn regressors(&self, d: &Data, ch: usize, _theta: Option<f64>) -> Vec<Vec<f64>> {
-        let p = &d.pressure_hpa.as_ref().unwrap().1;
-        let m = p.iter().sum::<f64>() / p.len() as f64;
-        let dp: Vec<f64> = p.iter().map(|v| v - m).collect();
-        let mut out = vec![dp.clone()];
-        if let Some(u) = &d.channels[ch].u {
-            out.push(u.iter().zip(&dp).map(|(u, p)| u * p).collect());
-        }
-        out
+    fn propose(&self, s: &Search) -> Result<Option<Proposal>, ExplainError> {
+        Ok(Some(Proposal::linear(regressors(s.d, s.ch))))
     }
     fn params(&self, d: &Data, ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
         let c = &d.channels[ch];
@@ -80,14 +88,12 @@ impl super::Candidate for Candidate {
             super::Estimate::new("dead_path_mm", l_mm, f.se[0] / DN_DP_PER_HPA * 1e-3),
         ]
     }
-    fn blob_terms(
-        &self,
-        ctx: &super::BlobContext,
-        _theta: Option<f64>,
-    ) -> Option<super::BlobTerms> {
+    fn blob_terms(&self, ctx: &super::BlobContext, _f: &super::Fitted) -> Option<super::BlobTerms> {
         let p = nanocal_model::Factor::Aux(ctx.pressure_aux?);
         Some(super::BlobTerms {
             lags: Vec::new(),
+            plays: Vec::new(),
+            play: Vec::new(),
             terms: vec![
                 super::term(ctx.output, [0; 3], p, 0),
                 super::term(ctx.output, super::powers(ctx.output, 1), p, 0),

@@ -4,7 +4,10 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
+use super::Proposal;
 use crate::explain::data::Data;
+use crate::explain::search::Search;
+use crate::explain::ExplainError;
 use crate::twin::SimContext;
 
 /// The effect's name.
@@ -48,6 +51,19 @@ fn others(d: &Data, ch: usize) -> Vec<usize> {
         .collect()
 }
 
+/// The extension's regressor columns.
+fn regressors(d: &Data, ch: usize) -> Vec<Vec<f64>> {
+    let ua = d.channels[ch].u.as_ref().unwrap();
+    let mut out = Vec::new();
+    for b in others(d, ch) {
+        let ub = d.channels[b].u.as_ref().unwrap();
+        out.push(ub.clone());
+        out.push(ub.iter().map(|x| x * x).collect());
+        out.push(ub.iter().zip(ua).map(|(x, y)| x * y).collect());
+    }
+    out
+}
+
 impl super::Candidate for Candidate {
     fn name(&self) -> &'static str {
         NAME
@@ -61,16 +77,8 @@ impl super::Candidate for Candidate {
     fn applies(&self, d: &Data, ch: usize) -> bool {
         d.channels[ch].u.is_some() && !others(d, ch).is_empty()
     }
-    fn regressors(&self, d: &Data, ch: usize, _theta: Option<f64>) -> Vec<Vec<f64>> {
-        let ua = d.channels[ch].u.as_ref().unwrap();
-        let mut out = Vec::new();
-        for b in others(d, ch) {
-            let ub = d.channels[b].u.as_ref().unwrap();
-            out.push(ub.clone());
-            out.push(ub.iter().map(|x| x * x).collect());
-            out.push(ub.iter().zip(ua).map(|(x, y)| x * y).collect());
-        }
-        out
+    fn propose(&self, s: &Search) -> Result<Option<Proposal>, ExplainError> {
+        Ok(Some(Proposal::linear(regressors(s.d, s.ch))))
     }
     fn params(&self, d: &Data, ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
         let b = others(d, ch)[0];
@@ -82,11 +90,7 @@ impl super::Candidate for Candidate {
             super::Estimate::new("cross_nm", f.coeffs[2] * 1e3, f.se[2] * 1e3),
         ]
     }
-    fn blob_terms(
-        &self,
-        ctx: &super::BlobContext,
-        _theta: Option<f64>,
-    ) -> Option<super::BlobTerms> {
+    fn blob_terms(&self, ctx: &super::BlobContext, _f: &super::Fitted) -> Option<super::BlobTerms> {
         let mut terms = Vec::new();
         for b in (0..ctx.axes).filter(|&b| b != ctx.output) {
             let mut cross = super::powers(b, 1);
@@ -112,6 +116,8 @@ impl super::Candidate for Candidate {
         }
         (!terms.is_empty()).then_some(super::BlobTerms {
             lags: Vec::new(),
+            plays: Vec::new(),
+            play: Vec::new(),
             terms,
         })
     }

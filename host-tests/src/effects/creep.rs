@@ -4,7 +4,10 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
+use super::Proposal;
 use crate::explain::data::Data;
+use crate::explain::search::Search;
+use crate::explain::ExplainError;
 use crate::twin::SimContext;
 
 /// The effect's name.
@@ -70,8 +73,22 @@ fn basis(d: &Data, steps: &[(usize, f64)], t0_s: f64) -> Vec<f64> {
     }
 }
 
-/// The explain candidate: Σ step × log(1 + t/t0) over past moves, t0 searched.
+/// The explain candidate: Σ step × log(1 + t/t0) over past moves, t0 searched between a tenth
+/// of a sample interval and the median dwell (beyond either end it is an offset per move or a
+/// line in time, not creep).
 pub struct Candidate;
+
+/// Median duration of a dwell (time between moves), s.
+fn median_dwell_s(d: &Data, steps: &[(usize, f64)]) -> f64 {
+    let mut starts: Vec<f64> = std::iter::once(d.t_s[0])
+        .chain(steps.iter().map(|s| d.t_s[s.0]))
+        .chain(std::iter::once(*d.t_s.last().unwrap_or(&0.0)))
+        .collect::<Vec<f64>>()
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .collect();
+    crate::explain::fit::median(&mut starts)
+}
 
 impl super::Candidate for Candidate {
     fn name(&self) -> &'static str {
@@ -85,25 +102,26 @@ impl super::Candidate for Candidate {
     }
     fn applies(&self, d: &Data, ch: usize) -> bool {
         let c = &d.channels[ch];
-        // the basis costs rows × moves additions per evaluation
-        c.u.is_some() && c.steps.len() >= 3 && (c.steps.len() as f64) * (d.rows() as f64) <= 3e8
+        // creep shows only where the drive steps and then holds a pose; the basis costs rows ×
+        // moves additions per evaluation
+        c.u.is_some()
+            && c.has_dwells
+            && c.steps.len() >= 3
+            && (c.steps.len() as f64) * (d.rows() as f64) <= 3e8
     }
-    fn theta_name(&self) -> Option<&'static str> {
-        Some("t0_s")
-    }
-    fn theta_grid(&self, _d: &Data, _ch: usize) -> Vec<f64> {
-        super::log_grid(0.1, 100.0, 7)
-    }
-    fn continuous(&self) -> bool {
-        true
-    }
-    fn regressors(&self, d: &Data, ch: usize, theta: Option<f64>) -> Vec<Vec<f64>> {
-        vec![basis(d, &d.channels[ch].steps, theta.unwrap_or(1.0))]
+    fn propose(&self, s: &Search) -> Result<Option<Proposal>, ExplainError> {
+        let steps = &s.d.channels[s.ch].steps;
+        let lo = (0.1 * s.d.median_dt_s).max(1e-3);
+        let hi = median_dwell_s(s.d, steps).max(10.0 * lo);
+        Ok(Some(super::one_theta(s, "t0_s", lo, hi, 8, |t0| {
+            vec![basis(s.d, steps, t0)]
+        })))
     }
     fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+        let t0 = &f.proposal.thetas[0];
         vec![
             super::Estimate::new("gamma", f.coeffs[0], f.se[0]),
-            super::Estimate::new("t0_s", f.theta.unwrap_or(f64::NAN), f.theta_sigma),
+            t0.estimate(),
             super::Estimate::new(
                 "nm_per_um_per_decade",
                 f.coeffs[0] * std::f64::consts::LN_10 * 1e3,

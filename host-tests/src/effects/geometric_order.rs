@@ -4,7 +4,10 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
+use super::Proposal;
 use crate::explain::data::Data;
+use crate::explain::search::Search;
+use crate::explain::ExplainError;
 use crate::twin::SimContext;
 
 /// The effect's name.
@@ -50,6 +53,39 @@ fn distinct_poses(d: &Data, ch: usize) -> usize {
     v.len()
 }
 
+/// Share of the pose-dependent structure (a free offset per pose) the polynomial must carry.
+const MIN_SHARE_OF_POSE_STRUCTURE: f64 = 0.5;
+/// Most distinct poses for which the per-pose comparison is made.
+const MAX_POSES_COMPARED: usize = 60;
+
+/// One indicator column per distinct commanded pose of this axis but the first, when there
+/// are few enough poses.
+fn pose_indicators(d: &Data, ch: usize) -> Option<Vec<Vec<f64>>> {
+    let u = d.channels[ch].u.as_ref()?;
+    let keys: Vec<i64> = u.iter().map(|x| (x * 1e6).round() as i64).collect();
+    let mut poses = keys.clone();
+    poses.sort_unstable();
+    poses.dedup();
+    if poses.len() > MAX_POSES_COMPARED {
+        return None;
+    }
+    Some(
+        poses[1..]
+            .iter()
+            .map(|p| keys.iter().map(|k| f64::from(u8::from(k == p))).collect())
+            .collect(),
+    )
+}
+
+/// The extension's regressor columns.
+fn regressors(d: &Data, ch: usize) -> Vec<Vec<f64>> {
+    let u = d.channels[ch].u.as_ref().unwrap();
+    let top = if distinct_poses(d, ch) >= 9 { 6 } else { 5 };
+    (4..=top)
+        .map(|p| u.iter().map(|x| x.powi(p)).collect())
+        .collect()
+}
+
 impl super::Candidate for Candidate {
     fn name(&self) -> &'static str {
         NAME
@@ -63,12 +99,22 @@ impl super::Candidate for Candidate {
     fn applies(&self, d: &Data, ch: usize) -> bool {
         d.channels[ch].u.is_some() && !d.against_simulation && distinct_poses(d, ch) >= 7
     }
-    fn regressors(&self, d: &Data, ch: usize, _theta: Option<f64>) -> Vec<Vec<f64>> {
-        let u = d.channels[ch].u.as_ref().unwrap();
-        let top = if distinct_poses(d, ch) >= 9 { 6 } else { 5 };
-        (4..=top)
-            .map(|p| u.iter().map(|x| x.powi(p)).collect())
-            .collect()
+    fn propose(&self, s: &Search) -> Result<Option<Proposal>, ExplainError> {
+        let regs = regressors(s.d, s.ch);
+        // a smooth higher-order shape must carry most of what depends on the pose at all: if a
+        // free offset per pose explains far more, the structure sits at particular poses (a
+        // defect, a scale error at one mark) and no polynomial is its name
+        if let Some(poses) = pose_indicators(s.d, s.ch) {
+            let r0 = s.basis.rss();
+            let refs: Vec<&[f64]> = regs.iter().map(|c| c.as_slice()).collect();
+            let by_poly = r0 - s.basis.rss_with(&refs);
+            let prefs: Vec<&[f64]> = poses.iter().map(|c| c.as_slice()).collect();
+            let by_pose = r0 - s.basis.rss_with(&prefs);
+            if by_poly < MIN_SHARE_OF_POSE_STRUCTURE * by_pose {
+                return Ok(None);
+            }
+        }
+        Ok(Some(Proposal::linear(regs)))
     }
     fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
         f.coeffs
@@ -78,13 +124,11 @@ impl super::Candidate for Candidate {
             .map(|(j, (c, s))| super::Estimate::new(&format!("u{}_nm", 4 + j), c * 1e3, s * 1e3))
             .collect()
     }
-    fn blob_terms(
-        &self,
-        ctx: &super::BlobContext,
-        _theta: Option<f64>,
-    ) -> Option<super::BlobTerms> {
+    fn blob_terms(&self, ctx: &super::BlobContext, _f: &super::Fitted) -> Option<super::BlobTerms> {
         Some(super::BlobTerms {
             lags: Vec::new(),
+            plays: Vec::new(),
+            play: Vec::new(),
             terms: (4..=6)
                 .map(|p| {
                     super::term(

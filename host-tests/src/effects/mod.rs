@@ -18,6 +18,8 @@ pub mod unexplained_drift;
 use serde::{Deserialize, Serialize};
 
 use crate::explain::data::Data;
+use crate::explain::search::Search;
+use crate::explain::ExplainError;
 use crate::twin::SimContext;
 
 /// The names of the nine effects, as reports and JSON spell them.
@@ -140,17 +142,143 @@ impl Estimate {
     }
 }
 
+/// A nonlinear parameter a candidate searched (τ, t0, a time scale), with its 1σ from the
+/// profile of the residual sum of squares and the range it was searched in.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Theta {
+    /// Name with unit suffix (`tau_s`, `t0_s`, …).
+    pub name: String,
+    /// Best value.
+    pub value: f64,
+    /// 1σ (infinite when the profile is flat, NaN when not known).
+    pub sigma: f64,
+    /// Bottom of the searched range.
+    pub lo: f64,
+    /// Top of the searched range.
+    pub hi: f64,
+}
+
+impl Theta {
+    /// A sentence when the value sits on a bound of its searched range (within 3 %): then it
+    /// is a bound, not an estimate.
+    pub fn bound_note(&self) -> Option<String> {
+        if self.value >= self.hi * 0.97 {
+            Some(format!(
+                "{} at the top of the searched range ({}): a lower bound",
+                self.name,
+                crate::explain::units::sig3(self.hi)
+            ))
+        } else if self.value <= self.lo * 1.03 {
+            Some(format!(
+                "{} at the bottom of the searched range ({}): an upper bound",
+                self.name,
+                crate::explain::units::sig3(self.lo)
+            ))
+        } else {
+            None
+        }
+    }
+
+    /// As an estimate (value ± σ).
+    pub fn estimate(&self) -> Estimate {
+        Estimate::new(&self.name, self.value, self.sigma)
+    }
+}
+
+/// A lag term of [`thermal_lag`]: a temperature through a first-order lag.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LagTerm {
+    /// Index of the temperature (order of the `temp_` columns).
+    pub sensor: usize,
+    /// Time constant, with its search range.
+    pub tau: Theta,
+}
+
+/// A bank of play operators of [`hysteresis`] on one axis.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlayBank {
+    /// The axis whose commanded position feeds the operators.
+    pub axis: usize,
+    /// Thresholds r_i of the operators kept (non-zero weight), µm, ascending, ≥ 0.
+    pub thresholds_um: Vec<f64>,
+    /// +1: weights ≥ 0 (counter-clockwise loop: the response lags the command); −1: ≤ 0.
+    pub sense: f64,
+    /// Half of the commanded stroke, µm (a full-stroke loop's amplitude).
+    pub amplitude_um: f64,
+    /// Standard deviation of the full-loop half-width per unit noise standard deviation
+    /// (√(cᵀ(X⊥ᵀX⊥)⁻¹c) with X⊥ the operator columns beyond the rest of the model): the
+    /// weights of neighbouring operators are strongly anti-correlated, so the half-width is
+    /// known far better than each weight.
+    pub half_width_per_noise: f64,
+}
+
+/// Candidate-specific structure of a proposal (what its columns mean).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Detail {
+    /// Plain columns.
+    None,
+    /// One column per lag term.
+    Lags(Vec<LagTerm>),
+    /// One column per play operator: F_r[x] − x.
+    Play(PlayBank),
+}
+
+/// What a candidate proposes to add to the current model.
+#[derive(Clone, Debug)]
+pub struct Proposal {
+    /// The extension's regressor columns (free coefficients).
+    pub regs: Vec<Vec<f64>>,
+    /// The nonlinear parameters searched to build them (each counts as a parameter in the BIC).
+    pub thetas: Vec<Theta>,
+    /// What the columns mean.
+    pub detail: Detail,
+    /// A held-out design of the candidate's own (a time-only explanation is judged on gaps
+    /// longer than its time scale); None: the standard design.
+    pub design: Option<crate::explain::fit::Design>,
+}
+
+impl Proposal {
+    /// Columns with no nonlinear parameter.
+    pub fn linear(regs: Vec<Vec<f64>>) -> Self {
+        Self {
+            regs,
+            thetas: Vec::new(),
+            detail: Detail::None,
+            design: None,
+        }
+    }
+
+    /// The first nonlinear parameter's value, if any.
+    pub fn theta(&self) -> Option<f64> {
+        self.thetas.first().map(|t| t.value)
+    }
+
+    /// Widen every nonlinear parameter's 1σ by `factor` (fewer independent rows than the
+    /// search assumed).
+    pub fn widen_sigmas(&mut self, factor: f64) {
+        for t in self.thetas.iter_mut() {
+            t.sigma *= factor;
+        }
+        if let Detail::Lags(terms) = &mut self.detail {
+            for t in terms.iter_mut() {
+                t.tau.sigma *= factor;
+            }
+        }
+    }
+}
+
 /// What a candidate's parameter report can look at after its extension was fitted.
 #[derive(Clone, Debug)]
 pub struct Fitted<'a> {
-    /// The nonlinear parameter (τ, t0, period, …) if the candidate has one.
-    pub theta: Option<f64>,
-    /// Its 1σ uncertainty from the profile of the residual sum of squares (NaN if unknown).
-    pub theta_sigma: f64,
-    /// Coefficients of the candidate's regressors, µm per unit of the regressor.
+    /// The accepted proposal.
+    pub proposal: &'a Proposal,
+    /// Coefficients of the proposal's regressors, µm per unit of the regressor.
     pub coeffs: &'a [f64],
     /// Their standard errors (inflated for autocorrelated residuals).
     pub se: &'a [f64],
+    /// The residual's standard deviation with the same inflation, µm (σ of a linear
+    /// combination of coefficients = this × its sensitivity).
+    pub noise_sigma_um: f64,
 }
 
 /// Where a channel sits in the shared model, for [`Candidate::blob_terms`].
@@ -166,6 +294,22 @@ pub struct BlobContext {
     pub pressure_aux: Option<u8>,
 }
 
+/// One play operator as explain identified it: the positioning error it carries is
+/// `weight × (F_r[x] − x)` with x the axis' commanded position in µm and F_r the play operator
+/// of threshold r ([`nanocal_model::play::play`]) started at the first command. The blob
+/// declares the same thresholds ([`BlobTerms::plays`]); the correction's weights are the
+/// fit's to set (to first order, −weight on `F_r` plus a linear term).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct PlayOperator {
+    /// Axis whose commanded position feeds the operator.
+    pub axis: u8,
+    /// Threshold r, µm (≥ 0).
+    pub threshold_um: f64,
+    /// Weight (dimensionless, µm of error per µm of F_r[x] − x); all weights of an axis share
+    /// one sign.
+    pub weight: f64,
+}
+
 /// The shared-model terms that carry an effect into the blob: shapes with coefficient 0 (the
 /// host's fit sets them in the model's scaling) and the lag filters they need.
 #[derive(Clone, Debug, PartialEq)]
@@ -175,6 +319,12 @@ pub struct BlobTerms {
     pub lags: Vec<(u8, f64)>,
     /// Term shapes.
     pub terms: Vec<nanocal_model::Term>,
+    /// Play operators to declare first, (axis, threshold in µm), grouped by axis, thresholds
+    /// ascending (`ModelBuilder::play`); `Factor::Play(k)` in `terms` counts from the first of
+    /// these (add the model's existing operator count).
+    pub plays: Vec<(u8, f64)>,
+    /// The identified operators with their fitted (error) weights, for a person and the fit.
+    pub play: Vec<PlayOperator>,
 }
 
 /// A term shape with coefficient 0.
@@ -210,25 +360,24 @@ pub trait Candidate: Sync {
     fn deploy(&self) -> &'static str;
     /// Whether the recording can show this effect on channel `ch`.
     fn applies(&self, d: &Data, ch: usize) -> bool;
-    /// Name of the nonlinear parameter, if any.
-    fn theta_name(&self) -> Option<&'static str> {
-        None
-    }
-    /// Grid of the nonlinear parameter to search (empty: the extension is linear).
-    fn theta_grid(&self, _d: &Data, _ch: usize) -> Vec<f64> {
-        Vec::new()
-    }
-    /// Whether the nonlinear parameter is continuous (refined between grid points on a log scale).
-    fn continuous(&self) -> bool {
+    /// True for an explanation through time alone (no recorded channel): tried only when no
+    /// candidate that explains through recorded channels passes.
+    fn time_only(&self) -> bool {
         false
     }
-    /// The extension's regressor columns (the model adds them to the baseline, with free coefficients).
-    fn regressors(&self, d: &Data, ch: usize, theta: Option<f64>) -> Vec<Vec<f64>>;
+    /// The extension of the current model (see [`crate::explain::search::Search`]): its
+    /// nonlinear parameters searched, its columns built; None when there is nothing to add.
+    fn propose(&self, s: &Search) -> Result<Option<Proposal>, ExplainError>;
     /// The physical parameters from the fitted coefficients.
     fn params(&self, d: &Data, ch: usize, f: &Fitted) -> Vec<Estimate>;
-    /// The shared-model terms that let the firmware run the effect (with the fitted nonlinear
-    /// parameter `theta`), or `None` when the compensator cannot (see [`Candidate::deploy`]).
-    fn blob_terms(&self, _ctx: &BlobContext, _theta: Option<f64>) -> Option<BlobTerms> {
+    /// A sentence on the fitted effect for a person (the sense of a loop, which sensor lags
+    /// how), or empty.
+    fn summary(&self, _d: &Data, _ch: usize, _f: &Fitted) -> String {
+        String::new()
+    }
+    /// The shared-model terms that let the firmware run the fitted effect, or `None` when the
+    /// compensator cannot (see [`Candidate::deploy`]).
+    fn blob_terms(&self, _ctx: &BlobContext, _f: &Fitted) -> Option<BlobTerms> {
         None
     }
 }
@@ -256,4 +405,27 @@ pub fn log_grid(lo: f64, hi: f64, k: usize) -> Vec<f64> {
     (0..k)
         .map(|i| lo * (hi / lo).powf(i as f64 / (k - 1) as f64))
         .collect()
+}
+
+/// A candidate with one nonlinear parameter θ searched on a log scale over [lo, hi]: the
+/// columns `make(θ)` that fit best, with θ's 1σ and range.
+pub fn one_theta(
+    s: &Search,
+    name: &str,
+    lo: f64,
+    hi: f64,
+    points: usize,
+    make: impl Fn(f64) -> Vec<Vec<f64>>,
+) -> Proposal {
+    let (theta, _) = s.minimise(name, (lo, hi), points, true, |th| {
+        let regs = make(th);
+        let refs: Vec<&[f64]> = regs.iter().map(|c| c.as_slice()).collect();
+        s.basis.rss_with(&refs)
+    });
+    Proposal {
+        regs: make(theta.value),
+        thetas: vec![theta],
+        detail: Detail::None,
+        design: None,
+    }
 }

@@ -4,7 +4,10 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
+use super::Proposal;
 use crate::explain::data::Data;
+use crate::explain::search::Search;
+use crate::explain::ExplainError;
 use crate::twin::SimContext;
 
 /// The effect's name.
@@ -47,6 +50,35 @@ pub const PERIODS_NM: [f64; 4] = [HENE_HALF_WAVELENGTH_NM, 266.0, 390.0, 775.0];
 /// The explain candidate: sin/cos of 2πx/P and 4πx/P of the measured position, P from a short list.
 pub struct Candidate;
 
+/// The fringe periods the recording can tell from geometry: the stage drifted through half a
+/// fringe at the same commanded pose, or a fine scan (poses closer than a third of a period)
+/// covered at least two periods.
+fn periods(d: &Data, ch: usize) -> Vec<f64> {
+    let range_nm = within_pose_range_nm(d, ch);
+    let spacing_nm = fine_pose_spacing_nm(d, ch);
+    let travel_nm = travel_nm(d, ch);
+    PERIODS_NM
+        .iter()
+        .copied()
+        .filter(|p| range_nm >= 0.5 * p || (spacing_nm <= p / 3.0 && travel_nm >= 2.0 * p))
+        .collect()
+}
+
+/// sin/cos of the first two harmonics of the (noise-free) position for fringe period `p_nm`.
+fn regressors(d: &Data, ch: usize, p_nm: f64) -> Vec<Vec<f64>> {
+    let m = &d.channels[ch].position_est_um;
+    let ph: Vec<f64> = m
+        .iter()
+        .map(|x| std::f64::consts::TAU * x * 1e3 / p_nm)
+        .collect();
+    vec![
+        ph.iter().map(|v| v.sin()).collect(),
+        ph.iter().map(|v| v.cos()).collect(),
+        ph.iter().map(|v| (2.0 * v).sin()).collect(),
+        ph.iter().map(|v| (2.0 * v).cos()).collect(),
+    ]
+}
+
 impl super::Candidate for Candidate {
     fn name(&self) -> &'static str {
         NAME
@@ -58,33 +90,31 @@ impl super::Candidate for Candidate {
         "not in the blob (no periodic term in the shared model): correct in the interferometer's electronics (Heydemann) or note it in the uncertainty budget"
     }
     fn applies(&self, d: &Data, ch: usize) -> bool {
-        !self.theta_grid(d, ch).is_empty()
+        !periods(d, ch).is_empty()
     }
-    fn theta_name(&self) -> Option<&'static str> {
-        Some("period_nm")
-    }
-    fn theta_grid(&self, d: &Data, ch: usize) -> Vec<f64> {
-        let range_nm = within_pose_range_nm(d, ch);
-        let spacing_nm = fine_pose_spacing_nm(d, ch);
-        PERIODS_NM
-            .iter()
-            .copied()
-            .filter(|p| range_nm >= 0.5 * p || spacing_nm <= p / 3.0)
-            .collect()
-    }
-    fn regressors(&self, d: &Data, ch: usize, theta: Option<f64>) -> Vec<Vec<f64>> {
-        let p = theta.unwrap_or(HENE_HALF_WAVELENGTH_NM);
-        let m = &d.channels[ch].position_est_um;
-        let ph: Vec<f64> = m
-            .iter()
-            .map(|x| std::f64::consts::TAU * x * 1e3 / p)
-            .collect();
-        vec![
-            ph.iter().map(|v| v.sin()).collect(),
-            ph.iter().map(|v| v.cos()).collect(),
-            ph.iter().map(|v| (2.0 * v).sin()).collect(),
-            ph.iter().map(|v| (2.0 * v).cos()).collect(),
-        ]
+    fn propose(&self, s: &Search) -> Result<Option<Proposal>, ExplainError> {
+        // the fringe period is one of a short list of lasers: the best of them
+        let best = periods(s.d, s.ch)
+            .into_iter()
+            .map(|p| {
+                let regs = regressors(s.d, s.ch, p);
+                let refs: Vec<&[f64]> = regs.iter().map(|c| c.as_slice()).collect();
+                (s.basis.rss_with(&refs), p, regs)
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        Ok(best.map(|(_, p, regs)| Proposal {
+            regs,
+            // a choice from a list, not a searched range: no bounds to hit
+            thetas: vec![super::Theta {
+                name: "period_nm".into(),
+                value: p,
+                sigma: 0.0,
+                lo: 0.0,
+                hi: f64::INFINITY,
+            }],
+            detail: super::Detail::None,
+            design: None,
+        }))
     }
     fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
         let c = f.coeffs;
@@ -93,7 +123,11 @@ impl super::Candidate for Candidate {
         let s1 = 0.5 * (f.se[0] + f.se[1]) * 1e3;
         let s2 = 0.5 * (f.se[2] + f.se[3]) * 1e3;
         vec![
-            super::Estimate::new("period_nm", f.theta.unwrap_or(HENE_HALF_WAVELENGTH_NM), 0.0),
+            super::Estimate::new(
+                "period_nm",
+                f.proposal.theta().unwrap_or(HENE_HALF_WAVELENGTH_NM),
+                0.0,
+            ),
             super::Estimate::new("amplitude_nm", a1, s1),
             super::Estimate::new(
                 "phase_rad",
@@ -134,6 +168,12 @@ fn within_pose_range_nm(d: &Data, ch: usize) -> f64 {
     }
     ranges.sort_by(f64::total_cmp);
     ranges[ranges.len() / 2]
+}
+
+/// Commanded travel of this axis, nm (0 when not commanded): a fine scan tells a periodic
+/// error from a smooth function of position only over a few periods.
+fn travel_nm(d: &Data, ch: usize) -> f64 {
+    2.0 * d.channels[ch].half_range_um * 1e3 * f64::from(u8::from(d.channels[ch].u.is_some()))
 }
 
 /// Median spacing between neighbouring distinct commanded poses of this axis when there are at

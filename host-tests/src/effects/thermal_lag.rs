@@ -1,32 +1,69 @@
-//! `thermal_lag`: the structure follows a first-order lag (time constant τ) of the sensed
-//! temperatures instead of the readings themselves.
+//! `thermal_lag`: the structure follows first-order lags of the sensed temperatures instead of
+//! the readings themselves — each sensor with its own time constant, and a second (possibly
+//! opposite-signed) time constant where the data support it (a compensated probe's internal
+//! compensation answering later than the expansion it fights).
 
 use serde::{Deserialize, Serialize};
 
-use super::{lag_series, zeros};
+use super::{lag_series, zeros, Detail, LagTerm, Proposal};
 use crate::explain::data::Data;
+use crate::explain::fit::{bartlett_n_eff, cross_validate, gather};
+use crate::explain::search::{dot, Basis, Search};
+use crate::explain::units::{duration, sig3};
+use crate::explain::ExplainError;
 use crate::twin::SimContext;
 
 /// The effect's name.
 pub const NAME: &str = "thermal_lag";
 
 /// Twin parameters.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
 pub struct Params {
     /// Time constant of the structure behind the sensed spots, s.
     pub tau_s: f64,
+    /// Time constants per sensor, s (empty: `tau_s` for every sensor).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub sensor_tau_s: Vec<f64>,
+    /// A second, slower response, s: the structure's displacement per sensor becomes
+    /// k·[(1 + g)·lag_τ₁(T) − g·lag_τ₂(T)] — it overshoots and rebounds for g > 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub second_tau_s: Option<f64>,
+    /// g of the second response (see `second_tau_s`).
+    #[serde(default)]
+    pub second_gain: f64,
 }
 
 impl Params {
-    /// Replaces the drift Σ kᵢ·Tᵢ with Σ kᵢ·lag_τ(Tᵢ) on every axis.
+    /// One time constant for every sensor.
+    pub fn common(tau_s: f64) -> Self {
+        Self {
+            tau_s,
+            ..Self::default()
+        }
+    }
+
+    /// Replaces the drift Σ kᵢ·Tᵢ with Σ kᵢ·lag_τᵢ(Tᵢ) (plus the second response) on every axis.
     pub fn produce(&self, ctx: &SimContext) -> Vec<Vec<f64>> {
         let mut out = zeros(ctx);
         for (i, spot) in ctx.spot_c.iter().enumerate() {
-            let lagged = lag_series(&ctx.t_s, spot, self.tau_s, None);
+            let tau = self.sensor_tau_s.get(i).copied().unwrap_or(self.tau_s);
+            let first = lag_series(&ctx.t_s, spot, tau, None);
+            let response: Vec<f64> = match self.second_tau_s {
+                Some(t2) => {
+                    let g = self.second_gain;
+                    let second = lag_series(&ctx.t_s, spot, t2, None);
+                    first
+                        .iter()
+                        .zip(&second)
+                        .map(|(a, b)| (1.0 + g) * a - g * b)
+                        .collect()
+                }
+                None => first,
+            };
             for (a, o) in out.iter_mut().enumerate() {
                 let k = ctx.cfg.thermal_um_per_c[a][i];
                 for (j, v) in o.iter_mut().enumerate() {
-                    *v += k * (lagged[j] - spot[j]);
+                    *v += k * (response[j] - spot[j]);
                 }
             }
         }
@@ -34,58 +71,528 @@ impl Params {
     }
 }
 
-/// The explain candidate: lagged copies of every temperature, one common τ.
+/// The explain candidate: lag terms lag_τ(Tᵢ) added one at a time (forward selection), each
+/// with its own τ searched between the shortest lag the record resolves for that sensor (two
+/// samples, no less than its report interval) and half the record; a sensor may take a second
+/// term with a τ at least 3× apart. A term joins only if it lowers the BIC by
+/// [`MIN_TERM_BIC`] (counting the rows that are independent for it and the noise left after
+/// it), fits better than a zero-phase smoothing of the same sensor (its delay, not its
+/// denoising, must explain), and improves held-out prediction; then every τ is refined with
+/// the others fixed.
 pub struct Candidate;
+
+/// BIC drop a further lag term must bring (two parameters: its gain and its τ).
+pub const MIN_TERM_BIC: f64 = 10.0;
+/// Most lag terms (the shared model's lag filters).
+pub const MAX_TERMS: usize = nanocal_model::MAX_LAGS;
+/// BIC advantage a lag must have over its zero-phase twin (2: positive evidence).
+const TWIN_BIC: f64 = 2.0;
+/// Two time constants of one sensor must differ by at least this factor.
+const DISTINCT: f64 = 3.0;
+
+/// Grid points per sensor in the screening of each forward step.
+const SCREEN_POINTS: usize = 12;
+/// Sensors whose best grid point is refined between grid points in each forward step.
+const REFINE_SENSORS: usize = 3;
+/// Most rounds of refining every τ with the others fixed and pruning again.
+const REFINE_SWEEPS: usize = 4;
+/// Relative drop of held-out RMS a further lag term must bring.
+const MIN_TERM_CV_GAIN: f64 = 0.005;
+
+/// A lag column on the screening grid, orthogonal to the current model.
+struct Screened {
+    sensor: usize,
+    tau: f64,
+    perp: Vec<f64>,
+    norm0: f64,
+}
+
+impl Screened {
+    /// Drop of the residual sum of squares if this column joined the model.
+    fn gain(&self, r: &[f64]) -> f64 {
+        let nn = dot(&self.perp, &self.perp);
+        if nn <= (1e-9 * self.norm0).powi(2) {
+            return 0.0;
+        }
+        let c = dot(&self.perp, r);
+        c * c / nn
+    }
+}
+
+/// Whether τ keeps clear of the time constants `taken` by the same sensor.
+fn clear(taken: &[f64], tau: f64) -> bool {
+    taken
+        .iter()
+        .all(|&t| tau > t * DISTINCT || tau < t / DISTINCT)
+}
+
+/// One sweep of coordinate descent: each term's τ searched over its whole range with the other
+/// terms fixed (with its 1σ when `sigma`).
+fn refine(s: &Search, terms: &mut [LagTerm], cols: &mut [Vec<f64>], sigma: bool) {
+    for j in 0..terms.len() {
+        let mut b = s.basis.clone();
+        for (k, c) in cols.iter().enumerate() {
+            if k != j {
+                b.add_column(c);
+            }
+        }
+        let taken: Vec<f64> = terms
+            .iter()
+            .enumerate()
+            .filter(|(k, t)| *k != j && t.sensor == terms[j].sensor)
+            .map(|(_, t)| t.tau.value)
+            .collect();
+        if let Some((tau, _)) = best_tau(s, &b, terms[j].sensor, &taken, sigma, None) {
+            cols[j] = lag_column(s.d, terms[j].sensor, tau.value);
+            terms[j].tau = tau;
+        }
+    }
+}
+
+/// Evidence for a set of lag columns on top of the model: the BIC change (two parameters per
+/// term) counting the rows that are independent for what the set adds and the noise it leaves
+/// ([`bartlett_n_eff`]) — smooth terms explaining a smooth leftover count for little.
+fn set_evidence(s: &Search, cols: &[&Vec<f64>]) -> f64 {
+    let mut b = s.basis.clone();
+    for c in cols {
+        b.add_column(c);
+    }
+    let added: Vec<f64> = s
+        .basis
+        .residual()
+        .iter()
+        .zip(b.residual())
+        .map(|(a, r)| a - r)
+        .collect();
+    let n_eff = bartlett_n_eff(&added, b.residual()).min(s.n_eff);
+    n_eff * (b.rss() / s.basis.rss()).max(1e-300).ln() + 2.0 * cols.len() as f64 * n_eff.ln()
+}
+
+/// Backward elimination on the finished set by its evidence ([`set_evidence`]): drop the term
+/// whose removal improves the set's evidence most, while one does. Forward selection judged
+/// each term with the round's effective sample size; terms that only make sense together (a
+/// response and its opposite-signed rebound) are judged together here.
+fn prune(s: &Search, terms: &mut Vec<LagTerm>, cols: &mut Vec<Vec<f64>>) {
+    let mut current = set_evidence(s, &cols.iter().collect::<Vec<_>>());
+    while terms.len() > 1 {
+        let best = (0..terms.len())
+            .map(|j| {
+                let rest: Vec<&Vec<f64>> = cols
+                    .iter()
+                    .enumerate()
+                    .filter(|(k, _)| *k != j)
+                    .map(|(_, c)| c)
+                    .collect();
+                (j, set_evidence(s, &rest))
+            })
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        match best {
+            Some((j, e)) if e < current => {
+                terms.remove(j);
+                cols.remove(j);
+                current = e;
+            }
+            _ => break,
+        }
+    }
+}
+
+/// A sentence when term `j`'s τ sits on the [`DISTINCT`] separation from another τ of the
+/// same sensor (within 3 %): the pair is held apart by the search, the data would put them
+/// closer, so neither value is an estimate of its own.
+fn held_apart_note(terms: &[LagTerm], j: usize) -> Option<String> {
+    let t = terms[j].tau.value;
+    let other = terms
+        .iter()
+        .enumerate()
+        .find(|(k, o)| {
+            let r = if o.tau.value > t {
+                o.tau.value / t
+            } else {
+                t / o.tau.value
+            };
+            *k != j && o.sensor == terms[j].sensor && r < DISTINCT * 1.03
+        })?
+        .1;
+    Some(format!(
+        "held {DISTINCT}× apart from this sensor's other τ ({}): the data would put them closer, so neither is an estimate of its own",
+        duration(other.tau.value)
+    ))
+}
+
+/// A lag term moves the prediction by at most this many times the thermal displacement the
+/// temperatures explain statically (see [`drop_implausible`]).
+const MAX_TERM_OF_STATIC: f64 = 5.0;
+
+fn std_dev(v: &[f64]) -> f64 {
+    let n = v.len().max(1) as f64;
+    let m = v.iter().sum::<f64>() / n;
+    (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / n).sqrt()
+}
+
+/// Physical plausibility: a delay redistributes the thermal response in time; it does not
+/// create displacement far beyond what the same temperatures explain statically. A term whose
+/// contribution (|gain| × spread of its lagged temperature) exceeds [`MAX_TERM_OF_STATIC`] ×
+/// the spread of the static thermal fit (the response on the temperatures alone) is cancelling
+/// against other terms — a numerical fit of something else, not a lag: the worst such term is
+/// dropped and the rest refitted, until none is left.
+fn drop_implausible(
+    s: &Search,
+    terms: &mut Vec<LagTerm>,
+    cols: &mut Vec<Vec<f64>>,
+) -> Result<(), ExplainError> {
+    let rows = &s.basis.rows;
+    let temps: Vec<Vec<f64>> = s.d.temps.iter().map(|(_, t)| gather(t, rows)).collect();
+    let trefs: Vec<&[f64]> = temps.iter().map(|c| c.as_slice()).collect();
+    let y = gather(s.y, rows);
+    let stat = crate::linalg::lstsq(&trefs, &y, true)?;
+    let fitted: Vec<f64> = y.iter().zip(&stat.residuals).map(|(a, r)| a - r).collect();
+    let scale = std_dev(&fitted);
+    while !terms.is_empty() {
+        let g: Vec<Vec<f64>> = s
+            .model
+            .iter()
+            .map(|c| gather(c, rows))
+            .chain(cols.iter().map(|c| gather(c, rows)))
+            .collect();
+        let refs: Vec<&[f64]> = g.iter().map(|c| c.as_slice()).collect();
+        let ls = crate::linalg::lstsq(&refs, &y, true)?;
+        let m = s.model.len();
+        let worst = (0..terms.len())
+            .map(|j| {
+                let c = ls.coeffs[m + j].abs() * std_dev(&g[m + j]);
+                (j, c)
+            })
+            .max_by(|a, b| a.1.total_cmp(&b.1));
+        match worst {
+            Some((j, c)) if c > MAX_TERM_OF_STATIC * scale => {
+                terms.remove(j);
+                cols.remove(j);
+            }
+            _ => break,
+        }
+    }
+    Ok(())
+}
+
+/// The same sensor smoothed like a lag of τ but without its delay: the lag run forwards and
+/// then backwards in time with τ/√2 (a two-sided exponential kernel with the lag's standard
+/// deviation τ and the lag's shape, centred on the sample). Diagnostic only (it uses later
+/// readings): it tells a delay from mere denoising.
+fn zero_phase_twin(d: &Data, sensor: usize, tau_s: f64) -> Vec<f64> {
+    let t = tau_s / 2f64.sqrt();
+    let forward = lag_series(&d.t_s, &d.temps[sensor].1, t, None);
+    let rev_t: Vec<f64> = d.t_s.iter().rev().map(|x| -x).collect();
+    let rev_x: Vec<f64> = forward.iter().rev().copied().collect();
+    let mut back = lag_series(&rev_t, &rev_x, t, None);
+    back.reverse();
+    back
+}
+
+/// The lag of temperature `sensor`: the shared model's causal filter on the readings, as the
+/// compensator runs it.
+fn lag_column(d: &Data, sensor: usize, tau_s: f64) -> Vec<f64> {
+    lag_series(&d.t_s, &d.temps[sensor].1, tau_s, None)
+}
+
+fn sensor_name(d: &Data, sensor: usize) -> String {
+    let n = &d.temps[sensor].0;
+    n.strip_prefix("temp_").unwrap_or(n).to_string()
+}
+
+/// Searched range of τ for `sensor`, s: from the shortest lag the record resolves (two
+/// samples, the sensor's report interval) to half the record.
+fn tau_range(d: &Data, sensor: usize) -> (f64, f64) {
+    (d.shortest_lag_s(sensor), 0.5 * d.duration_s())
+}
+
+/// Best τ for a term on `sensor` on top of `basis`, keeping clear of `taken` time constants of
+/// the same sensor: over the sensor's whole range, or only around a grid point `near` found by
+/// screening (between its grid neighbours); (θ with its range, rss).
+fn best_tau(
+    s: &Search,
+    basis: &Basis,
+    sensor: usize,
+    taken: &[f64],
+    sigma: bool,
+    near: Option<f64>,
+) -> Option<(super::Theta, f64)> {
+    let (lo, hi) = tau_range(s.d, sensor);
+    if hi.is_nan() || lo.is_nan() || hi <= 4.0 * lo {
+        return None;
+    }
+    let step = (hi / lo).powf(1.0 / (SCREEN_POINTS - 1) as f64);
+    let (a, b, points) = match near {
+        Some(t) => ((t / step).max(lo), (t * step).min(hi), 3),
+        None => (lo, hi, SCREEN_POINTS),
+    };
+    let (mut theta, rss) = s.minimise("tau_s", (a, b), points, sigma, |tau| {
+        if clear(taken, tau) {
+            basis.rss_with(&[&lag_column(s.d, sensor, tau)])
+        } else {
+            basis.rss()
+        }
+    });
+    theta.lo = lo;
+    theta.hi = hi;
+    (clear(taken, theta.value) && rss < basis.rss()).then_some((theta, rss))
+}
 
 impl super::Candidate for Candidate {
     fn name(&self) -> &'static str {
         NAME
     }
     fn description(&self) -> &'static str {
-        "the measured displacement follows the temperatures with a delay: the structure warms and cools more slowly than its sensors (a first-order lag with time constant τ)"
+        "the measured displacement follows the temperatures with a delay: the structure warms and cools more slowly than its sensors (first-order lags, a time constant per sensor)"
     }
     fn deploy(&self) -> &'static str {
-        "in the blob: one lag filter per sensor (LagSpec{sensor, tau_s}) and terms with Factor::Lagged(k); the firmware runs the same LagFilter"
+        "in the blob: one lag filter per term (LagSpec{sensor, tau_s}) and terms with Factor::Lagged(k); the firmware runs the same causal LagFilter on the raw readings"
     }
     fn applies(&self, d: &Data, _ch: usize) -> bool {
         !d.temps.is_empty() && d.rows() >= 50
     }
-    fn theta_name(&self) -> Option<&'static str> {
-        Some("tau_s")
+    fn propose(&self, s: &Search) -> Result<Option<Proposal>, ExplainError> {
+        let d = s.d;
+        let mut basis = s.basis.clone();
+        // every sensor's lag on a τ grid, kept orthogonal to the growing model as terms join
+        // (one Gram–Schmidt step per new term), so screening a grid point costs one dot product
+        let mut screen: Vec<Screened> = Vec::new();
+        for sensor in 0..d.temps.len() {
+            let (lo, hi) = tau_range(d, sensor);
+            if hi.is_nan() || lo.is_nan() || hi <= 4.0 * lo {
+                continue;
+            }
+            for tau in super::log_grid(lo, hi, SCREEN_POINTS) {
+                let g = gather(&lag_column(d, sensor, tau), &basis.rows);
+                let norm0 = g.iter().map(|v| v * v).sum::<f64>().sqrt();
+                screen.push(Screened {
+                    sensor,
+                    tau,
+                    perp: basis.project_out(g),
+                    norm0,
+                });
+            }
+        }
+        let mut terms: Vec<LagTerm> = Vec::new();
+        let mut cols: Vec<Vec<f64>> = Vec::new();
+        let mut cv_cur = f64::NAN;
+        while terms.len() < MAX_TERMS.min(2 * d.temps.len()) {
+            // screen: the best grid point of each sensor that may still take a term
+            let r = basis.residual();
+            let mut per_sensor: Vec<(f64, usize)> = Vec::new();
+            for (k, c) in screen.iter().enumerate() {
+                let taken: Vec<f64> = terms
+                    .iter()
+                    .filter(|t| t.sensor == c.sensor)
+                    .map(|t| t.tau.value)
+                    .collect();
+                if taken.len() >= 2 || !clear(&taken, c.tau) {
+                    continue;
+                }
+                let gain = c.gain(r);
+                match per_sensor
+                    .iter_mut()
+                    .find(|p| screen[p.1].sensor == c.sensor)
+                {
+                    Some(p) if gain > p.0 => *p = (gain, k),
+                    Some(_) => {}
+                    None => per_sensor.push((gain, k)),
+                }
+            }
+            per_sensor.sort_by(|a, b| b.0.total_cmp(&a.0));
+            // refine the most promising sensors' τ between grid points
+            let mut best: Option<(f64, LagTerm)> = None;
+            for &(_, k) in per_sensor.iter().take(REFINE_SENSORS) {
+                let sensor = screen[k].sensor;
+                let taken: Vec<f64> = terms
+                    .iter()
+                    .filter(|t| t.sensor == sensor)
+                    .map(|t| t.tau.value)
+                    .collect();
+                if let Some((tau, rss)) =
+                    best_tau(s, &basis, sensor, &taken, false, Some(screen[k].tau))
+                {
+                    let n_eff = s.n_eff;
+                    if n_eff * (rss / basis.rss()).ln() + 2.0 * n_eff.ln() > -MIN_TERM_BIC {
+                        continue;
+                    }
+                    // a lag must earn its place by its delay, not by smoothing sensor noise:
+                    // it must fit better than the best zero-phase smoothing of the same sensor
+                    // (its width searched too) — positive evidence, as a slow lag over a short
+                    // record is hard to tell from smoothing
+                    let (_, rss_twin) =
+                        s.minimise("tau_s", (tau.value / 4.0, tau.value * 4.0), 5, false, |t| {
+                            basis.rss_with(&[&zero_phase_twin(d, sensor, t)])
+                        });
+                    if n_eff * (rss / rss_twin).ln() > -TWIN_BIC {
+                        continue;
+                    }
+                    if best.as_ref().is_none_or(|b| rss < b.0) {
+                        best = Some((rss, LagTerm { sensor, tau }));
+                    }
+                }
+            }
+            let Some((_, term)) = best else { break };
+            let col = lag_column(d, term.sensor, term.tau.value);
+            // beyond the first term, a term must also predict held-out data better
+            if !terms.is_empty() {
+                let mut all: Vec<&[f64]> = s.model.clone();
+                all.extend(cols.iter().map(|c| c.as_slice()));
+                if cv_cur.is_nan() {
+                    cv_cur = cross_validate(&all, s.y, s.design, &s.basis.rows)?.rms_um;
+                }
+                all.push(&col);
+                let cv_new = cross_validate(&all, s.y, s.design, &s.basis.rows)?.rms_um;
+                if cv_new.is_nan() || cv_new >= cv_cur * (1.0 - MIN_TERM_CV_GAIN) {
+                    break;
+                }
+                cv_cur = cv_new;
+            }
+            let dim = basis.dim();
+            basis.add_column(&col);
+            if basis.dim() > dim {
+                let e = basis.last().to_vec();
+                for c in screen.iter_mut() {
+                    let k = dot(&e, &c.perp);
+                    for (p, ei) in c.perp.iter_mut().zip(&e) {
+                        *p -= k * ei;
+                    }
+                }
+            }
+            cols.push(col);
+            terms.push(term);
+        }
+        // settle: refine each τ with the other terms fixed (coordinate descent; greedy
+        // selection picks a τ that the later terms make suboptimal), then prune again, until
+        // the set stops changing; a last sweep gives each τ its 1σ
+        let mut last: Vec<(usize, f64)> = Vec::new();
+        for _ in 0..REFINE_SWEEPS {
+            prune(s, &mut terms, &mut cols);
+            drop_implausible(s, &mut terms, &mut cols)?;
+            if terms.is_empty() {
+                return Ok(None);
+            }
+            refine(s, &mut terms, &mut cols, false);
+            let now: Vec<(usize, f64)> = terms.iter().map(|t| (t.sensor, t.tau.value)).collect();
+            let settled = now.len() == last.len()
+                && now
+                    .iter()
+                    .zip(&last)
+                    .all(|(a, b)| a.0 == b.0 && (a.1 / b.1 - 1.0).abs() < 0.02);
+            last = now;
+            if settled {
+                break;
+            }
+        }
+        refine(s, &mut terms, &mut cols, true);
+        Ok(Some(Proposal {
+            regs: cols,
+            thetas: terms.iter().map(|t| t.tau.clone()).collect(),
+            detail: Detail::Lags(terms),
+            design: None,
+        }))
     }
-    fn theta_grid(&self, d: &Data, _ch: usize) -> Vec<f64> {
-        let dt = d.duration_s() / d.rows().max(2) as f64;
-        super::log_grid(
-            (3.0 * dt).max(5.0),
-            (d.duration_s() / 3.0).max(10.0 * dt),
-            16,
-        )
+    fn params(&self, d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+        let Detail::Lags(terms) = &f.proposal.detail else {
+            return Vec::new();
+        };
+        // the effect's headline τ: the term that moves the prediction most (|gain| × the spread
+        // of its lagged temperature)
+        let spread = |c: &[f64]| {
+            let m = c.iter().sum::<f64>() / c.len().max(1) as f64;
+            (c.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / c.len().max(1) as f64).sqrt()
+        };
+        let main = (0..terms.len())
+            .max_by(|&a, &b| {
+                let sa = f.coeffs[a].abs() * spread(&f.proposal.regs[a]);
+                let sb = f.coeffs[b].abs() * spread(&f.proposal.regs[b]);
+                sa.total_cmp(&sb)
+            })
+            .unwrap_or(0);
+        let mut out = vec![terms[main].tau.estimate()];
+        let mut seen: Vec<usize> = Vec::new();
+        for (j, t) in terms.iter().enumerate() {
+            let name = sensor_name(d, t.sensor);
+            let which = if seen.contains(&t.sensor) {
+                "tau2"
+            } else {
+                "tau"
+            };
+            seen.push(t.sensor);
+            out.push(super::Estimate::new(
+                &format!("{which}_s_{name}"),
+                t.tau.value,
+                t.tau.sigma,
+            ));
+            out.push(super::Estimate::new(
+                &format!(
+                    "{}_um_per_c_{name}",
+                    if which == "tau2" { "gain2" } else { "gain" }
+                ),
+                f.coeffs[j],
+                f.se[j],
+            ));
+        }
+        out
     }
-    fn continuous(&self) -> bool {
-        true
-    }
-    fn regressors(&self, d: &Data, _ch: usize, theta: Option<f64>) -> Vec<Vec<f64>> {
-        let tau = theta.unwrap_or(1.0);
-        d.temps
+    fn summary(&self, d: &Data, _ch: usize, f: &super::Fitted) -> String {
+        let Detail::Lags(terms) = &f.proposal.detail else {
+            return String::new();
+        };
+        let parts: Vec<String> = terms
             .iter()
-            .map(|(_, x)| super::lag_series(&d.t_s, x, tau, None))
-            .collect()
+            .enumerate()
+            .map(|(j, t)| {
+                let second = terms[..j].iter().any(|o| o.sensor == t.sensor);
+                let sign_note = match terms[..j].iter().find(|o| o.sensor == t.sensor) {
+                    Some(_) if second => {
+                        let first = terms.iter().position(|o| o.sensor == t.sensor).unwrap_or(j);
+                        if f.coeffs[first].signum() != f.coeffs[j].signum() {
+                            ", opposite in sign to its first"
+                        } else {
+                            ", same sign as its first"
+                        }
+                    }
+                    _ => "",
+                };
+                let bound = t
+                    .tau
+                    .bound_note()
+                    .or_else(|| held_apart_note(terms, j))
+                    .map(|b| format!(" [{b}]"))
+                    .unwrap_or_default();
+                format!(
+                    "{}{} τ = {} ({} µm/°C{}){}",
+                    sensor_name(d, t.sensor),
+                    if second { " again," } else { "" },
+                    duration(t.tau.value),
+                    sig3(f.coeffs[j]),
+                    sign_note,
+                    bound
+                )
+            })
+            .collect();
+        format!("lags: {}", parts.join("; "))
     }
-    fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
-        vec![super::Estimate::new(
-            "tau_s",
-            f.theta.unwrap_or(f64::NAN),
-            f.theta_sigma,
-        )]
-    }
-    fn blob_terms(&self, ctx: &super::BlobContext, theta: Option<f64>) -> Option<super::BlobTerms> {
-        let tau = theta?;
-        let n = ctx.temps.min(nanocal_model::MAX_LAGS as u8);
-        Some(super::BlobTerms {
-            lags: (0..n).map(|i| (i, tau)).collect(),
-            terms: (0..n)
+    fn blob_terms(&self, ctx: &super::BlobContext, f: &super::Fitted) -> Option<super::BlobTerms> {
+        let Detail::Lags(terms) = &f.proposal.detail else {
+            return None;
+        };
+        let usable: Vec<&LagTerm> = terms
+            .iter()
+            .filter(|t| t.sensor < ctx.temps as usize)
+            .take(nanocal_model::MAX_LAGS)
+            .collect();
+        (!usable.is_empty()).then(|| super::BlobTerms {
+            lags: usable
+                .iter()
+                .map(|t| (t.sensor as u8, t.tau.value))
+                .collect(),
+            terms: (0..usable.len() as u8)
                 .map(|k| super::term(ctx.output, [0; 3], nanocal_model::Factor::Lagged(k), 0))
                 .collect(),
+            plays: Vec::new(),
+            play: Vec::new(),
         })
     }
 }

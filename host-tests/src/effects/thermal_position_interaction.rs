@@ -4,7 +4,10 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
+use super::Proposal;
 use crate::explain::data::Data;
+use crate::explain::search::Search;
+use crate::explain::ExplainError;
 use crate::twin::SimContext;
 
 /// The effect's name.
@@ -44,6 +47,22 @@ fn mean_temp(d: &Data) -> Vec<f64> {
         .collect()
 }
 
+/// The extension's regressor columns.
+fn regressors(d: &Data, ch: usize) -> Vec<Vec<f64>> {
+    let u = d.channels[ch].u.as_ref().unwrap();
+    let tm = mean_temp(d);
+    let t0 = tm.iter().sum::<f64>() / tm.len() as f64;
+    let mut out = vec![u
+        .iter()
+        .zip(&tm)
+        .map(|(u, t)| u * (t - t0))
+        .collect::<Vec<f64>>()];
+    for (_, x) in d.temps.iter().take(d.temps.len().saturating_sub(1)) {
+        out.push((0..d.rows()).map(|k| u[k] * (x[k] - tm[k])).collect());
+    }
+    out
+}
+
 impl super::Candidate for Candidate {
     fn name(&self) -> &'static str {
         NAME
@@ -57,19 +76,8 @@ impl super::Candidate for Candidate {
     fn applies(&self, d: &Data, ch: usize) -> bool {
         d.channels[ch].u.is_some() && !d.temps.is_empty()
     }
-    fn regressors(&self, d: &Data, ch: usize, _theta: Option<f64>) -> Vec<Vec<f64>> {
-        let u = d.channels[ch].u.as_ref().unwrap();
-        let tm = mean_temp(d);
-        let t0 = tm.iter().sum::<f64>() / tm.len() as f64;
-        let mut out = vec![u
-            .iter()
-            .zip(&tm)
-            .map(|(u, t)| u * (t - t0))
-            .collect::<Vec<f64>>()];
-        for (_, x) in d.temps.iter().take(d.temps.len().saturating_sub(1)) {
-            out.push((0..d.rows()).map(|k| u[k] * (x[k] - tm[k])).collect());
-        }
-        out
+    fn propose(&self, s: &Search) -> Result<Option<Proposal>, ExplainError> {
+        Ok(Some(Proposal::linear(regressors(s.d, s.ch))))
     }
     fn params(&self, d: &Data, ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
         let h = d.channels[ch].half_range_um;
@@ -79,13 +87,11 @@ impl super::Candidate for Candidate {
             f.se[0] / h * 1e6,
         )]
     }
-    fn blob_terms(
-        &self,
-        ctx: &super::BlobContext,
-        _theta: Option<f64>,
-    ) -> Option<super::BlobTerms> {
+    fn blob_terms(&self, ctx: &super::BlobContext, _f: &super::Fitted) -> Option<super::BlobTerms> {
         Some(super::BlobTerms {
             lags: Vec::new(),
+            plays: Vec::new(),
+            play: Vec::new(),
             terms: (0..ctx.temps)
                 .map(|i| {
                     super::term(

@@ -5,8 +5,12 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use super::Proposal;
 use super::{lag_series, zeros};
 use crate::explain::data::Data;
+use crate::explain::fit::{cross_validate, Design};
+use crate::explain::search::Search;
+use crate::explain::ExplainError;
 use crate::twin::SimContext;
 
 /// The effect's name.
@@ -30,21 +34,7 @@ impl Params {
     pub fn produce(&self, ctx: &SimContext) -> Vec<Vec<f64>> {
         let mut out = zeros(ctx);
         let mut rng = ChaCha8Rng::seed_from_u64(ctx.seed ^ 0x5EED_D21F);
-        let t_end = ctx.t_abs_s.last().copied().unwrap_or(0.0);
-        let mut switches = Vec::new();
-        let mut t = 0.0;
-        while t <= t_end {
-            t += -self.switch_period_s * rng.gen_range(f64::MIN_POSITIVE..1.0f64).ln();
-            switches.push(t);
-        }
-        let mut on = vec![0.0; ctx.t_s.len()];
-        let mut i = 0;
-        for (k, &ta) in ctx.t_abs_s.iter().enumerate() {
-            while i < switches.len() && switches[i] <= ta {
-                i += 1;
-            }
-            on[k] = (i % 2) as f64;
-        }
+        let on = telegraph(&ctx.t_abs_s, self.switch_period_s, &mut rng);
         let heat = lag_series(&ctx.t_s, &on, self.tau_s, Some(0.0));
         for (o, h) in out[self.axis].iter_mut().zip(heat) {
             *o = self.amplitude_nm * 1e-3 * h;
@@ -53,23 +43,55 @@ impl Params {
     }
 }
 
-/// The explain candidate: a smooth function of time (piecewise linear, K knots) that no
-/// recorded channel provides.
+/// A source switching on (1) and off (0) at random: exponentially distributed on and off
+/// periods of mean `mean_period_s`, off at absolute time 0, sampled at `t_abs_s`.
+pub fn telegraph(t_abs_s: &[f64], mean_period_s: f64, rng: &mut ChaCha8Rng) -> Vec<f64> {
+    let t_end = t_abs_s.last().copied().unwrap_or(0.0);
+    let mut switches = Vec::new();
+    let mut t = 0.0;
+    while t <= t_end {
+        t += -mean_period_s * rng.gen_range(f64::MIN_POSITIVE..1.0f64).ln();
+        switches.push(t);
+    }
+    let mut i = 0;
+    t_abs_s
+        .iter()
+        .map(|&ta| {
+            while i < switches.len() && switches[i] <= ta {
+                i += 1;
+            }
+            (i % 2) as f64
+        })
+        .collect()
+}
+
+/// The explain candidate: a smooth function of time (cosines up to order K, time scale T/K)
+/// that no recorded channel provides — the explanation of last resort. A smooth function of
+/// time can absorb anything if a held-out row may be predicted from its neighbours, so it is
+/// judged on held-out gaps longer than its own time scale (1.25 × T/K).
 pub struct Candidate;
 
-/// Piecewise-linear hat functions over the recording's time with `k` evenly spaced knots.
-pub fn hat_basis(t_s: &[f64], k: usize) -> Vec<Vec<f64>> {
+/// Cosines cos(πk(t − t₀)/T), k = 1..K, over the recording's time (T its duration).
+pub fn cosine_basis(t_s: &[f64], k: usize) -> Vec<Vec<f64>> {
     let t0 = t_s.first().copied().unwrap_or(0.0);
     let span = (t_s.last().copied().unwrap_or(1.0) - t0).max(1e-9);
-    let h = span / (k - 1) as f64;
-    (0..k)
+    (1..=k)
         .map(|j| {
             t_s.iter()
-                .map(|&t| (1.0 - ((t - t0) / h - j as f64).abs()).max(0.0))
+                .map(|&t| (std::f64::consts::PI * j as f64 * (t - t0) / span).cos())
                 .collect()
         })
         .collect()
 }
+
+/// Orders K tried (time scales T/K). The slowest is T/8: with gaps 1.25 time scales long that
+/// leaves at least five held-out blocks, so every fold is predicted from data on both sides of
+/// it (fewer, longer blocks would test extrapolation of the whole model, not the drift).
+const ORDERS: [usize; 7] = [8, 12, 16, 24, 32, 48, 64];
+/// Held-out gaps are this many time scales long.
+const GAP_PER_SCALE: f64 = 1.25;
+/// Most rows the choice of K is made on.
+const CHOICE_ROWS: usize = 20_000;
 
 impl super::Candidate for Candidate {
     fn name(&self) -> &'static str {
@@ -84,21 +106,68 @@ impl super::Candidate for Candidate {
     fn applies(&self, d: &Data, _ch: usize) -> bool {
         d.rows() >= 100
     }
-    fn theta_name(&self) -> Option<&'static str> {
-        Some("knots")
+    fn time_only(&self) -> bool {
+        true
     }
-    fn theta_grid(&self, _d: &Data, _ch: usize) -> Vec<f64> {
-        vec![3.0, 5.0, 9.0, 17.0, 33.0]
+    fn propose(&self, s: &Search) -> Result<Option<Proposal>, ExplainError> {
+        let d = s.d;
+        let span = d.duration_s();
+        let rows = &s.basis.rows;
+        let stride = rows.len().div_ceil(CHOICE_ROWS).max(1);
+        let choice_rows: Vec<usize> = rows.iter().copied().step_by(stride).collect();
+        let mut best: Option<(f64, usize, Design)> = None;
+        for &k in &ORDERS {
+            let scale = span / k as f64;
+            let blocks = (k as f64 / GAP_PER_SCALE).floor() as usize;
+            // a time scale the held-out design can test: at least two gaps, each holding rows
+            if blocks < crate::explain::fit::CV_FOLDS
+                || scale < 10.0 * d.median_dt_s
+                || choice_rows.len() < 10 * blocks
+                || k + s.model.len() + 10 > choice_rows.len() / 4
+            {
+                continue;
+            }
+            let design = Design::blocks(&d.t_s, blocks, crate::explain::fit::CV_FOLDS);
+            let regs = cosine_basis(&d.t_s, k);
+            let mut cols = s.model.clone();
+            let cur = cross_validate(&cols, s.y, &design, &choice_rows)?;
+            cols.extend(regs.iter().map(|c| c.as_slice()));
+            let new = cross_validate(&cols, s.y, &design, &choice_rows)?;
+            let ratio = new.rms_um / cur.rms_um;
+            if ratio.is_finite() && best.as_ref().is_none_or(|b| ratio < b.0) {
+                best = Some((ratio, k, design));
+            }
+        }
+        Ok(best.map(|(_, k, design)| {
+            let lo = span / ORDERS[ORDERS.len() - 1] as f64;
+            Proposal {
+                regs: cosine_basis(&d.t_s, k),
+                thetas: vec![super::Theta {
+                    name: "time_scale_s".into(),
+                    value: span / k as f64,
+                    sigma: f64::NAN,
+                    lo,
+                    hi: span / ORDERS[0] as f64,
+                }],
+                detail: super::Detail::None,
+                design: Some(design),
+            }
+        }))
     }
-    fn regressors(&self, d: &Data, _ch: usize, theta: Option<f64>) -> Vec<Vec<f64>> {
-        hat_basis(&d.t_s, theta.unwrap_or(5.0) as usize)
+    fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+        let gap = f.proposal.design.as_ref().map_or(f64::NAN, |d| d.gap_s);
+        vec![
+            f.proposal.thetas[0].estimate(),
+            super::Estimate::new("held_out_gap_s", gap, f64::NAN),
+        ]
     }
-    fn params(&self, d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
-        let k = f.theta.unwrap_or(5.0);
-        vec![super::Estimate::new(
-            "time_scale_h",
-            d.duration_s() / (k - 1.0) / 3600.0,
-            f64::NAN,
-        )]
+    fn summary(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> String {
+        let t = &f.proposal.thetas[0];
+        let gap = f.proposal.design.as_ref().map_or(f64::NAN, |d| d.gap_s);
+        format!(
+            "a smooth function of time with features down to {}, judged on held-out gaps of {} (longer than its time scale, so it is not predicting a row from its neighbours)",
+            crate::explain::units::duration(t.value),
+            crate::explain::units::duration(gap)
+        )
     }
 }

@@ -1,8 +1,12 @@
 //! What explain works on: the response of each measured channel, the commands that drove it,
-//! and the slow inputs (temperatures, auxiliary channels), taken from a recording.
+//! and the slow inputs (temperatures, auxiliary channels), taken from a recording — with what
+//! real recordings bring found first: quantised readings, channels held between slower
+//! reports, glitches (excluded from fitting and reported with their rows).
 
 use crate::recording::Recording;
 
+use super::robust;
+use super::units::TimeUnit;
 use super::ExplainError;
 
 /// One measured channel (a `meas_<axis>` column) and what drove it.
@@ -11,7 +15,7 @@ pub struct Channel {
     /// Axis or channel name (`x`, `ch1`, …).
     pub name: String,
     /// The response to explain, µm: meas − cmd (positioning error), meas − simulation, or meas
-    /// itself when the axis stands still and there is no simulation.
+    /// itself when the axis stands still and there is no simulation. NaN at outlier rows.
     pub y_um: Vec<f64>,
     /// The reference measurement, µm.
     pub meas_um: Vec<f64>,
@@ -30,6 +34,21 @@ pub struct Channel {
     pub dir: Option<Vec<f64>>,
     /// Moves: (first sample at the new pose, step in µm).
     pub steps: Vec<(usize, f64)>,
+    /// True when the command steps and holds poses (dwells of ≥ 3 samples between moves, or a
+    /// log of one row per dwell: few poses, steps of ≥ 2 % of the stroke), as a step-and-settle
+    /// procedure does; false for a continuous drive.
+    pub has_dwells: bool,
+    /// Quantisation step of the measurement, µm, when its readings sit on a grid.
+    pub quant_step_um: Option<f64>,
+    /// Rows where the measurement changed (false: a held reading repeated).
+    pub changed: Vec<bool>,
+    /// True when the measurement is held between slower updates (most rows repeat the last
+    /// reading and it is not on a coarse grid).
+    pub held: bool,
+    /// Outlier rows (glitches): excluded from every fit, reported with their rows.
+    pub outliers: Vec<usize>,
+    /// Largest distance of an outlier from where the response was before it, µm.
+    pub outlier_max_um: f64,
 }
 
 /// A recording prepared for explain.
@@ -39,29 +58,38 @@ pub struct Data {
     pub t_s: Vec<f64>,
     /// The measured channels.
     pub channels: Vec<Channel>,
-    /// Temperature channels (full column name, °C), denoised without delay (centred moving
-    /// average of ±`smooth_half_window_s`).
+    /// Temperature channels (full column name, °C) as explain's terms see them: the readings,
+    /// or — when held-out prediction asks for it — denoised by a zero-phase mean of
+    /// ±`smooth_half_window_s` (diagnostic only: it uses later readings). Static and lagged
+    /// terms see the same, so only a delay can make a lag fit better.
     pub temps: Vec<(String, Vec<f64>)>,
-    /// The temperature readings as recorded.
+    /// The temperature readings as recorded, glitches repaired: what a compensator reads.
     pub temps_raw: Vec<(String, Vec<f64>)>,
-    /// Half width of the centred mean applied to `temps` and the pressure, s.
+    /// Half width of the zero-phase mean applied to `temps` and the pressure, s (0: none).
     pub smooth_half_window_s: f64,
+    /// Typical time between updates of each temperature channel, s (sample-and-hold logs
+    /// update slower than the table's rows).
+    pub temp_update_s: Vec<f64>,
+    /// Temperature glitches repaired (column, rows), by interpolation between the readings
+    /// around them.
+    pub temp_repairs: Vec<(String, Vec<usize>)>,
     /// Median sample period, s.
     pub median_dt_s: f64,
     /// Auxiliary channels (column name, values).
     pub aux: Vec<(String, Vec<f64>)>,
-    /// Barometric pressure in hPa, when an auxiliary channel is recognisably a pressure.
+    /// Barometric pressure in hPa, when an auxiliary channel is recognisably a pressure
+    /// (denoised like the temperatures).
     pub pressure_hpa: Option<(String, Vec<f64>)>,
+    /// The pressure as recorded, hPa.
+    pub pressure_raw_hpa: Option<(String, Vec<f64>)>,
     /// True when the response is the difference to a given simulation.
     pub against_simulation: bool,
     /// The sample period when the samples are (nearly) evenly spaced, s.
     pub uniform_dt_s: Option<f64>,
 }
 
-/// Half width of the centred (delay-free) moving average applied to temperatures and pressure, s.
-pub const SMOOTH_HALF_WINDOW_S: f64 = 60.0;
-
 /// Centred moving average over ±`half` samples (shrinking at the ends); NaN-free input assumed.
+/// Zero-phase: it uses later samples, so it is for diagnosis only.
 pub fn centred_mean(x: &[f64], half: usize) -> Vec<f64> {
     if half == 0 {
         return x.to_vec();
@@ -78,6 +106,27 @@ pub fn centred_mean(x: &[f64], half: usize) -> Vec<f64> {
             (pre[b] - pre[a]) / (b - a) as f64
         })
         .collect()
+}
+
+/// Most rows a glitch may last to be told from a change of level.
+fn max_glitch_run(n: usize) -> usize {
+    (n / 50).clamp(3, 50)
+}
+
+/// Replace `rows` of `v` by linear interpolation between the readings around them.
+fn interpolate_over(v: &mut [f64], rows: &[usize]) {
+    let bad: std::collections::HashSet<usize> = rows.iter().copied().collect();
+    let n = v.len();
+    for &i in rows {
+        let prev = (0..i).rev().find(|k| !bad.contains(k));
+        let next = (i + 1..n).find(|k| !bad.contains(k));
+        v[i] = match (prev, next) {
+            (Some(a), Some(b)) => v[a] + (v[b] - v[a]) * (i - a) as f64 / (b - a) as f64,
+            (Some(a), None) => v[a],
+            (None, Some(b)) => v[b],
+            (None, None) => v[i],
+        };
+    }
 }
 
 impl Data {
@@ -130,7 +179,7 @@ impl Data {
             };
             let meas_um = meas.to_vec();
             let cmd_um = rec.cmd(&axis).map(|c| c.to_vec());
-            let y_um: Vec<f64> = match (sim, &cmd_um) {
+            let mut y_um: Vec<f64> = match (sim, &cmd_um) {
                 (Some(s), _) => {
                     let sm = s.meas(&axis).ok_or_else(|| {
                         ExplainError::Input(format!(
@@ -185,6 +234,51 @@ impl Data {
                     }
                 }
             }
+            // step and hold: the command holds poses for several samples between moves, or
+            // (a log of one row per dwell) jumps between few poses by sizeable steps; a
+            // continuous drive moves by a little at every sample
+            let has_dwells = steps.len() >= 3 && {
+                let mut lens: Vec<f64> = std::iter::once(0)
+                    .chain(steps.iter().map(|s| s.0))
+                    .chain(std::iter::once(n))
+                    .collect::<Vec<usize>>()
+                    .windows(2)
+                    .map(|w| (w[1] - w[0]) as f64)
+                    .collect();
+                let mut sizes: Vec<f64> = steps.iter().map(|s| s.1.abs()).collect();
+                let poses = cmd_um.as_ref().map_or(0, |c| {
+                    let mut v: Vec<i64> = c.iter().map(|x| (x * 1e6).round() as i64).collect();
+                    v.sort_unstable();
+                    v.dedup();
+                    v.len()
+                });
+                super::fit::median(&mut lens) >= 3.0
+                    || (3 * poses <= n
+                        && super::fit::median(&mut sizes) >= 0.02 * 2.0 * half_range_um)
+            };
+            let quant_step_um = robust::quantisation_step(&meas_um);
+            let changed = robust::changed(&meas_um);
+            let repeats = changed.iter().filter(|c| !**c).count();
+            let held = quant_step_um.is_none() && repeats * 2 > n;
+            let moved: Option<Vec<bool>> = has_dwells.then(|| {
+                let mut m = vec![false; n];
+                for s in &steps {
+                    m[s.0] = true;
+                }
+                m
+            });
+            let outliers =
+                robust::glitch_rows(&y_um, quant_step_um, max_glitch_run(n), moved.as_deref());
+            let mut outlier_max_um = 0.0f64;
+            for &i in &outliers {
+                let before = (0..i).rev().find(|k| !outliers.contains(k));
+                if let Some(b) = before {
+                    outlier_max_um = outlier_max_um.max((y_um[i] - y_um[b]).abs());
+                }
+            }
+            for &i in &outliers {
+                y_um[i] = f64::NAN;
+            }
             let position_est_um = meas_um.clone();
             channels.push(Channel {
                 name: axis,
@@ -196,6 +290,12 @@ impl Data {
                 half_range_um,
                 dir,
                 steps,
+                has_dwells,
+                quant_step_um,
+                changed,
+                held,
+                outliers,
+                outlier_max_um,
             });
         }
         if channels.is_empty() {
@@ -203,10 +303,23 @@ impl Data {
                 "expected at least one `meas_<axis>` column, found none".into(),
             ));
         }
-        let temps: Vec<(String, Vec<f64>)> = rec
+        let mut temps: Vec<(String, Vec<f64>)> = rec
             .temp_columns()
             .iter()
             .map(|&c| (c.to_string(), rec.column(c).unwrap_or_default().to_vec()))
+            .collect();
+        let mut temp_repairs = Vec::new();
+        for (name, v) in temps.iter_mut() {
+            let q = robust::quantisation_step(v);
+            let bad = robust::glitch_rows(v, q, max_glitch_run(n), None);
+            if !bad.is_empty() {
+                interpolate_over(v, &bad);
+                temp_repairs.push((name.clone(), bad));
+            }
+        }
+        let temp_update_s = temps
+            .iter()
+            .map(|(_, v)| robust::update_interval_s(&t_s, v))
             .collect();
         let aux: Vec<(String, Vec<f64>)> = rec
             .aux_columns()
@@ -241,34 +354,25 @@ impl Data {
         let uniform_dt_s = (med > 0.0
             && dts.iter().all(|d| (d - med).abs() <= 1e-6 * med.max(1.0)))
         .then_some(med);
-        // Sensor noise in a regressor would let any low-pass (a short "lag") look like physics:
-        // denoise the slow inputs without delay (centred moving average) before anything is fitted.
-        let half = if med > 0.0 {
-            ((SMOOTH_HALF_WINDOW_S / med).round() as usize).min(n / 50)
-        } else {
-            0
-        };
-        let temps_raw = temps;
-        let temps = temps_raw
-            .iter()
-            .map(|(c, v)| (c.clone(), centred_mean(v, half)))
-            .collect();
-        let pressure_hpa = pressure_hpa.map(|(c, v)| (c, centred_mean(&v, half)));
         Ok(Self {
             t_s,
             channels,
-            temps,
-            temps_raw,
-            smooth_half_window_s: SMOOTH_HALF_WINDOW_S,
+            temps: temps.clone(),
+            temps_raw: temps,
+            temp_update_s,
+            temp_repairs,
+            smooth_half_window_s: 0.0,
             median_dt_s: med,
             aux,
-            pressure_hpa,
+            pressure_hpa: pressure_hpa.clone(),
+            pressure_raw_hpa: pressure_hpa,
             against_simulation: sim.is_some(),
             uniform_dt_s,
         })
     }
 
-    /// The same data with the temperatures denoised by a centred mean of ±`half_window_s`.
+    /// The same data with the temperatures and the pressure denoised by a zero-phase mean of
+    /// ±`half_window_s` (diagnostic: every term explain fits sees them).
     pub fn with_smoothing(&self, half_window_s: f64) -> Data {
         let half = if self.median_dt_s > 0.0 {
             ((half_window_s / self.median_dt_s).round() as usize).min(self.rows() / 50)
@@ -281,7 +385,11 @@ impl Data {
             .iter()
             .map(|(c, v)| (c.clone(), centred_mean(v, half)))
             .collect();
-        d.smooth_half_window_s = half_window_s;
+        d.pressure_hpa = self
+            .pressure_raw_hpa
+            .as_ref()
+            .map(|(c, v)| (c.clone(), centred_mean(v, half)));
+        d.smooth_half_window_s = if half == 0 { 0.0 } else { half_window_s };
         d
     }
 
@@ -293,5 +401,19 @@ impl Data {
     /// Duration, s.
     pub fn duration_s(&self) -> f64 {
         self.t_s.last().copied().unwrap_or(0.0) - self.t_s.first().copied().unwrap_or(0.0)
+    }
+
+    /// The unit of time that fits this record.
+    pub fn time_unit(&self) -> TimeUnit {
+        TimeUnit::for_span(self.duration_s())
+    }
+
+    /// The shortest time constant the record can resolve for temperature `i`, s: two sample
+    /// intervals, and no less than the interval at which the sensor is reported or the
+    /// width of the diagnostic denoising.
+    pub fn shortest_lag_s(&self, i: usize) -> f64 {
+        (2.0 * self.median_dt_s)
+            .max(self.temp_update_s.get(i).copied().unwrap_or(0.0))
+            .max(self.smooth_half_window_s)
     }
 }

@@ -1,45 +1,90 @@
 //! Fitting and scoring model extensions: least squares (the host's Householder QR), blocked
-//! cross-validation, an information criterion corrected for autocorrelated residuals.
+//! cross-validation with a held-out design, an information criterion corrected for
+//! autocorrelated residuals.
 
 use crate::linalg::{lstsq, LeastSquares};
 
 use super::ExplainError;
 
-/// Number of contiguous time blocks the recording is cut into for cross-validation.
+/// Number of contiguous time blocks of the default held-out design.
 pub const CV_BLOCKS: usize = 80;
 /// Number of folds: block b belongs to fold b mod CV_FOLDS (interleaved, so every fold spans
 /// the whole recording and held-out blocks are short against slow structure).
 pub const CV_FOLDS: usize = 5;
+
+/// A held-out design: contiguous blocks of time, interleaved into folds.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Design {
+    /// Fold of each row.
+    pub fold_of: Vec<u8>,
+    /// Number of folds.
+    pub folds: usize,
+    /// Length of one held-out block, s.
+    pub gap_s: f64,
+}
+
+impl Design {
+    /// `blocks` contiguous blocks of equal duration (by time, so irregular sampling and gaps
+    /// in the log do not shift them), block b in fold b mod `folds`.
+    pub fn blocks(t_s: &[f64], blocks: usize, folds: usize) -> Self {
+        let blocks = blocks.max(2);
+        let folds = folds.clamp(2, blocks).min(u8::MAX as usize);
+        let t0 = t_s.first().copied().unwrap_or(0.0);
+        let span = (t_s.last().copied().unwrap_or(0.0) - t0).max(f64::MIN_POSITIVE);
+        let fold_of = t_s
+            .iter()
+            .map(|&t| {
+                let b = (((t - t0) / span * blocks as f64) as usize).min(blocks - 1);
+                (b % folds) as u8
+            })
+            .collect();
+        Self {
+            fold_of,
+            folds,
+            gap_s: span / blocks as f64,
+        }
+    }
+
+    /// The default design: [`CV_BLOCKS`] blocks in [`CV_FOLDS`] folds.
+    pub fn standard(t_s: &[f64]) -> Self {
+        Self::blocks(t_s, CV_BLOCKS.min(t_s.len() / 4).max(CV_FOLDS), CV_FOLDS)
+    }
+
+    /// Folds that must improve for a candidate to count: all but one of five (4 of 5), all
+    /// but one of fewer.
+    pub fn folds_needed(&self, of_five: usize) -> usize {
+        if self.folds == CV_FOLDS {
+            of_five
+        } else {
+            (self.folds * of_five).div_ceil(CV_FOLDS).min(self.folds)
+        }
+    }
+}
 
 /// A fitted linear model on named columns (an intercept is always in).
 #[derive(Clone, Debug)]
 pub struct Fit {
     /// The least-squares solution.
     pub ls: LeastSquares,
-    /// Residuals, µm (NaN where a row was left out).
+    /// Residuals over all rows, µm (NaN where the response is missing: outliers).
     pub residuals: Vec<f64>,
-    /// Residual sum of squares, µm².
+    /// Residual sum of squares over the rows fitted, µm².
     pub rss: f64,
-    /// Rows used.
+    /// Rows fitted.
     pub n: usize,
-    /// Effective number of independent rows of the residuals (batch means, see [`effective_n`]).
-    pub n_eff: f64,
 }
 
-/// Least squares of `y` on `cols` plus an intercept.
-pub fn fit(cols: &[&[f64]], y: &[f64]) -> Result<Fit, ExplainError> {
-    let ls = lstsq(cols, y, true)?;
-    let residuals = ls.residuals.clone();
-    let n = residuals.iter().filter(|v| v.is_finite()).count();
-    let rss = ls.rss;
-    let n_eff = effective_n(&residuals);
-    Ok(Fit {
-        ls,
-        residuals,
-        rss,
-        n,
-        n_eff,
-    })
+/// Values of `x` at `rows`.
+pub fn gather(x: &[f64], rows: &[usize]) -> Vec<f64> {
+    rows.iter().map(|&i| x[i]).collect()
+}
+
+/// Rows the selection fits on: those with a finite response, every k-th of them when there are
+/// more than `max_rows` (a 1 kHz log over-samples everything explain looks at).
+pub fn eval_rows(y: &[f64], max_rows: usize) -> Vec<usize> {
+    let finite: Vec<usize> = (0..y.len()).filter(|&i| y[i].is_finite()).collect();
+    let k = finite.len().div_ceil(max_rows.max(1)).max(1);
+    finite.into_iter().step_by(k).collect()
 }
 
 /// Prediction of a fitted model at row `i`.
@@ -52,29 +97,40 @@ pub fn predict(ls: &LeastSquares, cols: &[&[f64]], i: usize) -> f64 {
             .sum::<f64>()
 }
 
-/// Effective number of independent rows of a residual `r` (NaN skipped): n / τ_int, with the
-/// integrated autocorrelation time τ_int from batch means (40 batches), which also sees
-/// correlation longer than one sample (a positioning scatter held over a whole dwell).
-pub fn effective_n(r: &[f64]) -> f64 {
-    let v: Vec<f64> = r.iter().copied().filter(|x| x.is_finite()).collect();
-    let n = v.len();
-    if n < 80 {
-        return n as f64;
-    }
-    let m = v.iter().sum::<f64>() / n as f64;
-    let var = v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / n as f64;
-    if var <= 0.0 {
-        return n as f64;
-    }
-    let batches = 40;
-    let b = n / batches;
-    let bm: Vec<f64> = (0..batches)
-        .map(|k| v[k * b..(k + 1) * b].iter().sum::<f64>() / b as f64)
+/// Least squares of `y` on `cols` plus an intercept, fitted on `rows`; residuals for every row
+/// with a finite response.
+pub fn fit_rows(cols: &[&[f64]], y: &[f64], rows: &[usize]) -> Result<Fit, ExplainError> {
+    let all = rows.len() == y.len();
+    let ls = if all {
+        lstsq(cols, y, true)?
+    } else {
+        let g: Vec<Vec<f64>> = cols.iter().map(|c| gather(c, rows)).collect();
+        let refs: Vec<&[f64]> = g.iter().map(|c| c.as_slice()).collect();
+        lstsq(&refs, &gather(y, rows), true)?
+    };
+    let residuals: Vec<f64> = (0..y.len())
+        .map(|i| {
+            if y[i].is_finite() {
+                y[i] - predict(&ls, cols, i)
+            } else {
+                f64::NAN
+            }
+        })
         .collect();
-    let bmm = bm.iter().sum::<f64>() / batches as f64;
-    let bvar = bm.iter().map(|x| (x - bmm) * (x - bmm)).sum::<f64>() / (batches - 1) as f64;
-    let tau = (b as f64 * bvar / var).max(1.0);
-    (n as f64 / tau).clamp(10.0_f64.min(n as f64), n as f64)
+    let rss = ls.rss;
+    let n = rows.len();
+    Ok(Fit {
+        ls,
+        residuals,
+        rss,
+        n,
+    })
+}
+
+/// Least squares on every row (the response's NaN rows are left out).
+pub fn fit(cols: &[&[f64]], y: &[f64]) -> Result<Fit, ExplainError> {
+    let rows: Vec<usize> = (0..y.len()).filter(|&i| y[i].is_finite()).collect();
+    fit_rows(cols, y, &rows)
 }
 
 /// Effective number of independent rows for comparing models in one naming round: from the
@@ -106,16 +162,82 @@ pub fn round_effective_n(r: &[f64], units: usize) -> f64 {
     (n as f64 * (1.0 - rho) / (1.0 + rho)).clamp(floor, cap)
 }
 
+/// Autocorrelation of `x` (mean removed) at lag `k` rows.
+fn autocorrelation(x: &[f64], var: f64, k: usize) -> f64 {
+    if k >= x.len() || var <= 0.0 {
+        return 0.0;
+    }
+    let s: f64 = x[..x.len() - k]
+        .iter()
+        .zip(&x[k..])
+        .map(|(a, b)| a * b)
+        .sum();
+    s / (x.len() as f64 * var)
+}
+
+fn centred(x: &[f64]) -> (Vec<f64>, f64) {
+    let n = x.len().max(1);
+    let m = x.iter().sum::<f64>() / n as f64;
+    let c: Vec<f64> = x.iter().map(|v| v - m).collect();
+    let var = c.iter().map(|v| v * v).sum::<f64>() / n as f64;
+    (c, var)
+}
+
+/// 1 + 2 Σ_{k≥1} p(k) for a correlation sequence p with p(0) = 1: the sum runs while p stays
+/// positive (the initial positive sequence), evaluated on a geometric ladder of lags (each
+/// 1.5× the last) and integrated by the trapezoid rule up to the zero crossing.
+fn correlation_time(n: usize, p: impl Fn(usize) -> f64) -> f64 {
+    let mut sum = 0.0;
+    let (mut prev_k, mut prev_p) = (0usize, 1.0f64);
+    let mut k = 1usize;
+    while k < n / 2 {
+        let pk = p(k);
+        if pk <= 0.0 {
+            let zero = prev_k as f64 + (k - prev_k) as f64 * prev_p / (prev_p - pk);
+            sum += 0.5 * prev_p * (zero - prev_k as f64);
+            break;
+        }
+        sum += 0.5 * (prev_p + pk) * (k - prev_k) as f64;
+        prev_k = k;
+        prev_p = pk;
+        k = (k + 1).max((k as f64 * 1.5) as usize);
+    }
+    // the trapezoid from lag 0 counted half of p(0) = 1 into the first step
+    (1.0 + 2.0 * (sum - 0.5).max(0.0)).max(1.0)
+}
+
+/// Effective number of independent rows behind the association of two series (Bartlett 1935;
+/// Bretherton et al., J. Climate 12, 1999, Eq. 31): n / (1 + 2 Σₖ ρₐ(k) ρ_b(k)) (see
+/// [`correlation_time`]). Two smooth series (a slow drift and a long lag of a temperature)
+/// share few independent values however finely they are sampled — the reason a smooth
+/// regressor must explain much of a smooth residual before it counts; a fast one (a direction
+/// pattern, a fringe) keeps almost every row.
+pub fn bartlett_n_eff(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    if n < 10 {
+        return n as f64;
+    }
+    let (ca, va) = centred(&a[..n]);
+    let (cb, vb) = centred(&b[..n]);
+    let tau = correlation_time(n, |k| {
+        autocorrelation(&ca, va, k) * autocorrelation(&cb, vb, k)
+    });
+    (n as f64 / tau).clamp(2.0, n as f64)
+}
+
+/// Integrated autocorrelation time of a series, in rows (1 for white noise): how many rows
+/// one independent value of it spans.
+pub fn autocorrelation_rows(x: &[f64]) -> f64 {
+    if x.len() < 10 {
+        return 1.0;
+    }
+    let (c, v) = centred(x);
+    correlation_time(x.len(), |k| autocorrelation(&c, v, k))
+}
+
 /// Bayesian information criterion with an effective sample size: n_eff ln(RSS/n) + k ln n_eff.
 pub fn bic(rss: f64, n: usize, k: usize, n_eff: f64) -> f64 {
     n_eff * (rss / n as f64).max(1e-300).ln() + k as f64 * n_eff.max(2.0).ln()
-}
-
-/// The fold of each row: interleaved contiguous blocks.
-pub fn folds(n: usize) -> Vec<u8> {
-    (0..n)
-        .map(|i| ((i * CV_BLOCKS / n.max(1)) % CV_FOLDS) as u8)
-        .collect()
 }
 
 /// Held-out result of blocked cross-validation.
@@ -129,19 +251,39 @@ pub struct Cv {
     pub rms_um: f64,
 }
 
-/// Blocked cross-validation of `y` on `cols` plus an intercept.
-pub fn cross_validate(cols: &[&[f64]], y: &[f64], fold_of: &[u8]) -> Result<Cv, ExplainError> {
+impl Cv {
+    /// Folds in which `self` predicts better than `other`.
+    pub fn folds_better_than(&self, other: &Cv) -> usize {
+        self.fold_mse
+            .iter()
+            .zip(&other.fold_mse)
+            .filter(|(a, b)| a < b)
+            .count()
+    }
+}
+
+/// Blocked cross-validation of `y` on `cols` plus an intercept: for each fold, fitted on the
+/// `rows` outside it, predicting every row inside it.
+pub fn cross_validate(
+    cols: &[&[f64]],
+    y: &[f64],
+    design: &Design,
+    rows: &[usize],
+) -> Result<Cv, ExplainError> {
     let n = y.len();
     let mut residuals = vec![f64::NAN; n];
-    let mut fold_mse = vec![0.0; CV_FOLDS];
-    let mut ym = vec![0.0; n];
-    for f in 0..CV_FOLDS as u8 {
-        for i in 0..n {
-            ym[i] = if fold_of[i] == f { f64::NAN } else { y[i] };
-        }
-        let ls = lstsq(cols, &ym, true)?;
+    let mut fold_mse = vec![f64::NAN; design.folds];
+    for (f, mse) in fold_mse.iter_mut().enumerate() {
+        let train: Vec<usize> = rows
+            .iter()
+            .copied()
+            .filter(|&i| design.fold_of[i] as usize != f)
+            .collect();
+        let g: Vec<Vec<f64>> = cols.iter().map(|c| gather(c, &train)).collect();
+        let refs: Vec<&[f64]> = g.iter().map(|c| c.as_slice()).collect();
+        let ls = lstsq(&refs, &gather(y, &train), true)?;
         let (mut s, mut c) = (0.0, 0usize);
-        for i in (0..n).filter(|&i| fold_of[i] == f) {
+        for i in (0..n).filter(|&i| design.fold_of[i] as usize == f) {
             let r = y[i] - predict(&ls, cols, i);
             if r.is_finite() {
                 residuals[i] = r;
@@ -149,7 +291,7 @@ pub fn cross_validate(cols: &[&[f64]], y: &[f64], fold_of: &[u8]) -> Result<Cv, 
                 c += 1;
             }
         }
-        fold_mse[f as usize] = if c > 0 { s / c as f64 } else { f64::NAN };
+        *mse = if c > 0 { s / c as f64 } else { f64::NAN };
     }
     let rms_um = rms(&residuals);
     Ok(Cv {
@@ -172,12 +314,12 @@ pub fn rms(v: &[f64]) -> f64 {
     }
 }
 
-/// Noise floor from the data: the high-frequency scatter of `r` (robust: 1.4826·MAD of first
-/// differences / √2), µm.
-pub fn noise_floor(r: &[f64]) -> f64 {
-    let mut d: Vec<f64> = r
-        .windows(2)
-        .map(|w| w[1] - w[0])
+/// Robust scale of the sample-to-sample scatter of `r` (1.4826·MAD of first differences / √2),
+/// µm; rows where `changed` is false (a held reading repeated) are skipped.
+pub fn noise_floor(r: &[f64], changed: Option<&[bool]>) -> f64 {
+    let mut d: Vec<f64> = (1..r.len())
+        .filter(|&i| changed.is_none_or(|c| c[i]))
+        .map(|i| r[i] - r[i - 1])
         .filter(|x| x.is_finite())
         .collect();
     if d.is_empty() {

@@ -57,9 +57,14 @@ pub fn unit_count(d: &Data, ch: usize) -> usize {
     }
 }
 
-/// Estimate the noise floor of residual `r` on channel `ch`.
+/// Estimate the noise floor of residual `r` on channel `ch`: the robust sample-to-sample
+/// scatter (over the rows where a held measurement was updated), never below the
+/// quantisation's step/√12 (the RMS of rounding to a grid).
 pub fn noise(d: &Data, ch: usize, r: &[f64]) -> NoiseFloor {
-    let sample_um = noise_floor(r);
+    let c = &d.channels[ch];
+    let changed = c.held.then_some(c.changed.as_slice());
+    let quant = c.quant_step_um.map_or(0.0, |q| q / 12f64.sqrt());
+    let sample_um = noise_floor(r, changed).max(quant);
     let us = units(d, ch);
     if us.len() == d.rows() {
         return NoiseFloor {
@@ -75,7 +80,7 @@ pub fn noise(d: &Data, ch: usize, r: &[f64]) -> NoiseFloor {
         .filter(|v| v.is_finite())
         .collect();
     let unit_um = if means.len() >= 4 {
-        noise_floor(&means)
+        noise_floor(&means, None)
     } else {
         sample_um
     };
@@ -177,20 +182,21 @@ pub fn locate(d: &Data, ch: usize, r: &[f64], floor: NoiseFloor) -> Vec<Finding>
         }
     }
     let mut dims: Vec<(String, Bins)> = Vec::new();
-    let hours = d.duration_s() / 3600.0;
+    let unit = d.time_unit();
+    let span = unit.of(d.duration_s());
     let t0 = d.t_s[0];
     let nb = (d.rows() / 200).clamp(4, 24);
-    let time_key: Vec<f64> = d.t_s.iter().map(|t| (t - t0) / 3600.0).collect();
+    let time_key: Vec<f64> = d.t_s.iter().map(|t| unit.of(t - t0)).collect();
     let tb: Bins = (0..nb)
         .map(|b| {
             let (lo, hi) = (
-                hours * b as f64 / nb as f64,
-                hours * (b + 1) as f64 / nb as f64,
+                span * b as f64 / nb as f64,
+                span * (b + 1) as f64 / nb as f64,
             );
             let rows = (0..d.rows())
                 .filter(|&i| time_key[i] >= lo && (time_key[i] < hi || b == nb - 1))
                 .collect();
-            (format!("time {lo:.1}–{hi:.1} h"), rows)
+            (format!("time {lo:.1}–{hi:.1} {}", unit.symbol), rows)
         })
         .collect();
     dims.push(("time".into(), tb));
@@ -290,7 +296,7 @@ pub fn locate(d: &Data, ch: usize, r: &[f64], floor: NoiseFloor) -> Vec<Finding>
             let mut means: Vec<f64> = flagged.iter().map(|f| f.2).collect();
             let zmax = flagged.iter().map(|f| f.3).fold(0.0, f64::max);
             let place = if flagged.len() == bins.len() {
-                "throughout the recording (slowly varying)".to_string()
+                "in every time span of the recording".to_string()
             } else {
                 format!(
                     "{} time spans between {} and {}",

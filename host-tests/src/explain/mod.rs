@@ -1,26 +1,38 @@
 //! `explain`: find, name and model the physics a model (or a simulation) left out.
 //!
-//! 1. **Baseline** — the published static model (cubic in the commanded position, linear in
+//! 1. **Prepare** — quantised readings, channels held between slower reports and glitches are
+//!    found first ([`robust`]); glitches are excluded from every fit and reported with their
+//!    rows.
+//! 2. **Baseline** — the published static model (cubic in the commanded position, linear in
 //!    every temperature, an offset) fitted to the recording; or, with a simulation, the
 //!    difference to it.
-//! 2. **Locate** — where the residual is structured (time, position, direction, other axes,
-//!    temperature rate, auxiliary channels) against a noise floor estimated from the data.
-//! 3. **Name** — every candidate in [`crate::effects`] is tried as an extension of the current
-//!    model, its nonlinear parameter (τ, t0, period, time scale) searched by least squares; it is
-//!    accepted only if it lowers an information criterion (BIC with an effective sample size
-//!    for autocorrelated residuals) by more than [`Settings::min_bic_drop`] AND improves the
-//!    held-out RMS of blocked cross-validation in most folds. The best accepted candidate joins
-//!    the model and the search repeats.
-//! 4. **Model and show** — held-out RMS and ISO 9283 accuracy before/after, residual plots;
-//!    whatever structure remains is reported as unexplained, with where it is.
+//! 3. **Locate** — where the residual is structured (time, position, direction, other axes,
+//!    temperature rate, auxiliary channels) against a noise floor estimated from the data
+//!    (never below the quantisation's step/√12).
+//! 4. **Name** — every candidate in [`crate::effects`] proposes an extension of the current
+//!    model, its nonlinear parameters (τ per sensor, t0, a play-operator bank) searched against
+//!    it ([`search`]); it is accepted only if it lowers an information criterion (BIC with an
+//!    effective sample size for autocorrelated residuals) by more than
+//!    [`Settings::min_bic_drop`] AND predicts held-out blocks better in most folds. Candidates
+//!    that explain through recorded channels are preferred: a time-only explanation
+//!    (`unexplained_drift`) is tried only when none of them passes, and is judged on held-out
+//!    gaps longer than its own time scale. The best accepted candidate joins the model and the
+//!    search repeats.
+//! 5. **Model and show** — held-out RMS (and ISO 9283 figures where poses are revisited)
+//!    before/after, residual plots; the headline says whether nothing significant remains or
+//!    structure remains that no candidate explains, and where.
 
 pub mod data;
 pub mod fit;
 pub mod locate;
+pub mod nnls;
 pub mod plot;
 pub mod report;
+pub mod robust;
+pub mod search;
+pub mod units;
 
-use crate::effects::{candidates, Candidate, Estimate, Fitted};
+use crate::effects::{candidates, Candidate, Estimate, Fitted, Proposal};
 use crate::linalg::LinalgError;
 use crate::recording::RecordingError;
 
@@ -28,8 +40,11 @@ pub use data::Data;
 pub use locate::{Finding, NoiseFloor};
 pub use report::{ChannelReport, EffectReport, Report};
 
+use fit::{Cv, Design, Fit};
+
 /// Errors of explain.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum ExplainError {
     /// The recording is not usable.
     #[error("{0}")]
@@ -45,7 +60,9 @@ pub enum ExplainError {
 /// Thresholds of the naming step.
 #[derive(Clone, Debug)]
 pub struct Settings {
-    /// Minimum drop of BIC (effective sample size) for a candidate to count (10 = "very strong").
+    /// Minimum drop of BIC for a candidate to count, with the sample size counted as the
+    /// independent rows behind its evidence ([`fit::bartlett_n_eff`]): 6 = "strong" (Kass &
+    /// Raftery, JASA 90, 1995, on the 2 ln B scale).
     pub min_bic_drop: f64,
     /// Minimum relative drop of held-out RMS.
     pub min_rms_gain: f64,
@@ -53,15 +70,20 @@ pub struct Settings {
     pub min_folds_better: usize,
     /// Most effects named per channel.
     pub max_effects: usize,
+    /// Smallest effect worth a name, as a fraction of the noise floor: the held-out variance
+    /// it explains must be at least (this × floor)². Below, it may be detectable in a long
+    /// record, but it is not physics anyone could use.
+    pub min_effect_of_floor: f64,
 }
 
 impl Default for Settings {
     fn default() -> Self {
         Self {
-            min_bic_drop: 20.0,
+            min_bic_drop: 6.0,
             min_rms_gain: 0.01,
             min_folds_better: 4,
             max_effects: 4,
+            min_effect_of_floor: 0.2,
         }
     }
 }
@@ -71,17 +93,23 @@ impl Default for Settings {
 pub struct Trial {
     /// Candidate name.
     pub name: &'static str,
-    /// Best nonlinear parameter.
+    /// Its first nonlinear parameter, if any.
     pub theta: Option<f64>,
     /// BIC change (negative = better).
     pub delta_bic: f64,
-    /// Held-out RMS with the extension, µm.
+    /// Held-out RMS with the extension, µm (NaN when not cross-validated).
     pub cv_rms_um: f64,
     /// Folds that improved.
     pub folds_better: usize,
+    /// Folds of its held-out design.
+    pub folds: usize,
     /// Whether it passed the thresholds.
     pub passed: bool,
 }
+
+/// Most rows the naming step fits on: longer logs are thinned evenly (a 1 kHz log over-samples
+/// everything explain looks at; lag filters and play operators still run over every sample).
+pub const EVAL_ROWS: usize = 100_000;
 
 struct Model {
     cols: Vec<Vec<f64>>,
@@ -97,32 +125,47 @@ impl Model {
     }
 }
 
-/// Half widths (s) of the delay-free temperature denoising that the baseline may use: sensor
-/// noise is fast; slower smoothing would start to shape the thermal response itself.
-pub const SMOOTHING_OPTIONS_S: [f64; 3] = [60.0, 150.0, 300.0];
+/// Most denoising explain applies to the temperatures: sensor noise is fast; slower smoothing
+/// would start to shape the thermal response itself (and hand a short lag what it took away).
+pub const MAX_SMOOTHING_S: f64 = 300.0;
 
-fn choose_smoothing(d: &Data, ch: usize, folds: &[u8]) -> Result<Data, ExplainError> {
+/// Zero-phase denoising of the temperatures, chosen by held-out prediction of the baseline:
+/// none, or a ladder of half-widths from two report intervals (each 2.5× the last) up to
+/// [`MAX_SMOOTHING_S`] and 1/20 of the record — the least smoothing within 1 % of the best.
+/// Sensor noise in a regressor biases its coefficient (errors in variables) and would let any
+/// low-pass of the readings (a short "lag") look like physics. Diagnostic only: a zero-phase
+/// mean uses later readings; every term explain fits sees the same denoised readings.
+fn choose_smoothing(
+    d: &Data,
+    ch: usize,
+    design: &Design,
+    rows: &[usize],
+) -> Result<Data, ExplainError> {
     if d.temps.is_empty() || d.against_simulation {
         return Ok(d.clone());
     }
-    let mut best: Option<(f64, Data)> = None;
-    let mut first_rms = f64::NAN;
-    for &w in SMOOTHING_OPTIONS_S
-        .iter()
-        .filter(|&&w| w == SMOOTHING_OPTIONS_S[0] || w <= d.duration_s() / 20.0)
-    {
+    let mut upd: Vec<f64> = d.temp_update_s.clone();
+    let base = fit::median(&mut upd).max(d.median_dt_s);
+    let mut widths = vec![0.0];
+    let mut w = 2.0 * base;
+    while w <= MAX_SMOOTHING_S.min(d.duration_s() / 20.0) {
+        widths.push(w);
+        w *= 2.5;
+    }
+    let mut options: Vec<(f64, f64)> = Vec::new();
+    for &w in &widths {
         let dw = d.with_smoothing(w);
         let (cols, _) = baseline_columns(&dw, ch);
         let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
-        let cv = fit::cross_validate(&refs, &dw.channels[ch].y_um, folds)?;
-        if first_rms.is_nan() {
-            first_rms = cv.rms_um;
-        }
-        if best.as_ref().is_none_or(|b| cv.rms_um < b.0 * 0.99) {
-            best = Some((cv.rms_um, dw));
-        }
+        let cv = fit::cross_validate(&refs, &dw.channels[ch].y_um, design, rows)?;
+        options.push((cv.rms_um, w));
     }
-    Ok(best.map(|b| b.1).unwrap_or_else(|| d.clone()))
+    let best = options.iter().map(|o| o.0).fold(f64::INFINITY, f64::min);
+    let w = options
+        .iter()
+        .find(|o| o.0 <= best * 1.01)
+        .map_or(0.0, |o| o.1);
+    Ok(d.with_smoothing(w))
 }
 
 fn baseline_columns(d: &Data, ch: usize) -> (Vec<Vec<f64>>, String) {
@@ -150,178 +193,169 @@ fn baseline_columns(d: &Data, ch: usize) -> (Vec<Vec<f64>>, String) {
     )
 }
 
-/// Most rows used while searching a nonlinear parameter.
-pub const SEARCH_ROWS: usize = 100_000;
-
-/// A fitted extension: (θ, regressors, fit).
-type Extension = (Option<f64>, Vec<Vec<f64>>, fit::Fit);
-
-/// The best candidate of a round so far.
-struct Best {
-    /// −ΔBIC of the candidate.
-    gain: f64,
+/// A scored proposal.
+struct Scored {
     cand: &'static dyn Candidate,
-    theta: Option<f64>,
-    regs: Vec<Vec<f64>>,
-    fit: fit::Fit,
-    cv: fit::Cv,
+    proposal: Proposal,
+    fit: Fit,
+    /// Held-out results (current, with the extension) on the proposal's own design.
+    cv_cur: Cv,
+    cv_new: Cv,
+    gap_s: f64,
+    /// Independent rows behind the evidence (Bartlett, see [`fit::bartlett_n_eff`]).
+    n_eff: f64,
     trial: Trial,
 }
 
-/// Fit a candidate's extension on top of `model`: search θ, return (θ, regressors, fit).
-fn best_theta(
-    d: &Data,
-    ch: usize,
-    cand: &dyn Candidate,
-    model: &Model,
-) -> Result<Extension, ExplainError> {
-    let y = &d.channels[ch].y_um;
-    let grid = cand.theta_grid(d, ch);
-    if grid.is_empty() {
-        let regs = cand.regressors(d, ch, None);
-        let f = fit::fit(&model.with(&regs), y)?;
-        return Ok((None, regs, f));
-    }
-    // Long recordings: search θ on every k-th row (≤ SEARCH_ROWS rows; the regressors, e.g.
-    // lag filters, still run over every sample), then refit the best θ on all rows.
-    let k = d.rows().div_ceil(SEARCH_ROWS).max(1);
-    let y_search: Vec<f64> = if k > 1 {
-        y.iter()
-            .enumerate()
-            .map(|(i, &v)| if i % k == 0 { v } else { f64::NAN })
-            .collect()
-    } else {
-        Vec::new()
-    };
-    let ys: &[f64] = if k > 1 { &y_search } else { y };
-    let eval = |th: f64| -> Result<(f64, Vec<Vec<f64>>, fit::Fit), ExplainError> {
-        let regs = cand.regressors(d, ch, Some(th));
-        let f = fit::fit(&model.with(&regs), ys)?;
-        Ok((f.rss, regs, f))
-    };
-    let mut best: Option<(usize, f64, Vec<Vec<f64>>, fit::Fit)> = None;
-    let mut rss_grid = Vec::with_capacity(grid.len());
-    for (i, &th) in grid.iter().enumerate() {
-        let (rss, regs, f) = eval(th)?;
-        rss_grid.push(rss);
-        if best.as_ref().is_none_or(|b| rss < b.1) {
-            best = Some((i, rss, regs, f));
-        }
-    }
-    let (bi, mut brss, mut bregs, mut bfit) = best.expect("grid is not empty");
-    let mut bth = grid[bi];
-    if cand.continuous() && grid.len() >= 3 {
-        // golden-section search on log θ between the neighbours of the best grid point
-        let lo = grid[bi.saturating_sub(1)].ln();
-        let hi = grid[(bi + 1).min(grid.len() - 1)].ln();
-        let g = 0.618_033_988_75;
-        let (mut a, mut b) = (lo, hi);
-        let mut x1 = b - g * (b - a);
-        let mut x2 = a + g * (b - a);
-        let mut f1 = eval(x1.exp())?;
-        let mut f2 = eval(x2.exp())?;
-        for _ in 0..10 {
-            if f1.0 < f2.0 {
-                b = x2;
-                x2 = x1;
-                f2 = f1;
-                x1 = b - g * (b - a);
-                f1 = eval(x1.exp())?;
-            } else {
-                a = x1;
-                x1 = x2;
-                f1 = f2;
-                x2 = a + g * (b - a);
-                f2 = eval(x2.exp())?;
-            }
-        }
-        let (xm, fm) = if f1.0 < f2.0 { (x1, f1) } else { (x2, f2) };
-        if fm.0 < brss {
-            brss = fm.0;
-            bth = xm.exp();
-            bregs = fm.1;
-            bfit = fm.2;
-        }
-    }
-    let _ = brss;
-    if k > 1 {
-        bregs = cand.regressors(d, ch, Some(bth));
-        bfit = fit::fit(&model.with(&bregs), y)?;
-    }
-    Ok((Some(bth), bregs, bfit))
-}
-
-/// 1σ of a continuous θ from the RSS profile: where n_eff·ln(RSS/RSS_min) rises by 1.
-fn theta_sigma(
-    d: &Data,
-    ch: usize,
-    cand: &dyn Candidate,
-    model: &Model,
-    th: f64,
-    f: &fit::Fit,
+struct Round<'a> {
+    y: &'a [f64],
+    rows: &'a [usize],
+    design: &'a Design,
+    model: &'a Model,
+    cur_fit: &'a Fit,
+    cur_cv: &'a Cv,
+    k_cur: usize,
     n_eff: f64,
-) -> Result<f64, ExplainError> {
-    let y = &d.channels[ch].y_um;
-    let rss0 = f.rss;
-    let g = |lt: f64| -> Result<f64, ExplainError> {
-        let regs = cand.regressors(d, ch, Some(lt.exp()));
-        let ff = fit::fit(&model.with(&regs), y)?;
-        Ok(n_eff * (ff.rss / rss0).ln() - 1.0)
-    };
-    let l0 = th.ln();
-    let mut bounds = [f64::NAN; 2];
-    for (s, sign) in [1.0f64, -1.0].iter().enumerate().map(|(i, s)| (i, *s)) {
-        let mut inner = 0.0;
-        let mut outer = f64::NAN;
-        for step in [0.02, 0.05, 0.1, 0.2, 0.4, 0.8, 1.6] {
-            if g(l0 + sign * step)? > 0.0 {
-                outer = step;
-                break;
-            }
-            inner = step;
-        }
-        if outer.is_nan() {
-            continue;
-        }
-        for _ in 0..5 {
-            let mid = 0.5 * (inner + outer);
-            if g(l0 + sign * mid)? > 0.0 {
-                outer = mid;
-            } else {
-                inner = mid;
-            }
-        }
-        bounds[s] = 0.5 * (inner + outer);
-    }
-    let width = match (bounds[0].is_finite(), bounds[1].is_finite()) {
-        (true, true) => 0.5 * (bounds[0] + bounds[1]),
-        (true, false) => bounds[0],
-        (false, true) => bounds[1],
-        _ => return Ok(f64::INFINITY),
-    };
-    Ok(th * width)
+    /// Noise level of an independent unit, µm.
+    floor_um: f64,
+    settings: &'a Settings,
 }
 
-/// Explain one channel.
+impl Round<'_> {
+    fn score(
+        &self,
+        cand: &'static dyn Candidate,
+        proposal: Proposal,
+    ) -> Result<(Trial, Option<Scored>), ExplainError> {
+        let cols = self.model.with(&proposal.regs);
+        let f = fit::fit_rows(&cols, self.y, self.rows)?;
+        let k_new = self.k_cur + proposal.regs.len() + proposal.thetas.len();
+        // the evidence counts the independent rows behind the association of what the
+        // extension adds with the noise that is left after it (smooth with smooth: few rows)
+        let new_res = fit::gather(&f.residuals, self.rows);
+        let added: Vec<f64> = fit::gather(&self.cur_fit.residuals, self.rows)
+            .iter()
+            .zip(&new_res)
+            .map(|(a, b)| a - b)
+            .collect();
+        let n_eff = fit::bartlett_n_eff(&added, &new_res).min(self.n_eff);
+        let delta_bic = fit::bic(f.rss, f.n, k_new, n_eff)
+            - fit::bic(self.cur_fit.rss, self.cur_fit.n, self.k_cur, n_eff);
+        let design = proposal.design.as_ref().unwrap_or(self.design);
+        let mut trial = Trial {
+            name: cand.name(),
+            theta: proposal.theta(),
+            delta_bic,
+            cv_rms_um: f64::NAN,
+            folds_better: 0,
+            folds: design.folds,
+            passed: false,
+        };
+        if delta_bic.is_nan() || delta_bic >= -self.settings.min_bic_drop {
+            return Ok((trial, None));
+        }
+        let cv_cur = if proposal.design.is_some() {
+            fit::cross_validate(&self.model.with(&[]), self.y, design, self.rows)?
+        } else {
+            self.cur_cv.clone()
+        };
+        let cv_new = fit::cross_validate(&cols, self.y, design, self.rows)?;
+        trial.cv_rms_um = cv_new.rms_um;
+        trial.folds_better = cv_new.folds_better_than(&cv_cur);
+        let explained_um = (cv_cur.rms_um.powi(2) - cv_new.rms_um.powi(2))
+            .max(0.0)
+            .sqrt();
+        trial.passed = trial.folds_better >= design.folds_needed(self.settings.min_folds_better)
+            && cv_new.rms_um < cv_cur.rms_um * (1.0 - self.settings.min_rms_gain)
+            && explained_um >= self.settings.min_effect_of_floor * self.floor_um;
+        let gap_s = design.gap_s;
+        Ok((
+            trial.clone(),
+            trial.passed.then_some(Scored {
+                cand,
+                proposal,
+                fit: f,
+                cv_cur,
+                cv_new,
+                gap_s,
+                n_eff,
+                trial,
+            }),
+        ))
+    }
+}
+
+/// Rows the final model misses by far more than it misses the rest: beyond 10 robust standard
+/// deviations (1.4826·MAD) of its held-out residual and 5 noise floors — a start-up transient,
+/// a reading taken while the stage still moved. Only a few rows (at most 0.5 %) can be
+/// outliers; more is structure, and stays in.
+fn model_outliers(r: &[f64], floor: &NoiseFloor) -> Vec<usize> {
+    let mut v: Vec<f64> = r.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.len() < 50 {
+        return Vec::new();
+    }
+    let med = fit::median(&mut v);
+    let mut dev: Vec<f64> = v.iter().map(|x| (x - med).abs()).collect();
+    let sigma = 1.4826 * fit::median(&mut dev);
+    let thr = (10.0 * sigma).max(5.0 * floor.sample_um);
+    let out: Vec<usize> = (0..r.len())
+        .filter(|&i| r[i].is_finite() && (r[i] - med).abs() > thr)
+        .collect();
+    if out.len() * 200 > v.len() {
+        Vec::new()
+    } else {
+        out
+    }
+}
+
+/// Explain one channel. Rows that every model misses by far (see [`model_outliers`]) are
+/// excluded and the channel explained once more without them; they are reported.
 pub fn explain_channel(
     d: &Data,
     ch: usize,
     settings: &Settings,
 ) -> Result<ChannelReport, ExplainError> {
-    let folds = fit::folds(d.rows());
-    // Sensor noise in the temperatures would make any low-pass filter (a short "lag") look like
-    // physics: pick the delay-free denoising of the temperatures that predicts held-out data
-    // best (the least smoothing within 1 %), so a lag must earn its place by its delay.
-    let mut d = choose_smoothing(d, ch, &folds)?;
+    let first = explain_channel_once(d, ch, settings)?;
+    let far = model_outliers(&first.residual_after_um, &first.noise_floor);
+    if far.is_empty() {
+        return Ok(first);
+    }
+    let mut d2 = d.clone();
+    {
+        let c = &mut d2.channels[ch];
+        for &i in &far {
+            c.y_um[i] = f64::NAN;
+        }
+    }
+    let mut rep = explain_channel_once(&d2, ch, settings)?;
+    rep.model_outliers = far;
+    Ok(rep)
+}
+
+fn explain_channel_once(
+    d: &Data,
+    ch: usize,
+    settings: &Settings,
+) -> Result<ChannelReport, ExplainError> {
+    let rows = fit::eval_rows(&d.channels[ch].y_um, EVAL_ROWS);
+    if rows.len() < 20 {
+        return Err(ExplainError::Input(format!(
+            "channel {}: expected at least 20 usable rows, found {}",
+            d.channels[ch].name,
+            rows.len()
+        )));
+    }
+    let design = Design::standard(&d.t_s);
+    let mut d = choose_smoothing(d, ch, &design, &rows)?;
     let (base_cols, mut baseline) = baseline_columns(&d, ch);
-    if !d.temps.is_empty() && !d.against_simulation {
+    if d.smooth_half_window_s > 0.0 {
         baseline.push_str(&format!(
-            " (temperatures denoised by a centred ±{:.0} s mean, chosen by cross-validation)",
-            d.smooth_half_window_s
+            " (temperatures denoised by a zero-phase ±{} mean, chosen by held-out prediction — for diagnosis only: it uses later readings; the compensator reads the raw sensors through the same causal lag filters)",
+            units::duration(d.smooth_half_window_s)
         ));
     }
     let mut model = Model { cols: base_cols };
-    let base_fit = fit::fit(&model.with(&[]), &d.channels[ch].y_um)?;
+    let base_fit = fit::fit_rows(&model.with(&[]), &d.channels[ch].y_um, &rows)?;
     {
         let c = &mut d.channels[ch];
         for ((p, m), r) in c
@@ -335,7 +369,7 @@ pub fn explain_channel(
     }
     let d = &d;
     let y = &d.channels[ch].y_um;
-    let base_cv = fit::cross_validate(&model.with(&[]), y, &folds)?;
+    let base_cv = fit::cross_validate(&model.with(&[]), y, &design, &rows)?;
     let floor = locate::noise(d, ch, &base_fit.residuals);
     let located = locate::locate(d, ch, &base_fit.residuals, floor);
     let mut cur_fit = base_fit.clone();
@@ -343,94 +377,87 @@ pub fn explain_channel(
     let mut effects = Vec::new();
     let mut trials_all = Vec::new();
     let mut accepted: Vec<&'static str> = Vec::new();
-    let k_base = model.cols.len() + 1;
-    let mut k_cur = k_base;
-    let units = locate::unit_count(d, ch);
+    let mut k_cur = model.cols.len() + 1;
+    let units_n = locate::unit_count(d, ch);
     for _round in 0..settings.max_effects {
-        let n_eff = fit::round_effective_n(&cur_fit.residuals, units);
-        let mut best: Option<Best> = None;
+        // the most independent rows this round can have (dwells, the residual's whiteness);
+        // each candidate's own evidence counts fewer when it and the residual are smooth
+        let n_eff = fit::round_effective_n(&fit::gather(&cur_fit.residuals, &rows), units_n);
+        let basis = search::Basis::new(&model.with(&[]), y, rows.clone());
+        let s = search::Search {
+            d,
+            ch,
+            y,
+            model: model.with(&[]),
+            basis,
+            n_eff,
+            design: &design,
+        };
+        let round = Round {
+            y,
+            rows: &rows,
+            design: &design,
+            model: &model,
+            cur_fit: &cur_fit,
+            cur_cv: &cur_cv,
+            k_cur,
+            n_eff,
+            floor_um: floor.unit_um.max(floor.sample_um),
+            settings,
+        };
         let mut trials = Vec::new();
-        for cand in candidates() {
-            if accepted.contains(&cand.name()) || !cand.applies(d, ch) {
-                continue;
-            }
-            let (theta, regs, f) = best_theta(d, ch, cand, &model)?;
-            let k_new = k_cur + regs.len() + usize::from(theta.is_some());
-            let delta_bic =
-                fit::bic(f.rss, f.n, k_new, n_eff) - fit::bic(cur_fit.rss, cur_fit.n, k_cur, n_eff);
-            let mut trial = Trial {
-                name: cand.name(),
-                theta,
-                delta_bic,
-                cv_rms_um: f64::NAN,
-                folds_better: 0,
-                passed: false,
-            };
-            if delta_bic < -settings.min_bic_drop {
-                let cv = fit::cross_validate(&model.with(&regs), y, &folds)?;
-                let folds_better = cv
-                    .fold_mse
-                    .iter()
-                    .zip(&cur_cv.fold_mse)
-                    .filter(|(a, b)| a < b)
-                    .count();
-                trial.cv_rms_um = cv.rms_um;
-                trial.folds_better = folds_better;
-                trial.passed = folds_better >= settings.min_folds_better
-                    && cv.rms_um < cur_cv.rms_um * (1.0 - settings.min_rms_gain);
-                if trial.passed {
+        let mut best: Option<Scored> = None;
+        // explanations through recorded channels first; time alone only when none passes
+        for time_only in [false, true] {
+            for cand in candidates() {
+                if cand.time_only() != time_only
+                    || accepted.contains(&cand.name())
+                    || !cand.applies(d, ch)
+                {
+                    continue;
+                }
+                let Some(p) = cand.propose(&s)? else {
+                    continue;
+                };
+                let (trial, scored) = round.score(cand, p)?;
+                trials.push(trial);
+                if let Some(sc) = scored {
                     // among the candidates that predict held-out data better, the information
                     // criterion picks the winner: the most evidence per parameter
-                    let gain = -delta_bic;
-                    if best.as_ref().is_none_or(|b| gain > b.gain) {
-                        best = Some(Best {
-                            gain,
-                            cand,
-                            theta,
-                            regs,
-                            fit: f,
-                            cv,
-                            trial: trial.clone(),
-                        });
+                    if best
+                        .as_ref()
+                        .is_none_or(|b| sc.trial.delta_bic < b.trial.delta_bic)
+                    {
+                        best = Some(sc);
                     }
                 }
             }
-            trials.push(trial);
+            if best.is_some() {
+                break;
+            }
         }
         trials_all.push(trials);
-        let Some(Best {
-            cand,
-            theta,
-            regs,
-            fit: f,
-            cv,
-            trial,
-            ..
-        }) = best
-        else {
+        let Some(mut sc) = best else {
             break;
         };
-        // parameters
         let m = model.cols.len();
-        let n_eff_after = fit::round_effective_n(&f.residuals, units);
-        let infl = (f.n as f64 / n_eff_after.max(1.0)).sqrt();
+        let f = sc.fit;
+        // uncertainties for autocorrelated residuals: standard errors inflated by √(n/n_eff)
+        // with the independent rows behind this effect's evidence; profile widths of θ (found
+        // with the round's n_eff) widened by √(n_eff_round/n_eff)
+        let infl = (f.n as f64 / sc.n_eff.max(1.0)).sqrt().max(1.0);
+        let widen = (n_eff / sc.n_eff.max(1.0)).sqrt().max(1.0);
+        sc.proposal.widen_sigmas(widen);
         let se_all = f.ls.std_errors();
         let coeffs: Vec<f64> = f.ls.coeffs[m..].to_vec();
         let se: Vec<f64> = se_all[m..].iter().map(|s| s * infl).collect();
-        let th_sigma = match (theta, cand.continuous()) {
-            (Some(th), true) => theta_sigma(d, ch, cand, &model, th, &f, n_eff_after)?,
-            _ => f64::NAN,
+        let fitted = Fitted {
+            proposal: &sc.proposal,
+            coeffs: &coeffs,
+            se: &se,
+            noise_sigma_um: f.ls.rmse() * infl,
         };
-        let mut params: Vec<Estimate> = cand.params(
-            d,
-            ch,
-            &Fitted {
-                theta,
-                theta_sigma: th_sigma,
-                coeffs: &coeffs,
-                se: &se,
-            },
-        );
+        let mut params: Vec<Estimate> = sc.cand.params(d, ch, &fitted);
         // how much the model's prediction changed by adding the effect
         let change: Vec<f64> = cur_fit
             .residuals
@@ -443,76 +470,75 @@ pub fn explain_channel(
             fit::rms(&change) * 1e3,
             f64::NAN,
         ));
-        let rms_before_um = cur_cv.rms_um;
-        let grid = cand.theta_grid(d, ch);
-        let edge_note = match (theta, grid.first(), grid.last()) {
-            (Some(th), Some(_), Some(&hi)) if cand.continuous() && th >= hi * 0.99 => {
-                format!(
-                    "; {} at the top of the searched range ({}): a lower bound",
-                    cand.theta_name().unwrap_or("θ"),
-                    sig3(hi)
-                )
-            }
-            (Some(th), Some(&lo), Some(_)) if cand.continuous() && th <= lo * 1.01 => {
-                format!(
-                    "; {} at the bottom of the searched range ({}): an upper bound",
-                    cand.theta_name().unwrap_or("θ"),
-                    sig3(lo)
-                )
-            }
-            _ => String::new(),
+        let new_cols = model.with(&sc.proposal.regs);
+        let cv_std = if sc.cv_new.fold_mse.len() != design.folds || sc.gap_s != design.gap_s {
+            fit::cross_validate(&new_cols, y, &design, &rows)?
+        } else {
+            sc.cv_new.clone()
         };
-        let evidence = format!(
-            "held-out RMS {:.1} → {:.1} nm ({} of {} folds better), ΔBIC {:.0}, in-sample RMS {:.1} → {:.1} nm",
-            rms_before_um * 1e3,
-            cv.rms_um * 1e3,
-            trial.folds_better,
-            fit::CV_FOLDS,
-            trial.delta_bic,
-            fit::rms(&cur_fit.residuals) * 1e3,
-            fit::rms(&f.residuals) * 1e3
-        ) + &edge_note;
+        let nm = |v_um: f64| units::length_um(v_um);
+        let mut evidence = format!(
+            "held-out RMS {} → {} ({} of {} folds better, held-out blocks of {}), ΔBIC {:.0}, in-sample RMS {} → {}",
+            nm(sc.cv_cur.rms_um),
+            nm(sc.cv_new.rms_um),
+            sc.trial.folds_better,
+            sc.trial.folds,
+            units::duration(sc.gap_s),
+            sc.trial.delta_bic,
+            nm(fit::rms(&cur_fit.residuals)),
+            nm(fit::rms(&f.residuals))
+        );
+        for note in sc.proposal.thetas.iter().filter_map(|t| t.bound_note()) {
+            evidence.push_str("; ");
+            evidence.push_str(&note);
+        }
         effects.push(EffectReport {
-            name: cand.name(),
+            name: sc.cand.name(),
             channel: d.channels[ch].name.clone(),
-            description: cand.description(),
-            deploy: cand.deploy(),
-            blob: cand.blob_terms(&blob_context(d, ch), theta),
+            description: sc.cand.description(),
+            summary: sc.cand.summary(d, ch, &fitted),
+            deploy: sc.cand.deploy(),
+            blob: sc.cand.blob_terms(&blob_context(d, ch), &fitted),
             params,
-            rms_before_nm: rms_before_um * 1e3,
-            rms_after_nm: cv.rms_um * 1e3,
+            rms_before_nm: cur_cv.rms_um * 1e3,
+            rms_after_nm: cv_std.rms_um * 1e3,
             evidence,
         });
-        accepted.push(cand.name());
-        k_cur += regs.len() + usize::from(theta.is_some());
-        model.cols.extend(regs);
+        accepted.push(sc.cand.name());
+        k_cur += sc.proposal.regs.len() + sc.proposal.thetas.len();
+        model.cols.extend(sc.proposal.regs);
         cur_fit = f;
-        cur_cv = cv;
+        cur_cv = cv_std;
     }
     let final_floor = locate::noise(d, ch, &cur_fit.residuals);
     let mut unexplained = locate::locate(d, ch, &cur_cv.residuals, final_floor);
     // the clearest places first, at most eight per channel
     unexplained.sort_by(|a, b| b.z.total_cmp(&a.z));
     unexplained.truncate(8);
-    // everything left well above the noise floor without a place: say so
+    // everything left well above the noise floor without a place (held-out RMS over twice the
+    // floor: three quarters of its variance is not noise): say so
     let final_rms = cur_cv.rms_um;
-    if unexplained.is_empty()
-        && final_rms > 3.0 * final_floor.unit_um.max(final_floor.sample_um)
-        && final_rms > 0.0
-    {
+    let level = final_floor.unit_um.max(final_floor.sample_um);
+    if unexplained.is_empty() && final_rms > 2.0 * level && final_rms > 0.0 {
         unexplained.push(Finding {
             place: "throughout the recording (no single place)".into(),
             dimension: "all".into(),
             rms_nm: final_rms * 1e3,
             mean_nm: 0.0,
-            z: final_rms / final_floor.unit_um.max(1e-12),
+            z: final_rms / level.max(1e-12),
         });
     }
+    let c = &d.channels[ch];
     Ok(ChannelReport {
-        channel: d.channels[ch].name.clone(),
+        channel: c.name.clone(),
         baseline,
         rows: d.rows(),
         noise_floor: floor,
+        quant_step_um: c.quant_step_um,
+        held: c.held,
+        outliers: c.outliers.clone(),
+        outlier_max_um: c.outlier_max_um,
+        model_outliers: Vec::new(),
         baseline_rms_nm: base_cv.rms_um * 1e3,
         baseline_in_sample_rms_nm: fit::rms(&base_fit.residuals) * 1e3,
         final_rms_nm: final_rms * 1e3,
@@ -525,14 +551,6 @@ pub fn explain_channel(
         residual_before_um: base_cv.residuals,
         residual_after_um: cur_cv.residuals,
     })
-}
-
-fn sig3(v: f64) -> String {
-    if v.abs() >= 1e4 {
-        format!("{v:.0}")
-    } else {
-        format!("{v:.3}")
-    }
 }
 
 /// Where channel `ch` sits in a shared model built from this recording.
@@ -554,5 +572,10 @@ pub fn explain(d: &Data, settings: &Settings) -> Result<Report, ExplainError> {
     let channels = (0..d.channels.len())
         .map(|ch| explain_channel(d, ch, settings))
         .collect::<Result<Vec<_>, _>>()?;
-    Ok(Report { channels })
+    Ok(Report {
+        channels,
+        time_unit: d.time_unit(),
+        duration_s: d.duration_s(),
+        temp_repairs: d.temp_repairs.clone(),
+    })
 }

@@ -31,18 +31,27 @@ pub fn write_residual_plots(
         .iter()
         .position(|x| x.name == c.channel)
         .unwrap_or(0);
-    let hours: Vec<f64> = d.t_s.iter().map(|t| (t - d.t_s[0]) / 3600.0).collect();
-    let before = format!("before: {} ({:.0} nm RMS)", c.baseline, c.baseline_rms_nm);
-    let after = format!("after: + {} ({:.0} nm RMS)", names(c), c.final_rms_nm);
+    let unit = d.time_unit();
+    let time: Vec<f64> = d.t_s.iter().map(|t| unit.of(t - d.t_s[0])).collect();
+    let baseline = c.baseline.split(" (").next().unwrap_or(&c.baseline);
+    let before = format!(
+        "before: {baseline} ({} RMS held-out)",
+        super::units::length_um(c.baseline_rms_nm * 1e-3)
+    );
+    let after = format!(
+        "after: + {} ({} RMS held-out)",
+        names(c),
+        super::units::length_um(c.final_rms_nm * 1e-3)
+    );
     let mut files = write_chart(
         &dir.join(format!("residual_time_{}", c.channel)),
         &Chart {
             title: format!("{}: held-out residual before/after explain", c.channel),
-            x_label: "time (h)".into(),
+            x_label: format!("time ({})", unit.symbol),
             y_label: "residual (nm)".into(),
             series: vec![
-                series(&before, &hours, &c.residual_before_um, Style::Line),
-                series(&after, &hours, &c.residual_after_um, Style::Line),
+                series(&before, &time, &c.residual_before_um, Style::Line),
+                series(&after, &time, &c.residual_after_um, Style::Line),
             ],
         },
     )?;

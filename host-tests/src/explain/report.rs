@@ -7,8 +7,10 @@ use serde::Serialize;
 
 use super::data::Data;
 use super::locate::{Finding, NoiseFloor};
+use super::robust::rows_in_words;
+use super::units::{duration, length_um, sig3, TimeUnit};
 use super::Trial;
-use crate::effects::Estimate;
+use crate::effects::{Estimate, PlayOperator};
 
 /// A named effect with its parameters and evidence.
 #[derive(Clone, Debug)]
@@ -19,18 +21,28 @@ pub struct EffectReport {
     pub channel: String,
     /// Plain-words description.
     pub description: &'static str,
+    /// What was found, in words (which sensor lags how, the sense of a loop), or empty.
+    pub summary: String,
     /// Where the compensator can run it.
     pub deploy: &'static str,
-    /// The shared-model terms (and lag filters) that carry it into the blob, if deployable.
+    /// The shared-model terms (and lag filters, play operators) that carry it into the blob,
+    /// if deployable.
     pub blob: Option<crate::effects::BlobTerms>,
     /// Physical parameters with 1σ.
     pub params: Vec<Estimate>,
-    /// Held-out RMS before adding the effect, nm.
+    /// Held-out RMS before adding the effect, nm (standard held-out design).
     pub rms_before_nm: f64,
-    /// Held-out RMS after, nm.
+    /// Held-out RMS after, nm (standard held-out design).
     pub rms_after_nm: f64,
     /// The evidence in words and numbers.
     pub evidence: String,
+}
+
+impl EffectReport {
+    /// A parameter by name.
+    pub fn param(&self, name: &str) -> Option<&Estimate> {
+        self.params.iter().find(|p| p.name == name)
+    }
 }
 
 /// ISO 9283-style positioning accuracy over poses (1-D: |mean deviation| per pose and direction).
@@ -40,7 +52,7 @@ pub struct IsoAccuracy {
     pub max_accuracy_nm: f64,
     /// Largest repeatability (mean |x − x̄| + 3σ) over poses, nm.
     pub max_repeatability_nm: f64,
-    /// Number of (pose, direction) groups.
+    /// Number of (pose, direction) groups visited at least twice.
     pub poses: usize,
 }
 
@@ -55,6 +67,17 @@ pub struct ChannelReport {
     pub rows: usize,
     /// Noise floor of the baseline residual.
     pub noise_floor: NoiseFloor,
+    /// Quantisation step of the measurement, µm, if its readings sit on a grid.
+    pub quant_step_um: Option<f64>,
+    /// True when the measurement was held between slower updates.
+    pub held: bool,
+    /// Outlier rows (0-based), excluded from fitting.
+    pub outliers: Vec<usize>,
+    /// Largest excursion of an outlier, µm.
+    pub outlier_max_um: f64,
+    /// Rows (0-based) every model missed by far (a start-up transient, a reading taken while
+    /// moving), excluded from the final pass.
+    pub model_outliers: Vec<usize>,
     /// Held-out RMS of the baseline, nm.
     pub baseline_rms_nm: f64,
     /// In-sample RMS of the baseline, nm.
@@ -73,10 +96,38 @@ pub struct ChannelReport {
     pub residual_before_um: Vec<f64>,
     /// Held-out residual of the final model, µm.
     pub residual_after_um: Vec<f64>,
-    /// ISO accuracy of the baseline (held-out), when the axis was commanded.
+    /// ISO accuracy of the baseline (held-out), when poses were revisited.
     pub iso_before: Option<IsoAccuracy>,
     /// ISO accuracy of the final model (held-out).
     pub iso_after: Option<IsoAccuracy>,
+}
+
+impl ChannelReport {
+    /// One line that always says which of the two it is: nothing significant remains, or
+    /// structure remains that no candidate explains (and the names found, if any).
+    pub fn headline(&self) -> String {
+        let named = if self.effects.is_empty() {
+            "nothing named".to_string()
+        } else {
+            format!(
+                "named {}",
+                self.effects
+                    .iter()
+                    .map(|e| e.name)
+                    .collect::<Vec<_>>()
+                    .join(" + ")
+            )
+        };
+        if self.unexplained.is_empty() {
+            format!("{named}; nothing significant remains (the held-out residual is at the noise floor)")
+        } else {
+            let top = &self.unexplained[0];
+            format!(
+                "{named}; structure remains that no candidate explains ({}, {:.0}σ)",
+                top.place, top.z
+            )
+        }
+    }
 }
 
 /// What explain found on a recording.
@@ -84,6 +135,12 @@ pub struct ChannelReport {
 pub struct Report {
     /// One report per measured channel.
     pub channels: Vec<ChannelReport>,
+    /// The unit of time that fits the record.
+    pub time_unit: TimeUnit,
+    /// Duration of the record, s.
+    pub duration_s: f64,
+    /// Temperature glitches repaired (column, rows).
+    pub temp_repairs: Vec<(String, Vec<usize>)>,
 }
 
 /// JSON form of a named effect.
@@ -95,12 +152,20 @@ pub struct JsonEffect {
     pub axis: String,
     /// Parameters; each `x` has its 1σ as `x_sigma` when known.
     pub params: BTreeMap<String, f64>,
+    /// What was found, in words.
+    pub summary: String,
     /// Held-out RMS before, nm.
     pub rms_before_nm: f64,
     /// Held-out RMS after, nm.
     pub rms_after_nm: f64,
     /// Evidence in words.
     pub evidence: String,
+    /// Play operators for the compensator's per-axis bank (hysteresis), if any.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub play_operators: Vec<PlayOperator>,
+    /// Lag filters (sensor index, τ in s) the blob would declare (thermal lag), if any.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub lag_filters: Vec<(u8, f64)>,
 }
 
 /// JSON form of an unexplained finding.
@@ -113,11 +178,35 @@ pub struct JsonUnexplained {
     pub rms_nm: f64,
 }
 
+/// JSON summary of one channel.
+#[derive(Serialize, Debug, Clone)]
+pub struct JsonChannel {
+    /// Channel (axis).
+    pub axis: String,
+    /// The headline (nothing significant remains / structure remains that no candidate explains).
+    pub headline: String,
+    /// True when structure remains that no candidate explains.
+    pub structure_remains: bool,
+    /// Noise floor, nm (sample to sample).
+    pub noise_floor_nm: f64,
+    /// Quantisation step of the measurement, nm, when its readings sit on a grid.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub quantisation_nm: Option<f64>,
+    /// Outlier rows (data rows counted from 1), excluded from fitting.
+    pub outlier_rows: Vec<usize>,
+    /// Held-out RMS before, nm.
+    pub baseline_rms_nm: f64,
+    /// Held-out RMS after, nm.
+    pub final_rms_nm: f64,
+}
+
 /// The JSON document `nanocal explain --json` writes.
 #[derive(Serialize, Debug, Clone)]
 pub struct JsonReport {
     /// Held-out RMS of the baseline over all channels, nm.
     pub baseline_rms_nm: f64,
+    /// Per channel: headline, noise floor, outliers.
+    pub channels: Vec<JsonChannel>,
     /// Named effects (empty: nothing significant is missing).
     pub effects: Vec<JsonEffect>,
     /// Structure no candidate explains.
@@ -126,11 +215,16 @@ pub struct JsonReport {
 
 /// ISO 9283 accuracy and repeatability (host's [`crate::iso9283`]) of a held-out residual `r`
 /// (µm) on a commanded channel: one visit per dwell (its mean), poses split by direction of
-/// approach (forward and backward are different poses, as the literature reports them).
+/// approach (forward and backward are different poses, as the literature reports them). Only
+/// where the procedure revisits poses: the command holds dwells and at least two
+/// (pose, direction) groups are visited at least twice (a continuous drive has no poses).
 pub fn iso_accuracy(d: &Data, ch: usize, r: &[f64]) -> Option<IsoAccuracy> {
     let c = &d.channels[ch];
     let cmd = c.cmd_um.as_ref()?;
     c.u.as_ref()?;
+    if !c.has_dwells {
+        return None;
+    }
     let mut bounds = vec![0usize];
     bounds.extend(c.steps.iter().map(|s| s.0));
     bounds.push(d.rows());
@@ -150,13 +244,32 @@ pub fn iso_accuracy(d: &Data, ch: usize, r: &[f64]) -> Option<IsoAccuracy> {
         errors.push(vec![vals.iter().sum::<f64>() / vals.len() as f64, 0.0]);
     }
     // the direction rides along as a second coordinate (error 0) only to split the groups
-    let poses = crate::iso9283::per_pose(&targets, &errors);
+    let poses: Vec<_> = crate::iso9283::per_pose(&targets, &errors)
+        .into_iter()
+        .filter(|p| p.n >= 2)
+        .collect();
+    if poses.len() < 2 {
+        return None;
+    }
     let (acc, rep) = crate::iso9283::max_over_poses(&poses);
     Some(IsoAccuracy {
         max_accuracy_nm: acc * 1e3,
         max_repeatability_nm: rep * 1e3,
         poses: poses.len(),
     })
+}
+
+fn finite(v: f64) -> f64 {
+    if v.is_finite() {
+        v
+    } else {
+        0.0
+    }
+}
+
+/// A value in nm as a person reads it (µm above 10 µm).
+fn nm(v_nm: f64) -> String {
+    length_um(v_nm * 1e-3)
 }
 
 impl Report {
@@ -193,9 +306,12 @@ impl Report {
                     name: e.name.to_string(),
                     axis: e.channel.clone(),
                     params,
+                    summary: e.summary.clone(),
                     rms_before_nm: finite(e.rms_before_nm),
                     rms_after_nm: finite(e.rms_after_nm),
                     evidence: e.evidence.clone(),
+                    play_operators: e.blob.as_ref().map_or(Vec::new(), |b| b.play.clone()),
+                    lag_filters: e.blob.as_ref().map_or(Vec::new(), |b| b.lags.clone()),
                 }
             })
             .collect();
@@ -212,8 +328,32 @@ impl Report {
                 })
             })
             .collect();
+        let channels = self
+            .channels
+            .iter()
+            .map(|c| JsonChannel {
+                axis: c.channel.clone(),
+                headline: c.headline(),
+                structure_remains: !c.unexplained.is_empty(),
+                noise_floor_nm: finite(c.noise_floor.sample_um * 1e3),
+                quantisation_nm: c.quant_step_um.map(|q| q * 1e3),
+                outlier_rows: {
+                    let mut rows: Vec<usize> = c
+                        .outliers
+                        .iter()
+                        .chain(&c.model_outliers)
+                        .map(|r| r + 1)
+                        .collect();
+                    rows.sort_unstable();
+                    rows
+                },
+                baseline_rms_nm: finite(c.baseline_rms_nm),
+                final_rms_nm: finite(c.final_rms_nm),
+            })
+            .collect();
         JsonReport {
             baseline_rms_nm: finite(self.baseline_rms_nm()),
+            channels,
             effects,
             unexplained,
         }
@@ -222,19 +362,56 @@ impl Report {
     /// The report for a person.
     pub fn to_text(&self) -> String {
         let mut s = String::new();
+        for (name, rows) in &self.temp_repairs {
+            let _ = writeln!(
+                s,
+                "temperature glitches in {name} repaired by interpolation (data rows {})",
+                rows_in_words(rows, 8)
+            );
+        }
         for c in &self.channels {
             let _ = writeln!(s, "── channel {} ({} rows)", c.channel, c.rows);
+            let _ = writeln!(s, "  headline: {}", c.headline());
             let _ = writeln!(s, "  baseline: {}", c.baseline);
-            let _ = writeln!(
-                s,
-                "  noise floor from the data: {:.1} nm sample-to-sample, {:.1} nm per independent unit",
-                c.noise_floor.sample_um * 1e3,
-                c.noise_floor.unit_um * 1e3
+            let mut floor = format!(
+                "  noise floor from the data: {} sample-to-sample, {} per independent unit",
+                nm(c.noise_floor.sample_um * 1e3),
+                nm(c.noise_floor.unit_um * 1e3)
             );
+            if let Some(q) = c.quant_step_um {
+                let _ = write!(
+                    floor,
+                    " (readings quantised in steps of {}: the floor is at least step/√12 = {})",
+                    length_um(q),
+                    length_um(q / 12f64.sqrt())
+                );
+            }
+            if c.held {
+                floor.push_str(" (the measurement is held between slower updates: scatter taken over the updates)");
+            }
+            let _ = writeln!(s, "{floor}");
+            if !c.outliers.is_empty() {
+                let _ = writeln!(
+                    s,
+                    "  outliers: {} row(s) jump away by up to {} and come back (glitches: a mis-trigger, a homing error, a dropped reading), excluded from fitting — data rows {}",
+                    c.outliers.len(),
+                    length_um(c.outlier_max_um),
+                    rows_in_words(&c.outliers, 10)
+                );
+            }
+            if !c.model_outliers.is_empty() {
+                let _ = writeln!(
+                    s,
+                    "  outliers: {} row(s) that every model misses by more than 10 robust standard deviations of its held-out residual (a start-up transient, a reading taken while moving), excluded — data rows {}",
+                    c.model_outliers.len(),
+                    rows_in_words(&c.model_outliers, 10)
+                );
+            }
             let _ = writeln!(
                 s,
-                "  baseline RMS: {:.1} nm held-out ({:.1} nm in-sample)",
-                c.baseline_rms_nm, c.baseline_in_sample_rms_nm
+                "  baseline RMS: {} held-out ({} in-sample)",
+                nm(c.baseline_rms_nm),
+                nm(c.baseline_in_sample_rms_nm)
             );
             if c.located.is_empty() {
                 let _ = writeln!(s, "  locate: no structure above the noise floor");
@@ -243,24 +420,30 @@ impl Report {
                 for f in c.located.iter().take(10) {
                     let _ = writeln!(
                         s,
-                        "    - {} [{}]: mean {:+.1} nm, RMS {:.1} nm ({:.0}σ)",
-                        f.place, f.dimension, f.mean_nm, f.rms_nm, f.z
+                        "    - {} [{}]: mean {}, RMS {} ({:.0}σ)",
+                        f.place,
+                        f.dimension,
+                        nm(f.mean_nm),
+                        nm(f.rms_nm),
+                        f.z
                     );
                 }
             }
-            if c.effects.is_empty() {
-                let _ = writeln!(s, "  name: nothing significant is missing");
-            }
             for e in &c.effects {
                 let _ = writeln!(s, "  name: {} — {}", e.name, e.description);
+                if !e.summary.is_empty() {
+                    let _ = writeln!(s, "    found: {}", e.summary);
+                }
                 let ps: Vec<String> = e
                     .params
                     .iter()
                     .map(|p| {
                         if p.sigma.is_finite() && p.sigma > 0.0 {
-                            format!("{} = {} ± {}", p.name, sig(p.value), sig(p.sigma))
+                            format!("{} = {} ± {}", p.name, sig3(p.value), sig3(p.sigma))
+                        } else if p.sigma.is_infinite() {
+                            format!("{} = {} (not constrained)", p.name, sig3(p.value))
                         } else {
-                            format!("{} = {}", p.name, sig(p.value))
+                            format!("{} = {}", p.name, sig3(p.value))
                         }
                     })
                     .collect();
@@ -270,9 +453,10 @@ impl Report {
                 if let Some(b) = &e.blob {
                     let _ = writeln!(
                         s,
-                        "    blob: {} term shape(s), {} lag filter(s) to fit into the shared model",
+                        "    blob: {} term shape(s), {} lag filter(s), {} play operator(s)",
                         b.terms.len(),
-                        b.lags.len()
+                        b.lags.len(),
+                        b.play.len()
                     );
                 }
             }
@@ -283,11 +467,12 @@ impl Report {
                     .map(|t| {
                         if t.cv_rms_um.is_finite() {
                             format!(
-                                "{} (ΔBIC {:.0}, held-out {:.1} nm, {}/5 folds)",
+                                "{} (ΔBIC {:.0}, held-out {}, {}/{} folds)",
                                 t.name,
                                 t.delta_bic,
-                                t.cv_rms_um * 1e3,
-                                t.folds_better
+                                nm(t.cv_rms_um * 1e3),
+                                t.folds_better,
+                                t.folds
                             )
                         } else {
                             format!("{} (ΔBIC {:+.0})", t.name, t.delta_bic)
@@ -300,14 +485,19 @@ impl Report {
             }
             let _ = writeln!(
                 s,
-                "  RMS held-out: before {:.1} nm → after {:.1} nm",
-                c.baseline_rms_nm, c.final_rms_nm
+                "  RMS held-out: before {} → after {}",
+                nm(c.baseline_rms_nm),
+                nm(c.final_rms_nm)
             );
             if let (Some(b), Some(a)) = (c.iso_before, c.iso_after) {
                 let _ = writeln!(
                     s,
-                    "  ISO 9283 (held-out, {} pose/direction groups): accuracy {:.1} → {:.1} nm, repeatability {:.1} → {:.1} nm",
-                    b.poses, b.max_accuracy_nm, a.max_accuracy_nm, b.max_repeatability_nm, a.max_repeatability_nm
+                    "  ISO 9283 (held-out, {} revisited pose/direction groups): accuracy {} → {}, repeatability {} → {}",
+                    b.poses,
+                    nm(b.max_accuracy_nm),
+                    nm(a.max_accuracy_nm),
+                    nm(b.max_repeatability_nm),
+                    nm(a.max_repeatability_nm)
                 );
             }
             if c.unexplained.is_empty() {
@@ -317,29 +507,17 @@ impl Report {
                 for f in &c.unexplained {
                     let _ = writeln!(
                         s,
-                        "    - {} [{}]: RMS {:.1} nm, mean {:+.1} nm",
-                        f.place, f.dimension, f.rms_nm, f.mean_nm
+                        "    - {} [{}]: RMS {}, mean {} ({:.0}σ)",
+                        f.place,
+                        f.dimension,
+                        nm(f.rms_nm),
+                        nm(f.mean_nm),
+                        f.z
                     );
                 }
             }
         }
+        let _ = duration;
         s
     }
-}
-
-fn finite(v: f64) -> f64 {
-    if v.is_finite() {
-        v
-    } else {
-        0.0
-    }
-}
-
-fn sig(v: f64) -> String {
-    if v == 0.0 || !v.is_finite() {
-        return format!("{v}");
-    }
-    let mag = v.abs().log10().floor() as i32;
-    let dec = (2 - mag).clamp(0, 9) as usize;
-    format!("{v:.dec$}")
 }

@@ -42,7 +42,7 @@ pub fn published_1dof_twin(seed: u64) -> Twin {
             axis: 0,
             alpha_ppm_per_c: 600.0,
         }),
-        EffectSpec::ThermalLag(thermal_lag::Params { tau_s: 1200.0 }),
+        EffectSpec::ThermalLag(thermal_lag::Params::common(1200.0)),
         EffectSpec::UnexplainedDrift(unexplained_drift::Params {
             axis: 0,
             amplitude_nm: 400.0,
@@ -91,6 +91,7 @@ pub fn paper000_1dof_twin(seed: u64) -> Twin {
         axis: 0,
         half_width_nm: 5.0,
         slope_nm: 0.0,
+        ..Default::default()
     }));
     let validation_start_s =
         TRAINING_START_S + crate::plan::Plan::paper000_1dof().training.duration_s();
@@ -121,9 +122,7 @@ fn type_k_on_max31856(cfg: &mut TwinConfig) {
 /// What paper 000's stages carry that its models cannot see (see [`paper000_1dof_twin`]): the
 /// structure follows its sensors with a 20 min lag, and each axis' stroke changes 50 ppm/°C.
 fn unseen_physics(axes: usize) -> Vec<EffectSpec> {
-    let mut e = vec![EffectSpec::ThermalLag(thermal_lag::Params {
-        tau_s: 1200.0,
-    })];
+    let mut e = vec![EffectSpec::ThermalLag(thermal_lag::Params::common(1200.0))];
     for axis in 0..axes {
         e.push(EffectSpec::ThermalPositionInteraction(
             thermal_position_interaction::Params {

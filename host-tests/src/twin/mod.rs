@@ -8,6 +8,7 @@
 //! optional effects of its own) measures the position. Everything is deterministic from a seed.
 
 pub mod delta;
+pub mod drives;
 pub mod examples;
 pub mod execute;
 pub mod room;

@@ -96,6 +96,18 @@ pub struct SensorConfig {
     /// stage through its thermal coefficients — a part of the structure no sensor is on.
     #[serde(default = "recorded_by_default")]
     pub recorded: bool,
+    /// A local heat source near this spot (a motor, electronics) switching on and off at
+    /// random, independently of the room and of the other spots: how much it warms the spot's
+    /// surroundings when on, °C (0 = none). Its heat reaches the spot through the spot's lag.
+    #[serde(default)]
+    pub local_heater_c: f64,
+    /// Mean duration of the local heater's on and off periods, s.
+    #[serde(default = "heater_period_by_default")]
+    pub local_heater_period_s: f64,
+}
+
+fn heater_period_by_default() -> f64 {
+    3600.0
 }
 
 fn recorded_by_default() -> bool {
@@ -113,6 +125,8 @@ impl SensorConfig {
             noise_c: 0.002,
             resolution_c: 0.001,
             recorded: true,
+            local_heater_c: 0.0,
+            local_heater_period_s: heater_period_by_default(),
         }
     }
 
@@ -206,9 +220,25 @@ impl Room {
         };
         sensors
             .iter()
-            .map(|s| {
+            .enumerate()
+            .map(|(i, s)| {
                 let y0 = warm_start(s);
-                let lagged = lag_series(t_s, &air, s.tau_s, Some(y0));
+                let mut around = air.clone();
+                if s.local_heater_c != 0.0 {
+                    // switching times from the room's realisation and the spot's index
+                    let seed = (self.hvac_phase.to_bits() ^ (i as u64).wrapping_mul(0x9E37_79B9))
+                        .wrapping_add(0x000E_A7E5);
+                    let mut rng = <ChaCha8Rng as rand::SeedableRng>::seed_from_u64(seed);
+                    let on = crate::effects::unexplained_drift::telegraph(
+                        t_abs_s,
+                        s.local_heater_period_s,
+                        &mut rng,
+                    );
+                    for (a, h) in around.iter_mut().zip(on) {
+                        *a += s.local_heater_c * h;
+                    }
+                }
+                let lagged = lag_series(t_s, &around, s.tau_s, Some(y0));
                 lagged
                     .iter()
                     .map(|&v| cfg.mean_c + s.offset_c + s.gain * (v - cfg.mean_c))

@@ -124,3 +124,59 @@ pub fn lively_fast_sensors() -> TwinConfig {
     cfg.thermal_um_per_c = vec![vec![1.2, 1.0, 0.8]];
     cfg
 }
+
+/// A piezo-like stage (0–30 µm, 200 Hz, no geometric error beyond a small cubic) under a
+/// continuous drive through random turning points: amplitude changes, minor loops, partly
+/// inverted strokes (60 legs, 15 s).
+pub fn continuous_drive(effects: Vec<EffectSpec>, seed: u64) -> Columns {
+    let mut r = rng(seed ^ 0xD21E);
+    let mut cfg = TwinConfig::published_1dof();
+    cfg.travel_um = vec![(0.0, 30.0)];
+    cfg.geometric_nm = vec![vec![20.0, -15.0, 10.0]];
+    cfg.sample_period_s = 0.005;
+    cfg.positioning_sigma_nm = 0.0;
+    cfg.interferometer_noise_nm = 3.0;
+    cfg.effects = effects;
+    let points = nanocal::twin::drives::random_turning_points(0.0, 30.0, 60, &mut r);
+    let traj = nanocal::twin::drives::through_turning_points(&points, 50, 0.005);
+    simulate(cfg, &traj, seed)
+}
+
+/// Round a column to a grid of `step` (a coarse encoder, an ADC).
+pub fn quantise(cols: &mut Columns, name: &str, step: f64) {
+    let c = &mut cols.columns.iter_mut().find(|c| c.0 == name).unwrap().1;
+    for v in c.iter_mut() {
+        *v = (*v / step).round() * step;
+    }
+}
+
+/// Add `offset` to `name` at `rows` (a homing error, a mis-trigger).
+pub fn add_glitches(cols: &mut Columns, name: &str, rows: &[usize], offset: f64) {
+    let c = &mut cols.columns.iter_mut().find(|c| c.0 == name).unwrap().1;
+    for &i in rows {
+        c[i] += offset;
+    }
+}
+
+/// Three sensors near their own local heat sources (a motor, electronics, a lamp: each
+/// switching on and off at random, independently) in a quiet room — temperatures that vary
+/// independently, as on a machine with several heat sources, so that each sensor's own lag can
+/// be told apart.
+pub fn independent_heat_sources() -> TwinConfig {
+    use nanocal::twin::SensorConfig;
+    let mut cfg = TwinConfig::published_1dof();
+    cfg.room.daily_amplitude_c = 0.05;
+    let heater = |name: &str, tau: f64, c: f64, period: f64| {
+        let mut s = SensorConfig::new(name, 0.0, tau, 1.0);
+        s.local_heater_c = c;
+        s.local_heater_period_s = period;
+        s
+    };
+    cfg.sensors = vec![
+        heater("motor", 120.0, 0.4, 2400.0),
+        heater("drive", 300.0, 0.3, 3600.0),
+        heater("lamp", 200.0, 0.5, 3000.0),
+    ];
+    cfg.thermal_um_per_c = vec![vec![0.8, -0.6, 0.5]];
+    cfg
+}

@@ -131,6 +131,12 @@ fn open(
     let plan_start = steps.get(resume_at).map_or(0.0, |s| s.t_start_s);
     match spec {
         BenchSpec::Virtual { seed } => {
+            if !crate::virtual_bench::have_qemu() {
+                return Err(CampaignError::NotReady {
+                    step: resume_at,
+                    what: "the virtual bench needs qemu-system-arm ≥ 10 and the thumbv7em-none-eabihf target (`bash .ci/firmware.sh` installs both)".into(),
+                });
+            }
             let twin = virtual_twin(plan, *seed)?;
             let traj = crate::twin::execute::trajectory(steps);
             let mut vb = crate::virtual_bench::bench::VirtualBench::start(

@@ -13,6 +13,7 @@
 //! |---|---|
 //! | `poly=N` | own-axis polynomial `u, u², …, u^N` on every axis |
 //! | `poly_<axis>=N` | the same for one axis (e.g. `poly_x=5`) |
+//! | `other_poly=N` | pure powers `v, v², …, v^N` of every *other* axis `v` (coupling without products: paper 000's Eq. 22) |
 //! | `cross=N` | monomials of total degree ≤ N that involve another axis (coupling and mixed terms) |
 //! | `temps` | linear in every temperature (`temp_*` columns, file order = model Temp index) |
 //! | `temp_x_pos` | every temperature × own-axis position (thermal expansion of the moving part) |
@@ -21,6 +22,7 @@
 //! | `lag=TAU` | every temperature through a first-order lag of time constant TAU s (thermal lag; the blob declares the lag filters and the firmware runs them) |
 //! | `static` | shorthand for the published static model: `poly=3 temps` |
 //! | `adaptive` | shorthand for the published adaptive model: `poly=3` (offset re-measured by KMZ) |
+//! | `eq22` | shorthand for paper 000's 2-DoF model, Eq. 22 with n1 = n2 = 3: `poly=3 other_poly=3 temps` — `q_x = Σ a_ix x^i + Σ b_ix y^i + Σ c_ix t_i + λ_x`, no x·y products |
 
 use nanocal_model::{
     Factor, Input, LagBank, Model, ModelBuilder, ModelError, ScaledInputs, SlowInputs, Term,
@@ -33,7 +35,7 @@ use crate::dwell::Dwells;
 #[derive(Debug, thiserror::Error)]
 pub enum DesignError {
     /// The spec text could not be read.
-    #[error("design spec: expected one of poly=N, poly_<axis>=N, cross=N, temps, temp_x_pos, aux, direction, lag=TAU_S, static, adaptive; found `{0}`")]
+    #[error("design spec: expected one of poly=N, poly_<axis>=N, other_poly=N, cross=N, temps, temp_x_pos, aux, direction, lag=TAU_S, static, adaptive, eq22; found `{0}`")]
     BadToken(String),
     /// An axis named in the spec is not in the data.
     #[error("design spec names axis `{0}`, but the data has axes: {1}")]
@@ -63,6 +65,8 @@ pub struct DesignSpec {
     pub poly_order: u8,
     /// Per-axis overrides of the own-axis order.
     pub poly_order_axis: Vec<(String, u8)>,
+    /// Highest pure power of every other axis (Eq. 22's coupling terms; 0: none).
+    pub other_order: u8,
     /// Maximum total degree of terms that involve another axis (0: none).
     pub cross_order: u8,
     /// Linear temperature terms.
@@ -94,6 +98,17 @@ impl DesignSpec {
         }
     }
 
+    /// Paper 000's 2-DoF model, Eq. 22, with n1 = n2 = 3 (the paper does not give the orders;
+    /// 3 is its 1-DoF order): own-axis cubic, other-axis cubic (pure powers), every temperature.
+    pub fn published_2dof() -> Self {
+        DesignSpec {
+            poly_order: 3,
+            other_order: 3,
+            temps: true,
+            ..Default::default()
+        }
+    }
+
     /// Parses the text form.
     pub fn parse(text: &str) -> Result<Self, DesignError> {
         let mut s = DesignSpec::default();
@@ -112,6 +127,11 @@ impl DesignSpec {
                     s.temps = true;
                 }
                 "adaptive" => s.poly_order = s.poly_order.max(3),
+                "eq22" => {
+                    s.poly_order = s.poly_order.max(3);
+                    s.other_order = s.other_order.max(3);
+                    s.temps = true;
+                }
                 _ => {
                     let (k, v) = tok.split_once('=').ok_or_else(bad)?;
                     if k == "lag" {
@@ -128,6 +148,8 @@ impl DesignSpec {
                     }
                     if k == "poly" {
                         s.poly_order = n;
+                    } else if k == "other_poly" {
+                        s.other_order = n;
                     } else if k == "cross" {
                         s.cross_order = n;
                     } else if let Some(axis) = k.strip_prefix("poly_") {
@@ -182,8 +204,10 @@ fn range(v: &[f64]) -> (f64, f64) {
 }
 
 impl DesignFrame {
-    /// The frame of training dwells: axis scalings from the measured positions, temperature
-    /// and aux scalings from their ranges; travel from the commands ± 5 %. Temperatures and aux
+    /// The frame of training dwells: axis scalings and envelope from the measured positions and
+    /// the commanded poses together (a validation at a training pose is inside the envelope
+    /// even when drift kept the stage short of it), temperature and aux scalings from their
+    /// ranges; travel from the commands ± 5 %. Temperatures and aux
     /// channels are declared only when `spec` uses them.
     pub fn from_dwells(d: &Dwells, spec: &DesignSpec) -> Result<Self, DesignError> {
         for (a, _) in &spec.poly_order_axis {
@@ -239,14 +263,16 @@ impl DesignFrame {
         let mut b =
             ModelBuilder::new(d.axes.len(), temps.len(), aux.len()).map_err(DesignError::Model)?;
         for a in 0..d.axes.len() {
-            let (lo, hi) = range(&d.meas_um[a]);
-            if !lo.is_finite() {
+            let (mlo, mhi) = range(&d.meas_um[a]);
+            if !mlo.is_finite() {
                 return Err(DesignError::Data(format!(
                     "no finite meas_{} value to fit",
                     d.axes[a]
                 )));
             }
             let (clo, chi) = range(&d.cmd_um[a]);
+            // the nominal training poses are trained even when drift kept the stage short of them
+            let (lo, hi) = (mlo.min(clo), mhi.max(chi));
             let margin = 0.05 * (chi - clo).max(1.0);
             b = b.trained_range(Input::Axis(a as u8), lo, hi).travel_um(
                 a,
@@ -305,8 +331,8 @@ impl DesignFrame {
     }
 
     /// Candidate terms for output axis `output` under `spec`, in a fixed order: own polynomial
-    /// by degree, cross terms by total degree, direction, temperatures, temperature × position,
-    /// aux.
+    /// by degree, pure powers of the other axes, cross terms by total degree (each monomial
+    /// once), direction, temperatures, temperature × position, lagged temperatures, aux.
     pub fn candidates(&self, spec: &DesignSpec, output: usize) -> Vec<Candidate> {
         let k = self.axes.len();
         let mut out = Vec::new();
@@ -339,14 +365,26 @@ impl DesignFrame {
                 name: mono_name(&powers),
             });
         }
+        let add_monomial = |out: &mut Vec<Candidate>, powers: [u8; MAX_AXES]| {
+            if !out.iter().any(|c| c.term.powers == powers) {
+                out.push(Candidate {
+                    term: term(powers, Factor::None, 0),
+                    name: mono_name(&powers),
+                });
+            }
+        };
+        for other in (0..k).filter(|&b| b != output) {
+            for p in 1..=spec.other_order {
+                let mut powers = [0u8; MAX_AXES];
+                powers[other] = p;
+                add_monomial(&mut out, powers);
+            }
+        }
         if spec.cross_order > 0 && k > 1 {
             for deg in 1..=spec.cross_order {
                 for powers in monomials(k, deg) {
                     if (0..k).any(|a| a != output && powers[a] > 0) {
-                        out.push(Candidate {
-                            term: term(powers, Factor::None, 0),
-                            name: mono_name(&powers),
-                        });
+                        add_monomial(&mut out, powers);
                     }
                 }
             }
@@ -484,6 +522,63 @@ mod tests {
         );
         assert!(DesignSpec::parse("poly=x").is_err());
         assert!(DesignSpec::parse("cubic").is_err());
+    }
+
+    #[test]
+    fn eq22_is_pure_powers_of_each_axis_without_products() {
+        assert_eq!(
+            DesignSpec::parse("eq22").unwrap(),
+            DesignSpec::published_2dof()
+        );
+        assert_eq!(
+            DesignSpec::parse("poly=3 other_poly=3 temps").unwrap(),
+            DesignSpec::published_2dof()
+        );
+        let d = two_axis_dwells();
+        let spec = DesignSpec::published_2dof();
+        let frame = DesignFrame::from_dwells(&d, &spec).unwrap();
+        // q_x = a1x x + a2x x² + a3x x³ + b1x y + b2x y² + b3x y³ + c1x t1 + c2x t2 (+ λ_x)
+        let names = |o| -> Vec<String> {
+            frame
+                .candidates(&spec, o)
+                .into_iter()
+                .map(|c| c.name)
+                .collect()
+        };
+        assert_eq!(
+            names(0),
+            ["x", "x^2", "x^3", "y", "y^2", "y^3", "temp_a", "temp_b"]
+        );
+        assert_eq!(
+            names(1),
+            ["y", "y^2", "y^3", "x", "x^2", "x^3", "temp_a", "temp_b"]
+        );
+        // `cross` adds the products on top, each monomial once
+        let both = DesignSpec::parse("eq22 cross=2").unwrap();
+        assert_eq!(
+            frame.candidates(&both, 0).len(),
+            8 + 1,
+            "x*y is the only new monomial of degree ≤ 2"
+        );
+    }
+
+    fn two_axis_dwells() -> Dwells {
+        let n = 20;
+        let v = |f: fn(usize) -> f64| (0..n).map(f).collect::<Vec<f64>>();
+        Dwells {
+            axes: vec!["x".into(), "y".into()],
+            t_end_s: v(|i| i as f64),
+            t_start_s: v(|i| i as f64),
+            cmd_um: vec![v(|i| (i % 5) as f64), v(|i| (i / 5) as f64)],
+            meas_um: vec![v(|i| (i % 5) as f64), v(|i| (i / 5) as f64)],
+            meas_sd_um: vec![vec![0.0; n]; 2],
+            dir: vec![vec![1; n]; 2],
+            channels: vec![
+                ("temp_a".into(), v(|i| 20.0 + 0.1 * i as f64)),
+                ("temp_b".into(), v(|i| 21.0 - 0.05 * i as f64)),
+            ],
+            rows_averaged: vec![1; n],
+        }
     }
 
     #[test]

@@ -8,8 +8,9 @@
 
 use crate::recording::{Recording, RecordingError};
 
-/// Errors of [`dwell_average`].
+/// Errors of [`dwell_average`] and [`step_average`].
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum DwellError {
     /// A column the procedure needs is missing.
     #[error(transparent)]
@@ -22,6 +23,24 @@ pub enum DwellError {
     /// Averaging window not positive.
     #[error("averaging window must be > 0 s, found {0}")]
     BadWindow(f64),
+    /// A plan step has no rows in the recording.
+    #[error("plan step {step} (from t = {t_s} s) has no rows in the recording")]
+    EmptyStep {
+        /// Index of the step.
+        step: usize,
+        /// Its start in recording time, s.
+        t_s: f64,
+    },
+    /// A plan step's pose has a different number of axes than the recording.
+    #[error("plan step {step} has {found} axes, the recording {expected}")]
+    StepAxes {
+        /// Index of the step.
+        step: usize,
+        /// Axes of the recording.
+        expected: usize,
+        /// Axes of the step.
+        found: usize,
+    },
 }
 
 /// Options of [`dwell_average`].
@@ -122,100 +141,169 @@ impl Dwells {
     }
 }
 
+/// The columns of a recording that dwell averaging reads.
+struct Columns<'a> {
+    axes: Vec<String>,
+    t: std::borrow::Cow<'a, [f64]>,
+    cmd: Vec<&'a [f64]>,
+    meas: Vec<Option<&'a [f64]>>,
+    channel_names: Vec<String>,
+    channel_cols: Vec<&'a [f64]>,
+}
+
+impl<'a> Columns<'a> {
+    fn of(rec: &'a Recording) -> Result<Self, DwellError> {
+        let axes: Vec<String> = rec
+            .names()
+            .iter()
+            .filter_map(|n| n.strip_prefix("cmd_").map(str::to_string))
+            .collect();
+        if axes.is_empty() {
+            return Err(DwellError::NoCommand(rec.names().join(", ")));
+        }
+        let t = match rec.time_s() {
+            Some(t) => std::borrow::Cow::Borrowed(t),
+            None => std::borrow::Cow::Owned((0..rec.rows()).map(|i| i as f64).collect()),
+        };
+        let cmd = axes.iter().map(|a| rec.cmd(a).expect("listed")).collect();
+        let meas = axes.iter().map(|a| rec.meas(a)).collect();
+        let channel_names: Vec<String> = rec
+            .names()
+            .iter()
+            .filter(|n| {
+                n.as_str() != "t"
+                    && !n.starts_with("cmd_")
+                    && !n.starts_with("meas_")
+                    && !n.starts_with("dir_")
+            })
+            .cloned()
+            .collect();
+        let channel_cols = channel_names
+            .iter()
+            .map(|c| rec.column(c).expect("listed"))
+            .collect();
+        Ok(Columns {
+            axes,
+            t,
+            cmd,
+            meas,
+            channel_names,
+            channel_cols,
+        })
+    }
+
+    fn empty_dwells(&self) -> Dwells {
+        let k = self.axes.len();
+        Dwells {
+            axes: self.axes.clone(),
+            t_end_s: Vec::new(),
+            t_start_s: Vec::new(),
+            cmd_um: vec![Vec::new(); k],
+            meas_um: vec![Vec::new(); k],
+            meas_sd_um: vec![Vec::new(); k],
+            dir: vec![Vec::new(); k],
+            channels: self
+                .channel_names
+                .iter()
+                .map(|c| (c.clone(), Vec::new()))
+                .collect(),
+            rows_averaged: Vec::new(),
+        }
+    }
+
+    /// Appends the dwell of rows `start..end` (non-empty), averaged over its last
+    /// `average_last_s` seconds (at least the last row), approached in direction `dir`.
+    fn push(&self, out: &mut Dwells, start: usize, end: usize, average_last_s: f64, dir: &[i8]) {
+        let t = &self.t;
+        let t_end = t[end - 1];
+        let from = (start..end)
+            .find(|&i| t[i] > t_end - average_last_s)
+            .unwrap_or(end - 1);
+        out.t_end_s.push(t_end);
+        out.t_start_s.push(t[start]);
+        out.rows_averaged.push(end - from);
+        for (a, &d) in dir.iter().enumerate().take(self.axes.len()) {
+            out.cmd_um[a].push(self.cmd[a][start]);
+            out.dir[a].push(d);
+            let (m, sd) = match self.meas[a] {
+                Some(col) => mean_sd(&col[from..end]),
+                None => (f64::NAN, f64::NAN),
+            };
+            out.meas_um[a].push(m);
+            out.meas_sd_um[a].push(sd);
+        }
+        for (c, col) in self.channel_cols.iter().enumerate() {
+            out.channels[c].1.push(mean_sd(&col[from..end]).0);
+        }
+    }
+}
+
 /// Averages the last seconds of each dwell of `rec` (see the module doc). Without a `t`
 /// column the row index is the time (1 s per row).
 pub fn dwell_average(rec: &Recording, opts: &DwellOptions) -> Result<Dwells, DwellError> {
     if opts.average_last_s.is_nan() || opts.average_last_s <= 0.0 {
         return Err(DwellError::BadWindow(opts.average_last_s));
     }
-    let axes: Vec<String> = rec
-        .names()
-        .iter()
-        .filter_map(|n| n.strip_prefix("cmd_").map(str::to_string))
-        .collect();
-    if axes.is_empty() {
-        return Err(DwellError::NoCommand(rec.names().join(", ")));
-    }
+    let cols = Columns::of(rec)?;
     let n = rec.rows();
-    let own_t: Vec<f64>;
-    let t: &[f64] = match rec.time_s() {
-        Some(t) => t,
-        None => {
-            own_t = (0..n).map(|i| i as f64).collect();
-            &own_t
-        }
-    };
-    let cmd: Vec<&[f64]> = axes.iter().map(|a| rec.cmd(a).expect("listed")).collect();
-    let meas: Vec<Option<&[f64]>> = axes.iter().map(|a| rec.meas(a)).collect();
-    let channel_names: Vec<String> = rec
-        .names()
-        .iter()
-        .filter(|n| {
-            n.as_str() != "t"
-                && !n.starts_with("cmd_")
-                && !n.starts_with("meas_")
-                && !n.starts_with("dir_")
-        })
-        .cloned()
-        .collect();
-    let channel_cols: Vec<&[f64]> = channel_names
-        .iter()
-        .map(|c| rec.column(c).expect("listed"))
-        .collect();
-
-    let k = axes.len();
-    let mut out = Dwells {
-        axes: axes.clone(),
-        t_end_s: Vec::new(),
-        t_start_s: Vec::new(),
-        cmd_um: vec![Vec::new(); k],
-        meas_um: vec![Vec::new(); k],
-        meas_sd_um: vec![Vec::new(); k],
-        dir: vec![Vec::new(); k],
-        channels: channel_names
-            .iter()
-            .map(|c| (c.clone(), Vec::new()))
-            .collect(),
-        rows_averaged: Vec::new(),
-    };
+    let k = cols.axes.len();
+    let mut out = cols.empty_dwells();
     let mut dir = vec![1i8; k];
     let mut last_cmd: Vec<f64> = vec![f64::NAN; k];
     let mut start = 0;
     while start < n {
         let mut end = start + 1;
-        while end < n && (0..k).all(|a| same(cmd[a][end], cmd[a][start])) {
+        while end < n && (0..k).all(|a| same(cols.cmd[a][end], cols.cmd[a][start])) {
             end += 1;
         }
         // rows start..end form one dwell
         for a in 0..k {
-            let c = cmd[a][start];
+            let c = cols.cmd[a][start];
             if last_cmd[a].is_finite() && c != last_cmd[a] {
                 dir[a] = if c > last_cmd[a] { 1 } else { -1 };
             }
             last_cmd[a] = c;
         }
-        let t_end = t[end - 1];
-        if t_end - t[start] >= opts.min_dwell_s {
-            let from = (start..end)
-                .find(|&i| t[i] > t_end - opts.average_last_s)
-                .unwrap_or(end - 1);
-            out.t_end_s.push(t_end);
-            out.t_start_s.push(t[start]);
-            out.rows_averaged.push(end - from);
-            for a in 0..k {
-                out.cmd_um[a].push(cmd[a][start]);
-                out.dir[a].push(dir[a]);
-                let (m, sd) = match meas[a] {
-                    Some(col) => mean_sd(&col[from..end]),
-                    None => (f64::NAN, f64::NAN),
-                };
-                out.meas_um[a].push(m);
-                out.meas_sd_um[a].push(sd);
-            }
-            for (c, col) in channel_cols.iter().enumerate() {
-                out.channels[c].1.push(mean_sd(&col[from..end]).0);
-            }
+        if cols.t[end - 1] - cols.t[start] >= opts.min_dwell_s {
+            cols.push(&mut out, start, end, opts.average_last_s, &dir);
         }
+        start = end;
+    }
+    Ok(out)
+}
+
+/// One dwell per step of a plan ([`crate::plan::Step`]): the rows whose time lies in
+/// `[t_start_s, t_end_s)` of the step, shifted by `t_offset_s` (the recording time of the plan's
+/// start), averaged over the step's last `average_last_s`, with the step's direction of
+/// approach. Steps are kept even when they repeat the previous pose (a turning point is two
+/// steps, as the plan counts it); a step without rows is an error.
+pub fn step_average(
+    rec: &Recording,
+    steps: &[crate::plan::Step],
+    t_offset_s: f64,
+) -> Result<Dwells, DwellError> {
+    let cols = Columns::of(rec)?;
+    let mut out = cols.empty_dwells();
+    let t = &cols.t;
+    let mut start = 0usize;
+    for (i, s) in steps.iter().enumerate() {
+        if s.average_last_s.is_nan() || s.average_last_s <= 0.0 {
+            return Err(DwellError::BadWindow(s.average_last_s));
+        }
+        if s.approach.len() != cols.axes.len() {
+            return Err(DwellError::StepAxes {
+                step: i,
+                expected: cols.axes.len(),
+                found: s.approach.len(),
+            });
+        }
+        let (t0, t1) = (s.t_start_s + t_offset_s, s.t_end_s() + t_offset_s);
+        start += t[start..].partition_point(|&v| v < t0 - 1e-9);
+        let end = start + t[start..].partition_point(|&v| v < t1 - 1e-9);
+        if end == start {
+            return Err(DwellError::EmptyStep { step: i, t_s: t0 });
+        }
+        cols.push(&mut out, start, end, s.average_last_s, &s.approach);
         start = end;
     }
     Ok(out)

@@ -225,3 +225,77 @@ pub fn predict(model: &Model, frame: &DesignFrame, d: &Dwells, i: usize) -> [f64
     }
     model.eval_f64(&x, &dir, &frame.slow_inputs(d)[i])
 }
+
+/// The adaptive model of paper 000, Eq. 14: `q = Σ a_i x^(n1−i+1) + λ_KMZ` — the geometric part
+/// of the static model `static_model` (its position terms, coefficients unchanged, not refitted)
+/// and an offset that the KMZ re-measures. Thermal and auxiliary terms are dropped and the model
+/// declares no temperature or aux input (the device needs no sensor for it); the static offset λ
+/// is kept as the starting λ + λ_KMZ until the first KMZ.
+pub fn adaptive_from_static(static_model: &Model) -> Result<Model, ModelError> {
+    use nanocal_model::{Factor, Input, ModelBuilder};
+    let axes = static_model.axes();
+    let mut b = ModelBuilder::new(axes, 0, 0)?.id(static_model.id());
+    for a in 0..axes {
+        let input = Input::Axis(a as u8);
+        let (lo, hi) = static_model.envelope(input);
+        let (tlo, thi) = static_model.travel_um(a);
+        b = b
+            .scaling(input, static_model.scaling(input))
+            .envelope(input, lo, hi)
+            .travel_um(a, tlo, thi)
+            .offset_um(a, static_model.offset_um(a))
+            .kmz_offset_um(a, static_model.kmz_offset_um(a));
+    }
+    for t in static_model
+        .terms()
+        .iter()
+        .filter(|t| t.factor == Factor::None)
+    {
+        b.add_term(*t)?;
+    }
+    b.build()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nanocal_model::{Factor, Input, ModelBuilder, SlowInputs, Term};
+
+    #[test]
+    fn adaptive_keeps_the_static_geometric_part_unchanged() {
+        // Eq. 11 → Eq. 14: q = 2 + 0.5·u + 0.1·u³ + 3·T → q = 2 + 0.5·u + 0.1·u³ (+ λ_KMZ)
+        let mut b = ModelBuilder::new(1, 1, 0)
+            .unwrap()
+            .id(7)
+            .trained_range(Input::Axis(0), 0.0, 480.0)
+            .trained_range(Input::Temp(0), 21.0, 23.0)
+            .offset_um(0, 2.0);
+        let term = |p: u8, factor, c| Term {
+            output: 0,
+            powers: [p, 0, 0],
+            factor,
+            direction: 0,
+            coeff: c,
+        };
+        b.add_term(term(1, Factor::None, 0.5)).unwrap();
+        b.add_term(term(3, Factor::None, 0.1)).unwrap();
+        b.add_term(term(0, Factor::Temp(0), 3.0)).unwrap();
+        let st = b.build().unwrap();
+        let mut ad = adaptive_from_static(&st).unwrap();
+        assert_eq!(ad.temps(), 0);
+        assert_eq!(ad.terms(), &st.terms()[..2]);
+        assert_eq!(ad.id(), 7);
+        // at u = 0.5 (x = 360 µm): 2 + 0.25 + 0.0125
+        let q = ad.eval_f64(&[360.0, 0.0, 0.0], &[1, 0, 0], &SlowInputs::default())[0];
+        assert!((q - 2.2625).abs() < 1e-12);
+        // KMZ: the command 0 reached 0.3 µm → λ_KMZ moves so that 0.3 µm maps to command 0
+        ad.set_kmz_from_reference(
+            &[0.0; 3],
+            &[0.3, 0.0, 0.0],
+            &[1, 0, 0],
+            &SlowInputs::default(),
+        );
+        let q0 = ad.eval_f64(&[0.3, 0.0, 0.0], &[1, 0, 0], &SlowInputs::default())[0];
+        assert!(q0.abs() < 1e-12);
+    }
+}

@@ -1,5 +1,6 @@
 //! The plots a person looks at after a validation: error vs position (forward and backward),
-//! drift vs temperature, accuracy per pose and error over time for each compensation.
+//! drift vs temperature, accuracy per pose in the first test (paper 000 Fig. 11), error over
+//! time, and every test's accuracy over time (Fig. 12) for each compensation.
 
 use std::path::{Path, PathBuf};
 
@@ -28,11 +29,7 @@ pub fn write_report(dir: &Path, reports: &[&ValidationReport]) -> Result<Vec<Pat
     })?;
     let mut files = Vec::new();
     let counted = |r: &ValidationReport| -> Vec<crate::validate::Visit> {
-        r.visits
-            .iter()
-            .filter(|v| !v.kmz_reference)
-            .cloned()
-            .collect()
+        r.visits.iter().filter(|v| v.counted()).cloned().collect()
     };
 
     // 1. error vs position, forward and backward, per compensation
@@ -83,23 +80,29 @@ pub fn write_report(dir: &Path, reports: &[&ValidationReport]) -> Result<Vec<Pat
         },
     )?);
 
-    // 3. accuracy per pose
-    let series = reports
-        .iter()
-        .map(|r| Series {
-            name: r.compensation.name().into(),
-            points: r
-                .poses
-                .iter()
-                .map(|p| (p.target_um[0], nm(p.accuracy_um)))
-                .collect(),
-            style: Style::LinePoints,
-        })
-        .collect();
+    // 3. accuracy per pose in each compensation's first test (paper 000 Fig. 11)
+    let mut series = Vec::new();
+    for r in reports {
+        let Some(first) = r.tests.first() else {
+            continue;
+        };
+        for (label, sign) in [("forward", 1i8), ("backward", -1i8)] {
+            series.push(Series {
+                name: format!("{} {label}", r.compensation.name()),
+                points: first
+                    .poses
+                    .iter()
+                    .filter(|p| p.approach.first().is_some_and(|d| d.signum() == sign))
+                    .map(|p| (p.target_um[0], nm(p.accuracy_um)))
+                    .collect(),
+                style: Style::LinePoints,
+            });
+        }
+    }
     files.extend(write_chart(
         &dir.join("accuracy_per_pose"),
         &Chart {
-            title: "ISO 9283 accuracy per pose".into(),
+            title: "ISO 9283 accuracy per pose, first test of each compensation".into(),
             x_label: "target position (µm; first axis for n-D)".into(),
             y_label: "accuracy (nm)".into(),
             series,
@@ -129,6 +132,34 @@ pub fn write_report(dir: &Path, reports: &[&ValidationReport]) -> Result<Vec<Pat
             title: "Error over time".into(),
             x_label: "time since start of validation (h)".into(),
             y_label: "error (nm; distance for n-D)".into(),
+            series,
+        },
+    )?);
+
+    // 5. every test's accuracy (max over its poses) over time (paper 000 Fig. 12)
+    let series = reports
+        .iter()
+        .map(|r| Series {
+            name: r.compensation.name().into(),
+            points: r
+                .tests
+                .iter()
+                .map(|t| {
+                    (
+                        (0.5 * (t.t_start_s + t.t_end_s) - t0) / 3600.0,
+                        nm(t.accuracy_um),
+                    )
+                })
+                .collect(),
+            style: Style::LinePoints,
+        })
+        .collect();
+    files.extend(write_chart(
+        &dir.join("test_accuracy_over_time"),
+        &Chart {
+            title: "Accuracy of each test (max over its poses) over time".into(),
+            x_label: "time since start of validation (h)".into(),
+            y_label: "test accuracy (nm)".into(),
             series,
         },
     )?);

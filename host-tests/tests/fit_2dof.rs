@@ -6,7 +6,7 @@ use nanocal::fit::{fit_dwells, FitOptions, Selection};
 use nanocal::recording::Recording;
 use nanocal::stepwise::StepwiseOptions;
 use nanocal::twin::{Trajectory, Twin, TwinConfig};
-use nanocal::validate::{validate, Compensation};
+use nanocal::validate::{validate, Compensation, ValidationData, ValidationOptions};
 
 #[test]
 fn coupled_2dof_fit_and_n_d_validation() {
@@ -19,7 +19,8 @@ fn coupled_2dof_fit_and_n_d_validation() {
     );
     let opts = DwellOptions::default();
     let dt = dwell_average(&Recording::from_columns(train.columns).unwrap(), &opts).unwrap();
-    let dv = dwell_average(&Recording::from_columns(val.columns).unwrap(), &opts).unwrap();
+    let dv = ValidationData::from_recording(&Recording::from_columns(val.columns).unwrap(), &opts)
+        .unwrap();
     assert_eq!(dt.axes, vec!["x", "y"]);
     let spec = DesignSpec::parse("poly=3 cross=3 temps").unwrap();
     let fit = fit_dwells(
@@ -35,21 +36,24 @@ fn coupled_2dof_fit_and_n_d_validation() {
     // own cubic (3) + terms of degree ≤ 3 involving the other axis (y; xy, y²; x²y, xy², y³) + 4 temps
     assert_eq!(fit.axes[0].candidates.len(), 3 + 6 + 4);
     assert!(fit.axes[0].candidates.iter().any(|c| c.name == "x*y^2"));
-    let none = validate(None, &dv, &Compensation::None).unwrap();
-    let stat = validate(Some(&fit.model), &dv, &Compensation::Static).unwrap();
-    assert_eq!(none.poses.len(), 6);
-    assert_eq!(none.poses[0].target_um.len(), 2);
+    let o = ValidationOptions::default();
+    let none = validate(None, &dv, &Compensation::None, &o).unwrap();
+    let stat = validate(Some(&fit.model), &dv, &Compensation::Static, &o).unwrap();
+    // six points; P0 twice: the very first visit (from rest, "forward") and the later ones
+    // (from P5, backward on both axes) are different approaches
+    assert_eq!(none.tests[0].poses.len(), 7);
+    assert_eq!(none.tests[0].poses[0].target_um.len(), 2);
     assert!(
-        stat.max_um.0 < 0.5 * none.max_um.0,
+        stat.summary.max_acc_um < 0.5 * none.summary.max_acc_um,
         "AP static {:?} vs none {:?}",
-        stat.max_um,
-        none.max_um
+        stat.summary,
+        none.summary
     );
     let kmz = Compensation::Adaptive {
         reference_um: vec![0.0, 0.0],
         interval_s: 1800.0,
     };
-    let adap = validate(Some(&fit.model), &dv, &kmz).unwrap();
+    let adap = validate(Some(&fit.model), &dv, &kmz, &o).unwrap();
     // re-measured at the reference whenever at least the interval has passed since the last time
     let t_ref: Vec<f64> = adap
         .visits
@@ -68,7 +72,7 @@ fn coupled_2dof_fit_and_n_d_validation() {
     // the report plots n-D errors as distances
     let dir = std::env::temp_dir().join(format!("nanocal-2dof-report-{}", std::process::id()));
     let files = nanocal::report::write_report(&dir, &[&none, &stat, &adap]).unwrap();
-    assert_eq!(files.len(), 8);
+    assert_eq!(files.len(), 10);
     assert!(files.iter().all(|f| std::fs::metadata(f)
         .map(|m| m.len() > 1000)
         .unwrap_or(false)));

@@ -87,12 +87,25 @@ fn fit_validate_report_round_trip_on_the_twin() {
         String::from_utf8_lossy(&out.stderr)
     );
     let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
-    let acc = |i: usize| v[i]["max_accuracy_um"].as_f64().unwrap();
+    let acc = |i: usize| v[i]["max_test_accuracy_um"].as_f64().unwrap();
     assert_eq!(v[0]["compensation"], "no model");
     assert!(
         acc(1) < acc(0) && acc(2) < acc(0),
         "static/adaptive not better: {v}"
     );
+    // per compensation: R_s (µm), R_t (µm/h) and every test's per-pose Acc
+    for i in 0..3 {
+        assert!(v[i]["r_s_um"].as_f64().unwrap() > 0.0);
+        assert!(v[i]["r_t_um_per_h"].as_f64().unwrap() > 0.0);
+        let tests = v[i]["tests"].as_array().unwrap();
+        assert!(!tests.is_empty());
+        let poses = tests[0]["poses"].as_array().unwrap();
+        let worst = poses
+            .iter()
+            .map(|p| p["accuracy_um"].as_f64().unwrap())
+            .fold(0.0, f64::max);
+        assert_eq!(worst, tests[0]["accuracy_um"].as_f64().unwrap());
+    }
     let plots = dir.join("plots");
     let out = nanocal()
         .arg("report")
@@ -112,6 +125,7 @@ fn fit_validate_report_round_trip_on_the_twin() {
         "drift_vs_temperature",
         "accuracy_per_pose",
         "error_over_time",
+        "test_accuracy_over_time",
     ] {
         for ext in ["png", "svg"] {
             let p = plots.join(format!("{f}.{ext}"));
@@ -214,5 +228,66 @@ fn validate_refuses_a_corrupt_or_truncated_blob_in_words() {
             "{name}: {err}"
         );
     }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The published 2-DoF procedure through the CLI, as a campaign would: the twin runs the plan
+/// and writes it, `fit` trains Eq. 22, `validate --plan` evaluates each test with the
+/// compensation the plan gave it.
+#[test]
+fn a_published_plan_through_simulate_fit_and_validate() {
+    let dir = tmp("plan");
+    let ok = |out: std::process::Output| {
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).to_string()
+    };
+    ok(nanocal()
+        .args(["simulate", "--plan", "paper000-2dof", "--seed", "3", "-o"])
+        .arg(&dir)
+        .output()
+        .unwrap());
+    let plan: nanocal::plan::Plan =
+        serde_json::from_slice(&std::fs::read(dir.join("plan.json")).unwrap()).unwrap();
+    assert_eq!(plan, nanocal::plan::Plan::paper000_2dof());
+    let blob = dir.join("eq22.blob");
+    let text = ok(nanocal()
+        .arg("fit")
+        .arg(dir.join("training.csv"))
+        .args(["--terms", "eq22", "--fixed", "-o"])
+        .arg(&blob)
+        .output()
+        .unwrap());
+    assert!(text.contains("axis x: 10 of 10 candidate terms"), "{text}");
+    let json = dir.join("v.json");
+    let text = ok(nanocal()
+        .arg("validate")
+        .arg(&blob)
+        .arg(dir.join("validation.csv"))
+        .arg("--plan")
+        .arg(dir.join("plan.json"))
+        .arg("--json")
+        .arg(&json)
+        .output()
+        .unwrap());
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    // the plan alternates no model and static: 21 tests each, the adaptive row has none
+    let tests = |i: usize| v[i]["tests"].as_array().unwrap().len();
+    assert_eq!((tests(0), tests(1), tests(2)), (21, 21, 0), "{text}");
+    let worst = |i: usize| v[i]["max_test_accuracy_um"].as_f64().unwrap();
+    assert!(worst(1) < 0.25 * worst(0), "{text}");
+    let ids: Vec<u64> = v[1]["tests"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["test"].as_u64().unwrap())
+        .collect();
+    assert!(
+        ids.iter().all(|i| i % 2 == 1),
+        "static tests are the odd ones"
+    );
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -1,17 +1,29 @@
 //! Validation on the digital twin's published example: both compensations beat no model by far,
-//! KMZ bookkeeping, and an in-sample model leaves only the regression residual.
+//! KMZ bookkeeping, tests of cycles, and an in-sample model leaves only the regression residual.
 use nanocal::design::DesignSpec;
 use nanocal::dwell::{dwell_average, DwellOptions};
-use nanocal::fit::{fit_dwells, FitOptions, Selection};
+use nanocal::fit::{adaptive_from_static, fit_dwells, FitOptions, Selection};
 use nanocal::recording::Recording;
-use nanocal::validate::{validate, Compensation, ValidateError};
+use nanocal::validate::{
+    roles_from_cycles, validate, Compensation, Role, ValidateError, ValidationData,
+    ValidationOptions,
+};
 
-fn example() -> (nanocal::dwell::Dwells, nanocal::dwell::Dwells) {
+fn example() -> (nanocal::dwell::Dwells, ValidationData) {
     let (train, val) = nanocal::twin::examples::published_1dof(3);
     let opts = DwellOptions::default();
     let dt = dwell_average(&Recording::from_columns(train.columns).unwrap(), &opts).unwrap();
-    let dv = dwell_average(&Recording::from_columns(val.columns).unwrap(), &opts).unwrap();
+    let dv = ValidationData::from_recording(&Recording::from_columns(val.columns).unwrap(), &opts)
+        .unwrap();
     (dt, dv)
+}
+
+/// The example validates one cycle an hour: a test per cycle.
+fn hourly() -> ValidationOptions {
+    ValidationOptions {
+        cycles_per_test: 1,
+        ..Default::default()
+    }
 }
 
 #[test]
@@ -23,39 +35,69 @@ fn compensations_beat_no_model_on_the_published_example() {
         ..Default::default()
     };
     let st = fit_dwells(&dt, &fixed(DesignSpec::published_static())).unwrap();
-    let ad = fit_dwells(&dt, &fixed(DesignSpec::published_adaptive())).unwrap();
-    let none = validate(None, &dv, &Compensation::None).unwrap();
-    let stat = validate(Some(&st.model), &dv, &Compensation::Static).unwrap();
+    let ad = adaptive_from_static(&st.model).unwrap();
+    let opts = hourly();
+    let none = validate(None, &dv, &Compensation::None, &opts).unwrap();
+    let stat = validate(Some(&st.model), &dv, &Compensation::Static, &opts).unwrap();
     let kmz = Compensation::Adaptive {
         reference_um: vec![0.0],
         interval_s: 3600.0,
     };
-    let adap = validate(Some(&ad.model), &dv, &kmz).unwrap();
+    let adap = validate(Some(&ad), &dv, &kmz, &opts).unwrap();
     // uncompensated: about a micrometre, as published
+    let worst = |r: &nanocal::validate::ValidationReport| r.summary.max_acc_um;
     assert!(
-        none.max_um.0 > 0.5 && none.max_um.0 < 3.0,
-        "no model {:?}",
-        none.max_um
+        worst(&none) > 0.5 && worst(&none) < 3.0,
+        "no model {}",
+        worst(&none)
     );
-    assert!(
-        stat.max_um.0 < 0.5 * none.max_um.0,
-        "static {:?} vs none {:?}",
-        stat.max_um,
-        none.max_um
-    );
-    assert!(
-        adap.max_um.0 < 0.5 * none.max_um.0,
-        "adaptive {:?} vs none {:?}",
-        adap.max_um,
-        none.max_um
-    );
+    assert!(worst(&stat) < 0.5 * worst(&none));
+    assert!(worst(&adap) < 0.5 * worst(&none));
     // one KMZ update per hourly cycle, reference visits excluded from the statistics
     assert!(adap.kmz_updates >= 70, "{} KMZ updates", adap.kmz_updates);
-    assert_eq!(adap.distribution.n, dv.len() - adap.kmz_updates);
-    assert_eq!(none.poses.len(), 7);
-    assert_eq!(none.tests, adap.tests);
-    assert!(none.forward.len() == 7 && none.backward.len() >= 6);
-    assert!(stat.r_s > 0.0 && stat.r_s <= 1.0 && stat.r_t > 0.0 && stat.r_t <= 1.0);
+    assert_eq!(adap.distribution.n, dv.dwells.len() - adap.kmz_updates);
+    // the last "cycle" is the final rest at 0 alone: for the adaptive model it is a KMZ visit
+    // and leaves no counted visit
+    assert_eq!(none.tests.len(), adap.tests.len() + 1);
+    assert!(none.tests.len() >= 72);
+    // a test (one cycle, dwells merged where the command stays): 0 (arrived at backward, with
+    // the rest), 80…480 forward, 400…80 backward — the return to 0 starts the next cycle
+    let t = &none.tests[1];
+    assert_eq!(t.poses.len(), 12);
+    assert_eq!(t.poses.iter().filter(|p| p.approach == vec![1]).count(), 6);
+    assert!(t.poses.iter().all(|p| p.n == 1));
+    // R_s and R_t (Eq. 20–21): µm and µm/h over the validation
+    assert!(none.r_s_um > stat.r_s_um && none.r_t_um_per_h > adap.r_t_um_per_h);
+    let mean_worst: f64 =
+        none.tests.iter().map(|t| t.accuracy_um).sum::<f64>() / none.tests.len() as f64;
+    assert!((none.r_t_um_per_h - mean_worst / none.time_h).abs() < 1e-12);
+    assert!((none.time_h - 72.0).abs() < 1.5, "Time {} h", none.time_h);
+}
+
+#[test]
+fn tests_are_blocks_of_cycles_and_kmz_visits_are_due_references() {
+    let (_, dv) = example();
+    let d = &dv.dwells;
+    let roles = roles_from_cycles(d, 15, &Compensation::None);
+    let last = roles.iter().filter_map(|r| match r {
+        Role::Visit(t) => Some(*t),
+        _ => None,
+    });
+    // 73 hourly cycles → tests of 15 cycles: 0..=4
+    assert_eq!(last.max(), Some(4));
+    let kmz = Compensation::Adaptive {
+        reference_um: vec![0.0],
+        interval_s: 7200.0,
+    };
+    let roles = roles_from_cycles(d, 15, &kmz);
+    let t_kmz: Vec<f64> = roles
+        .iter()
+        .zip(&d.t_end_s)
+        .filter(|(r, _)| matches!(r, Role::Kmz(_)))
+        .map(|(_, t)| *t)
+        .collect();
+    assert!(t_kmz.len() >= 30);
+    assert!(t_kmz.windows(2).all(|w| w[1] - w[0] >= 7200.0 - 1e-9));
 }
 
 #[test]
@@ -66,9 +108,11 @@ fn model_fitted_on_validation_itself_leaves_only_noise() {
         selection: Selection::Fixed,
         ..Default::default()
     };
-    let m = fit_dwells(&dv, &opts).unwrap();
-    let r = validate(Some(&m.model), &dv, &Compensation::Static).unwrap();
-    // the in-sample RMS of the compensated error equals the regression's RMS (same model, f32 path)
+    let m = fit_dwells(&dv.dwells, &opts).unwrap();
+    // the device folds the dwells' own (averaged) temperatures: in-sample, the compensated RMS
+    // is the regression's RMS (same model, f32 path)
+    let own = ValidationData::from_dwells(dv.dwells.clone());
+    let r = validate(Some(&m.model), &own, &Compensation::Static, &hourly()).unwrap();
     assert!(
         (r.distribution.rms_um - m.axes[0].rmse_um).abs() < 0.2 * m.axes[0].rmse_um + 1e-4,
         "validation RMS {} vs fit RMS {}",
@@ -87,12 +131,13 @@ fn mismatched_inputs_are_reported() {
         ..Default::default()
     };
     let m = fit_dwells(&dt, &opts).unwrap();
-    let no_temps = nanocal::dwell::Dwells {
+    let no_temps = ValidationData::from_dwells(nanocal::dwell::Dwells {
         channels: Vec::new(),
-        ..dv.clone()
-    };
+        ..dv.dwells.clone()
+    });
+    let o = ValidationOptions::default();
     assert!(matches!(
-        validate(Some(&m.model), &no_temps, &Compensation::Static),
+        validate(Some(&m.model), &no_temps, &Compensation::Static, &o),
         Err(ValidateError::MissingChannels {
             needed: 4,
             found: 0,
@@ -104,8 +149,16 @@ fn mismatched_inputs_are_reported() {
         interval_s: 1.0,
     };
     assert!(matches!(
-        validate(Some(&m.model), &dv, &bad_ref),
+        validate(Some(&m.model), &dv, &bad_ref, &o),
         Err(ValidateError::BadReference { .. })
+    ));
+    assert!(matches!(
+        validate(None, &dv, &Compensation::Static, &o),
+        Err(ValidateError::NoModel(_))
+    ));
+    assert!(matches!(
+        nanocal::validate::validate_roles(None, &dv, &Compensation::None, &[Role::Skip], &o),
+        Err(ValidateError::BadSchedule { .. })
     ));
 }
 
@@ -152,23 +205,28 @@ fn lag_filters_of_the_model_are_run_over_the_dwells() {
         slow.lagged_c[0] = filt.update(temp[i], dt);
         cmd.push(model.eval_f64(&[x[i], 0.0, 0.0], &[1, 0, 0], &slow)[0]);
     }
-    let d = Dwells {
+    let d = ValidationData::from_dwells(Dwells {
         axes: vec!["x".into()],
         t_end_s: t.clone(),
-        t_start_s: t.iter().map(|v| v - 30.0).collect(),
+        t_start_s: t.clone(),
         cmd_um: vec![cmd],
         meas_um: vec![x],
         meas_sd_um: vec![vec![0.0; n]],
         dir: vec![vec![1; n]],
         channels: vec![("temp_a".into(), temp)],
         rows_averaged: vec![1; n],
+    });
+    // the device ticks on the dwells' own 60 s grid: its lag filters see what the model saw
+    let opts = ValidationOptions {
+        fold_period_s: 60.0,
+        ..Default::default()
     };
-    let r = validate(Some(&model), &d, &Compensation::Static).unwrap();
+    let r = validate(Some(&model), &d, &Compensation::Static, &opts).unwrap();
     assert!(
         r.distribution.max_um < 1e-4,
         "max error {} µm",
         r.distribution.max_um
     );
-    let none = validate(None, &d, &Compensation::None).unwrap();
+    let none = validate(None, &d, &Compensation::None, &opts).unwrap();
     assert!(none.distribution.max_um > 1.0);
 }

@@ -1,131 +1,598 @@
-//! `nanocal demo`: the whole workflow on the bundled example (the digital twin's simulated
-//! 1-DoF stage like the published one): train, fit, validate, before/after table, plots.
+//! `nanocal demo`: the published procedures of paper 000, like for like, on the digital twin:
+//! the 1-DoF stage at stable temperature (§4.3.1), the 1-DoF calibration and five-day
+//! validation (§4.2, §4.3.2), and the 2-DoF calibration (§5.2) — each printed beside the
+//! paper's figures, with recordings, plans, model blobs and plots.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::design::DesignSpec;
-use crate::dwell::{dwell_average, DwellOptions};
-use crate::fit::{encode_blob, fit_dwells, FitOptions, Selection};
+use crate::device_path::DEVICE_FOLD_PERIOD_S;
+use crate::dwell::Dwells;
+use crate::fit::{adaptive_from_static, encode_blob, fit_dwells, FitOptions, FitReport, Selection};
+use crate::iso9283::{per_pose_approach, TestStats};
+use crate::plan::{Plan, TestKind};
+use crate::procedure::ProcedureData;
 use crate::recording::Recording;
 use crate::report::write_report;
-use crate::validate::{comparison_table, validate, Compensation};
+use crate::stepwise::StepwiseOptions;
+use crate::twin::examples::{self, TRAINING_START_S};
+use crate::twin::execute::{run_plan, PlanRun};
+use crate::twin::Columns;
+use crate::validate::ValidationReport;
 
-/// Run the whole calibration workflow on the bundled example: a simulated 1-DoF stage like the
-/// published one (cubic geometric error, four temperature sensors, ≈ 3 h of training at
-/// 0:30:480 µm forward/backward, three days of hourly validation at 0, 80, …, 480 µm while the
-/// room leaves the training range). Fits the published static model (cubic + every
-/// temperature) and the adaptive model (cubic + KMZ offset re-measured hourly at 0 µm),
-/// validates both, prints the before/after table and writes recordings, blobs and plots.
+/// Run paper 000's published procedures on the digital twin and print this project's figures
+/// beside the paper's: (1) one test at stable temperature (accuracy, repeatability);
+/// (2) the 1-DoF calibration — training 0:30:480 µm, 67 cycles of 34 steps (2 s rise + 20 s
+/// hold, mean of the last 5 s, 13.9 h), static model (Eq. 11, stepwise) and adaptive model
+/// (Eq. 14: its geometric part + KMZ), then five days of validation tests (15 cycles each) in
+/// the order no model, adaptive, static with the KMZ re-measured every 3.75 h: Acc and Rep per
+/// test, R_s, R_t; (3) the 2-DoF calibration — 0:10:80 µm grid, 12 cycles, Eq. 22, validation
+/// at P0…P5. Writes the recordings, the plans (JSON), the model blobs and plots.
 #[derive(Args, Debug)]
 pub struct DemoArgs {
-    /// Folder for recordings, model blobs and plots (created if needed).
+    /// Folder for recordings, plans, model blobs and plots (created if needed).
     #[arg(long, default_value = "out/demo")]
     pub out: PathBuf,
-    /// Seed of the simulated room and noise.
+    /// Seed of the simulated rooms and noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Average the last this many seconds of each dwell.
-    #[arg(long, default_value_t = 10.0)]
-    pub average_last_s: f64,
-    /// Minimum interval between KMZ re-measurements at 0 µm, s.
-    #[arg(long, default_value_t = 3600.0)]
+    /// Interval between KMZ re-measurements at 0 µm, s (paper 000: 3.75 h).
+    #[arg(long, default_value_t = 3.75 * 3600.0)]
     pub kmz_interval_s: f64,
+    /// The device's fold period, s (STM32 board: 0.25; paper 001: 5–10 s would do).
+    #[arg(long, default_value_t = DEVICE_FOLD_PERIOD_S)]
+    pub fold_period_s: f64,
+    /// Print each procedure's plan as JSON and exit.
+    #[arg(long)]
+    pub print_plans: bool,
+}
+
+/// Paper 000's figures for the 1-DoF procedure, quoted from its text, Table 2 and Fig. 10–12.
+mod paper {
+    /// (compensation, Acc of its first test T1/T2/T3 in nm, max − min of that test in nm,
+    /// the five-day accuracy as the text gives it, R_s µm, R_t µm/h).
+    pub const ONE_DOF: [(&str, f64, f64, &str, f64, f64); 3] = [
+        ("no model", 650.0, 300.0, "0.4–1 µm", 0.3476, 0.0058),
+        ("adaptive KMZ", 43.0, 35.0, "< 100 nm", 0.0493, 0.0005),
+        ("static", 95.0, 40.0, "< 400 nm for 70 h", 0.0577, 0.0029),
+    ];
+}
+
+fn bar(len: u64) -> ProgressBar {
+    let bar = ProgressBar::new(len);
+    bar.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} {msg}").expect("static template"),
+    );
+    bar
+}
+
+fn write_csv(path: &Path, c: &Columns) -> anyhow::Result<Recording> {
+    let rec = c.to_recording()?;
+    rec.write_path(path)
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(rec)
+}
+
+fn write_json(path: &Path, v: &impl serde::Serialize) -> anyhow::Result<()> {
+    std::fs::write(path, serde_json::to_string_pretty(v)?)
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 /// Runs `nanocal demo`.
 pub fn run(args: DemoArgs) -> anyhow::Result<()> {
+    let one = Plan::paper000_1dof();
+    let mut one = one;
+    if let Some(k) = one.validation.kmz.as_mut() {
+        k.interval_s = args.kmz_interval_s;
+    }
+    let two = Plan::paper000_2dof();
+    if args.print_plans {
+        let robot = Plan::paper001_robot();
+        println!("{}", serde_json::to_string_pretty(&[&one, &two, &robot])?);
+        return Ok(());
+    }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
-    let bar = ProgressBar::new(6);
-    bar.set_style(
-        ProgressStyle::with_template("{bar:30} {pos}/{len} {msg}").expect("static template"),
+    let bar = bar(10);
+
+    bar.set_message("1-DoF at stable temperature (§4.3.1)");
+    let stable = stable_test(args.seed)?;
+    bar.inc(1);
+
+    bar.set_message("1-DoF: simulating the published procedure (≈ 133 h)");
+    let run1 = run_plan(
+        &examples::paper000_1dof_twin(args.seed),
+        &one,
+        TRAINING_START_S,
+        1,
+        true,
     );
-    bar.set_message("simulating the stage (digital twin)");
-    let (train, val) = crate::twin::examples::published_1dof(args.seed);
-    let train = Recording::from_columns(train.columns)?;
-    let val = Recording::from_columns(val.columns)?;
     bar.inc(1);
-    bar.set_message("writing recordings");
-    train.write_path(args.out.join("training.csv"))?;
-    val.write_path(args.out.join("validation.csv"))?;
+    bar.set_message("1-DoF: writing recordings and plan");
+    let dir1 = args.out.join("1dof");
+    std::fs::create_dir_all(&dir1)?;
+    let rec1 = write_recordings(&dir1, &run1, &one)?;
     bar.inc(1);
-    bar.set_message("dwell averaging");
-    let dwell = DwellOptions {
-        average_last_s: args.average_last_s,
-        ..Default::default()
-    };
-    let dt = dwell_average(&train, &dwell)?;
-    let dv = dwell_average(&val, &dwell)?;
+    bar.set_message("1-DoF: fitting the static model (stepwise, Eq. 11)");
+    let data1 = ProcedureData::new(&rec1, &run1.steps, 0.0)?;
+    let train1 = data1.training();
+    let st = fit(&train1, DesignSpec::published_static(), 0x0003_0001)?;
+    let ad = adaptive_from_static(&st.model).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    std::fs::write(dir1.join("static.blob"), encode_blob(&st.model))?;
+    std::fs::write(dir1.join("adaptive.blob"), encode_blob(&ad))?;
     bar.inc(1);
-    bar.set_message("fitting static and adaptive models");
-    let fixed = |spec: DesignSpec, id: u32| FitOptions {
-        spec,
-        selection: Selection::Fixed,
-        dwell,
-        id,
-    };
-    let st = fit_dwells(&dt, &fixed(DesignSpec::published_static(), 0x0003_0001))?;
-    let ad = fit_dwells(&dt, &fixed(DesignSpec::published_adaptive(), 0x0003_0002))?;
-    std::fs::write(args.out.join("static.blob"), encode_blob(&st.model))?;
-    std::fs::write(args.out.join("adaptive.blob"), encode_blob(&ad.model))?;
+    bar.set_message("1-DoF: validating 93 tests as the device would");
+    let kmz = one.validation.kmz.as_ref();
+    let v1 = [
+        data1.validate(TestKind::NoModel, None, kmz, args.fold_period_s)?,
+        data1.validate(TestKind::Adaptive, Some(&ad), kmz, args.fold_period_s)?,
+        data1.validate(TestKind::Static, Some(&st.model), kmz, args.fold_period_s)?,
+    ];
     bar.inc(1);
-    bar.set_message("validating");
-    let none = validate(None, &dv, &Compensation::None)?;
-    let stat = validate(Some(&st.model), &dv, &Compensation::Static)?;
-    let adap = validate(
-        Some(&ad.model),
-        &dv,
-        &Compensation::Adaptive {
-            reference_um: vec![0.0],
-            interval_s: args.kmz_interval_s,
-        },
-    )?;
+    bar.set_message("1-DoF: plots");
+    let files1 = write_report(&dir1, &[&v1[0], &v1[1], &v1[2]])?;
     bar.inc(1);
-    bar.set_message("plotting");
-    let files = write_report(&args.out, &[&none, &stat, &adap])?;
+
+    bar.set_message("2-DoF: simulating the published procedure (≈ 29 h)");
+    let run2 = run_plan(
+        &examples::paper000_2dof_twin(args.seed),
+        &two,
+        TRAINING_START_S,
+        2,
+        true,
+    );
+    let dir2 = args.out.join("2dof");
+    std::fs::create_dir_all(&dir2)?;
+    let rec2 = write_recordings(&dir2, &run2, &two)?;
+    bar.inc(1);
+    bar.set_message("2-DoF: fitting Eq. 22 (stepwise) and validating");
+    let data2 = ProcedureData::new(&rec2, &run2.steps, 0.0)?;
+    let train2 = data2.training();
+    let fit2 = fit(&train2, DesignSpec::published_2dof(), 0x0003_0003)?;
+    std::fs::write(dir2.join("eq22.blob"), encode_blob(&fit2.model))?;
+    let v2 = [
+        data2.validate(TestKind::NoModel, None, None, args.fold_period_s)?,
+        data2.validate(
+            TestKind::Static,
+            Some(&fit2.model),
+            None,
+            args.fold_period_s,
+        )?,
+    ];
+    bar.inc(1);
+    let files2 = write_report(&dir2, &[&v2[0], &v2[1]])?;
+    bar.inc(1);
+    bar.set_message("robot (paper 001): simulating, fitting stepwise, validating");
+    let robot = robot(&args, &args.out.join("robot"))?;
     bar.inc(1);
     bar.finish_and_clear();
 
-    let hours = |d: &crate::dwell::Dwells| {
-        (d.t_end_s.last().unwrap_or(&0.0) - d.t_start_s.first().unwrap_or(&0.0)) / 3600.0
-    };
+    println!("Paper 000 (Tan, Clévy, Chaillet), published procedures on the digital twin\n");
+    println!("1. One test at stable temperature (§4.3.1, Fig. 10): no model, 15 cycles");
     println!(
-        "training: {} rows, {} dwells over {:.1} h; validation: {} rows, {} dwells over {:.1} h, {} tests",
-        train.rows(),
-        dt.len(),
-        hours(&dt),
-        val.rows(),
-        dv.len(),
-        hours(&dv),
-        none.tests
+        "   this project: Acc {:.0} nm, Rep {:.0} nm (ISO 9283 RP = l̄ + 3·S_l), mean |Acc forward − Acc backward| {:.0} nm",
+        stable.accuracy_um * 1e3,
+        stable.repeatability_um * 1e3,
+        forward_backward_gap_um(&stable) * 1e3
     );
+    println!("   paper 000:    Acc ≈ 350 nm,  Rep ≈ 35 nm, forward − backward ≈ 10 nm\n");
+
     println!(
-        "static model: cubic + {} temperatures, training RMS {:.1} nm; adaptive: cubic, KMZ re-measured {} times at 0 µm",
-        st.frame.temps.len(),
-        st.axes[0].rmse_um * 1e3,
-        adap.kmz_updates
+        "2. 1-DoF calibration: training {} cycles × {} steps ({:.1} h), {} validation tests of {} cycles over {:.1} h, KMZ every {:.2} h",
+        one.training.cycles,
+        one.training.cycle_um.len(),
+        one.training.duration_s() / 3600.0,
+        one.tests(),
+        one.validation.test.cycles,
+        data1.validation_h(),
+        args.kmz_interval_s / 3600.0
     );
+    print!("{}", fit_summary(&st));
+    let tp = training_phase(&train1);
+    println!(
+        "   training phase, no model: pose accuracies {:.0}–{:.0} nm (paper: ≈ 150 – > 450 nm)",
+        tp.0 * 1e3,
+        tp.1 * 1e3
+    );
+    print!("{}", one_dof_table(&v1));
+    print!("{}", device_notes(&v1));
     println!();
-    print!("{}", comparison_table(&[&none, &stat, &adap]));
-    println!("published (Tan, Clévy, Chaillet 2015): no model ≈ 1 µm, static ≈ 400 nm, adaptive KMZ ≈ 100 nm");
-    if stat.outside_envelope > 0 {
-        println!(
-            "{} of {} validation visits had temperatures outside the training envelope",
-            stat.outside_envelope, stat.distribution.n
+
+    println!(
+        "3. 2-DoF calibration (§5.2): training {} cycles × {} poses ({:.1} h), Eq. 22 (n1 = n2 = 3, {} temperatures), {} tests of {} cycles at P0…P5 over {:.1} h",
+        two.training.cycles,
+        two.training.cycle_um.len(),
+        two.training.duration_s() / 3600.0,
+        fit2.frame.temps.len(),
+        two.tests(),
+        two.validation.test.cycles,
+        data2.validation_h()
+    );
+    print!("{}", fit_summary(&fit2));
+    print!("{}", two_dof_table(&v2, &train2));
+    print!("{}", device_notes(&v2));
+    println!();
+    print!("{robot}");
+    println!();
+    print!("{}", easier_or_harder());
+    println!();
+    println!(
+        "wrote {} and {}: training.csv, validation.csv, plan.json, model blobs and {} plot files",
+        dir1.display(),
+        dir2.display(),
+        files1.len() + files2.len()
+    );
+    Ok(())
+}
+
+/// Writes `training.csv`, `validation.csv` and `plan.json`; returns the whole recording.
+fn write_recordings(dir: &Path, run: &PlanRun, plan: &Plan) -> anyhow::Result<Recording> {
+    let (train, val) = run.split();
+    write_csv(&dir.join("training.csv"), &train)?;
+    write_csv(&dir.join("validation.csv"), &val)?;
+    write_json(&dir.join("plan.json"), plan)?;
+    Ok(run.recording.to_recording()?)
+}
+
+/// Stepwise (MATLAB defaults) among the candidates of `spec`, as paper 000 §3.3 trains.
+fn fit(d: &Dwells, spec: DesignSpec, id: u32) -> anyhow::Result<FitReport> {
+    Ok(fit_dwells(
+        d,
+        &FitOptions {
+            spec,
+            selection: Selection::Stepwise(StepwiseOptions::default()),
+            dwell: Default::default(),
+            id,
+        },
+    )?)
+}
+
+fn fit_summary(f: &FitReport) -> String {
+    let mut s = String::new();
+    for ax in &f.axes {
+        let chosen: Vec<&str> = ax
+            .candidates
+            .iter()
+            .zip(&ax.selected)
+            .filter(|(_, sel)| **sel)
+            .map(|(c, _)| c.name.as_str())
+            .collect();
+        s += &format!(
+            "   fit {}: {} of {} terms ({}), training RMS {:.1} nm over {} steps\n",
+            ax.axis,
+            chosen.len(),
+            ax.candidates.len(),
+            chosen.join(" "),
+            ax.rmse_um * 1e3,
+            f.dwells
         );
     }
-    println!();
-    println!(
-        "wrote {}/{{training,validation}}.csv, static.blob, adaptive.blob and {} plot files:",
-        args.out.display(),
-        files.len()
+    s
+}
+
+/// Smallest and largest pose accuracy over the whole training, no model (paper 000 Fig. 11 TP).
+fn training_phase(d: &Dwells) -> (f64, f64) {
+    let k = d.axes.len();
+    let t: Vec<Vec<f64>> = (0..d.len())
+        .map(|i| (0..k).map(|a| d.cmd_um[a][i]).collect())
+        .collect();
+    let dir: Vec<Vec<i8>> = (0..d.len())
+        .map(|i| (0..k).map(|a| d.dir[a][i]).collect())
+        .collect();
+    let e: Vec<Vec<f64>> = (0..d.len())
+        .map(|i| (0..k).map(|a| d.meas_um[a][i] - d.cmd_um[a][i]).collect())
+        .collect();
+    let poses = per_pose_approach(&t, &dir, &e);
+    let acc = poses.iter().map(|p| p.accuracy_um);
+    (
+        acc.clone().fold(f64::INFINITY, f64::min),
+        acc.fold(0.0, f64::max),
+    )
+}
+
+/// One no-model test at stable temperature (§4.3.1): the validation cycle, 15 cycles.
+fn stable_test(seed: u64) -> anyhow::Result<TestStats> {
+    let mut plan = Plan::paper000_1dof().shortened(0, 15, 1);
+    plan.validation.order = vec![TestKind::NoModel];
+    let run = run_plan(
+        &examples::paper000_1dof_controlled_twin(seed),
+        &plan,
+        TRAINING_START_S,
+        3,
+        true,
     );
-    for f in files {
-        println!("  {}", f.display());
+    let data = ProcedureData::new(&run.recording.to_recording()?, &run.steps, 0.0)?;
+    let r = data.validate(TestKind::NoModel, None, None, DEVICE_FOLD_PERIOD_S)?;
+    r.tests
+        .into_iter()
+        .next()
+        .context("the stable-temperature test has no visits")
+}
+
+/// Mean over positions of |Acc forward − Acc backward| at the same position, µm.
+fn forward_backward_gap_um(t: &TestStats) -> f64 {
+    let gaps: Vec<f64> = t
+        .poses
+        .iter()
+        .filter(|p| p.approach.first() == Some(&1))
+        .filter_map(|f| {
+            t.poses
+                .iter()
+                .find(|b| b.target_um == f.target_um && b.approach.first() == Some(&-1))
+                .map(|b| (f.accuracy_um - b.accuracy_um).abs())
+        })
+        .collect();
+    gaps.iter().sum::<f64>() / gaps.len().max(1) as f64
+}
+
+/// Largest test accuracy among the tests that end within `hours` of the start of validation.
+fn max_acc_within(r: &ValidationReport, t0_s: f64, hours: f64) -> f64 {
+    r.tests
+        .iter()
+        .filter(|t| t.t_end_s - t0_s <= hours * 3600.0)
+        .map(|t| t.accuracy_um)
+        .fold(f64::NAN, f64::max)
+}
+
+fn one_dof_table(v: &[ValidationReport; 3]) -> String {
+    use std::fmt::Write;
+    let t0 = v
+        .iter()
+        .filter_map(|r| r.tests.first())
+        .map(|t| t.t_start_s)
+        .fold(f64::INFINITY, f64::min);
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "   {:<13}|{:>7} {:>7} {:>9} {:>8} {:>8} {:>8} {:>8} {:>9} |{:>6} {:>6} {:>18} {:>7} {:>7}",
+        "",
+        "Acc_T",
+        "spread",
+        "Acc≤70h",
+        "Acc_max",
+        "Acc_med",
+        "Rep_med",
+        "R_s µm",
+        "R_t µm/h",
+        "Acc_T",
+        "spread",
+        "five days",
+        "R_s µm",
+        "R_t µm/h"
+    );
+    let _ = writeln!(
+        s,
+        "   {:<13}|{:^78}|{:^50}",
+        "compensation", "this project (nm unless stated)", "paper 000"
+    );
+    for (r, p) in v.iter().zip(paper::ONE_DOF) {
+        let m = &r.summary;
+        let spread = r
+            .tests
+            .first()
+            .map_or(f64::NAN, |t| t.accuracy_um - t.min_accuracy_um());
+        let _ = writeln!(
+            s,
+            "   {:<13}|{:>7.0} {:>7.0} {:>9.0} {:>8.0} {:>8.0} {:>8.0} {:>8.4} {:>9.4} |{:>6.0} {:>6.0} {:>18} {:>7.4} {:>7.4}",
+            r.compensation.name(),
+            m.first_acc_um * 1e3,
+            spread * 1e3,
+            max_acc_within(r, t0, 70.0) * 1e3,
+            m.max_acc_um * 1e3,
+            m.median_acc_um * 1e3,
+            m.median_rep_um * 1e3,
+            r.r_s_um,
+            r.r_t_um_per_h,
+            p.1,
+            p.2,
+            p.3,
+            p.4,
+            p.5
+        );
     }
-    Ok(())
+    let _ = writeln!(
+        s,
+        "   (Acc_T: Acc of the compensation's first test (T1/T2/T3), spread: its max − min over poses; Acc≤70h: worst test\n    within the first 70 h; Acc_max/med over all {} tests each; Acc = max over a test's 14 poses of ISO 9283 AP,\n    Rep = max of RP; R_s, R_t: Eq. 20–21 with Time = the whole validation)",
+        v[0].tests.len()
+    );
+    s
+}
+
+/// What the device did besides compensating: refused moves, folds outside the envelope.
+fn device_notes(v: &[ValidationReport]) -> String {
+    let parts: Vec<String> = v
+        .iter()
+        .filter(|r| r.compensation != crate::validate::Compensation::None)
+        .map(|r| {
+            format!(
+                "{}: {} of {} moves refused, {} folds with temperatures outside the training range",
+                r.compensation.name(),
+                r.refused,
+                r.visits.len(),
+                r.outside_envelope
+            )
+        })
+        .collect();
+    format!("   device: {}\n", parts.join("; "))
+}
+
+fn two_dof_table(v: &[ValidationReport; 2], train: &Dwells) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let tp = training_phase(train);
+    let _ = writeln!(
+        s,
+        "   training phase, no model: worst pose accuracy {:.0} nm (paper: > 1.4 µm)",
+        tp.1 * 1e3
+    );
+    let _ = writeln!(
+        s,
+        "   {:<10} {:>6} {:>9} {:>9} {:>9} {:>8} {:>8} |  paper 000",
+        "", "tests", "Acc_min", "Acc_med", "Acc_max", "< 200 nm", "< 500 nm"
+    );
+    let paper = [
+        "≈ 1.2–1.4 µm all day",
+        "most < 200 nm, all < 500 nm (1400 → 200 nm)",
+    ];
+    for (r, p) in v.iter().zip(paper) {
+        let m = &r.summary;
+        let share = |lim: f64| {
+            r.tests.iter().filter(|t| t.accuracy_um < lim).count() as f64
+                / r.tests.len().max(1) as f64
+        };
+        let _ = writeln!(
+            s,
+            "   {:<10} {:>6} {:>9.0} {:>9.0} {:>9.0} {:>7.0}% {:>7.0}% |  {}",
+            r.compensation.name(),
+            r.tests.len(),
+            m.min_acc_um * 1e3,
+            m.median_acc_um * 1e3,
+            m.max_acc_um * 1e3,
+            100.0 * share(0.2),
+            100.0 * share(0.5),
+            p
+        );
+    }
+    let _ = writeln!(
+        s,
+        "   (nm; per test, 2-D accuracy = max over P0…P5 of ISO 9283 AP = ‖barycentre − pose‖)"
+    );
+    s
+}
+
+/// The candidate terms of the robot's stepwise fit: per motor, every monomial of degree ≤ 3 in
+/// the three motor coordinates (19), every temperature (10) and every temperature × the motor's
+/// own coordinate (10) — 117 candidates for the three motors.
+pub const ROBOT_CANDIDATES: &str = "poly=3 cross=3 temps temp_x_pos";
+
+/// Paper 001 on the delta-robot twin: run the plan, fit stepwise among [`ROBOT_CANDIDATES`],
+/// validate, and report the selected terms and the 90 % figure per motor coordinate.
+fn robot(args: &DemoArgs, dir: &Path) -> anyhow::Result<String> {
+    use crate::iso9283::ninety_percent_per_axis;
+    use crate::twin::delta::{DeltaConfig, DeltaTwin};
+    use nanocal_model::Factor;
+    use std::fmt::Write;
+    let plan = Plan::paper001_robot();
+    let twin = DeltaTwin::new(DeltaConfig::paper001(args.seed), 3.0 * 86_400.0, args.seed);
+    let run = run_plan(&twin, &plan, TRAINING_START_S, 4, false);
+    std::fs::create_dir_all(dir)?;
+    let rec = write_recordings(dir, &run, &plan)?;
+    let data = ProcedureData::new(&rec, &run.steps, 0.0)?;
+    let train = data.training();
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "4. Robot of paper 001 (delta, flexure hinges, 10 nm encoders, ≈ 1 cm³, 7 + 3 temperature sensors): training {} cycles × {} poses ({:.1} h), validation {} other poses, {} tests over {:.1} h",
+        plan.training.cycles,
+        plan.training.cycle_um.len(),
+        plan.training.duration_s() / 3600.0,
+        plan.validation.test.cycle_um.len(),
+        plan.tests(),
+        data.validation_h()
+    );
+    let spec = DesignSpec::parse(ROBOT_CANDIDATES)?;
+    let fit = match fit(&train, spec, 0x0001_0003) {
+        Ok(f) => f,
+        Err(e) => {
+            let _ = writeln!(
+                s,
+                "   the robot's model cannot be built yet: {e:#}\n   (the recording, {} training and {} validation steps, is in {})",
+                train.len(),
+                data.data.dwells.len() - train.len(),
+                dir.display()
+            );
+            return Ok(s);
+        }
+    };
+    std::fs::write(dir.join("robot.blob"), encode_blob(&fit.model))?;
+    let p = args.fold_period_s;
+    let none = data.validate(TestKind::NoModel, None, None, p)?;
+    let stat = data.validate(TestKind::Static, Some(&fit.model), None, p)?;
+    let terms = fit.model.terms();
+    let geometric = terms.iter().filter(|t| t.factor == Factor::None).count();
+    let candidates: usize = fit.axes.iter().map(|a| a.candidates.len()).sum();
+    let _ = writeln!(
+        s,
+        "   stepwise: {} of {candidates} candidate terms ({geometric} geometric, {} thermal) + {} offsets = {} parameters   | paper 001: 78 (45 geometric + 33 thermal)",
+        terms.len(),
+        terms.len() - geometric,
+        fit.axes.len(),
+        terms.len() + fit.axes.len()
+    );
+    for ax in &fit.axes {
+        let _ = writeln!(
+            s,
+            "     {}: {} terms, training RMS {:.1} nm",
+            ax.axis,
+            ax.selected.iter().filter(|x| **x).count(),
+            ax.rmse_um * 1e3
+        );
+    }
+    let errors = |r: &ValidationReport| -> Vec<Vec<f64>> {
+        r.visits
+            .iter()
+            .filter(|v| v.counted())
+            .map(|v| v.error_um.clone())
+            .collect()
+    };
+    let _ = writeln!(
+        s,
+        "   90 % of the validation set, per motor coordinate (nm): 1.645σ / empirical P90 of |error|   | paper 001: ±70 nm"
+    );
+    for (name, r) in [("no model", &none), ("model", &stat)] {
+        let n90 = ninety_percent_per_axis(&errors(r));
+        let cells: Vec<String> = n90
+            .iter()
+            .zip(&data.data.dwells.axes)
+            .map(|(n, a)| {
+                format!(
+                    "{a} ±{:.0} / {:.0}",
+                    n.normal90_um * 1e3,
+                    n.empirical90_um * 1e3
+                )
+            })
+            .collect();
+        let _ = writeln!(
+            s,
+            "     {name:<9} {}   ({} visits{})",
+            cells.join(", "),
+            n90.first().map_or(0, |n| n.n),
+            if r.refused > 0 {
+                format!(", {} refused", r.refused)
+            } else {
+                String::new()
+            }
+        );
+    }
+    Ok(s)
+}
+
+fn easier_or_harder() -> String {
+    [
+        "Where the simulation is easier or harder than the published experiments:",
+        "- easier: the twin's thermal drift is linear in its spot temperatures (Table 1's coefficients plus an",
+        "  unsensed table, 0.3 µm/°C with a 3 h lag): when the room leaves the training range (1.3 °C over the last",
+        "  two days) the static model keeps extrapolating well; the paper's, under 400 nm for 70 h, deteriorated then;",
+        "- easier: the stage's geometry never changes (no wear, no re-mounting), the interferometer has no dead-path",
+        "  or cosine error beyond what is modelled and is zeroed once without drift (paper 000: ≤ 41 nm uncertainty),",
+        "  sensors never fail, and every test runs exactly on schedule;",
+        "- easier: the 2-DoF validation steps and test length are the 1-DoF ones (not published for 2-DoF);",
+        "- easier: the robot twin's errors are what its kinematics and titanium expansion produce — smooth, so a",
+        "  cubic in motor coordinates and linear temperature terms nearly capture them; its residual is its",
+        "  positioning scatter (15 nm), encoder resolution (10 nm) and interferometer noise; the real robot's",
+        "  flexure hinges, parasitic rotations and gradients inside its parts are not simulated;",
+        "- harder: the stages carry physics the published models cannot see — the structure lags its sensors by",
+        "  20 min, the stroke changes 50 ppm/°C (a KMZ at 0 µm cannot measure it), a part of the loop has no",
+        "  sensor — and the device folds single readings of type K thermocouples through a MAX31856 (≈ 16 mK noise",
+        "  each), not the 5 s averages the fit was trained on;",
+        "- different: the 2 s rise is modelled as a step (the twin's stage has no transient); the validation is",
+        "  evaluated open loop — the target for which the device sends the recorded command — instead of",
+        "  driving the stage through the model (equivalent to f32 rounding, see tests/validate_device.rs).",
+    ]
+    .map(|l| format!("{l}\n"))
+    .concat()
 }

@@ -40,8 +40,8 @@ pub struct FitArgs {
     /// Stepwise p-value to remove.
     #[arg(long)]
     pub premove: Option<f64>,
-    /// Average the last this many seconds of each dwell.
-    #[arg(long, default_value_t = 10.0)]
+    /// Average the last this many seconds of each dwell (paper 000: 5 s).
+    #[arg(long, default_value_t = 5.0)]
     pub average_last_s: f64,
     /// Model identifier stored in the blob.
     #[arg(long, default_value_t = 0x0003_0001)]

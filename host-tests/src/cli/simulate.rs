@@ -30,6 +30,17 @@ pub enum TrajectoryKind {
     PublishedExample,
 }
 
+/// A published procedure the twin can run whole (training and validation).
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum PublishedPlan {
+    /// Paper 000's 1-DoF calibration (§4.2, §4.3.2) on its stage.
+    Paper000_1dof,
+    /// Paper 000's 2-DoF calibration (§5.2) on its stage.
+    Paper000_2dof,
+    /// Paper 001's delta robot (§IV.C, §VII.A).
+    Paper001Robot,
+}
+
 /// Arguments of `nanocal simulate`.
 #[derive(Args, Debug)]
 pub struct SimulateArgs {
@@ -64,9 +75,54 @@ pub struct SimulateArgs {
     /// Seed: the same seed gives the same recording.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Output CSV file (a directory for --trajectory published-example).
+    /// Run a published procedure whole on its twin and write training.csv, validation.csv and
+    /// plan.json into --out (a directory); validate with `nanocal validate … --plan plan.json`.
+    #[arg(long, value_enum)]
+    pub plan: Option<PublishedPlan>,
+    /// Output CSV file (a directory for --trajectory published-example and --plan).
     #[arg(short, long)]
     pub out: PathBuf,
+}
+
+/// Runs a published plan on its twin and writes the recordings and the plan.
+fn run_published(which: PublishedPlan, seed: u64, out: &std::path::Path) -> Result<()> {
+    use crate::plan::Plan;
+    use crate::twin::delta::{DeltaConfig, DeltaTwin};
+    use crate::twin::execute::run_plan;
+    let start = examples::TRAINING_START_S;
+    let (plan, run) = match which {
+        PublishedPlan::Paper000_1dof => {
+            let p = Plan::paper000_1dof();
+            let r = run_plan(&examples::paper000_1dof_twin(seed), &p, start, 1, true);
+            (p, r)
+        }
+        PublishedPlan::Paper000_2dof => {
+            let p = Plan::paper000_2dof();
+            let r = run_plan(&examples::paper000_2dof_twin(seed), &p, start, 2, true);
+            (p, r)
+        }
+        PublishedPlan::Paper001Robot => {
+            let p = Plan::paper001_robot();
+            let twin = DeltaTwin::new(DeltaConfig::paper001(seed), 3.0 * 86_400.0, seed);
+            let r = run_plan(&twin, &p, start, 4, false);
+            (p, r)
+        }
+    };
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let (train, val) = run.split();
+    for (name, rec) in [("training.csv", train), ("validation.csv", val)] {
+        let p = out.join(name);
+        let f = std::io::BufWriter::new(
+            std::fs::File::create(&p).with_context(|| format!("creating {}", p.display()))?,
+        );
+        rec.write_csv(f)?;
+        println!("wrote {} ({} rows)", p.display(), rec.rows());
+    }
+    let p = out.join("plan.json");
+    std::fs::write(&p, serde_json::to_string_pretty(&plan)?)
+        .with_context(|| format!("writing {}", p.display()))?;
+    println!("wrote {}", p.display());
+    Ok(())
 }
 
 /// Parse `NAME:key=value,...` into an effect specification.
@@ -110,6 +166,9 @@ pub fn parse_effect(s: &str) -> Result<EffectSpec> {
 
 /// Run the subcommand.
 pub fn run(args: SimulateArgs) -> Result<()> {
+    if let Some(which) = args.plan {
+        return run_published(which, args.seed, &args.out);
+    }
     if let TrajectoryKind::PublishedExample = args.trajectory {
         let (train, val) = examples::published_1dof(args.seed);
         std::fs::create_dir_all(&args.out)

@@ -1,4 +1,5 @@
-//! `nanocal validate`: apply a model to another recording as the firmware would; ISO 9283.
+//! `nanocal validate`: apply a model to another recording as the firmware would; ISO 9283 per
+//! test, robustness indices.
 
 use std::path::{Path, PathBuf};
 
@@ -6,23 +7,30 @@ use anyhow::Context;
 use clap::Args;
 use nanocal_model::Model;
 
-use crate::dwell::{dwell_average, DwellOptions, Dwells};
+use crate::device_path::DEVICE_FOLD_PERIOD_S;
+use crate::dwell::DwellOptions;
+use crate::iso9283::TestStats;
 use crate::recording::Recording;
-use crate::validate::{comparison_table, validate, Compensation, ValidationReport};
+use crate::validate::{
+    comparison_table, validate, Compensation, ValidationData, ValidationOptions, ValidationReport,
+};
 
-/// Validate a model blob on a recording: no model, the model as fitted (static), and the model
-/// with its offset re-measured at a reference pose (adaptive KMZ). Prints ISO 9283 accuracy and
-/// repeatability per pose, the maximum over poses (forward and backward separately),
-/// percentiles and the robustness indices R_s, R_t.
+/// Validate a model blob on a recording: no model, the model as fitted (static), and its
+/// geometric part with the offset re-measured at a reference pose (adaptive KMZ, paper 000
+/// Eq. 14). Visits are grouped into tests
+/// of `--cycles-per-test` cycles; per test, ISO 9283 accuracy and repeatability of every pose
+/// (forward and backward approaches separate) and their maxima (paper 000 Eq. 2–7); over the
+/// tests the robustness indices R_s (µm) and R_t (µm/h) of Eq. 20–21.
 #[derive(Args, Debug, Clone)]
 pub struct ValidateArgs {
     /// The model, the recording, and how to validate.
     #[command(flatten)]
     pub inputs: ValidationInputs,
-    /// Also print the per-pose table of each compensation.
+    /// Also print the per-pose table of each compensation's first and worst test.
     #[arg(long)]
     pub per_pose: bool,
-    /// Write the summary as JSON here.
+    /// Write the results as JSON here: per compensation `r_s_um`, `r_t_um_per_h` and every
+    /// test's per-pose Acc and Rep.
     #[arg(long)]
     pub json: Option<PathBuf>,
 }
@@ -37,25 +45,113 @@ pub struct ValidationInputs {
     /// Reference pose for KMZ, µm (one value per axis, comma separated).
     #[arg(long, value_delimiter = ',', default_value = "0")]
     pub reference_pose_um: Vec<f64>,
-    /// Minimum interval between KMZ re-measurements at the reference pose, s.
-    #[arg(long, default_value_t = 3600.0)]
+    /// Minimum interval between KMZ re-measurements at the reference pose, s (paper 000:
+    /// 3.75 h).
+    #[arg(long, default_value_t = 13_500.0)]
     pub kmz_interval_s: f64,
-    /// Average the last this many seconds of each dwell.
-    #[arg(long, default_value_t = 10.0)]
+    /// Average the last this many seconds of each dwell (paper 000: 5 s).
+    #[arg(long, default_value_t = 5.0)]
     pub average_last_s: f64,
+    /// Cycles per test (paper 000: 15); a cycle starts when the command returns to the first
+    /// pose.
+    #[arg(long, default_value_t = 15)]
+    pub cycles_per_test: usize,
+    /// The device's fold period, s (STM32 board: 0.25).
+    #[arg(long, default_value_t = DEVICE_FOLD_PERIOD_S)]
+    pub fold_period_s: f64,
+    /// `Time` of R_t (Eq. 21), h; default: from the start of the first test to the end of the
+    /// last.
+    #[arg(long)]
+    pub time_h: Option<f64>,
+    /// The plan the recording followed (JSON, e.g. from `nanocal simulate --plan`): its steps
+    /// make the visits (step times = the recording's `t`), its tests and their compensations
+    /// the statistics, its KMZ steps the re-measurements (instead of cycles and intervals).
+    #[arg(long)]
+    pub plan: Option<PathBuf>,
 }
 
 impl ValidationInputs {
-    /// Reads the model and the recording's dwells, and validates three ways: no model, static,
-    /// adaptive KMZ.
-    pub fn validate_three_ways(&self) -> anyhow::Result<(Dwells, [ValidationReport; 3])> {
+    /// Reads the model and the recording, and validates three ways: no model, static, adaptive
+    /// KMZ.
+    pub fn validate_three_ways(&self) -> anyhow::Result<(ValidationData, [ValidationReport; 3])> {
         let model = read_model(&self.model)?;
-        let d = read_dwells(&self.recording, self.average_last_s)?;
-        let bar = spinner("validating: no model, static, adaptive KMZ");
-        let reports = three_ways(&model, &d, &self.reference_pose_um, self.kmz_interval_s)?;
+        let bar = spinner(format!("reading {}", self.recording.display()));
+        let rec = Recording::read_path(&self.recording)?;
         bar.finish_and_clear();
-        Ok((d, reports))
+        if let Some(path) = &self.plan {
+            return self.validate_plan(&model, &rec, path);
+        }
+        let data = ValidationData::from_recording(
+            &rec,
+            &DwellOptions {
+                average_last_s: self.average_last_s,
+                ..Default::default()
+            },
+        )
+        .with_context(|| format!("{}", self.recording.display()))?;
+        let opts = ValidationOptions {
+            fold_period_s: self.fold_period_s,
+            cycles_per_test: self.cycles_per_test,
+            time_h: self.time_h,
+        };
+        let bar = spinner("validating: no model, static, adaptive KMZ");
+        let kmz = Compensation::Adaptive {
+            reference_um: self.reference_pose_um.clone(),
+            interval_s: self.kmz_interval_s,
+        };
+        let reports = [
+            validate(None, &data, &Compensation::None, &opts)?,
+            validate(Some(&model), &data, &Compensation::Static, &opts)?,
+            validate(Some(&adaptive(&model)?), &data, &kmz, &opts)?,
+        ];
+        bar.finish_and_clear();
+        Ok((data, reports))
     }
+}
+
+impl ValidationInputs {
+    /// Validates as the plan at `path` says: the validation steps of its schedule, each test with
+    /// the compensation the plan gave it (tests of other compensations are left out of that
+    /// compensation's statistics), KMZ at its KMZ steps.
+    fn validate_plan(
+        &self,
+        model: &Model,
+        rec: &Recording,
+        path: &Path,
+    ) -> anyhow::Result<(ValidationData, [ValidationReport; 3])> {
+        use crate::plan::{Phase, Plan, TestKind};
+        use crate::procedure::ProcedureData;
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let plan: Plan = serde_json::from_str(&text)
+            .with_context(|| format!("{}: not a plan", path.display()))?;
+        let steps: Vec<_> = plan
+            .schedule()
+            .into_iter()
+            .filter(|s| s.phase != Phase::Training)
+            .collect();
+        let data = ProcedureData::new(rec, &steps, 0.0).with_context(|| {
+            format!(
+                "{} does not follow the validation of {}",
+                self.recording.display(),
+                path.display()
+            )
+        })?;
+        let kmz = plan.validation.kmz.as_ref();
+        let p = self.fold_period_s;
+        let reports = [
+            data.validate(TestKind::NoModel, None, kmz, p)?,
+            data.validate(TestKind::Static, Some(model), kmz, p)?,
+            data.validate(TestKind::Adaptive, Some(&adaptive(model)?), kmz, p)?,
+        ];
+        Ok((data.data, reports))
+    }
+}
+
+/// The adaptive model of paper 000's Eq. 14 from a fitted blob: its geometric part + λ_KMZ.
+fn adaptive(model: &Model) -> anyhow::Result<Model> {
+    crate::fit::adaptive_from_static(model)
+        .map_err(|e| anyhow::anyhow!("building the adaptive model (Eq. 14): {e:?}"))
 }
 
 /// A spinner on stderr for long work (indicatif hides it when stderr is not a terminal).
@@ -73,106 +169,85 @@ pub fn read_model(path: &Path) -> anyhow::Result<Model> {
         .map_err(|e| anyhow::anyhow!("{}: not a valid model blob: {e}", path.display()))
 }
 
-/// Reads a recording and averages its dwells.
-fn read_dwells(path: &Path, average_last_s: f64) -> anyhow::Result<Dwells> {
-    let bar = spinner(format!("reading {}", path.display()));
-    let rec = Recording::read_path(path)?;
-    bar.finish_and_clear();
-    let d = dwell_average(
-        &rec,
-        &DwellOptions {
-            average_last_s,
-            ..Default::default()
-        },
-    )
-    .with_context(|| format!("{}", path.display()))?;
-    Ok(d)
-}
-
-/// The three validations (no model, static, adaptive KMZ) of `model` on `d`.
-fn three_ways(
-    model: &Model,
-    d: &Dwells,
-    reference_um: &[f64],
-    interval_s: f64,
-) -> anyhow::Result<[ValidationReport; 3]> {
-    Ok([
-        validate(None, d, &Compensation::None)?,
-        validate(Some(model), d, &Compensation::Static)?,
-        validate(
-            Some(model),
-            d,
-            &Compensation::Adaptive {
-                reference_um: reference_um.to_vec(),
-                interval_s,
-            },
-        )?,
-    ])
-}
-
-/// Per-pose table (nm).
-pub fn per_pose_table(r: &ValidationReport) -> String {
+/// Per-pose table of one test (nm).
+pub fn per_pose_table(name: &str, t: &TestStats) -> String {
     use std::fmt::Write;
-    let mut s = format!("{} — per pose (nm):\n", r.compensation.name());
+    let mut s = format!(
+        "{name} — test {} ({:.2}–{:.2} h), per pose (nm):\n",
+        t.index + 1,
+        t.t_start_s / 3600.0,
+        t.t_end_s / 3600.0
+    );
     let _ = writeln!(
         s,
-        "{:>12} {:>6} {:>10} {:>10} {:>10} {:>10}",
-        "target_um", "n", "Acc", "Rep", "Acc_fwd", "Acc_bwd"
+        "{:>14} {:>9} {:>5} {:>9} {:>9}",
+        "target_um", "approach", "n", "Acc", "Rep"
     );
-    for p in &r.poses {
-        let find = |v: &[crate::iso9283::PoseStats]| {
-            v.iter()
-                .find(|q| q.target_um == p.target_um)
-                .map_or(f64::NAN, |q| q.accuracy_um * 1e3)
+    for p in &t.poses {
+        let approach = match p.approach.first() {
+            Some(d) if *d > 0 => "forward",
+            Some(d) if *d < 0 => "backward",
+            _ => "-",
         };
         let _ = writeln!(
             s,
-            "{:>12} {:>6} {:>10.1} {:>10.1} {:>10.1} {:>10.1}",
+            "{:>14} {:>9} {:>5} {:>9.1} {:>9.1}",
             p.target_um
                 .iter()
                 .map(|v| format!("{v}"))
                 .collect::<Vec<_>>()
                 .join(","),
+            approach,
             p.n,
             p.accuracy_um * 1e3,
             p.repeatability_um * 1e3,
-            find(&r.forward),
-            find(&r.backward)
         );
     }
     s
 }
 
-/// The summary of one validation as JSON (µm).
-pub fn report_json(r: &ValidationReport) -> serde_json::Value {
-    let poses: Vec<serde_json::Value> = r
+/// One test as JSON (µm).
+pub fn test_json(t: &TestStats) -> serde_json::Value {
+    let poses: Vec<serde_json::Value> = t
         .poses
         .iter()
         .map(|p| {
-            serde_json::json!({"target_um": p.target_um, "n": p.n, "accuracy_um": p.accuracy_um,
-            "repeatability_um": p.repeatability_um, "mean_error_um": p.mean_error_um})
+            serde_json::json!({"target_um": p.target_um, "approach": p.approach, "n": p.n,
+            "accuracy_um": p.accuracy_um, "repeatability_um": p.repeatability_um,
+            "mean_error_um": p.mean_error_um})
         })
         .collect();
+    serde_json::json!({"test": t.index, "t_start_s": t.t_start_s, "t_end_s": t.t_end_s,
+        "accuracy_um": t.accuracy_um, "repeatability_um": t.repeatability_um, "poses": poses})
+}
+
+/// The results of one validation as JSON (µm, µm/h).
+pub fn report_json(r: &ValidationReport) -> serde_json::Value {
     let d = &r.distribution;
+    let m = &r.summary;
     serde_json::json!({
         "compensation": r.compensation.name(),
-        "max_accuracy_um": r.max_um.0, "max_repeatability_um": r.max_um.1,
-        "max_accuracy_forward_um": r.max_forward_um.0, "max_accuracy_backward_um": r.max_backward_um.0,
-        "max_repeatability_forward_um": r.max_forward_um.1, "max_repeatability_backward_um": r.max_backward_um.1,
-        "rms_um": d.rms_um, "p50_um": d.p50_um, "p90_um": d.p90_um, "p95_um": d.p95_um, "max_um": d.max_um,
-        "normal90_um": d.normal90_um, "r_s": r.r_s, "r_t": r.r_t, "tests": r.tests, "visits": d.n,
+        "r_s_um": r.r_s_um, "r_t_um_per_h": r.r_t_um_per_h, "time_h": r.time_h,
+        "first_test_accuracy_um": m.first_acc_um, "median_test_accuracy_um": m.median_acc_um,
+        "max_test_accuracy_um": m.max_acc_um, "min_test_accuracy_um": m.min_acc_um,
+        "median_test_repeatability_um": m.median_rep_um, "max_test_repeatability_um": m.max_rep_um,
+        "max_test_accuracy_forward_um": m.max_acc_forward_um,
+        "max_test_accuracy_backward_um": m.max_acc_backward_um,
+        "visits": d.n, "rms_um": d.rms_um, "p90_um": d.p90_um, "max_um": d.max_um,
         "kmz_updates": r.kmz_updates, "outside_envelope_visits": r.outside_envelope,
-        "inverse_failures": r.inverse_failures, "poses": poses,
+        "inverse_failures": r.inverse_failures,
+        "tests": r.tests.iter().map(test_json).collect::<Vec<_>>(),
     })
 }
 
 /// Runs `nanocal validate`.
 pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
-    let (d, reports) = args.inputs.validate_three_ways()?;
+    let (data, reports) = args.inputs.validate_three_ways()?;
     println!(
-        "{} dwells, {} tests, KMZ re-measured {} times at {:?} µm",
-        d.len(),
-        reports[2].tests,
+        "{} dwells, {} tests of {} cycles, KMZ re-measured {} times at {:?} µm",
+        data.dwells.len(),
+        reports[0].tests.len(),
+        args.inputs.cycles_per_test,
         reports[2].kmz_updates,
         args.inputs.reference_pose_um
     );
@@ -188,7 +263,13 @@ pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
     }
     if args.per_pose {
         for r in &reports {
-            print!("{}", per_pose_table(r));
+            let worst = r
+                .tests
+                .iter()
+                .max_by(|a, b| a.accuracy_um.total_cmp(&b.accuracy_um));
+            for t in r.tests.first().into_iter().chain(worst) {
+                print!("{}", per_pose_table(r.compensation.name(), t));
+            }
         }
     }
     if let Some(path) = &args.json {

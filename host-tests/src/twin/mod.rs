@@ -7,7 +7,9 @@
 //! of switchable physical effects from [`crate::effects`]. An interferometer with noise (and
 //! optional effects of its own) measures the position. Everything is deterministic from a seed.
 
+pub mod delta;
 pub mod examples;
+pub mod execute;
 pub mod room;
 pub mod trajectory;
 
@@ -15,9 +17,9 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::effects::{lag_series, EffectSpec};
+use crate::effects::EffectSpec;
 use crate::recording::{Recording, RecordingError};
-pub use room::{Room, RoomConfig, SensorConfig};
+pub use room::{Ramp, Room, RoomConfig, SensorConfig};
 pub use trajectory::{Dwell, Trajectory};
 
 /// Axis names used for columns (`cmd_x`, `meas_x`, …).
@@ -45,7 +47,8 @@ pub struct TwinConfig {
     pub temp_ref_c: f64,
     /// The room.
     pub room: RoomConfig,
-    /// The temperature sensors (one `temp_` column each).
+    /// The spots whose temperature drives the stage, each read by a sensor (one `temp_`
+    /// column) unless it is unsensed.
     pub sensors: Vec<SensorConfig>,
     /// Positioning scatter: a fresh random offset per move, nm (1 σ).
     pub positioning_sigma_nm: f64,
@@ -226,32 +229,9 @@ impl Twin {
                 dir[a][k] = d;
             }
         }
-        // Room, spots (each follows the room air through its own lag, from a settled start).
-        let air: Vec<f64> = t_abs_s.iter().map(|&t| self.room.air_c(t)).collect();
-        let warm_start = |s: &SensorConfig| {
-            // settle the lag over the preceding 5 τ (coarse steps) so a recording starts settled
-            let t0 = start_s - 5.0 * s.tau_s;
-            let m = 200;
-            let mut y = self.room.air_c(t0);
-            for i in 1..=m {
-                let t = t0 + (start_s - t0) * i as f64 / m as f64;
-                let a = 1.0 - (-(5.0 * s.tau_s / m as f64) / s.tau_s).exp();
-                y += a * (self.room.air_c(t) - y);
-            }
-            y
-        };
-        let spot_c: Vec<Vec<f64>> = cfg
-            .sensors
-            .iter()
-            .map(|s| {
-                let y0 = warm_start(s);
-                let lagged = lag_series(&t_s, &air, s.tau_s, Some(y0));
-                lagged
-                    .iter()
-                    .map(|&v| cfg.room.mean_c + s.offset_c + s.gain * (v - cfg.room.mean_c))
-                    .collect()
-            })
-            .collect();
+        let spot_c = self
+            .room
+            .spots(&cfg.room, &cfg.sensors, &t_s, &t_abs_s, start_s);
         let pressure_hpa: Vec<f64> = t_abs_s.iter().map(|&t| self.room.pressure_hpa(t)).collect();
 
         // Stage position: command + geometry + thermal drift + positioning scatter.
@@ -325,6 +305,9 @@ impl Twin {
             columns.push((format!("meas_{}", AXIS_NAMES[a]), m));
         }
         for (s, spot) in cfg.sensors.iter().zip(&ctx.spot_c) {
+            if !s.recorded {
+                continue;
+            }
             let read = spot
                 .iter()
                 .map(|&v| room::quantize(v + s.noise_c * normal(&mut rng), s.resolution_c))

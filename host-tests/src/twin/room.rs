@@ -6,6 +6,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::normal;
+use crate::effects::lag_series;
 
 /// The air temperature and pressure of a room, as functions of absolute time.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -28,6 +29,35 @@ pub struct RoomConfig {
     pub pressure_mean_hpa: f64,
     /// Amplitude of weather pressure changes, hPa.
     pub pressure_amplitude_hpa: f64,
+    /// Planned changes of the room temperature (e.g. paper 000 Fig. 13: 1.3 °C over the last
+    /// two days of validation).
+    #[serde(default)]
+    pub ramps: Vec<Ramp>,
+}
+
+/// A linear change of the room temperature by `delta_c` from `start_s` over `duration_s`
+/// (absolute time), held afterwards.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Ramp {
+    /// Start, s (absolute time).
+    pub start_s: f64,
+    /// Duration, s (0: a step).
+    pub duration_s: f64,
+    /// Change, °C.
+    pub delta_c: f64,
+}
+
+impl Ramp {
+    /// The change at absolute time `t_s`, °C.
+    pub fn at(&self, t_s: f64) -> f64 {
+        if t_s <= self.start_s {
+            0.0
+        } else if self.duration_s <= 0.0 || t_s >= self.start_s + self.duration_s {
+            self.delta_c
+        } else {
+            self.delta_c * (t_s - self.start_s) / self.duration_s
+        }
+    }
 }
 
 impl Default for RoomConfig {
@@ -42,6 +72,7 @@ impl Default for RoomConfig {
             trend_c_per_day: 0.0,
             pressure_mean_hpa: 1013.25,
             pressure_amplitude_hpa: 6.0,
+            ramps: Vec::new(),
         }
     }
 }
@@ -61,6 +92,14 @@ pub struct SensorConfig {
     pub noise_c: f64,
     /// Reading resolution, °C (0 = none).
     pub resolution_c: f64,
+    /// Whether a sensor reads this spot (a `temp_` column); an unsensed spot still drives the
+    /// stage through its thermal coefficients — a part of the structure no sensor is on.
+    #[serde(default = "recorded_by_default")]
+    pub recorded: bool,
+}
+
+fn recorded_by_default() -> bool {
+    true
 }
 
 impl SensorConfig {
@@ -73,6 +112,15 @@ impl SensorConfig {
             gain,
             noise_c: 0.002,
             resolution_c: 0.001,
+            recorded: true,
+        }
+    }
+
+    /// A spot with the same thermal behaviour that no sensor reads.
+    pub fn unsensed(name: &str, offset_c: f64, tau_s: f64, gain: f64) -> Self {
+        Self {
+            recorded: false,
+            ..Self::new(name, offset_c, tau_s, gain)
         }
     }
 }
@@ -128,7 +176,45 @@ impl Room {
         };
         let hvac = c.hvac_amplitude_c * tri;
         let steps: f64 = self.steps.iter().filter(|s| s.0 <= t_s).map(|s| s.1).sum();
-        c.mean_c + daily + hvac + steps + c.trend_c_per_day * t_s / 86_400.0
+        let ramps: f64 = c.ramps.iter().map(|r| r.at(t_s)).sum();
+        c.mean_c + daily + hvac + steps + ramps + c.trend_c_per_day * t_s / 86_400.0
+    }
+
+    /// True temperature of each spot at the samples `t_s` (absolute times `t_abs_s`, starting at
+    /// `start_s`), °C: each follows the room air through its own first-order lag, settled over
+    /// the 5 τ before the start, seen with its gain around the room mean plus its offset.
+    pub fn spots(
+        &self,
+        cfg: &RoomConfig,
+        sensors: &[SensorConfig],
+        t_s: &[f64],
+        t_abs_s: &[f64],
+        start_s: f64,
+    ) -> Vec<Vec<f64>> {
+        let air: Vec<f64> = t_abs_s.iter().map(|&t| self.air_c(t)).collect();
+        let warm_start = |s: &SensorConfig| {
+            // settle the lag over the preceding 5 τ (coarse steps) so a recording starts settled
+            let t0 = start_s - 5.0 * s.tau_s;
+            let m = 200;
+            let mut y = self.air_c(t0);
+            for i in 1..=m {
+                let t = t0 + (start_s - t0) * i as f64 / m as f64;
+                let a = 1.0 - (-(5.0 * s.tau_s / m as f64) / s.tau_s).exp();
+                y += a * (self.air_c(t) - y);
+            }
+            y
+        };
+        sensors
+            .iter()
+            .map(|s| {
+                let y0 = warm_start(s);
+                let lagged = lag_series(t_s, &air, s.tau_s, Some(y0));
+                lagged
+                    .iter()
+                    .map(|&v| cfg.mean_c + s.offset_c + s.gain * (v - cfg.mean_c))
+                    .collect()
+            })
+            .collect()
     }
 
     /// Barometric pressure at absolute time `t_s`, hPa.

@@ -252,8 +252,8 @@ enum LongLine {
 /// Its entry points ([`host_bytes`](Proxy::host_bytes), [`stage_bytes`](Proxy::stage_bytes),
 /// [`poll`](Proxy::poll)) take the firmware's corrector, [`FoldCorrector`]; inside, the proxy
 /// is written against the [`Corrector`] contract. Being concrete, the entry points and
-/// everything they call are compiled in this crate, at its optimisation level (speed), not in
-/// the firmware's (built for size): the MOV line costs ≈ 100 instructions less.
+/// everything they call are compiled once, in this crate and at its optimisation level
+/// (`Cargo.toml`), not instantiated again in the firmware's.
 ///
 /// `Proxy` dereferences to its [`ProxyState`] (bypass, gate, counters, targets), so the state
 /// reads as the proxy's own fields; the split only lets a line be processed where it was

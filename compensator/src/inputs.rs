@@ -24,6 +24,8 @@ pub struct Board {
     pub barometer: bool,
     /// ADC channels that exist on this board (bit per channel).
     pub adc_channels: u32,
+    /// Chip-select lines wired for temperature amplifiers (chip-selects `0..chip_selects`).
+    pub chip_selects: u8,
 }
 
 /// Why a model cannot run on this board.
@@ -55,6 +57,12 @@ pub enum InputError {
         /// ADC channel.
         channel: u8,
     },
+    /// The model reads temperature `index` and an amplifier is configured on that
+    /// chip-select, but the board has no such chip-select line wired.
+    NoChipSelect {
+        /// Temperature input index.
+        index: u8,
+    },
     /// Aux input `index` is evaluated per command (fast) but its source is not sampled fast
     /// (only ADC channels are; the barometer is read once per sample period).
     NotFast {
@@ -83,6 +91,10 @@ impl fmt::Display for InputError {
                 f,
                 "aux input {index} is force on ADC channel {channel}, which this board lacks"
             ),
+            InputError::NoChipSelect { index } => write!(
+                f,
+                "model reads temperature {index} but this board wires no chip-select {index}"
+            ),
             InputError::NotFast { index } => write!(
                 f,
                 "aux input {index} is evaluated per command but its source is not an ADC \
@@ -101,6 +113,7 @@ impl InputError {
             InputError::NoBarometer { index } => 0x30 | (index & 0x0F),
             InputError::NoAdcChannel { index, .. } => 0x40 | (index & 0x0F),
             InputError::NotFast { index } => 0x50 | (index & 0x0F),
+            InputError::NoChipSelect { index } => 0x60 | (index & 0x0F),
         }
     }
 }
@@ -138,6 +151,9 @@ pub fn check(model: &Model, settings: &Settings, board: &Board) -> Result<(), In
     for i in 0..model.temps() {
         if settings.sensors.get(i).copied().flatten().is_none() {
             return Err(InputError::NoTemperatureSensor { index: i as u8 });
+        }
+        if i >= usize::from(board.chip_selects) {
+            return Err(InputError::NoChipSelect { index: i as u8 });
         }
     }
     for i in 0..model.aux() {

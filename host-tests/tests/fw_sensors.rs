@@ -410,12 +410,38 @@ fn settings_of_layout_1_still_decode() {
     assert!(Settings::decode(&v3).is_err());
 }
 
+/// A model with more temperatures than the board has chip-select lines is refused at upload
+/// (the STM32 board wires four), even with amplifiers configured for all of them.
+#[test]
+fn a_model_needing_more_chip_selects_than_wired_is_refused() {
+    let model = nanocal_model::reference::delta_robot_78().unwrap();
+    let mut s = Settings::default();
+    for slot in s.sensors.iter_mut().take(model.temps()) {
+        *slot = Some(Chip::K);
+    }
+    let stm32 = Board {
+        barometer: true,
+        adc_channels: 1,
+        chip_selects: 4,
+    };
+    let e = inputs::check(&model, &s, &stm32).unwrap_err();
+    assert_eq!(e, InputError::NoChipSelect { index: 4 });
+    assert_eq!(e.code(), 0x64);
+    assert!(e.to_string().contains("no chip-select 4"), "{e}");
+    let sixteen = Board {
+        chip_selects: 16,
+        ..stm32
+    };
+    assert_eq!(inputs::check(&model, &s, &sixteen), Ok(()));
+}
+
 #[test]
 fn a_model_using_an_input_the_board_cannot_supply_is_refused() {
     let model = nanocal::published::published_1dof().unwrap();
     let board = Board {
         barometer: true,
         adc_channels: 1,
+        chip_selects: 4,
     };
     let mut s = Settings::default();
     assert_eq!(
@@ -446,6 +472,7 @@ fn a_model_using_an_input_the_board_cannot_supply_is_refused() {
     let no_baro = Board {
         barometer: false,
         adc_channels: 1,
+        chip_selects: 4,
     };
     assert_eq!(
         inputs::check(&aux_model, &s2, &no_baro),

@@ -51,6 +51,8 @@ pub trait InputBus {
     async fn adc(&mut self, channel: u8) -> Result<u16, ()>;
     /// ADC channels the board has (bit per channel).
     fn adc_channels(&self) -> u32;
+    /// Chip-select lines wired for temperature amplifiers (`0..n`).
+    fn chip_selects(&self) -> u8;
 }
 
 /// The source of every aux input: the model's (see [`inputs::aux_source`]) while a model is in
@@ -238,11 +240,15 @@ async fn slow_cycle<B: InputBus>(bus: &SharedBus<B>, timeout: Duration, sh: &Sha
     let mut settings = sh.settings.lock(|s| *s.borrow());
     let mut drv = drivers(&settings);
     let barometer = Baro::probe(bus, timeout).await;
-    let adc_channels = bus.lock().await.adc_channels();
+    let (adc_channels, chip_selects) = {
+        let bus = bus.lock().await;
+        (bus.adc_channels(), bus.chip_selects())
+    };
     sh.board.lock(|b| {
         let mut b = b.borrow_mut();
         b.barometer = barometer;
         b.adc_channels = adc_channels;
+        b.chip_selects = chip_selects;
     });
     info!("barometer: {=bool}", barometer);
     let mut baro = Baro::default();

@@ -252,6 +252,11 @@ impl InputBus for Buses {
     fn adc_channels(&self) -> u32 {
         1
     }
+
+    fn chip_selects(&self) -> u8 {
+        // D10, D9, D8, D7 (see `main`)
+        self.cs.len() as u8
+    }
 }
 
 // ---------------------------------------------------------------- USB

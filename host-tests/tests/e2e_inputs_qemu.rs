@@ -13,52 +13,16 @@ mod device_models;
 mod fw_sim;
 
 use device_models::{force_model, hysteresis_model, slow, TEMP_C, WALK_UM};
-use fw_sim::{Qemu, SensorSim, StageSim};
+use fw_sim::{next_move, stage_value, wait_until, Qemu, SensorSim, StageSim};
 use nanocal_compensator::mgmt::flags;
 use nanocal_compensator::settings::AuxSource;
 use nanocal_model::{blob, HysteresisState, Model, MAX_AXES};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// The device's f32 fast path (δ in f32, command x + δ in integer micros) against the f64
 /// reference along a hysteresis walk on a 480 µm stroke: 0.1 nm, the bound issue 11 sets for
 /// the fast path (the f32 rounding of δ and of the operators' outputs is ~ 0.03 nm here).
 const WALK_TOLERANCE_UM: f64 = 1e-4;
-
-fn wait_until<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<T>) -> T {
-    let deadline = Instant::now() + timeout;
-    loop {
-        if let Some(v) = f() {
-            return v;
-        }
-        assert!(Instant::now() < deadline, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
-
-/// The value of `axis` in a forwarded `MOV` line.
-fn stage_value(line: &str, axis: &str) -> f64 {
-    let t: Vec<&str> = line.split_whitespace().collect();
-    assert_eq!(t.first(), Some(&"MOV"), "forwarded line {line:?}");
-    let i = t
-        .iter()
-        .position(|a| *a == axis)
-        .unwrap_or_else(|| panic!("axis {axis} in {line:?}"));
-    t[i + 1].parse().unwrap()
-}
-
-/// The next `MOV` the controller receives (the first move's `CSV?`/`PUN?` queries skipped).
-fn next_move(stage: &StageSim) -> String {
-    loop {
-        let line = stage.next_line(Duration::from_secs(10));
-        if line.starts_with("MOV") {
-            return line;
-        }
-        assert!(
-            line == "CSV?" || line.starts_with("PUN?"),
-            "unexpected line before the move: {line:?}"
-        );
-    }
-}
 
 fn upload(c: &mut nanocal::device::Client, model: &Model) {
     let mut b = vec![0u8; blob::MAX_BLOB_LEN];

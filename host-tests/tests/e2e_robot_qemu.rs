@@ -7,7 +7,7 @@
 
 mod fw_sim;
 
-use fw_sim::{Qemu, SensorSim, StageSim};
+use fw_sim::{next_move, wait_until, Qemu, SensorSim, StageSim};
 use nanocal::design::DesignSpec;
 use nanocal::fit::{fit_dwells, FitOptions, Selection};
 use nanocal::plan::Plan;
@@ -19,7 +19,7 @@ use nanocal_compensator::mgmt::flags;
 use nanocal_compensator::sensor::Chip;
 use nanocal_model::reference::{delta_robot_78, ROBOT_HALF_STROKE_UM, ROBOT_TEMPS};
 use nanocal_model::{blob, Model, SlowInputs, MAX_AXES};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 #[test]
 fn e2e_robot_model_under_qemu() {
@@ -123,26 +123,15 @@ fn run_under_qemu(
     let mut b = vec![0u8; blob::MAX_BLOB_LEN];
     let n = blob::encode(model, &mut b).unwrap();
     c.upload(&b[..n]).expect("the robot model is accepted");
-    let deadline = Instant::now() + Duration::from_secs(30);
-    loop {
-        let s = c.status().unwrap();
-        if s.flags & flags::MODEL != 0 && s.flags & flags::SENSOR_BLOCK == 0 && s.folds >= 2 {
-            break;
-        }
-        assert!(Instant::now() < deadline, "sensors never ready: {s:?}");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wait_until("sensors ready", Duration::from_secs(30), || {
+        let s = c.status().ok()?;
+        (s.flags & flags::MODEL != 0 && s.flags & flags::SENSOR_BLOCK == 0 && s.folds >= 2)
+            .then_some(())
+    });
     let mut worst_nm = 0.0f64;
     for x in poses {
         host.send(&format!("MOV 1 {} 2 {} 3 {}", x[0], x[1], x[2]));
-        // the first move waits for the controller's CSV? and PUN? answers
-        let line = loop {
-            let l = stage.next_line(Duration::from_secs(10));
-            if l.starts_with("MOV") {
-                break l;
-            }
-            assert!(l == "CSV?" || l.starts_with("PUN?"), "{l:?}");
-        };
+        let line = next_move(&stage);
         let want = model.eval_f64(x, &[0; MAX_AXES], &slow);
         let t: Vec<&str> = line.split_whitespace().collect();
         for (a, axis) in ["1", "2", "3"].iter().enumerate() {

@@ -118,6 +118,22 @@ impl InputError {
     }
 }
 
+/// What a management-protocol input code ([`InputError::code`]) says, for a host to print: the
+/// input it names and why it cannot be supplied. `None` for a code no [`InputError`] gives.
+pub fn describe_code(code: u8) -> Option<(&'static str, u8)> {
+    let index = code & 0x0F;
+    let what = match code >> 4 {
+        1 => "temperature input with no amplifier configured on its chip-select",
+        2 => "aux input with no source (configure a force channel, or map it with --aux)",
+        3 => "air-pressure input, and the board's barometer does not answer",
+        4 => "force input on an ADC channel the board lacks",
+        5 => "per-command (fast) aux input whose source is not an ADC channel",
+        6 => "temperature input on a chip-select the board does not wire",
+        _ => return None,
+    };
+    Some((what, index))
+}
+
 /// The source of aux input `index` of `model`. The one place that decides it: air pressure is
 /// the board's barometer; a force is the settings' force channel at that index, else the only
 /// force channel the settings configure; an input of kind "other" (or of a blob that names no

@@ -222,6 +222,12 @@ fn e2e_model_inputs_must_be_supplied() {
         ),
         "{e}"
     );
+    // the message names the input and the reason
+    assert!(
+        e.to_string()
+            .contains(": input 0, aux input with no source"),
+        "{e}"
+    );
     assert_eq!(
         c.status().unwrap().flags & flags::MODEL,
         0,

@@ -428,6 +428,15 @@ fn a_model_needing_more_chip_selects_than_wired_is_refused() {
     assert_eq!(e, InputError::NoChipSelect { index: 4 });
     assert_eq!(e.code(), 0x64);
     assert!(e.to_string().contains("no chip-select 4"), "{e}");
+    // what a host prints for the code the device sends
+    assert_eq!(
+        inputs::describe_code(e.code()),
+        Some((
+            "temperature input on a chip-select the board does not wire",
+            4
+        ))
+    );
+    assert_eq!(inputs::describe_code(0x05), None);
     let sixteen = Board {
         chip_selects: 16,
         ..stm32

@@ -76,6 +76,10 @@ const ECCR_ECCD: u32 = 1 << 31;
 /// Set by the NMI handler when a flash read hit a double ECC error.
 static ECC_ERROR: AtomicBool = AtomicBool::new(false);
 
+/// True until the executor runs the tasks: the store's flash waits spin instead of awaiting a
+/// timer (embassy-time's timers need an executor task; at start-up nothing else runs).
+static BOOTING: AtomicBool = AtomicBool::new(true);
+
 fn reg(a: usize) -> u32 {
     // SAFETY: FLASH controller register, 32-bit access.
     unsafe { read_volatile(a as *const u32) }
@@ -132,6 +136,9 @@ impl L4Flash {
 
     async fn wait_idle(poll_us: u64) -> Result<(), FlashError> {
         while reg(FLASH_SR) & SR_BSY != 0 {
+            if BOOTING.load(Ordering::Relaxed) {
+                continue;
+            }
             if poll_us == 0 {
                 embassy_futures::yield_now().await;
             } else {
@@ -244,6 +251,11 @@ impl InputBus for Buses {
 
     fn adc_channels(&self) -> u32 {
         1
+    }
+
+    fn chip_selects(&self) -> u8 {
+        // D10, D9, D8, D7 (see `main`)
+        self.cs.len() as u8
     }
 }
 
@@ -403,7 +415,10 @@ async fn main(spawner: Spawner) {
     );
 
     let store = STORE.init(Store::new(L4Nor::new(L4Flash)));
-    let settings = app::load_settings(store).await;
+    // polled here before any task runs (flash waits spin meanwhile, see `BOOTING`), so the main
+    // task's future does not keep the store's read state for ever
+    let settings = embassy_futures::block_on(app::load_settings(store));
+    BOOTING.store(false, Ordering::Relaxed);
     let sh: &'static Shared = SHARED.init(Shared::new(
         settings,
         Identity {

@@ -95,4 +95,9 @@ impl<R: Read, W: Write> InputBus for SerialBus<R, W> {
         // the stand-in offers channels 0..4; a channel the host does not simulate times out
         0x0F
     }
+
+    fn chip_selects(&self) -> u8 {
+        // the stand-in serves every chip-select the settings can configure
+        nanocal_compensator::settings::SENSORS as u8
+    }
 }

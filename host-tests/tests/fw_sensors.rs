@@ -411,7 +411,8 @@ fn settings_of_layout_1_still_decode() {
 }
 
 /// A model with more temperatures than the board has chip-select lines is refused at upload
-/// (the STM32 board wires four), even with amplifiers configured for all of them.
+/// (a board with four, as the STM32 board was before it drove 16), even with amplifiers configured
+/// for all of them.
 #[test]
 fn a_model_needing_more_chip_selects_than_wired_is_refused() {
     let model = nanocal_model::reference::delta_robot_78().unwrap();

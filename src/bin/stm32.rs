@@ -40,9 +40,11 @@ bind_interrupts!(struct Irqs {
     DMA1_CHANNEL3 => dma::InterruptHandler<DMA1_CH3>;
 });
 
-/// Chip-selects wired (D10 PA2, D9 PA15, D8 PB2, D7 PA4); settings may name up to 8, the rest
-/// read as absent.
-const CS_PINS: usize = 4;
+/// Chip-selects, one per amplifier, on the Arduino Uno V3 connector's free pins (UM2153's connector
+/// table; the same mapping as Zephyr's disco_l475_iot1 board): D10 PA2, D9 PA15, D8 PB2, D7 PA4, D6 PB1, D5 PB4, D4 PA3, D3 PB0, D2 PD14, A1 PC4, A2 PC3,
+/// A3 PC2, A4 PC1, A5 PC0, D14 PB9, D15 PB8): 16, as many as the settings and the model can
+/// name. D0/D1 are the stage link, D11–D13 SPI1, A0 the force input.
+const CS_PINS: usize = 16;
 /// The store: the last 64 KiB of flash (bank 2, pages 224..255), excluded from FLASH in
 /// memory.x.
 const STORE_BASE: u32 = 0x080F_0000;
@@ -254,7 +256,7 @@ impl InputBus for Buses {
     }
 
     fn chip_selects(&self) -> u8 {
-        // D10, D9, D8, D7 (see `main`)
+        // see `CS_PINS`
         self.cs.len() as u8
     }
 }
@@ -510,6 +512,18 @@ async fn main(spawner: Spawner) {
         Output::new(p.PA15, Level::High, Speed::Low), // D9
         Output::new(p.PB2, Level::High, Speed::Low),  // D8
         Output::new(p.PA4, Level::High, Speed::Low),  // D7
+        Output::new(p.PB1, Level::High, Speed::Low),  // D6
+        Output::new(p.PB4, Level::High, Speed::Low),  // D5 (NJTRST at reset; SWD does not use it)
+        Output::new(p.PA3, Level::High, Speed::Low),  // D4
+        Output::new(p.PB0, Level::High, Speed::Low),  // D3
+        Output::new(p.PD14, Level::High, Speed::Low), // D2
+        Output::new(p.PC4, Level::High, Speed::Low),  // A1
+        Output::new(p.PC3, Level::High, Speed::Low),  // A2
+        Output::new(p.PC2, Level::High, Speed::Low),  // A3
+        Output::new(p.PC1, Level::High, Speed::Low),  // A4
+        Output::new(p.PC0, Level::High, Speed::Low),  // A5
+        Output::new(p.PB9, Level::High, Speed::Low),  // D14
+        Output::new(p.PB8, Level::High, Speed::Low),  // D15
     ];
     let mut i2c_config = i2c::Config::default();
     i2c_config.frequency = Hertz(400_000);

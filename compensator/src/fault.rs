@@ -14,7 +14,7 @@
 use crate::sensor::SensorFault;
 
 /// Most channels the policy tracks (the model's temperature inputs).
-pub const MAX_CHANNELS: usize = 8;
+pub const MAX_CHANNELS: usize = nanocal_model::MAX_TEMPS;
 
 /// Parameters of the fault policy.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -173,21 +173,21 @@ impl Channel {
     }
 }
 
-/// All channels under one policy.
+/// `N` channels under one policy (the temperatures, or the aux inputs).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Faults {
+pub struct Faults<const N: usize = MAX_CHANNELS> {
     /// The policy.
     pub policy: Policy,
     /// The channels.
-    pub channels: [Channel; MAX_CHANNELS],
+    pub channels: [Channel; N],
 }
 
-impl Faults {
+impl<const N: usize> Faults<N> {
     /// All channels unknown.
     pub fn new(policy: Policy) -> Self {
         Self {
             policy,
-            channels: [Channel::default(); MAX_CHANNELS],
+            channels: [Channel::default(); N],
         }
     }
 
@@ -212,7 +212,7 @@ impl Faults {
     /// True when every one of the first `used` channels has a usable value (moves and the
     /// model's lag filters may start).
     pub fn all_usable(&self, used: usize) -> bool {
-        used <= MAX_CHANNELS
+        used <= N
             && self
                 .channels
                 .iter()
@@ -222,6 +222,6 @@ impl Faults {
 
     /// True when any of the first `used` channels blocks moves.
     pub fn blocks_moves(&self, used: usize) -> bool {
-        used > MAX_CHANNELS || self.channels.iter().take(used).any(Channel::blocks_moves)
+        used > N || self.channels.iter().take(used).any(Channel::blocks_moves)
     }
 }

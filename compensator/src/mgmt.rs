@@ -34,8 +34,9 @@ use core::fmt;
 
 /// Protocol version. 2: identity in HELLO/STATUS, settings, reset, input checks, and
 /// [`Status::slow_outside`] widened from u16 to u32 (a model has up to 23 inputs with envelope
-/// bits).
-pub const PROTOCOL: u16 = 2;
+/// bits). 3: 16 temperatures in STATUS ([`STATUS_SENSORS`]), settings layout 2 (16
+/// chip-selects).
+pub const PROTOCOL: u16 = 3;
 /// Frame sync bytes.
 pub const SYNC: [u8; 2] = [0xA7, 0x5C];
 /// Largest payload.
@@ -380,8 +381,8 @@ impl<'a> Writer<'a> {
     }
 }
 
-/// Sensors in a status report.
-pub const STATUS_SENSORS: usize = 8;
+/// Sensors in a status report (every temperature a model can read).
+pub const STATUS_SENSORS: usize = nanocal_model::MAX_TEMPS;
 
 /// Status flags (bit set = condition present).
 pub mod flags {

@@ -7,26 +7,30 @@
 //!         5  stage_baud u32 LE
 //!         9  sensors: SENSORS × { kind u8 (0 none, 1 MAX31856, 2 MAX31865) | a u8 (TC type 0..7
 //!            B E J K N R S T, or RTD wires 2/3/4) | r_ref_ohm f32 | r0_ohm f32 }   (10 bytes each)
-//!        89  mains u8 (50 or 60) | sample_period_ms u16 | stage_unit u8 (0 µm, 1 mm, 2 nm)
-//!        93  axis names: 3 × { len u8 | 8 bytes }                                    (9 bytes each)
-//!       120  aux sources: MAX_AUX × { kind u8 (0 none, 1 air pressure hPa, 2 force N) | channel u8
+//!       169  mains u8 (50 or 60) | sample_period_ms u16 | stage_unit u8 (0 µm, 1 mm, 2 nm)
+//!       173  axis names: 3 × { len u8 | 8 bytes }                                    (9 bytes each)
+//!       200  aux sources: MAX_AUX × { kind u8 (0 none, 1 air pressure hPa, 2 force N) | channel u8
 //!            | scale f32 | offset f32 }                                            (10 bytes each)
-//!       160  crc32 u32 LE (CRC-32/ISO-HDLC of bytes 0..160)
+//!       240  crc32 u32 LE (CRC-32/ISO-HDLC of bytes 0..240)
 //! ```
+//! Version 2 (16 chip-selects: a model has up to 16 temperatures). Version 1 (8 chip-selects,
+//! the same fields, 164 bytes, mains at 89, axes at 93, aux at 120, CRC at 160) still decodes,
+//! with chip-selects 8..15 empty: settings stored by an older firmware survive an update.
 
 use crate::gcs::{AxisId, MAP_AXES};
 use crate::sensor::{Chip, Mains, TcType, Wires};
 use core::fmt;
 use nanocal_model::MAX_AUX;
 
-/// Chip-selects the board has for temperature amplifiers.
-pub const SENSORS: usize = 8;
+/// Chip-selects the settings can configure for temperature amplifiers (one per temperature
+/// input a model can read).
+pub const SENSORS: usize = nanocal_model::MAX_TEMPS;
 /// Settings magic.
 pub const MAGIC: [u8; 4] = *b"NCST";
 /// Layout version; bumped whenever the bytes change.
-pub const VERSION: u8 = 1;
+pub const VERSION: u8 = 2;
 /// Encoded length.
-pub const LEN: usize = 164;
+pub const LEN: usize = Layout::of(SENSORS).len;
 
 /// Unit of the stage controller's positions (the model works in µm).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -151,11 +155,48 @@ impl fmt::Display for SettingsError {
 }
 
 const SENSOR_AT: usize = 9;
-const MAINS_AT: usize = SENSOR_AT + 10 * SENSORS;
-const AXES_AT: usize = MAINS_AT + 4;
-const AUX_AT: usize = AXES_AT + 9 * MAP_AXES;
-const CRC_AT: usize = AUX_AT + 10 * MAX_AUX;
-const _: () = assert!(CRC_AT + 4 == LEN);
+
+/// Where the fields after the sensors sit, for a layout with `sensors` chip-selects.
+struct Layout {
+    sensors: usize,
+    mains_at: usize,
+    axes_at: usize,
+    aux_at: usize,
+    crc_at: usize,
+    len: usize,
+}
+
+impl Layout {
+    const fn of(sensors: usize) -> Layout {
+        let mains_at = SENSOR_AT + 10 * sensors;
+        let axes_at = mains_at + 4;
+        let aux_at = axes_at + 9 * MAP_AXES;
+        let crc_at = aux_at + 10 * MAX_AUX;
+        Layout {
+            sensors,
+            mains_at,
+            axes_at,
+            aux_at,
+            crc_at,
+            len: crc_at + 4,
+        }
+    }
+
+    /// The layout of a record of `version`.
+    fn of_version(version: u8) -> Option<Layout> {
+        match version {
+            1 => Some(Layout::of(8)),
+            VERSION => Some(Layout::of(SENSORS)),
+            _ => None,
+        }
+    }
+}
+
+const NOW: Layout = Layout::of(SENSORS);
+const MAINS_AT: usize = NOW.mains_at;
+const AXES_AT: usize = NOW.axes_at;
+const AUX_AT: usize = NOW.aux_at;
+const CRC_AT: usize = NOW.crc_at;
 
 impl Settings {
     /// Check ranges: baud 1200..=1 Mbaud, period 50 ms..=60 s, resistors positive.
@@ -247,19 +288,21 @@ impl Settings {
         b
     }
 
-    /// Decode and validate.
+    /// Decode (this version's layout, or version 1's) and validate.
     pub fn decode(b: &[u8]) -> Result<Self, SettingsError> {
-        if b.len() != LEN {
+        if b.len() < 5 {
             return Err(SettingsError::Length);
         }
         if b[..4] != MAGIC {
             return Err(SettingsError::Magic);
         }
-        if b[4] != VERSION {
-            return Err(SettingsError::Version(b[4]));
+        let l = Layout::of_version(b[4]).ok_or(SettingsError::Version(b[4]))?;
+        if b.len() != l.len {
+            return Err(SettingsError::Length);
         }
-        let crc = u32::from_le_bytes([b[CRC_AT], b[CRC_AT + 1], b[CRC_AT + 2], b[CRC_AT + 3]]);
-        if crate::crc32(&b[..CRC_AT]) != crc {
+        let c = l.crc_at;
+        let crc = u32::from_le_bytes([b[c], b[c + 1], b[c + 2], b[c + 3]]);
+        if crate::crc32(&b[..c]) != crc {
             return Err(SettingsError::Crc);
         }
         let f32_at = |o: usize| f32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]);
@@ -267,7 +310,7 @@ impl Settings {
             stage_baud: u32::from_le_bytes([b[5], b[6], b[7], b[8]]),
             ..Settings::default()
         };
-        for i in 0..SENSORS {
+        for i in 0..l.sensors {
             let o = SENSOR_AT + 10 * i;
             let bad = SettingsError::Field(o as u16);
             s.sensors[i] = match b[o] {
@@ -288,26 +331,26 @@ impl Settings {
                 _ => return Err(bad),
             };
         }
-        s.mains = match b[MAINS_AT] {
+        s.mains = match b[l.mains_at] {
             50 => Mains::Hz50,
             60 => Mains::Hz60,
-            _ => return Err(SettingsError::Field(MAINS_AT as u16)),
+            _ => return Err(SettingsError::Field(l.mains_at as u16)),
         };
-        s.sample_period_ms = u16::from_le_bytes([b[MAINS_AT + 1], b[MAINS_AT + 2]]);
-        s.stage_unit = match b[MAINS_AT + 3] {
+        s.sample_period_ms = u16::from_le_bytes([b[l.mains_at + 1], b[l.mains_at + 2]]);
+        s.stage_unit = match b[l.mains_at + 3] {
             0 => StageUnit::Um,
             1 => StageUnit::Mm,
             2 => StageUnit::Nm,
-            _ => return Err(SettingsError::Field(MAINS_AT as u16 + 3)),
+            _ => return Err(SettingsError::Field(l.mains_at as u16 + 3)),
         };
         for i in 0..MAP_AXES {
-            let o = AXES_AT + 9 * i;
+            let o = l.axes_at + 9 * i;
             let n = usize::from(b[o]).min(8);
             s.axis_names[i] =
                 AxisId::new(&b[o + 1..o + 1 + n]).ok_or(SettingsError::Field(o as u16))?;
         }
         for i in 0..MAX_AUX {
-            let o = AUX_AT + 10 * i;
+            let o = l.aux_at + 10 * i;
             s.aux[i] = match b[o] {
                 0 => AuxSource::None,
                 1 => AuxSource::AirPressure,

@@ -10,6 +10,14 @@
 //! `fold.correct(x̂) = cmd` to f32 rounding (`tests/validate_device.rs` sends `MOV x̂` through
 //! the compensator's own GCS proxy and gets `cmd` back within 0.1 nm).
 //!
+//! Hysteresis: the device keeps its play operators' memory ([`HysteresisState`]) from command
+//! to command, evaluates each command from it and steps it with the target that went out
+//! (`nanocal_compensator::proxy`, end of `rewrite_move`). The validation does the same with the
+//! same f32 code: `x̂` is the inverse with the memory frozen where the previous command left it,
+//! then the memory is stepped to `x̂`. A dwell of another compensation (an interleaved
+//! schedule) means another model was in service: the memory starts afresh, as the device's
+//! does for a new model. A KMZ re-measurement compares with the model stepped from that memory.
+//!
 //! Adaptive (KMZ, paper 000 §3.4, Eq. 14): at the dwells whose [`Role`] is a KMZ
 //! re-measurement — a plan's KMZ steps, or, in a recording of cycles, a visit of the reference
 //! pose once `interval_s` has passed since the last — λ_KMZ is re-measured
@@ -344,9 +352,15 @@ pub fn validate_roles(
     let mut visits = Vec::new();
     let mut kmz_updates = 0;
     let mut inverse_failures = 0;
+    // the device's play-operator memory, as the commands sent left it
+    let mut hyst = HysteresisState::new();
     for (i, role) in roles.iter().enumerate() {
         let (test, kmz) = match *role {
-            Role::Skip => continue,
+            Role::Skip => {
+                // another model was in service for this dwell: the device's memory restarts
+                hyst.reset();
+                continue;
+            }
             Role::Visit(n) => (n, false),
             Role::Kmz(n) => (n, true),
         };
@@ -359,13 +373,22 @@ pub fn validate_roles(
             x[a] = d.meas_um[a][i];
             dir[a] = d.dir[a][i];
         }
+        // fast inputs as the device reads them with the command
+        let fast = data.sensors.fast_at(d.t_start_s[i]);
+        let q32 = q.map(|v| v as f32);
         let mut kmz_reference = false;
         if kmz {
             match (comp, model.as_mut()) {
                 (Compensation::Adaptive { .. }, Some(m))
                     if x[..k].iter().all(|v| v.is_finite()) =>
                 {
-                    m.set_kmz_from_reference(&q, &x, &dir, &slow);
+                    // the reference move went out with the fold in force before the update
+                    let before = FoldCorrector::new(m, &slow);
+                    let sent = before.fold.inverse(&q32, &dir, &fast, &hyst).ok();
+                    m.set_kmz_from_reference_with_state(&q, &x, &dir, &slow, &hyst.into());
+                    if let Some(xh) = sent {
+                        before.fold.step(&xh, &mut hyst);
+                    }
                     kmz_updates += 1;
                     kmz_reference = true;
                 }
@@ -384,20 +407,22 @@ pub fn validate_roles(
             None => ((0..k).map(|a| x[a] - q[a]).collect::<Vec<f64>>(), false),
             Some(m) => {
                 let device = FoldCorrector::new(m, &slow);
-                let q32 = q.map(|v| v as f32);
                 let outside = device.fold.slow_outside_envelope() != 0;
-                // fast inputs as the device reads them with the command; play operators (none
-                // in the published models) from a fresh state, as the device starts them today
-                let fast = data.sensors.fast_at(d.t_start_s[i]);
                 // the user asks for the pose itself: would the device take that move?
-                refused = refuses(&device, &pose.map(|v| v as f32), &dir, &fast, k);
-                match device
-                    .fold
-                    .inverse(&q32, &dir, &fast, &HysteresisState::new())
-                {
-                    Ok(xh) => ((0..k).map(|a| x[a] - f64::from(xh[a])).collect(), outside),
+                refused = refuses(&device, &pose.map(|v| v as f32), &dir, &fast, &hyst, k);
+                // the play operators frozen where the last command left them
+                match device.fold.inverse(&q32, &dir, &fast, &hyst) {
+                    Ok(xh) => {
+                        if !kmz_reference {
+                            // the command for x̂ went out: the memory follows it
+                            device.fold.step(&xh, &mut hyst);
+                        }
+                        ((0..k).map(|a| x[a] - f64::from(xh[a])).collect(), outside)
+                    }
                     Err(_) => {
                         inverse_failures += 1;
+                        // where the stage went is not known to the model: start afresh
+                        hyst.reset();
                         (vec![f64::NAN; k], outside)
                     }
                 }
@@ -438,11 +463,10 @@ fn refuses(
     x_um: &[f32; MAX_AXES],
     dir: &[i8; MAX_AXES],
     fast: &FastInputs,
+    hyst: &HysteresisState,
     k: usize,
 ) -> bool {
-    let c = device
-        .fold
-        .correct(x_um, dir, fast, &mut HysteresisState::new());
+    let c = device.fold.evaluate(x_um, dir, fast, hyst);
     c.outside_envelope & ((1u8 << k) - 1) != 0
         || (0..k).any(|a| {
             let (lo, hi) = device.travel_um(a);

@@ -5,26 +5,15 @@
 
 mod fw_sim;
 
-use fw_sim::{Qemu, SensorSim, StageSim};
+use fw_sim::{wait_until, Qemu, SensorSim, StageSim};
 use nanocal::virtual_bench::chips::Max31856;
 use nanocal_compensator::identity::ResetCause;
 use nanocal_compensator::mgmt::{self, flags};
 use nanocal_compensator::settings::AuxSource;
 use nanocal_model::{blob, Factor, Input, Model, ModelBuilder};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 const TEMPS_C: [f32; 4] = [22.0, 22.125, 21.875, 22.25];
-
-fn wait_until<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<T>) -> T {
-    let deadline = Instant::now() + timeout;
-    loop {
-        if let Some(v) = f() {
-            return v;
-        }
-        assert!(Instant::now() < deadline, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
 
 fn blob_of(m: &Model) -> Vec<u8> {
     let mut b = vec![0u8; blob::MAX_BLOB_LEN];
@@ -233,6 +222,12 @@ fn e2e_model_inputs_must_be_supplied() {
                 ..
             }
         ),
+        "{e}"
+    );
+    // the message names the input and the reason
+    assert!(
+        e.to_string()
+            .contains(": input 0, aux input with no source"),
         "{e}"
     );
     assert_eq!(

@@ -132,10 +132,12 @@ fn e2e_pipython_session_through_the_compensator() {
     let Some(mut q) = Qemu::start_or_skip("e2e_pipython") else {
         return;
     };
-    // a C-867 with two axes in µm: servo off and unreferenced at power-up; moves take time
+    // a C-867 with two axes in µm: servo off and unreferenced at power-up; moves take time — the
+    // 250 µm move halted on the way lasts 1 s at this velocity, so the HLT that follows it over
+    // QEMU's serial ports reaches the controller in time even on a loaded machine
     let mut cfg = Config::c867(2, "µm");
     for a in &mut cfg.axes {
-        a.velocity = 2_000.0;
+        a.velocity = 250.0;
     }
     let stage = StageSim::serve(q.connect(1), cfg);
     let _sensors = SensorSim::start(q.link(), &TEMPS_C);

@@ -11,13 +11,13 @@
 
 mod fw_sim;
 
-use fw_sim::{Qemu, SensorSim, StageSim};
+use fw_sim::{stage_value, wait_until, Qemu, SensorSim, StageSim};
 use nanocal::device::DeviceError;
 use nanocal::published::published_1dof;
 use nanocal_compensator::mgmt::flags;
 use nanocal_compensator::sensor::max31856;
 use nanocal_model::{blob, SlowInputs, MAX_AXES};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// Temperatures the simulated sensors report (exact in MAX31856 LSBs), inside 21–23 °C.
 const TEMPS_C: [f32; 4] = [22.0, 22.125, 21.875, 22.25];
@@ -28,17 +28,6 @@ fn slow() -> SlowInputs {
         s.temps_c[i] = f64::from(*t);
     }
     s
-}
-
-fn wait_until<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<T>) -> T {
-    let deadline = Instant::now() + timeout;
-    loop {
-        if let Some(v) = f() {
-            return v;
-        }
-        assert!(Instant::now() < deadline, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(50));
-    }
 }
 
 #[test]
@@ -302,16 +291,6 @@ fn e2e_compensator_under_qemu() {
     });
     assert_eq!(s.model_id, model.id());
     assert_eq!(s.kmz_um[0], kmz[0], "λ_KMZ stored with the model");
-}
-
-fn stage_value(line: &str, axis: &str) -> f64 {
-    let t: Vec<&str> = line.split_whitespace().collect();
-    assert_eq!(t.first(), Some(&"MOV"), "forwarded line {line:?}");
-    let i = t
-        .iter()
-        .position(|a| *a == axis)
-        .unwrap_or_else(|| panic!("axis {axis} in {line:?}"));
-    t[i + 1].parse().unwrap()
 }
 
 /// A coupled 2-DoF model through the firmware: both axes re-commanded, and a multi-line `POS?`

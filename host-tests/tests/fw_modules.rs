@@ -20,7 +20,7 @@ fn fault_policy_holds_then_blocks_then_recovers() {
         recover_count: 2,
         ..Policy::default()
     };
-    let mut f = Faults::new(policy);
+    let mut f: Faults = Faults::new(policy);
     assert!(f.blocks_moves(1), "never read: blocks");
     f.update(0, Ok(22.0), 0);
     assert!(!f.blocks_moves(1));
@@ -84,8 +84,8 @@ fn status_round_trips() {
         model_id: 0x1234,
         slot: 1,
         slot_seq: 9,
-        temps_c: [22.5; 8],
-        sensor_bits: [0, 1, 2, 0, 0, 0, 0, 4],
+        temps_c: core::array::from_fn(|i| 20.0 + i as f32 * 0.25),
+        sensor_bits: [0, 1, 2, 0, 0, 0, 0, 4, 0, 0, 0, 0, 0, 0, 0, 0x14],
         sensors: 4,
         slow_outside: 0x10,
         kmz_um: [0.1, -0.2, 0.0],

@@ -235,7 +235,7 @@ fn lps22hb_pressure_after_its_first_conversion() {
 fn a_holding_channel_fails_without_new_readings() {
     // defect: Channel::tick was never called; a channel whose readings stopped coming held
     // its last value for ever
-    let mut f = Faults::new(Policy {
+    let mut f: Faults = Faults::new(Policy {
         hold_ms: 1000,
         ..Policy::default()
     });
@@ -371,12 +371,87 @@ fn settings_round_trip_and_reject_what_they_must() {
     assert_eq!(nanocal_compensator::crc32(b"123456789"), 0xCBF4_3926);
 }
 
+/// Settings stored by a firmware with layout 1 (8 chip-selects, 164 bytes: mains at 89, axes at
+/// 93, aux at 120, CRC at 160) survive the update to layout 2 (16 chip-selects).
+#[test]
+fn settings_of_layout_1_still_decode() {
+    let mut s = Settings {
+        stage_baud: 38_400,
+        mains: Mains::Hz60,
+        sample_period_ms: 500,
+        ..Default::default()
+    };
+    s.sensors = [None; nanocal_compensator::settings::SENSORS];
+    s.sensors[7] = Some(Chip::Max31856 { tc: TcType::J });
+    s.stage_unit = StageUnit::Nm;
+    s.axis_names[2] = nanocal_compensator::gcs::AxisId::new(b"Z").unwrap();
+    s.aux[1] = AuxSource::AirPressure;
+    let v2 = s.encode();
+    assert_eq!(v2.len(), 244, "layout 2: 9 + 16 x 10 + 4 + 27 + 40 + 4");
+    assert_eq!(v2[4], 2);
+    // layout 1, byte for byte: header, 8 sensors, then the same tail at 89
+    let mut v1 = Vec::new();
+    v1.extend_from_slice(b"NCST\x01");
+    v1.extend_from_slice(&38_400u32.to_le_bytes());
+    v1.extend_from_slice(&[0; 70]); // chip-selects 0..6: none
+    v1.extend_from_slice(&[1, 2, 0, 0, 0, 0, 0, 0, 0, 0]); // chip-select 7: MAX31856, type J
+    assert_eq!(v1.len(), 89);
+    v1.extend_from_slice(&[60, 0xF4, 0x01, 2]); // 60 Hz, 500 ms, nm
+    assert_eq!(v1.len(), 93);
+    v1.extend_from_slice(&v2[169 + 4..240]); // axis names and aux sources, as layout 2 has them
+    assert_eq!(v1.len(), 160);
+    let crc = nanocal_compensator::crc32(&v1);
+    v1.extend_from_slice(&crc.to_le_bytes());
+    assert_eq!(Settings::decode(&v1), Ok(s));
+    // a layout-1 record cut to a layout-2 length, or with an unknown version, is refused
+    assert!(Settings::decode(&v1[..163]).is_err());
+    let mut v3 = v1.clone();
+    v3[4] = 3;
+    assert!(Settings::decode(&v3).is_err());
+}
+
+/// A model with more temperatures than the board has chip-select lines is refused at upload
+/// (a board with four, as the STM32 board was before it drove 16), even with amplifiers configured
+/// for all of them.
+#[test]
+fn a_model_needing_more_chip_selects_than_wired_is_refused() {
+    let model = nanocal_model::reference::delta_robot_78().unwrap();
+    let mut s = Settings::default();
+    for slot in s.sensors.iter_mut().take(model.temps()) {
+        *slot = Some(Chip::K);
+    }
+    let stm32 = Board {
+        barometer: true,
+        adc_channels: 1,
+        chip_selects: 4,
+    };
+    let e = inputs::check(&model, &s, &stm32).unwrap_err();
+    assert_eq!(e, InputError::NoChipSelect { index: 4 });
+    assert_eq!(e.code(), 0x64);
+    assert!(e.to_string().contains("no chip-select 4"), "{e}");
+    // what a host prints for the code the device sends
+    assert_eq!(
+        inputs::describe_code(e.code()),
+        Some((
+            "temperature input on a chip-select the board does not wire",
+            4
+        ))
+    );
+    assert_eq!(inputs::describe_code(0x05), None);
+    let sixteen = Board {
+        chip_selects: 16,
+        ..stm32
+    };
+    assert_eq!(inputs::check(&model, &s, &sixteen), Ok(()));
+}
+
 #[test]
 fn a_model_using_an_input_the_board_cannot_supply_is_refused() {
     let model = nanocal::published::published_1dof().unwrap();
     let board = Board {
         barometer: true,
         adc_channels: 1,
+        chip_selects: 4,
     };
     let mut s = Settings::default();
     assert_eq!(
@@ -407,6 +482,7 @@ fn a_model_using_an_input_the_board_cannot_supply_is_refused() {
     let no_baro = Board {
         barometer: false,
         adc_channels: 1,
+        chip_selects: 4,
     };
     assert_eq!(
         inputs::check(&aux_model, &s2, &no_baro),

@@ -135,8 +135,14 @@ proptest! {
         let s = slow();
         let fold = model.fold(&s);
         let (mut state, mut reference) = (HysteresisState::new(), HysteresisState::<f64>::new());
+        // the device's way: evaluate from the state as it stands, step it when the command goes
+        let mut sent = HysteresisState::new();
         for x in walk(axes, &steps) {
+            let trial = fold.evaluate(&x, &[0; MAX_AXES], &FastInputs::NONE, &sent);
+            fold.step(&x, &mut sent);
             let fast = fold.correct(&x, &[0; MAX_AXES], &FastInputs::NONE, &mut state);
+            prop_assert_eq!(trial, fast, "evaluate at {:?}", x);
+            prop_assert_eq!(sent, state, "step at {:?}", x);
             let q64 = model.eval_f64_with_state(&x.map(f64::from), &[0; MAX_AXES], &s, &mut reference);
             for (a, (&q32, &q64)) in fast.q_um.iter().zip(&q64).take(axes).enumerate() {
                 let err = (q32 as f64 - q64).abs();

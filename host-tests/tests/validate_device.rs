@@ -99,7 +99,9 @@ fn every_validated_visit_is_what_the_gcs_proxy_forwards() {
                 rig.line("ERR?");
                 edge += 1;
                 let dir = [v.dir[0], 0, 0];
-                let c = corrector.correct(&[target as f32, 0.0, 0.0], &dir);
+                // the static model has no play operators: no hysteresis memory to read
+                let none = nanocal_model::HysteresisState::new();
+                let c = corrector.correct(&[target as f32, 0.0, 0.0], &dir, &none);
                 f64::from(c.q_um[0])
             }
         };

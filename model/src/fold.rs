@@ -295,6 +295,30 @@ struct Multipliers<'a> {
     fast: &'a FastInputs,
 }
 
+/// How the fast path treats the play banks: a `&mut` state is stepped (and primed if fresh), a
+/// `&` state is frozen (read, not changed; a fresh one adds nothing).
+trait BankStep {
+    fn step(self, fold: &Fold, v: &[f32; MAX_AXES], delta: &mut [f32; MAX_AXES]);
+}
+
+impl BankStep for &mut HysteresisState {
+    #[inline(always)]
+    fn step(self, fold: &Fold, v: &[f32; MAX_AXES], delta: &mut [f32; MAX_AXES]) {
+        fold.prime(v, self);
+        fold.banks::<true>(v, &mut self.outputs, delta, &mut [0.0; MAX_AXES]);
+    }
+}
+
+impl BankStep for &HysteresisState {
+    #[inline(always)]
+    fn step(self, fold: &Fold, v: &[f32; MAX_AXES], delta: &mut [f32; MAX_AXES]) {
+        if self.primed {
+            let mut frozen = self.outputs;
+            fold.banks::<false>(v, &mut frozen, delta, &mut [0.0; MAX_AXES]);
+        }
+    }
+}
+
 impl Fold {
     /// Number of axes.
     pub fn axes(&self) -> usize {
@@ -346,16 +370,22 @@ impl Fold {
 
     /// Bit n set for every fast input the blocks use that is outside its training envelope
     /// or not supplied.
+    #[inline(always)]
     fn fast_outside(&self, fast: &FastInputs) -> u8 {
+        if self.fast_mask == 0 {
+            0
+        } else {
+            self.fast_inputs_outside(fast)
+        }
+    }
+
+    #[inline(never)]
+    fn fast_inputs_outside(&self, fast: &FastInputs) -> u8 {
         let mut outside = 0;
-        if self.fast_mask != 0 {
-            for n in 0..MAX_AUX {
-                let v = fast.aux[n];
-                if self.fast_mask & (1 << n) != 0
-                    && !(v >= self.fast_min[n] && v <= self.fast_max[n])
-                {
-                    outside |= 1 << n;
-                }
+        for n in 0..MAX_AUX {
+            let v = fast.aux[n];
+            if self.fast_mask & (1 << n) != 0 && !(v >= self.fast_min[n] && v <= self.fast_max[n]) {
+                outside |= 1 << n;
             }
         }
         outside
@@ -416,18 +446,46 @@ impl Fold {
         }
     }
 
-    /// Fast path: commands for calibrated targets `x_um`, approached in direction `dir`
-    /// (+1 forward, −1 backward, 0 unknown), with this command's fast inputs; steps the play
-    /// operators of `state` (primed with these targets if it is fresh or was reset).
-    ///
-    /// A model without fast inputs never reads `fast` (pass [`FastInputs::NONE`]); a model
-    /// without play operators never touches `state`.
-    pub fn correct(
+    /// Centred targets `x − centre` (µm) and scaled ones `u` of the model's axes, and the bit of
+    /// every axis whose target is outside the training envelope.
+    #[inline(always)]
+    fn centred(&self, x_um: &[f32; MAX_AXES]) -> ([f32; MAX_AXES], [f32; MAX_AXES], u8) {
+        let mut outside = 0u8;
+        let mut v = [0.0f32; MAX_AXES];
+        let mut u = [0.0f32; MAX_AXES];
+        for a in 0..self.axes() {
+            if !(x_um[a] >= self.envelope_min_um[a] && x_um[a] <= self.envelope_max_um[a]) {
+                outside |= 1 << a;
+            }
+            v[a] = x_um[a] - self.centre_um[a];
+            u[a] = v[a] * self.inv_half_range[a];
+        }
+        (v, u, outside)
+    }
+
+    /// Primes an unprimed state: every operator at its axis' centred target `v`.
+    #[inline(always)]
+    fn prime(&self, v: &[f32; MAX_AXES], state: &mut HysteresisState) {
+        if !state.primed {
+            for a in 0..self.axes() {
+                let range = self.bank_start[a] as usize..self.bank_start[a + 1] as usize;
+                if let Some(ys) = state.outputs.get_mut(range) {
+                    ys.fill(v[a]);
+                }
+            }
+            state.primed = true;
+        }
+    }
+
+    /// The fast path for one command, the play banks handled by `bank` (stepped in place, or
+    /// frozen): one body for [`Fold::correct`] and [`Fold::evaluate`].
+    #[inline(always)]
+    fn fast_path<B: BankStep>(
         &self,
         x_um: &[f32; MAX_AXES],
         dir: &[i8; MAX_AXES],
         fast: &FastInputs,
-        state: &mut HysteresisState,
+        bank: B,
     ) -> Correction {
         let axes = self.axes();
         let mut outside = 0u8;
@@ -443,16 +501,7 @@ impl Fold {
         let m = Multipliers { dir, fast };
         let mut delta = self.polynomial(u, &m);
         if self.play_operators() > 0 {
-            if !state.primed {
-                for a in 0..axes {
-                    let range = self.bank_start[a] as usize..self.bank_start[a + 1] as usize;
-                    if let Some(ys) = state.outputs.get_mut(range) {
-                        ys.fill(v[a]);
-                    }
-                }
-                state.primed = true;
-            }
-            self.banks::<true>(&v, &mut state.outputs, &mut delta, &mut [0.0; MAX_AXES]);
+            bank.step(self, &v, &mut delta);
         }
         let mut q_um = [0.0f32; MAX_AXES];
         for a in 0..axes {
@@ -464,6 +513,64 @@ impl Fold {
             delta_um: delta,
             outside_envelope: outside,
             fast_outside_envelope: self.fast_outside(fast),
+        }
+    }
+
+    /// Fast path: commands for calibrated targets `x_um`, approached in direction `dir`
+    /// (+1 forward, −1 backward, 0 unknown), with this command's fast inputs; steps the play
+    /// operators of `state` (primed with these targets if it is fresh or was reset).
+    ///
+    /// A model without fast inputs never reads `fast` (pass [`FastInputs::NONE`]); a model
+    /// without play operators never touches `state`.
+    pub fn correct(
+        &self,
+        x_um: &[f32; MAX_AXES],
+        dir: &[i8; MAX_AXES],
+        fast: &FastInputs,
+        state: &mut HysteresisState,
+    ) -> Correction {
+        self.fast_path(x_um, dir, fast, state)
+    }
+
+    /// What [`Fold::correct`] returns for these targets, with `state` left as it is: each play
+    /// operator is stepped from its output in `state` to this target, and the step is not kept
+    /// (a fresh or reset state adds nothing, as it would be primed at the target itself). For a
+    /// caller that sends the command only if it passes its checks, or that evaluates trial
+    /// points (an inverse): it advances the state with [`Fold::step`] for the commands it sends.
+    /// `evaluate` then `step` leave the same commands and state as `correct`.
+    pub fn evaluate(
+        &self,
+        x_um: &[f32; MAX_AXES],
+        dir: &[i8; MAX_AXES],
+        fast: &FastInputs,
+        state: &HysteresisState,
+    ) -> Correction {
+        self.fast_path(x_um, dir, fast, state)
+    }
+
+    /// Steps the play operators of `state` to targets `x_um` (primes a fresh or reset state),
+    /// as [`Fold::correct`] does, without evaluating anything: a command was sent for them.
+    #[inline]
+    pub fn step(&self, x_um: &[f32; MAX_AXES], state: &mut HysteresisState) {
+        if self.play_operators() > 0 {
+            self.step_banks(x_um, state);
+        }
+    }
+
+    #[inline(never)]
+    fn step_banks(&self, x_um: &[f32; MAX_AXES], state: &mut HysteresisState) {
+        let (v, _, _) = self.centred(x_um);
+        self.prime(&v, state);
+        for a in 0..self.axes() {
+            let range = self.bank_start[a] as usize..self.bank_start[a + 1] as usize;
+            if let (Some(ys), Some(rs)) = (
+                state.outputs.get_mut(range.clone()),
+                self.play_threshold_um.get(range),
+            ) {
+                for (y, &r) in ys.iter_mut().zip(rs) {
+                    *y = play(*y, v[a], r);
+                }
+            }
         }
     }
 
@@ -648,12 +755,7 @@ impl Fold {
         m: &Multipliers,
         outputs: Option<&mut [f32; MAX_PLAY]>,
     ) -> ([f32; MAX_AXES], [f32; MAX_AXES]) {
-        let mut v = [0.0f32; MAX_AXES];
-        let mut u = [0.0f32; MAX_AXES];
-        for a in 0..self.axes() {
-            v[a] = x_um[a] - self.centre_um[a];
-            u[a] = v[a] * self.inv_half_range[a];
-        }
+        let (v, u, _) = self.centred(x_um);
         let mut delta = self.polynomial(u, m);
         let mut slope = [0.0; MAX_AXES];
         if let Some(outputs) = outputs {

@@ -97,6 +97,17 @@ impl<T: Copy + Default> HysteresisState<T> {
     }
 }
 
+/// The device's f32 memory as the f64 reference evaluation's ([`crate::Model::eval_f64_with_state`])
+/// starting point: a host that mirrors the device steps an f32 state and evaluates from it in f64.
+impl From<HysteresisState<f32>> for HysteresisState<f64> {
+    fn from(s: HysteresisState<f32>) -> Self {
+        HysteresisState {
+            outputs: s.outputs.map(f64::from),
+            primed: s.primed,
+        }
+    }
+}
+
 impl<T: Copy + Default> Default for HysteresisState<T> {
     fn default() -> Self {
         Self::new()

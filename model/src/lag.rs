@@ -71,7 +71,8 @@ impl LagFilter {
 /// The lag filters a model declares, run together over a stream of temperature samples.
 #[derive(Clone, Copy, Debug)]
 pub struct LagBank {
-    specs: [LagSpec; MAX_LAGS],
+    /// The sensor each filter follows (its τ is the filter's own).
+    sensors: [u8; MAX_LAGS],
     filters: [LagFilter; MAX_LAGS],
     len: usize,
 }
@@ -80,15 +81,12 @@ impl LagBank {
     /// A bank for the given specs (at most [`MAX_LAGS`] are used).
     pub fn new(specs: &[LagSpec]) -> Self {
         let mut bank = LagBank {
-            specs: [LagSpec {
-                sensor: 0,
-                tau_s: 0.0,
-            }; MAX_LAGS],
+            sensors: [0; MAX_LAGS],
             filters: [LagFilter::new(0.0); MAX_LAGS],
             len: specs.len().min(MAX_LAGS),
         };
         for (k, spec) in specs.iter().take(MAX_LAGS).enumerate() {
-            bank.specs[k] = *spec;
+            bank.sensors[k] = spec.sensor;
             bank.filters[k] = LagFilter::new(spec.tau_s);
         }
         bank
@@ -103,7 +101,7 @@ impl LagBank {
         lagged_c: &mut [f64; MAX_LAGS],
     ) {
         for k in 0..self.len {
-            let sensor = (self.specs[k].sensor as usize).min(MAX_TEMPS - 1);
+            let sensor = (self.sensors[k] as usize).min(MAX_TEMPS - 1);
             lagged_c[k] = self.filters[k].update(temps_c[sensor], dt_s);
         }
     }

@@ -322,6 +322,26 @@ impl Model {
         slow: &SlowInputs,
     ) {
         let predicted = self.eval_f64(x_meas_um, dir, slow);
+        self.move_kmz_offset(q_cmd_um, &predicted);
+    }
+
+    /// [`Model::set_kmz_from_reference`] for a model with play operators: the model maps
+    /// `x_meas_um` to `q_cmd_um` with its operators stepped from `state`, the memory they had
+    /// before the reference move (`state` itself is not changed).
+    pub fn set_kmz_from_reference_with_state(
+        &mut self,
+        q_cmd_um: &[f64; MAX_AXES],
+        x_meas_um: &[f64; MAX_AXES],
+        dir: &[i8; MAX_AXES],
+        slow: &SlowInputs,
+        state: &HysteresisState<f64>,
+    ) {
+        let predicted = self.eval_f64_with_state(x_meas_um, dir, slow, &mut state.clone());
+        self.move_kmz_offset(q_cmd_um, &predicted);
+    }
+
+    /// λ_KMZ moves by the command minus what the model predicted for the measured position.
+    fn move_kmz_offset(&mut self, q_cmd_um: &[f64; MAX_AXES], predicted: &[f64; MAX_AXES]) {
         for a in 0..self.axes() {
             let v = self.kmz_offset_um[a] + (q_cmd_um[a] - predicted[a]);
             self.set_kmz_offset_um(a, v);

@@ -75,7 +75,9 @@ async fn resume(sh: &Shared, out: &mut Output) {
             if !c.proxy.has_work() {
                 return false;
             }
-            c.proxy.host_bytes(c.comp.as_ref(), &[], now_ms(), out);
+            let now = now_ms();
+            let (proxy, comp) = c.proxy_and_comp(now);
+            proxy.host_bytes(comp, &[], now, out);
             true
         });
         if !worked {
@@ -101,7 +103,9 @@ pub async fn host_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) -> 
                 }
             };
             feed(sh, &buf[..n], &mut out, |c, b, out| {
-                c.proxy.host_bytes(c.comp.as_ref(), b, now_ms(), out)
+                let now = now_ms();
+                let (proxy, comp) = c.proxy_and_comp(now);
+                proxy.host_bytes(comp, b, now, out)
             })
             .await;
         }
@@ -120,15 +124,18 @@ pub async fn stage_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) ->
             match select(read_some(&mut rx, &mut buf), Timer::after_millis(POLL_MS)).await {
                 Either::First(n) => {
                     feed(sh, &buf[..n], &mut out, |c, b, out| {
-                        c.proxy.stage_bytes(c.comp.as_ref(), b, now_ms(), out)
+                        let now = now_ms();
+                        let (proxy, comp) = c.proxy_and_comp(now);
+                        proxy.stage_bytes(comp, b, now, out)
                     })
                     .await
                 }
                 Either::Second(()) => {
                     sh.core.lock(|c| {
                         let mut c = c.borrow_mut();
-                        let c = &mut *c;
-                        c.proxy.poll(c.comp.as_ref(), now_ms(), &mut out)
+                        let now = now_ms();
+                        let (proxy, comp) = c.proxy_and_comp(now);
+                        proxy.poll(comp, now, &mut out)
                     });
                     send(sh, &out).await;
                 }

@@ -31,7 +31,7 @@ use embassy_sync::signal::Signal;
 use nanocal_compensator::fault::{Faults, Policy, MAX_CHANNELS};
 use nanocal_compensator::gcs::AxisMap;
 use nanocal_compensator::identity::ResetCause;
-use nanocal_compensator::inputs;
+use nanocal_compensator::inputs::{self, FastSamples};
 use nanocal_compensator::proxy::{FoldCorrector, Gate, Proxy};
 use nanocal_compensator::settings::Settings;
 use nanocal_model::{Model, SlowInputs, MAX_AUX};
@@ -48,8 +48,9 @@ pub(crate) async fn read_some<R: embedded_io_async::Read>(rx: &mut R, buf: &mut 
     }
 }
 
-/// Bytes buffered toward each link.
-pub const PIPE_LEN: usize = 512;
+/// Bytes buffered toward each link (a line or a reply's part; the proxy's output waits for room,
+/// so this bounds throughput, not what can be sent).
+pub const PIPE_LEN: usize = 256;
 
 /// The model's fast path as the command path uses it.
 pub type Comp = FoldCorrector;
@@ -63,6 +64,20 @@ pub struct Core {
     pub comp: Option<Comp>,
     /// When `comp` was folded, ms since boot.
     pub folded_at_ms: u32,
+    /// The latest samples of the model's fast inputs.
+    pub fast: FastSamples,
+    /// Oldest fast sample a command may be corrected with, ms (set by the sensor task).
+    pub fast_stale_ms: u32,
+}
+
+impl Core {
+    /// The proxy, and the fast path for this call into it with the fast inputs' latest samples.
+    pub fn proxy_and_comp(&mut self, now_ms: u32) -> (&mut Proxy, Option<&Comp>) {
+        if let Some(c) = self.comp.as_mut() {
+            self.fast.apply(c, now_ms, self.fast_stale_ms);
+        }
+        (&mut self.proxy, self.comp.as_ref())
+    }
 }
 
 /// Who the device is.
@@ -85,7 +100,7 @@ pub struct ModelState {
     /// Temperature fault policy state.
     pub faults: Faults,
     /// Aux-input fault policy state.
-    pub aux_faults: Faults,
+    pub aux_faults: Faults<MAX_AUX>,
     /// Slow inputs outside the envelope at the last fold.
     pub slow_outside: u32,
     /// Folds computed.
@@ -153,6 +168,8 @@ impl Shared {
                 proxy: fresh_proxy(&settings),
                 comp: None,
                 folded_at_ms: 0,
+                fast: FastSamples::new(),
+                fast_stale_ms: 0,
             })),
             model: Mutex::new(RefCell::new(ModelState {
                 model: None,
@@ -200,6 +217,9 @@ impl Shared {
             let mut c = c.borrow_mut();
             c.comp = None;
             c.proxy.gate = Gate::SensorFault;
+            // the memory of the play operators and the fast samples were the old model's
+            c.proxy.reset_hysteresis();
+            c.fast.clear();
         });
     }
 

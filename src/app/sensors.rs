@@ -3,19 +3,41 @@
 //! ADC), apply the fault policy, run the lag filters and fold the model (the slow path).
 //! Publishes the fold and the move gate to the command path.
 //!
+//! Beside that slow cycle, and sharing the buses with it one transaction at a time, the task
+//! samples the model's fast inputs (a force on an ADC channel) every [`FAST_PERIOD_MS`]: the
+//! command path corrects each command with the latest sample, and refuses it when that sample
+//! failed or is older than [`fast_stale_ms`] (paper 001 §VI: forces "have imperatively to be
+//! compensated in real-time").
+//!
 //! Every bus transaction has a timeout, so a hung bus is a sensor fault, never a hung task;
 //! channels without a reading in a cycle have their hold time checked all the same.
 
 use super::{now_ms, Comp, Shared};
 use core::sync::atomic::Ordering;
+use embassy_futures::join::join;
 use embassy_futures::select::{select3, Either3};
+use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use embassy_sync::mutex::Mutex;
 use embassy_time::{with_timeout, Duration, Instant, Timer};
 use nanocal_compensator::fault::MAX_CHANNELS;
+use nanocal_compensator::inputs;
 use nanocal_compensator::lps22hb;
 use nanocal_compensator::proxy::Gate;
 use nanocal_compensator::sensor::{Driver, Outcome, SensorFault, MAX_TXN};
 use nanocal_compensator::settings::{AuxSource, Settings};
 use nanocal_model::{LagBank, MAX_AUX};
+
+/// Sampling period of the fast inputs, ms.
+pub const FAST_PERIOD_MS: u64 = 10;
+
+/// Oldest fast sample a command may be corrected with, ms: five sampling periods, plus one bus
+/// transaction's timeout (the sampler may wait for the slow cycle's transaction in progress).
+pub fn fast_stale_ms(timeout: Duration) -> u32 {
+    5 * FAST_PERIOD_MS as u32 + timeout.as_millis() as u32
+}
+
+/// The buses, shared by the slow cycle and the fast sampler one transaction at a time.
+type SharedBus<B> = Mutex<NoopRawMutex, B>;
 
 /// The buses the inputs hang on.
 #[allow(async_fn_in_trait)]
@@ -29,6 +51,27 @@ pub trait InputBus {
     async fn adc(&mut self, channel: u8) -> Result<u16, ()>;
     /// ADC channels the board has (bit per channel).
     fn adc_channels(&self) -> u32;
+    /// Chip-select lines wired for temperature amplifiers (`0..n`).
+    fn chip_selects(&self) -> u8;
+}
+
+/// The source of every aux input: the model's (see [`inputs::aux_source`]) while a model is in
+/// service, else the settings' mapping (for the status report).
+fn aux_sources(sh: &Shared, settings: &Settings) -> [AuxSource; MAX_AUX] {
+    sh.model.lock(|m| {
+        let m = m.borrow();
+        let mut src = settings.aux;
+        if let Some(model) = &m.model {
+            for (n, s) in src.iter_mut().enumerate() {
+                *s = if n < model.aux() {
+                    inputs::aux_source(settings, model, n)
+                } else {
+                    AuxSource::None
+                };
+            }
+        }
+        src
+    })
 }
 
 fn drivers(s: &Settings) -> [Option<Driver>; MAX_CHANNELS] {
@@ -41,7 +84,7 @@ fn drivers(s: &Settings) -> [Option<Driver>; MAX_CHANNELS] {
 
 async fn run_driver<B: InputBus>(
     d: &mut Driver,
-    bus: &mut B,
+    bus: &SharedBus<B>,
     cs: u8,
     now: u32,
     timeout: Duration,
@@ -50,7 +93,7 @@ async fn run_driver<B: InputBus>(
     for _ in 0..4 {
         let txn = d.next(now)?;
         let n = d.fill(txn, &mut buf);
-        let rx = match with_timeout(timeout, bus.spi(cs, &mut buf[..n])).await {
+        let rx = match with_timeout(timeout, bus.lock().await.spi(cs, &mut buf[..n])).await {
             Ok(Ok(())) => Ok(&buf[..n]),
             _ => Err(SensorFault::NoResponse),
         };
@@ -70,8 +113,9 @@ struct Baro {
 }
 
 impl Baro {
-    async fn probe<B: InputBus>(bus: &mut B, timeout: Duration) -> bool {
+    async fn probe<B: InputBus>(bus: &SharedBus<B>, timeout: Duration) -> bool {
         let mut id = [0u8; 1];
+        let mut bus = bus.lock().await;
         matches!(
             with_timeout(
                 timeout,
@@ -84,10 +128,11 @@ impl Baro {
 
     async fn read<B: InputBus>(
         &mut self,
-        bus: &mut B,
+        bus: &SharedBus<B>,
         timeout: Duration,
     ) -> Option<Result<f32, SensorFault>> {
         let a = lps22hb::ADDRESS;
+        let mut bus = bus.lock().await;
         let mut ctrl = [0u8; 1];
         if with_timeout(timeout, bus.i2c(a, &[lps22hb::CTRL_REG1], &mut ctrl))
             .await
@@ -119,15 +164,91 @@ impl Baro {
 }
 
 /// Run the sensor task. `timeout` bounds every bus transaction.
-pub async fn sensors<B: InputBus>(mut bus: B, timeout: Duration, sh: &Shared) -> ! {
+pub async fn sensors<B: InputBus>(bus: B, timeout: Duration, sh: &Shared) -> ! {
+    let bus = Mutex::new(bus);
+    sh.core
+        .lock(|c| c.borrow_mut().fast_stale_ms = fast_stale_ms(timeout));
+    join(
+        slow_cycle(&bus, timeout, sh),
+        fast_inputs(&bus, timeout, sh),
+    )
+    .await;
+    unreachable!()
+}
+
+/// ADC channel and scaling of every fast input of the model in service (`None`: not fast, or
+/// no model).
+fn fast_sources(sh: &Shared) -> [Option<AuxSource>; MAX_AUX] {
+    let settings = sh.settings.lock(|s| *s.borrow());
+    sh.model.lock(|m| {
+        let m = m.borrow();
+        let mut src = [None; MAX_AUX];
+        if let Some(model) = m.model.as_ref().filter(|_| !m.pending) {
+            for (n, s) in src.iter_mut().enumerate().take(model.aux()) {
+                if model.is_fast(n) {
+                    *s = Some(inputs::aux_source(&settings, model, n));
+                }
+            }
+        }
+        src
+    })
+}
+
+/// One reading of an aux source: air pressure from the barometer, a force from its ADC channel
+/// (`None`: no reading this time, e.g. the barometer's first conversion is not done).
+async fn read_aux<B: InputBus>(
+    src: AuxSource,
+    baro: &mut Baro,
+    bus: &SharedBus<B>,
+    timeout: Duration,
+) -> Option<Result<f32, SensorFault>> {
+    match src {
+        AuxSource::None => None,
+        AuxSource::AirPressure => baro.read(bus, timeout).await,
+        AuxSource::Force {
+            channel,
+            scale_n_per_count,
+            offset_n,
+        } => Some(
+            match with_timeout(timeout, bus.lock().await.adc(channel)).await {
+                Ok(Ok(code)) => Ok(offset_n + scale_n_per_count * f32::from(code)),
+                _ => Err(SensorFault::NoResponse),
+            },
+        ),
+    }
+}
+
+/// Sample the model's fast inputs every [`FAST_PERIOD_MS`] into the command path's
+/// [`inputs::FastSamples`].
+async fn fast_inputs<B: InputBus>(bus: &SharedBus<B>, timeout: Duration, sh: &Shared) -> ! {
+    let mut baro = Baro::default();
+    loop {
+        Timer::after_millis(FAST_PERIOD_MS).await;
+        for (n, src) in fast_sources(sh).iter().enumerate() {
+            let Some(src) = *src else { continue };
+            let r = read_aux(src, &mut baro, bus, timeout)
+                .await
+                .unwrap_or(Err(SensorFault::NoResponse));
+            let now = now_ms();
+            sh.core.lock(|c| c.borrow_mut().fast.record(n, r, now));
+        }
+    }
+}
+
+/// The slow cycle: temperatures, aux inputs, fault policy, lag filters, fold.
+async fn slow_cycle<B: InputBus>(bus: &SharedBus<B>, timeout: Duration, sh: &Shared) -> ! {
     let mut settings = sh.settings.lock(|s| *s.borrow());
     let mut drv = drivers(&settings);
-    let barometer = Baro::probe(&mut bus, timeout).await;
-    let adc_channels = bus.adc_channels();
+    let barometer = Baro::probe(bus, timeout).await;
+    let (adc_channels, chip_selects) = {
+        let bus = bus.lock().await;
+        (bus.adc_channels(), bus.chip_selects())
+    };
     sh.board.lock(|b| {
         let mut b = b.borrow_mut();
         b.barometer = barometer;
         b.adc_channels = adc_channels;
+        b.chip_selects = chip_selects;
     });
     info!("barometer: {=bool}", barometer);
     let mut baro = Baro::default();
@@ -155,24 +276,14 @@ pub async fn sensors<B: InputBus>(mut bus: B, timeout: Duration, sh: &Shared) ->
         for (cs, d) in drv.iter_mut().enumerate() {
             if let Some(d) = d {
                 let before = d.reconfigurations;
-                readings[cs] = run_driver(d, &mut bus, cs as u8, ms, timeout).await;
+                readings[cs] = run_driver(d, bus, cs as u8, ms, timeout).await;
                 reconfigs += d.reconfigurations.wrapping_sub(before);
             }
         }
+        // every aux input, the fast ones too (their status, and the slow reference values)
         let mut aux = [None; MAX_AUX];
-        for (i, src) in settings.aux.iter().enumerate() {
-            aux[i] = match *src {
-                AuxSource::None => None,
-                AuxSource::AirPressure => baro.read(&mut bus, timeout).await,
-                AuxSource::Force {
-                    channel,
-                    scale_n_per_count,
-                    offset_n,
-                } => Some(match with_timeout(timeout, bus.adc(channel)).await {
-                    Ok(Ok(code)) => Ok(offset_n + scale_n_per_count * f32::from(code)),
-                    _ => Err(SensorFault::NoResponse),
-                }),
-            };
+        for (i, src) in aux_sources(sh, &settings).iter().enumerate() {
+            aux[i] = read_aux(*src, &mut baro, bus, timeout).await;
         }
         let update = sh.model.lock(|m| {
             let mut m = m.borrow_mut();

@@ -40,9 +40,11 @@ bind_interrupts!(struct Irqs {
     DMA1_CHANNEL3 => dma::InterruptHandler<DMA1_CH3>;
 });
 
-/// Chip-selects wired (D10 PA2, D9 PA15, D8 PB2, D7 PA4); settings may name up to 8, the rest
-/// read as absent.
-const CS_PINS: usize = 4;
+/// Chip-selects, one per amplifier, on the Arduino Uno V3 connector's free pins (UM2153's connector
+/// table; the same mapping as Zephyr's disco_l475_iot1 board): D10 PA2, D9 PA15, D8 PB2, D7 PA4, D6 PB1, D5 PB4, D4 PA3, D3 PB0, D2 PD14, A1 PC4, A2 PC3,
+/// A3 PC2, A4 PC1, A5 PC0, D14 PB9, D15 PB8): 16, as many as the settings and the model can
+/// name. D0/D1 are the stage link, D11–D13 SPI1, A0 the force input.
+const CS_PINS: usize = 16;
 /// The store: the last 64 KiB of flash (bank 2, pages 224..255), excluded from FLASH in
 /// memory.x.
 const STORE_BASE: u32 = 0x080F_0000;
@@ -75,6 +77,10 @@ const ECCR_ECCD: u32 = 1 << 31;
 
 /// Set by the NMI handler when a flash read hit a double ECC error.
 static ECC_ERROR: AtomicBool = AtomicBool::new(false);
+
+/// True until the executor runs the tasks: the store's flash waits spin instead of awaiting a
+/// timer (embassy-time's timers need an executor task; at start-up nothing else runs).
+static BOOTING: AtomicBool = AtomicBool::new(true);
 
 fn reg(a: usize) -> u32 {
     // SAFETY: FLASH controller register, 32-bit access.
@@ -132,6 +138,9 @@ impl L4Flash {
 
     async fn wait_idle(poll_us: u64) -> Result<(), FlashError> {
         while reg(FLASH_SR) & SR_BSY != 0 {
+            if BOOTING.load(Ordering::Relaxed) {
+                continue;
+            }
             if poll_us == 0 {
                 embassy_futures::yield_now().await;
             } else {
@@ -244,6 +253,11 @@ impl InputBus for Buses {
 
     fn adc_channels(&self) -> u32 {
         1
+    }
+
+    fn chip_selects(&self) -> u8 {
+        // see `CS_PINS`
+        self.cs.len() as u8
     }
 }
 
@@ -403,7 +417,10 @@ async fn main(spawner: Spawner) {
     );
 
     let store = STORE.init(Store::new(L4Nor::new(L4Flash)));
-    let settings = app::load_settings(store).await;
+    // polled here before any task runs (flash waits spin meanwhile, see `BOOTING`), so the main
+    // task's future does not keep the store's read state for ever
+    let settings = embassy_futures::block_on(app::load_settings(store));
+    BOOTING.store(false, Ordering::Relaxed);
     let sh: &'static Shared = SHARED.init(Shared::new(
         settings,
         Identity {
@@ -495,6 +512,18 @@ async fn main(spawner: Spawner) {
         Output::new(p.PA15, Level::High, Speed::Low), // D9
         Output::new(p.PB2, Level::High, Speed::Low),  // D8
         Output::new(p.PA4, Level::High, Speed::Low),  // D7
+        Output::new(p.PB1, Level::High, Speed::Low),  // D6
+        Output::new(p.PB4, Level::High, Speed::Low),  // D5 (NJTRST at reset; SWD does not use it)
+        Output::new(p.PA3, Level::High, Speed::Low),  // D4
+        Output::new(p.PB0, Level::High, Speed::Low),  // D3
+        Output::new(p.PD14, Level::High, Speed::Low), // D2
+        Output::new(p.PC4, Level::High, Speed::Low),  // A1
+        Output::new(p.PC3, Level::High, Speed::Low),  // A2
+        Output::new(p.PC2, Level::High, Speed::Low),  // A3
+        Output::new(p.PC1, Level::High, Speed::Low),  // A4
+        Output::new(p.PC0, Level::High, Speed::Low),  // A5
+        Output::new(p.PB9, Level::High, Speed::Low),  // D14
+        Output::new(p.PB8, Level::High, Speed::Low),  // D15
     ];
     let mut i2c_config = i2c::Config::default();
     i2c_config.frequency = Hertz(400_000);

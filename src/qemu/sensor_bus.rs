@@ -115,4 +115,9 @@ impl InputBus for MailboxBus {
         // the stand-in offers channels 0..4; a channel the host does not simulate does not answer
         0x0F
     }
+
+    fn chip_selects(&self) -> u8 {
+        // the stand-in serves every chip-select the settings can configure
+        nanocal_compensator::settings::SENSORS as u8
+    }
 }

@@ -47,6 +47,7 @@ use crate::command::{self, Action, Affects, Refusal};
 use crate::gcs::{self, AxisId, AxisMap, LineBuf, Split, MAP_AXES, MAX_LINE};
 use core::fmt;
 use inverse::Jacobian;
+use nanocal_model::HysteresisState;
 use queue::{Expect, Info, Queue};
 use replies::ReplyRx;
 
@@ -248,6 +249,12 @@ enum LongLine {
 
 /// The proxy: the host's bytes assembled into lines, and the [`ProxyState`] they act on.
 ///
+/// Its entry points ([`host_bytes`](Proxy::host_bytes), [`stage_bytes`](Proxy::stage_bytes),
+/// [`poll`](Proxy::poll)) take the firmware's corrector, [`FoldCorrector`]; inside, the proxy
+/// is written against the [`Corrector`] contract. Being concrete, the entry points and
+/// everything they call are compiled once, in this crate and at its optimisation level
+/// (`Cargo.toml`), not instantiated again in the firmware's.
+///
 /// `Proxy` dereferences to its [`ProxyState`] (bypass, gate, counters, targets), so the state
 /// reads as the proxy's own fields; the split only lets a line be processed where it was
 /// assembled, without a copy.
@@ -274,6 +281,10 @@ pub struct ProxyState {
     rx: ReplyRx,
     held: Option<Held>,
     jacobian: Option<Jacobian>,
+    /// The model's play operators as the commands sent left them (hysteresis memory): advanced
+    /// only when a corrected target goes out, reset whenever the stage may have moved along a
+    /// path the proxy did not see (see [`ProxyState::reset_hysteresis`]).
+    hyst: HysteresisState,
     now_ms: u32,
     last_rx_ms: u32,
     last_tx_ms: u32,
@@ -322,6 +333,7 @@ impl Proxy {
                 rx: ReplyRx::new(),
                 held: None,
                 jacobian: None,
+                hyst: HysteresisState::new(),
                 now_ms: 0,
                 last_rx_ms: 0,
                 last_tx_ms: 0,
@@ -347,9 +359,9 @@ impl Proxy {
     /// `out` never overflows) and returns how many bytes of `input` it consumed; call again with
     /// the rest after sending `out`. With no input it processes a line received earlier.
     #[inline(never)]
-    pub fn host_bytes<C: Corrector>(
+    pub fn host_bytes(
         &mut self,
-        c: Option<&C>,
+        c: Option<&FoldCorrector>,
         input: &[u8],
         now_ms: u32,
         out: &mut Output,
@@ -511,9 +523,9 @@ impl Proxy {
     /// Bytes from the controller. Returns how many of `input` it consumed; call again with the
     /// rest after sending `out` (it stops after a complete mapped reply, or when `out` is full).
     #[inline(never)]
-    pub fn stage_bytes<C: Corrector>(
+    pub fn stage_bytes(
         &mut self,
-        c: Option<&C>,
+        c: Option<&FoldCorrector>,
         input: &[u8],
         now_ms: u32,
         out: &mut Output,
@@ -525,7 +537,7 @@ impl Proxy {
     /// given up (their answers are taken as missing), so later replies keep their attribution
     /// and a held line is decided. Call periodically (every few ms to 100 ms).
     #[inline(never)]
-    pub fn poll<C: Corrector>(&mut self, c: Option<&C>, now_ms: u32, out: &mut Output) {
+    pub fn poll(&mut self, c: Option<&FoldCorrector>, now_ms: u32, out: &mut Output) {
         self.st.poll(c, now_ms, out)
     }
 
@@ -536,6 +548,22 @@ impl Proxy {
 }
 
 impl ProxyState {
+    /// Forget the hysteresis memory (the play operators' outputs): the next corrected command
+    /// primes them at its targets. The rules (see `src/README.md`, *Hysteresis*): reset for a
+    /// new model (the firmware calls this when it stages one), and whenever a target is
+    /// forgotten (stops, referencing, servo changes, errors on moves, commands in bypass,
+    /// reboot) — the stage then went somewhere along a path the proxy did not command. A host
+    /// session's end and new settings start a fresh proxy, so they reset it too. A new fold of
+    /// the same model (temperatures, λ_KMZ) keeps it: the stage's memory did not change.
+    pub fn reset_hysteresis(&mut self) {
+        self.hyst.reset();
+    }
+
+    /// The hysteresis memory as the commands sent left it.
+    pub fn hysteresis(&self) -> &HysteresisState {
+        &self.hyst
+    }
+
     /// The error waiting for the host's next `ERR?` (0 = none).
     pub fn pending_error(&self) -> i32 {
         self.pending_error
@@ -800,13 +828,16 @@ impl ProxyState {
         }
     }
 
-    /// Forget one model axis' target (`None`: all).
+    /// Forget one model axis' target (`None`: all). The axis stopped short of its target,
+    /// was referenced, switched servo, errored, or moved in bypass: the stage went where the
+    /// proxy did not send it, so the hysteresis memory is reset too.
     fn forget(&mut self, axis: Option<usize>) {
         match axis {
             Some(a) if a < MAP_AXES => self.targets.known &= !(1 << a),
             _ => self.targets.known = 0,
         }
         self.jacobian = None;
+        self.hyst.reset();
     }
 
     /// Keep `line` until the controller answered the proxy's own queries for `needs`.

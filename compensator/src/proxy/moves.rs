@@ -4,7 +4,7 @@
 //! targets are integers (micros) in plain arrays with a bit mask of the known ones, arguments
 //! are read in one pass, and the forwarded line is printed straight into the output buffer.
 
-use super::{codes, Corrector, Gate, Output, ProxyState, Units, Version};
+use super::{codes, Corrector, Gate, Output, ProxyState, Targets, Units, Version};
 use crate::command::MoveKind;
 use crate::gcs::{self, GcsError, Split, MAP_AXES};
 
@@ -141,11 +141,14 @@ impl ProxyState {
                 }
             }
         }
-        let r = c.correct(&xf, &dir);
-        if r.outside_envelope & all != 0 {
+        let r = c.correct(&xf, &dir, &self.hyst);
+        if r.fast_missing {
+            return Err(Stop::Refuse(codes::SENSOR_FAULT));
+        }
+        if r.outside_envelope & all != 0 || r.fast_outside {
             return Err(Stop::Refuse(codes::OUTSIDE_ENVELOPE));
         }
-        // inside the stage travel, then exactly as printed
+        // the command is the exact target plus δ, in micros; inside the stage travel
         let mut q = x;
         for a in 0..n {
             let (lo, hi) = c.travel_um(a);
@@ -153,7 +156,10 @@ impl ProxyState {
             if !(qa >= lo && qa <= hi) {
                 return Err(Stop::Refuse(codes::POS_OUT_OF_LIMITS));
             }
-            q[a] = gcs::f32_to_micros(qa).ok_or(Stop::Refuse(codes::POS_OUT_OF_LIMITS))?;
+            // |x| ≤ 10¹⁸ (parse_micros), |d| < 2⁶² (f32_to_micros): no overflow
+            let d =
+                gcs::f32_to_micros(r.delta_um[a]).ok_or(Stop::Refuse(codes::POS_OUT_OF_LIMITS))?;
+            q[a] = x[a] + d;
         }
 
         let mut written = self.format_move(s.prefix, kind, named, &q, n, out);
@@ -163,10 +169,15 @@ impl ProxyState {
             written = out.to_stage.push(b'\n');
         }
         written.map_err(|_| Stop::Refuse(codes::LINE_TOO_LONG))?;
-        // the one place a corrected target goes out
-        for a in 0..n {
-            self.targets.set(a, x[a], q[a]);
-        }
+        // the one place a corrected target goes out: its targets and commands are recorded
+        // (every model axis; the slots of other axes are never read), and the hysteresis
+        // memory follows it
+        self.targets = Targets {
+            x,
+            q,
+            known: self.targets.known | all,
+        };
+        c.sent(&xf, &mut self.hyst);
         self.dir = dir;
         self.counters.moves = self.counters.moves.wrapping_add(1);
         Ok(())

@@ -356,14 +356,19 @@ impl ProxyState {
             }
             x0
         });
-        let xf = invert(c, &q, &self.dir, x0, &mut self.jacobian)?;
-        Some([0, 1, 2].map(|a| {
-            if a < n {
-                gcs::f32_to_micros(xf[a])
+        let (_, delta) = invert(c, &q, &self.dir, &self.hyst, x0, &mut self.jacobian)?;
+        // x = q − δ(x) in micros: exact reply, f32 δ (an f32 position would round by up to
+        // 0.24 nm at 5 mm)
+        let mut x = [None; MAP_AXES];
+        for a in 0..n {
+            let qa = if seen >> a & 1 != 0 {
+                self.rx.values[a]
             } else {
-                None
-            }
-        }))
+                gcs::f32_to_micros(q[a])?
+            };
+            x[a] = Some(qa.saturating_sub(gcs::f32_to_micros(delta[a])?));
+        }
+        Some(x)
     }
 
     /// The reply is complete.
@@ -477,7 +482,7 @@ impl ProxyState {
             }
         }
         let mut none = None;
-        let Some(x) = invert(c, &qf, &self.dir, None, &mut none) else {
+        let Some((_, delta)) = invert(c, &qf, &self.dir, &self.hyst, None, &mut none) else {
             self.counters.inverse_failures = self.counters.inverse_failures.wrapping_add(1);
             return;
         };
@@ -488,8 +493,8 @@ impl ProxyState {
             if self.targets.known >> a & 1 != 0 {
                 continue;
             }
-            if let (Some(xa), Some(qa)) = (gcs::f32_to_micros(x[a]), q[a]) {
-                self.reseed.set(a, xa, qa);
+            if let (Some(d), Some(qa)) = (gcs::f32_to_micros(delta[a]), q[a]) {
+                self.reseed.set(a, qa.saturating_sub(d), qa);
             }
         }
     }

@@ -680,7 +680,9 @@ impl<'a> Runner<'a> {
             x[a] = step.target_um[a] as f32;
             dir[a] = step.approach[a];
         }
-        let c = fold.correct(&x, &dir);
+        // play operators from a fresh state (the published models have none; a model with
+        // them needs the device's memory, which only the virtual bench can see)
+        let c = fold.correct(&x, &dir, &nanocal_model::HysteresisState::new());
         (0..step.target_um.len())
             .map(|a| f64::from(c.q_um[a]))
             .collect()

@@ -27,7 +27,7 @@ pub enum DeviceError {
     #[error("no reply from the device within {0:?} (request kind {1:#04x})")]
     Timeout(Duration, u8),
     /// The device refused the request.
-    #[error("device refused request kind {kind:#04x}: code {code} ({meaning})")]
+    #[error("device refused request kind {kind:#04x}: code {code} ({meaning}){detail}")]
     Refused {
         /// Request kind.
         kind: u8,
@@ -35,6 +35,9 @@ pub enum DeviceError {
         code: u8,
         /// What the code means.
         meaning: &'static str,
+        /// What the reply adds, as text (empty, or ": …"): for an upload refused for an input,
+        /// which input and why.
+        detail: String,
     },
     /// The reply was malformed.
     #[error("malformed reply to request kind {0:#04x}: {1}")]
@@ -200,10 +203,20 @@ impl Client {
                         .split_first()
                         .ok_or_else(|| DeviceError::Protocol(k, "empty reply".into()))?;
                     if code != mgmt::RESULT_OK {
+                        let detail = match (code, data.first()) {
+                            (mgmt::RESULT_INPUT, Some(&input)) => {
+                                match nanocal_compensator::inputs::describe_code(input) {
+                                    Some((what, index)) => format!(": input {index}, {what}"),
+                                    None => format!(": input code {input:#04x}"),
+                                }
+                            }
+                            _ => String::new(),
+                        };
                         return Err(DeviceError::Refused {
                             kind: k,
                             code,
                             meaning: result_meaning(code),
+                            detail,
                         });
                     }
                     return Ok(data.to_vec());

@@ -12,7 +12,8 @@
 //! - [`mgmt`], [`upload`]: the management protocol and chunked upload;
 //! - [`store`], [`l4flash`]: the persistent store on the L4's flash (and its simulation);
 //! - [`identity`], [`clock`], [`led`], [`wire`]: reset cause and UID, clock rules, the status
-//!   LED, the QEMU board's bus stand-in.
+//!   LED, the QEMU board's bus stand-in;
+//! - [`bench_link`]: the QEMU board's link to its virtual bench (host-driven clock, bus mailbox).
 //!
 //! No heap, no `unsafe`, no panics on external input.
 #![no_std]
@@ -23,6 +24,7 @@
 #[cfg(any(test, feature = "std"))]
 extern crate std;
 
+pub mod bench_link;
 pub mod clock;
 pub mod command;
 pub mod fault;

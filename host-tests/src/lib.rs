@@ -2,6 +2,7 @@
 #![warn(missing_docs)]
 pub use nanocal_model as model;
 
+pub mod campaign;
 pub mod cli;
 pub mod design;
 pub mod device;

@@ -20,6 +20,8 @@ enum Command {
     Validate(nanocal::cli::validate::ValidateArgs),
     /// Validate and write the report plots (PNG + SVG).
     Report(nanocal::cli::report::ReportArgs),
+    /// A whole calibration campaign on a bench through the compensator (or `--virtual`).
+    Campaign(nanocal::cli::campaign::CampaignArgs),
     /// The whole workflow on the bundled example: train, fit, validate, table, plots.
     Demo(nanocal::cli::demo::DemoArgs),
     /// Run the digital twin and write a simulated recording (CSV).
@@ -63,6 +65,7 @@ fn main() -> anyhow::Result<()> {
         Command::Fit(a) => nanocal::cli::fit::run(a),
         Command::Validate(a) => nanocal::cli::validate::run(a),
         Command::Report(a) => nanocal::cli::report::run(a),
+        Command::Campaign(a) => nanocal::cli::campaign::run(a),
         Command::Demo(a) => nanocal::cli::demo::run(a),
         Command::Simulate(a) => nanocal::cli::simulate::run(a),
         Command::Device(cmd) => nanocal::cli::device::run(cmd),

@@ -35,6 +35,11 @@ impl ProcedureData {
             data: ValidationData {
                 dwells: step_average(rec, steps, t_offset_s)?,
                 sensors: SensorStream::from_recording(rec),
+                poses_um: Some(
+                    (0..steps.first().map_or(0, |s| s.target_um.len()))
+                        .map(|a| steps.iter().map(|s| s.target_um[a]).collect())
+                        .collect(),
+                ),
             },
         })
     }

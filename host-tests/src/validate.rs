@@ -139,6 +139,11 @@ pub struct ValidationData {
     pub dwells: Dwells,
     /// The slow channels as the device's sensors sampled them.
     pub sensors: SensorStream,
+    /// The pose each visit was meant to reach, per axis per dwell, when a plan says it (else
+    /// the commanded pose is taken as the pose asked for). A recording made through the
+    /// compensator (`nanocal campaign`) commands the corrected pose: its visits are grouped by,
+    /// and its refusals checked on, the plan's pose.
+    pub poses_um: Option<Vec<Vec<f64>>>,
 }
 
 impl ValidationData {
@@ -147,6 +152,7 @@ impl ValidationData {
         Ok(ValidationData {
             dwells: dwell_average(rec, opts)?,
             sensors: SensorStream::from_recording(rec),
+            poses_um: None,
         })
     }
 
@@ -156,6 +162,7 @@ impl ValidationData {
         ValidationData {
             sensors: SensorStream::from_dwells(&dwells),
             dwells,
+            poses_um: None,
         }
     }
 }
@@ -389,6 +396,12 @@ pub fn validate_roles(
                 _ => continue,
             }
         }
+        let mut pose = q;
+        if let Some(p) = &data.poses_um {
+            for a in 0..k {
+                pose[a] = p[a][i];
+            }
+        }
         let mut refused = false;
         let (error_um, outside) = match &model {
             None => ((0..k).map(|a| x[a] - q[a]).collect::<Vec<f64>>(), false),
@@ -396,7 +409,7 @@ pub fn validate_roles(
                 let device = FoldCorrector::new(m, &slow);
                 let outside = device.fold.slow_outside_envelope() != 0;
                 // the user asks for the pose itself: would the device take that move?
-                refused = refuses(&device, &q32, &dir, &fast, &hyst, k);
+                refused = refuses(&device, &pose.map(|v| v as f32), &dir, &fast, &hyst, k);
                 // the play operators frozen where the last command left them
                 match device.fold.inverse(&q32, &dir, &fast, &hyst) {
                     Ok(xh) => {
@@ -418,7 +431,7 @@ pub fn validate_roles(
         visits.push(Visit {
             t_s: d.t_end_s[i],
             t_move_s: d.t_start_s[i],
-            target_um: q[..k].to_vec(),
+            target_um: pose[..k].to_vec(),
             error_um,
             dir: dir[..k].to_vec(),
             test,

@@ -44,7 +44,7 @@ fn e2e_first_conversion_absent_chip_brownout_and_dead_bus() {
         return;
     };
     let _stage = StageSim::start(q.connect(1), 1);
-    let sensors = SensorSim::start(q.connect(2), &TEMPS_C);
+    let sensors = SensorSim::start(q.link(), &TEMPS_C);
     let mut host = q.gcs_host();
     let mut c = q.client();
     let model = nanocal::published::published_1dof().unwrap();
@@ -133,7 +133,9 @@ fn e2e_host_session_ends_when_the_port_closes() {
         return;
     };
     let stage = StageSim::start(q.connect(1), 1);
-    let _sensors = SensorSim::start(q.connect(2), &TEMPS_C);
+    let _sensors = SensorSim::start(q.link(), &TEMPS_C);
+    // the board is up (its store read, every task running) before the host opens the port
+    drop(q.client());
     let mut host = q.gcs_host();
     q.set_dtr(true);
     // no model: a MOV leaves error 9003 pending for the next ERR?
@@ -175,7 +177,7 @@ fn e2e_watchdog_resets_a_hung_firmware_and_settings_persist() {
         return;
     };
     let _stage = StageSim::start(q.connect(1), 1);
-    let _sensors = SensorSim::start(q.connect(2), &TEMPS_C);
+    let _sensors = SensorSim::start(q.link(), &TEMPS_C);
     let mut c = q.client();
     let h = c.identify().unwrap();
     assert_eq!(h.reset_cause, ResetCause::PowerOn);
@@ -207,7 +209,7 @@ fn e2e_model_inputs_must_be_supplied() {
         return;
     };
     let stage = StageSim::start(q.connect(1), 1);
-    let sensors = SensorSim::start(q.connect(2), &TEMPS_C);
+    let sensors = SensorSim::start(q.link(), &TEMPS_C);
     let mut host = q.gcs_host();
     let mut c = q.client();
     let model = pressure_model();

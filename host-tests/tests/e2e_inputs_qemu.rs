@@ -45,7 +45,7 @@ fn e2e_hysteresis_walk_matches_the_f64_reference() {
         return;
     };
     let stage = StageSim::start(q.connect(1), 1);
-    let _sensors = SensorSim::start(q.connect(2), &[TEMP_C]);
+    let _sensors = SensorSim::start(q.link(), &[TEMP_C]);
     let mut host = q.gcs_host();
     let mut c = q.client();
     let model = hysteresis_model();
@@ -102,7 +102,7 @@ fn e2e_fast_force_input_is_used_per_command_and_its_loss_refuses_moves() {
         return;
     };
     let stage = StageSim::start(q.connect(1), 1);
-    let sensors = SensorSim::start(q.connect(2), &[TEMP_C]);
+    let sensors = SensorSim::start(q.link(), &[TEMP_C]);
     let mut host = q.gcs_host();
     let mut c = q.client();
     // a force sensor on ADC channel 0: 1 mN per count, 0 N at mid-scale

@@ -140,7 +140,7 @@ fn e2e_pipython_session_through_the_compensator() {
         a.velocity = 250.0;
     }
     let stage = StageSim::serve(q.connect(1), cfg);
-    let _sensors = SensorSim::start(q.connect(2), &TEMPS_C);
+    let _sensors = SensorSim::start(q.link(), &TEMPS_C);
     let host_port = q.gcs_port();
     let mut c = q.client();
     let model = published_1dof().unwrap();

@@ -36,7 +36,7 @@ fn e2e_compensator_under_qemu() {
         return;
     };
     let stage = StageSim::start(q.connect(1), 1);
-    let sensors = SensorSim::start(q.connect(2), &TEMPS_C);
+    let sensors = SensorSim::start(q.link(), &TEMPS_C);
     let mut host = q.gcs_host();
 
     // the device answers on its management port
@@ -301,7 +301,7 @@ fn e2e_coupled_2dof_under_qemu() {
         return;
     };
     let stage = StageSim::start(q.connect(1), 2);
-    let _sensors = SensorSim::start(q.connect(2), &TEMPS_C);
+    let _sensors = SensorSim::start(q.link(), &TEMPS_C);
     let mut host = q.gcs_host();
     let mut c = q.client();
     let model = nanocal::published::coupled_2dof().unwrap();

@@ -111,7 +111,7 @@ fn run_under_qemu(
     }
     let mut q = Qemu::start_or_skip(test)?;
     let stage = StageSim::start(q.connect(1), 3);
-    let _sensors = SensorSim::start(q.connect(2), temps);
+    let _sensors = SensorSim::start(q.link(), temps);
     let mut host = q.gcs_host();
     let mut c = q.client();
     // a type K amplifier on each of the model's chip-selects, as `nanocal device config` sets

@@ -203,7 +203,7 @@ fn fw_bench_latency_throughput() {
     }
     let mut q = Qemu::start(&[]);
     let stage = StageSim::start(q.connect(1), 1);
-    let _sensors = SensorSim::start(q.connect(2), &[22.0, 22.125, 21.875, 22.25]);
+    let _sensors = SensorSim::start(q.link(), &[22.0, 22.125, 21.875, 22.25]);
     let mut host = q.gcs_host();
     let mut c = q.client();
     let model = published_1dof().unwrap();

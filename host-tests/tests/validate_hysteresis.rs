@@ -60,7 +60,11 @@ fn data(walk: &[(f64, i8, f64)]) -> ValidationData {
         rows_averaged: vec![1; n],
     };
     let sensors = SensorStream::from_dwells(&dwells);
-    ValidationData { dwells, sensors }
+    ValidationData {
+        dwells,
+        sensors,
+        poses_um: None,
+    }
 }
 
 #[test]

@@ -1,21 +1,23 @@
-//! QEMU `mps2-an386` board: host link on serial0, stage link on serial1, the bus stand-in
-//! (SPI/I2C/ADC to simulated chips) on serial2, management on serial3, the host link's line
-//! state (USB DTR stand-in) on serial4; CMSDK watchdog, FPGA LED 0 as the status LED, the L4
-//! flash model in RAM that survives a system reset.
+//! QEMU `mps2-an386` board: host link on serial0, stage link on serial1, management on serial3,
+//! the host link's line state (USB DTR stand-in) and the bench's doorbells on serial4; the
+//! virtual bench's page (PSRAM) carries the board's clock and the bus stand-in (SPI/I2C/ADC to
+//! simulated chips); CMSDK watchdog, FPGA LED 0 as the status LED, the L4 flash model in RAM that
+//! survives a system reset.
 #![no_std]
 #![no_main]
 
 use cortex_m_rt::exception;
 use cortex_m_semihosting::{debug, hprintln};
 use embassy_executor::Spawner;
-use embassy_time::{Duration, Timer};
+use embassy_time::Duration;
+use embedded_io_async::Read;
 use nanocal_compensator::l4flash::L4Nor;
 use nanocal_compensator::store::Store;
 use nanocal_fw::app::{self, Identity, Shared};
 use nanocal_fw::qemu::board::{self, TimedFlash};
-use nanocal_fw::qemu::sensor_bus::SerialBus;
-use nanocal_fw::qemu::uart::{Uart, UartRx, UartTx};
-use nanocal_fw::qemu::{self, time};
+use nanocal_fw::qemu::sensor_bus::MailboxBus;
+use nanocal_fw::qemu::uart::{self, Uart, UartRx, UartTx};
+use nanocal_fw::qemu::{self, executor, time};
 use static_cell::StaticCell;
 
 /// Store erase unit: four 2 KiB pages (a whole blob fits one unit).
@@ -55,7 +57,7 @@ async fn stage_link_task(rx: UartRx, tx: UartTx, sh: &'static Shared) {
 }
 
 #[embassy_executor::task]
-async fn sensor_task(bus: SerialBus<UartRx, UartTx>, sh: &'static Shared) {
+async fn sensor_task(bus: MailboxBus, sh: &'static Shared) {
     app::sensors(bus, Duration::from_millis(300), sh).await
 }
 
@@ -70,16 +72,18 @@ async fn management_task(
 }
 
 /// The host link's line state: the bench sends C0h | bits of USB CDC SET_CONTROL_LINE_STATE's
-/// wValue (bit 0 DTR, bit 1 RTS) whenever its GCS client opens or closes the port.
+/// wValue (bit 0 DTR, bit 1 RTS) whenever its GCS client opens or closes the port. The bench's
+/// doorbells on the same port only wake the board (its clock reads the new horizon when idle).
 #[embassy_executor::task]
 async fn line_state_task(mut rx: UartRx, sh: &'static Shared) {
+    let mut buf = [0u8; 16];
     loop {
-        while let Some(b) = rx.try_read() {
+        let n = rx.read(&mut buf).await.unwrap_or(0);
+        for &b in &buf[..n] {
             if b & 0xF0 == 0xC0 {
                 app::host_line_state(sh, b & 1 != 0);
             }
         }
-        Timer::after_millis(5).await;
     }
 }
 
@@ -99,18 +103,34 @@ async fn supervisor_task(sh: &'static Shared) {
     app::supervisor(QemuBoard, sh).await
 }
 
-#[embassy_executor::main]
-async fn main(spawner: Spawner) {
+#[cortex_m_rt::entry]
+fn main() -> ! {
+    executor::run(start)
+}
+
+fn start(spawner: Spawner) {
     let Some(cp) = cortex_m::Peripherals::take() else {
         panic!("core peripherals taken twice");
     };
     time::init(cp.SYST);
+    board::kick_io_init();
     let cause = board::reset_cause();
     hprintln!(
-        "nanocal-fw (qemu mps2-an386) up; reset cause {}",
-        cause.code()
+        "nanocal-fw (qemu mps2-an386) up; reset cause {}; clock {}",
+        cause.code(),
+        if time::linked() {
+            "driven by the bench"
+        } else {
+            "SysTick (1x)"
+        }
     );
     board::watchdog_start(2000);
+    spawner.spawn(boot_task(spawner, cause).expect("task pool"));
+}
+
+/// The rest of the start-up needs the store (async): settings, then every task.
+#[embassy_executor::task]
+async fn boot_task(spawner: Spawner, cause: nanocal_compensator::identity::ResetCause) {
     // SAFETY: called once, here.
     let flash = unsafe { board::flash(cause) };
     let store = STORE.init(Store::new(L4Nor::new(TimedFlash(flash))));
@@ -121,23 +141,21 @@ async fn main(spawner: Spawner) {
     };
     let sh: &'static Shared = SHARED.init(Shared::new(settings, identity));
     // SAFETY: each UART index is taken exactly once, here.
-    let (host, stage, sensors, mgmt, line) = unsafe {
+    let (host, stage, mgmt, line) = unsafe {
         (
             Uart::new(0, 115_200),
             Uart::new(1, settings.stage_baud),
-            Uart::new(2, 115_200),
             Uart::new(3, 115_200),
-            Uart::new(4, 115_200),
+            Uart::new(uart::BENCH, 115_200),
         )
     };
     let (hrx, htx) = host.split();
     let (srx, stx) = stage.split();
-    let (brx, btx) = sensors.split();
     let (mrx, mtx) = mgmt.split();
     let (lrx, _) = line.split();
     spawner.spawn(supervisor_task(sh).expect("task pool"));
     spawner.spawn(management_task(mrx, mtx, store, sh).expect("task pool"));
-    spawner.spawn(sensor_task(SerialBus::new(brx, btx), sh).expect("task pool"));
+    spawner.spawn(sensor_task(MailboxBus::new(), sh).expect("task pool"));
     spawner.spawn(stage_link_task(srx, stx, sh).expect("task pool"));
     spawner.spawn(host_link_task(hrx, htx, sh).expect("task pool"));
     spawner.spawn(line_state_task(lrx, sh).expect("task pool"));

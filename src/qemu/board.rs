@@ -1,4 +1,4 @@
-//! The rest of the QEMU board: CMSDK APB watchdog, FPGA LED, reset cause, storage in RAM that
+//! The rest of the QEMU board: CMSDK APB watchdog (and its deadline on the board's clock), FPGA LED, reset cause, storage in RAM that
 //! survives a system reset, the host-link line state.
 //!
 //! CMSDK APB watchdog (ARM DDI 0479, "Cortex-M System Design Kit", §4.4; QEMU
@@ -9,10 +9,16 @@
 
 use core::mem::MaybeUninit;
 use core::ptr::{addr_of_mut, read_volatile, write_volatile};
+use core::sync::atomic::{AtomicU32, Ordering};
 use nanocal_compensator::identity::ResetCause;
 use nanocal_compensator::l4flash::{FlashError, L4Sim, RawFlash, DWORD, ERASE_PAGE_US};
 
 const WDOG: usize = 0x4000_8000;
+/// CMSDK APB timer 0 (ARM DDI 0479 §4.3: CTRL 00h, VALUE 04h, RELOAD 08h), used only to wake
+/// QEMU's I/O loop (see [`kick_io`]).
+const TIMER0: usize = 0x4000_0000;
+/// CMSDK APB timer 1: a free-running down-counter of QEMU's clock (25 MHz).
+const TIMER1: usize = 0x4000_1000;
 const FPGAIO_LED: usize = 0x4002_8000;
 
 fn w(addr: usize, v: u32) {
@@ -20,19 +26,110 @@ fn w(addr: usize, v: u32) {
     unsafe { write_volatile(addr as *mut u32, v) }
 }
 
+/// Watchdog timeout in force, ms (0: not started).
+static WATCHDOG_MS: AtomicU32 = AtomicU32::new(0);
+
 /// Start the watchdog: a hang of more than `timeout_ms` (twice, interrupt then reset) resets.
 pub fn watchdog_start(timeout_ms: u32) {
+    WATCHDOG_MS.store(timeout_ms, Ordering::Relaxed);
     w(WDOG + 0xC00, 0x1ACC_E551);
     w(WDOG, super::SYSCLK_HZ / 1000 * timeout_ms);
     w(WDOG + 0x08, 0b11);
     w(WDOG + 0xC00, 0);
+    watchdog_deadline(timeout_ms);
 }
 
-/// Reload the watchdog.
+/// The same deadline on the board's clock (see [`super::time`]): two expiries, as the CMSDK
+/// watchdog's interrupt-then-reset.
+fn watchdog_deadline(timeout_ms: u32) {
+    let ticks = 2 * u64::from(timeout_ms) * (embassy_time_driver::TICK_HZ / 1000);
+    super::time::set_watchdog_deadline(super::time::uptime_ticks().saturating_add(ticks));
+}
+
+/// QEMU-clock time of the last reload of the CMSDK watchdog (timer 1's count).
+static LAST_RELOAD: AtomicU32 = AtomicU32::new(0);
+
+/// Reload the watchdog: its deadline on the board's clock at every pet; the CMSDK counter (on
+/// QEMU's clock, which only catches a busy loop) at most every 100 ms of QEMU's clock — each
+/// reload re-arms a QEMU timer and wakes QEMU's I/O loop, which would cost more than the rest of
+/// a pet when the board's clock runs thousands of times faster than QEMU's.
 pub fn watchdog_pet() {
-    w(WDOG + 0xC00, 0x1ACC_E551);
-    w(WDOG + 0x0C, 1);
-    w(WDOG + 0xC00, 0);
+    let ms = WATCHDOG_MS.load(Ordering::Relaxed);
+    if ms != 0 {
+        watchdog_deadline(ms);
+    }
+    let now = r(TIMER1 + 0x04);
+    if LAST_RELOAD.load(Ordering::Relaxed).wrapping_sub(now) >= super::SYSCLK_HZ / 10 {
+        LAST_RELOAD.store(now, Ordering::Relaxed);
+        w(WDOG + 0xC00, 0x1ACC_E551);
+        w(WDOG + 0x0C, 1);
+        w(WDOG + 0xC00, 0);
+    }
+}
+
+/// Stop the CMSDK watchdog's counter while the board waits for the bench (no board time passes
+/// then; QEMU's clock does).
+pub fn watchdog_pause() {
+    if WATCHDOG_MS.load(Ordering::Relaxed) != 0 {
+        w(WDOG + 0xC00, 0x1ACC_E551);
+        w(WDOG + 0x08, 0);
+        w(WDOG + 0xC00, 0);
+    }
+}
+
+/// Restart it after a wait (ARM DDI 0479 §4.4: setting INTEN again reloads the counter).
+pub fn watchdog_resume() {
+    if WATCHDOG_MS.load(Ordering::Relaxed) != 0 {
+        w(WDOG + 0xC00, 0x1ACC_E551);
+        w(WDOG + 0x08, 0b11);
+        w(WDOG + 0xC00, 0);
+    }
+}
+
+/// The watchdog's deadline passed on the board's clock: reset as the watchdog does (no
+/// software-reset marker, so the next boot reports the watchdog).
+pub fn watchdog_fire() -> ! {
+    cortex_m::peripheral::SCB::sys_reset()
+}
+
+/// Wake QEMU's I/O loop. QEMU's CMSDK UART model takes the next received byte from its socket
+/// only when QEMU's main loop runs again, and reading the data register does not wake that loop
+/// (`hw/char/cmsdk-apb-uart.c` calls no `qemu_chr_fe_accept_input`): a byte stream into the
+/// board would trickle at the pace of unrelated events. Re-arming timer 0 to expire at once
+/// moves a QEMU timer deadline, which wakes the loop, which then hands over the next byte. The
+/// timer's interrupt stays disabled; on hardware there is nothing to do.
+pub fn kick_io() {
+    w(TIMER0 + 0x04, 2);
+}
+
+/// Set timer 0 up for [`kick_io`], and timer 1 as a free-running counter of QEMU's clock (for
+/// [`wait_for_interrupt_busy`]): enabled, no interrupt, reloading from the largest value.
+pub fn kick_io_init() {
+    for t in [TIMER0, TIMER1] {
+        w(t + 0x08, u32::MAX);
+        w(t, 1);
+    }
+}
+
+fn r(addr: usize) -> u32 {
+    // SAFETY: MMIO register of the board, 32-bit access.
+    unsafe { read_volatile(addr as *const u32) }
+}
+
+/// Busy-wait up to `us` µs of QEMU's clock for an interrupt to become pending (interrupts
+/// masked); true if one did (SCB ICSR.ISRPENDING, ARMv7-M ARM B3.2.4).
+pub fn wait_for_interrupt_busy(us: u32) -> bool {
+    const ICSR: usize = 0xE000_ED04;
+    let start = r(TIMER1 + 0x04);
+    let ticks = us.saturating_mul(super::SYSCLK_HZ / 1_000_000);
+    loop {
+        if r(ICSR) & (1 << 22) != 0 {
+            return true;
+        }
+        if start.wrapping_sub(r(TIMER1 + 0x04)) > ticks {
+            return false;
+        }
+    }
 }
 
 /// Light FPGA LED 0.

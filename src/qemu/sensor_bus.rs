@@ -1,36 +1,38 @@
-//! The peripheral-bus stand-in: SPI, I2C and ADC transactions carried byte-exact over a UART
-//! (framing in `nanocal_compensator::wire`) to register-level chip simulations on the host.
+//! The peripheral-bus stand-in: SPI, I2C and ADC transactions, byte-exact in the
+//! `nanocal_compensator::wire` framing, through the mailbox of the bench's page
+//! (`nanocal_compensator::bench_link`) to register-level chip simulations on the host.
+//!
+//! A transaction is synchronous and takes no board time: the request is posted, the bench is
+//! rung, and the board waits (a short busy wait, microseconds) for the reply, which the chip
+//! models computed at the board's clock. A reply of [`bl::NO_ANSWER`] (a dead bus, an unplugged
+//! device on a bus without pull-ups) never completes: the caller's timeout ends it, in board time,
+//! as on the real board. Without the page nothing answers.
 
+use super::{link, uart};
 use crate::app::InputBus;
-use embedded_io_async::{Read, Write};
+use nanocal_compensator::bench_link as bl;
 use nanocal_compensator::wire;
 
-/// A serial port playing the board's buses.
-pub struct SerialBus<R, W> {
-    rx: R,
-    tx: W,
+/// The bus stand-in of the bench's mailbox.
+pub struct MailboxBus {
+    seq: u32,
 }
 
-impl<R: Read, W: Write> SerialBus<R, W> {
-    /// A bus on a serial port (the caller bounds each transaction with a timeout).
-    pub fn new(rx: R, tx: W) -> Self {
-        Self { rx, tx }
+impl Default for MailboxBus {
+    fn default() -> Self {
+        Self::new()
     }
+}
 
-    async fn read_exact(&mut self, buf: &mut [u8]) -> Result<(), ()> {
-        let mut got = 0;
-        while got < buf.len() {
-            let n = self.rx.read(&mut buf[got..]).await.map_err(|_| ())?;
-            if n == 0 {
-                return Err(());
-            }
-            got += n;
+impl MailboxBus {
+    /// The mailbox (continues the sequence numbers left by an earlier boot).
+    pub fn new() -> Self {
+        Self {
+            seq: link::read_u32(bl::BUS_REQ_SEQ),
         }
-        Ok(())
     }
 
-    /// Send a request and wait for its reply; the reply data go to `data_in`. Replies to
-    /// earlier requests (that timed out) are skipped.
+    /// Send a request and wait for its reply; the reply data go to `data_in`.
     async fn transact(
         &mut self,
         op: u8,
@@ -38,31 +40,49 @@ impl<R: Read, W: Write> SerialBus<R, W> {
         out: &[u8],
         data_in: &mut [u8],
     ) -> Result<u8, ()> {
-        let mut req = [0u8; wire::HEADER + wire::MAX_DATA];
+        if !super::time::linked() {
+            return core::future::pending().await;
+        }
+        let mut req = [0u8; bl::FRAME_LEN];
         let n = wire::request(op, target, out, data_in.len(), &mut req).ok_or(())?;
-        self.tx.write_all(&req[..n]).await.map_err(|_| ())?;
-        loop {
-            // resynchronise on the reply start byte
-            let mut h = [0u8; wire::HEADER];
-            self.read_exact(&mut h[..1]).await?;
-            if h[0] != wire::REP {
-                continue;
+        for (i, &b) in req[..n].iter().enumerate() {
+            link::write_u8(bl::BUS_REQ + i, b);
+        }
+        self.seq = self.seq.wrapping_add(1);
+        link::barrier();
+        link::write_u32(bl::BUS_REQ_SEQ, self.seq);
+        link::barrier();
+        if link::read_u32(bl::WATCHING) == 0 {
+            uart::ring(bl::RING_BUS);
+        }
+        while link::read_u32(bl::BUS_REP_SEQ) != self.seq {
+            core::hint::spin_loop();
+        }
+        link::barrier();
+        let mut h = [0u8; wire::HEADER];
+        for (i, b) in h.iter_mut().enumerate() {
+            *b = link::read_u8(bl::BUS_REP + i);
+        }
+        if h[3] == bl::NO_ANSWER {
+            return core::future::pending().await;
+        }
+        let (rop, rtarget, status, n_in) = wire::reply_header(&h).ok_or(())?;
+        if rop != op || rtarget != target {
+            return Err(());
+        }
+        if status == wire::OK {
+            if n_in != data_in.len() {
+                return Err(());
             }
-            self.read_exact(&mut h[1..]).await?;
-            let (rop, rtarget, status, n_in) = wire::reply_header(&h).ok_or(())?;
-            let mut data = [0u8; wire::MAX_DATA];
-            self.read_exact(&mut data[..n_in]).await?;
-            if rop == op && rtarget == target && (n_in == data_in.len() || status != wire::OK) {
-                if status == wire::OK {
-                    data_in.copy_from_slice(&data[..n_in]);
-                }
-                return Ok(status);
+            for (i, b) in data_in.iter_mut().enumerate() {
+                *b = link::read_u8(bl::BUS_REP + wire::HEADER + i);
             }
         }
+        Ok(status)
     }
 }
 
-impl<R: Read, W: Write> InputBus for SerialBus<R, W> {
+impl InputBus for MailboxBus {
     async fn spi(&mut self, cs: u8, buf: &mut [u8]) -> Result<(), ()> {
         let mut out = [0u8; wire::MAX_DATA];
         let n = buf.len().min(wire::MAX_DATA);
@@ -92,7 +112,7 @@ impl<R: Read, W: Write> InputBus for SerialBus<R, W> {
     }
 
     fn adc_channels(&self) -> u32 {
-        // the stand-in offers channels 0..4; a channel the host does not simulate times out
+        // the stand-in offers channels 0..4; a channel the host does not simulate does not answer
         0x0F
     }
 

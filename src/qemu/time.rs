@@ -1,79 +1,193 @@
-//! `embassy-time` driver on SysTick: 10 kHz ticks (the tick rate also paces QEMU's serial
-//! receive path, see `../shared/notes/qemu.md`), one timer queue.
+//! `embassy-time` driver of the QEMU board: a clock the virtual bench drives.
+//!
+//! The board's time is its uptime in 1 MHz ticks (as the STM32 board's), but it only moves when
+//! the executor is idle: [`idle`] jumps to the next timer if that lies within the bench's
+//! horizon (nothing can happen in between — no task is ready and every input the board waits for
+//! comes from the bench, which holds the horizon while it sends it), or to the horizon itself, and
+//! then waits (WFI) for the bench to move it. So a day of the firmware's timers — sensor samples,
+//! fold ages, lag filters, timeouts — runs in as much wall time as its work takes, and time never
+//! passes while the bench computes. See `nanocal_compensator::bench_link` for the page and the
+//! doorbells; without the page (QEMU started by hand) SysTick sets the horizon at 1×.
+//!
+//! The watchdog keeps its meaning on the bench's time: [`set_watchdog_deadline`] is a deadline in
+//! board time that the clock will not pass — reaching it resets the board as the hardware
+//! watchdog would — while the CMSDK watchdog (QEMU's own clock) catches a busy loop, in which no
+//! time passes at all, and is paused while the board waits for the bench.
 
+use super::{board, link, uart};
 use core::cell::{Cell, RefCell};
-use core::sync::atomic::{AtomicU32, Ordering};
-use core::task::Waker;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
 use critical_section::Mutex;
 use embassy_time_driver::Driver;
 use embassy_time_queue_utils::Queue;
+use nanocal_compensator::bench_link as bl;
 
-struct SysTickDriver {
-    /// High word of the tick counter is kept in `ticks_hi` (u32 wrap every 4.9 days at 10 kHz).
-    ticks_lo: AtomicU32,
-    ticks_hi: AtomicU32,
+struct BenchClock {
+    /// Uptime, ticks.
+    now: Mutex<Cell<u64>>,
+    /// Bench time of this boot, ticks.
+    boot_at: Mutex<Cell<u64>>,
     queue: Mutex<RefCell<Queue>>,
+    /// Next timer, uptime ticks (u64::MAX: none).
     next_at: Mutex<Cell<u64>>,
+    /// The bench's page is present (else SysTick sets the horizon).
+    linked: Mutex<Cell<bool>>,
+    /// Horizon from SysTick when there is no page, bench ticks.
+    systick_horizon: Mutex<Cell<u64>>,
+    /// Watchdog deadline, uptime ticks.
+    watchdog_at: Mutex<Cell<u64>>,
+    /// Bench time of the last "waiting" doorbell (one per instant: the bench waits for the
+    /// board to reach a time, not for every wake-up at it).
+    rung_at: Mutex<Cell<u64>>,
 }
 
-embassy_time_driver::time_driver_impl!(static DRIVER: SysTickDriver = SysTickDriver {
-    ticks_lo: AtomicU32::new(0),
-    ticks_hi: AtomicU32::new(0),
+embassy_time_driver::time_driver_impl!(static DRIVER: BenchClock = BenchClock {
+    now: Mutex::new(Cell::new(0)),
+    boot_at: Mutex::new(Cell::new(0)),
     queue: Mutex::new(RefCell::new(Queue::new())),
     next_at: Mutex::new(Cell::new(u64::MAX)),
+    linked: Mutex::new(Cell::new(false)),
+    systick_horizon: Mutex::new(Cell::new(0)),
+    watchdog_at: Mutex::new(Cell::new(u64::MAX)),
+    rung_at: Mutex::new(Cell::new(u64::MAX)),
 });
 
-impl Driver for SysTickDriver {
+impl Driver for BenchClock {
     fn now(&self) -> u64 {
-        loop {
-            let hi = self.ticks_hi.load(Ordering::Acquire);
-            let lo = self.ticks_lo.load(Ordering::Acquire);
-            if hi == self.ticks_hi.load(Ordering::Acquire) {
-                return (u64::from(hi) << 32) | u64::from(lo);
-            }
-        }
+        critical_section::with(|cs| self.now.borrow(cs).get())
     }
 
-    fn schedule_wake(&self, at: u64, waker: &Waker) {
+    fn schedule_wake(&self, at: u64, waker: &core::task::Waker) {
         critical_section::with(|cs| {
             let mut q = self.queue.borrow_ref_mut(cs);
             if q.schedule_wake(at, waker) {
-                let next = q.next_expiration(self.now());
+                let next = q.next_expiration(self.now.borrow(cs).get());
                 self.next_at.borrow(cs).set(next);
             }
         });
     }
 }
 
-impl SysTickDriver {
-    fn tick(&self) {
-        let lo = self.ticks_lo.load(Ordering::Relaxed).wrapping_add(1);
-        if lo == 0 {
-            self.ticks_hi.fetch_add(1, Ordering::Release);
-        }
-        self.ticks_lo.store(lo, Ordering::Release);
-        let now = self.now();
-        critical_section::with(|cs| {
-            if now >= self.next_at.borrow(cs).get() {
-                let next = self.queue.borrow_ref_mut(cs).next_expiration(now);
-                self.next_at.borrow(cs).set(next);
-            }
-        });
-    }
-}
+/// Busy wait for the bench's next byte before halting, µs of QEMU's clock.
+const SPIN_BEFORE_WFI_US: u32 = 100;
 
-/// Start SysTick at `embassy_time::TICK_HZ` from the processor clock.
+/// SysTick period without the page: 1 ms.
+const SYSTICK_TICKS: u64 = bl::TICK_HZ / 1000;
+
+/// Start the clock: from the bench's page if present (the bench time of this boot is the clock
+/// it left off at: a reset takes no time), else from SysTick at 1×.
 pub fn init(mut syst: SYST) {
-    syst.set_clock_source(SystClkSource::Core);
-    syst.set_reload(super::SYSCLK_HZ / embassy_time_driver::TICK_HZ as u32 - 1);
-    syst.clear_current();
-    syst.enable_interrupt();
-    syst.enable_counter();
+    let linked = link::present();
+    critical_section::with(|cs| {
+        DRIVER.linked.borrow(cs).set(linked);
+        if linked {
+            let boot_at = link::read_u64(bl::NOW);
+            DRIVER.boot_at.borrow(cs).set(boot_at);
+            link::write_u64(bl::BOOT_AT, boot_at);
+            link::write_u64(bl::NEXT_ALARM, u64::MAX);
+            link::write_u32(bl::WAITING, 0);
+            link::barrier();
+            link::write_u32(bl::BOOTS, link::read_u32(bl::BOOTS).wrapping_add(1));
+        }
+    });
+    if linked {
+        syst.disable_interrupt();
+        syst.disable_counter();
+    } else {
+        syst.set_clock_source(SystClkSource::Core);
+        syst.set_reload((u64::from(super::SYSCLK_HZ) / 1000) as u32 - 1);
+        syst.clear_current();
+        syst.enable_interrupt();
+        syst.enable_counter();
+    }
 }
 
-/// Call from the SysTick exception handler.
+/// True when the bench drives the clock.
+pub fn linked() -> bool {
+    critical_section::with(|cs| DRIVER.linked.borrow(cs).get())
+}
+
+/// Call from the SysTick exception handler (only runs without the bench's page).
 pub fn on_systick() {
-    DRIVER.tick();
+    critical_section::with(|cs| {
+        let h = DRIVER.systick_horizon.borrow(cs);
+        h.set(h.get() + SYSTICK_TICKS);
+    });
+}
+
+/// The watchdog fires if the clock reaches `uptime_ticks` (the supervisor moves it on with every
+/// pet).
+pub fn set_watchdog_deadline(uptime_ticks: u64) {
+    critical_section::with(|cs| DRIVER.watchdog_at.borrow(cs).set(uptime_ticks));
+}
+
+/// Uptime, ticks.
+pub fn uptime_ticks() -> u64 {
+    DRIVER.now()
+}
+
+/// The executor has nothing ready: move the clock to the next timer if the horizon allows (and
+/// wake its tasks), else to the horizon, and wait there for the bench. Call with interrupts
+/// masked (a pending interrupt ends the wait).
+pub fn idle() {
+    critical_section::with(|cs| {
+        let d = &DRIVER;
+        let linked = d.linked.borrow(cs).get();
+        let boot_at = d.boot_at.borrow(cs).get();
+        let now = d.now.borrow(cs).get();
+        let next = d.next_at.borrow(cs).get();
+        let horizon_bench = if linked {
+            link::read_u64(bl::HORIZON)
+        } else {
+            d.systick_horizon.borrow(cs).get()
+        };
+        let horizon = horizon_bench.saturating_sub(boot_at);
+        let watchdog_at = d.watchdog_at.borrow(cs).get();
+        if next.min(horizon) >= watchdog_at {
+            // as the hardware watchdog would have: the supervisor stopped petting in time
+            board::watchdog_fire();
+        }
+        if next <= horizon {
+            let t = next.max(now);
+            d.now.borrow(cs).set(t);
+            if linked {
+                link::write_u64(bl::NOW, boot_at + t);
+            }
+            let next = d.queue.borrow_ref_mut(cs).next_expiration(t);
+            d.next_at.borrow(cs).set(next);
+            return;
+        }
+        if now < horizon {
+            d.now.borrow(cs).set(horizon);
+        }
+        if linked {
+            let now = d.now.borrow(cs).get();
+            link::write_u64(bl::NOW, boot_at + now);
+            link::write_u64(bl::NEXT_ALARM, next.saturating_add(boot_at));
+            link::barrier();
+            link::write_u32(bl::WAITING, 1);
+            link::barrier();
+            // the bench may have moved the horizon meanwhile: then no wait
+            if link::read_u64(bl::HORIZON) == horizon_bench {
+                let rung = d.rung_at.borrow(cs);
+                if rung.get() != boot_at + now && link::read_u32(bl::WATCHING) == 0 {
+                    rung.set(boot_at + now);
+                    uart::ring(bl::RING_WAITING);
+                }
+                // the bench usually sends its next byte at once: a short busy wait for it saves
+                // QEMU halting and waking this CPU for every byte of a command
+                if !board::wait_for_interrupt_busy(SPIN_BEFORE_WFI_US)
+                    && link::read_u64(bl::HORIZON) == horizon_bench
+                {
+                    board::watchdog_pause();
+                    cortex_m::asm::wfi();
+                    board::watchdog_resume();
+                }
+            }
+            link::write_u32(bl::WAITING, 0);
+        } else {
+            cortex_m::asm::wfi();
+        }
+    });
 }

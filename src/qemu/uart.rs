@@ -3,8 +3,9 @@
 //!
 //! Registers: DATA 0x00, STATE 0x04 (bit0 TX full, bit1 RX full), CTRL 0x08 (bit0 TX enable,
 //! bit1 RX enable, bit3 RX interrupt enable), INTSTATUS/INTCLEAR 0x0C (bit1 RX), BAUDDIV 0x10.
-//! On `mps2-an386`, UART n (n = 0..=3) sits at 0x4000_4000 + n·0x1000, serial port n of QEMU's
-//! command line, with its RX interrupt at IRQ 0, 2, 4, 18.
+//! On `mps2-an386`, UART n (n = 0..=3) sits at 0x4000_4000 + n·0x1000 and UART4 at 0x4000_9000,
+//! serial port n of QEMU's command line, with its RX interrupt at IRQ 0, 2, 4, 18, 20. Bytes
+//! written are counted in the bench's page ([`super::link::count_tx`]).
 
 use core::convert::Infallible;
 use core::future::poll_fn;
@@ -26,8 +27,10 @@ const CTRL_RX_EN: u32 = 1 << 1;
 const CTRL_RX_INT: u32 = 1 << 3;
 const INT_RX: u32 = 1 << 1;
 
-/// UARTs the board uses (UART4 is polled: [`UartRx::try_read`]).
+/// UARTs the board uses.
 pub const COUNT: usize = 5;
+/// The UART that carries the bench's doorbells and the host link's line state.
+pub const BENCH: usize = 4;
 const BASES: [usize; COUNT] = [
     0x4000_4000,
     0x4000_5000,
@@ -68,7 +71,7 @@ pub struct Uart {
 }
 
 impl Uart {
-    /// Enable UART `n` (0..=3) at `baud` (QEMU ignores the rate) and its RX interrupt line.
+    /// Enable UART `n` (0..=4) at `baud` (QEMU ignores the rate) and its RX interrupt line.
     ///
     /// # Safety
     /// Call at most once per `n`: the halves assume exclusive use of the registers.
@@ -77,9 +80,7 @@ impl Uart {
         write(n, BAUDDIV, (super::SYSCLK_HZ / baud.max(1)).max(16));
         write(n, CTRL, CTRL_TX_EN | CTRL_RX_EN);
         // SAFETY: the handler only wakes a waker; no mask-based critical section relies on it.
-        if n < 4 {
-            unsafe { NVIC::unmask(Irq(RX_IRQS[n])) };
-        }
+        unsafe { NVIC::unmask(Irq(RX_IRQS[n])) };
         Self { n }
     }
 
@@ -113,13 +114,6 @@ pub fn on_interrupt(irqn: i16) {
     }
 }
 
-impl UartRx {
-    /// A received byte, if one is waiting (no interrupt needed).
-    pub fn try_read(&mut self) -> Option<u8> {
-        (read(self.n, STATE) & STATE_RX_FULL != 0).then(|| read(self.n, DATA) as u8)
-    }
-}
-
 impl embedded_io_async::ErrorType for UartRx {
     type Error = Infallible;
 }
@@ -139,8 +133,10 @@ impl embedded_io_async::Read for UartRx {
             while got < buf.len() && read(n, STATE) & STATE_RX_FULL != 0 {
                 buf[got] = read(n, DATA) as u8;
                 got += 1;
+                super::board::kick_io();
             }
             if got > 0 {
+                super::link::count_rx(n, got as u32);
                 return Poll::Ready(Ok(got));
             }
             WAKERS[n].register(cx.waker());
@@ -163,10 +159,22 @@ impl embedded_io_async::Write for UartTx {
             }
             write(self.n, DATA, u32::from(b));
         }
+        super::link::count_tx(self.n, buf.len() as u32);
         Ok(buf.len())
     }
 
     async fn flush(&mut self) -> Result<(), Infallible> {
         Ok(())
+    }
+}
+
+/// Send one doorbell byte to the bench on [`BENCH`] (any context; UART4's transmit side is the
+/// bench's alone). QEMU takes a byte at once unless its socket is full: then a bounded wait.
+pub fn ring(b: u8) {
+    for _ in 0..100_000 {
+        if read(BENCH, STATE) & STATE_TX_FULL == 0 {
+            write(BENCH, DATA, u32::from(b));
+            return;
+        }
     }
 }

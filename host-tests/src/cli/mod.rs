@@ -1,4 +1,5 @@
 //! Command-line subcommands: one file each, a thin layer over the library.
+pub mod campaign;
 pub mod demo;
 pub mod device;
 pub mod explain;

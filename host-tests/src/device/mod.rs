@@ -53,13 +53,19 @@ pub use nanocal_compensator::mgmt::result_meaning;
 pub trait Port: Read + Write + Send {}
 impl<T: Read + Write + Send> Port for T {}
 
-/// Open `spec`: `tcp:HOST:PORT` (or `HOST:PORT`) for a socket, otherwise a serial device path.
+/// Open `spec`: `tcp:HOST:PORT` (or `HOST:PORT`) for a TCP socket, `unix:PATH` for a Unix socket
+/// (the QEMU board's management port), otherwise a serial device path.
 /// Reads time out after `timeout` (a read that times out returns `TimedOut`/`WouldBlock`).
 pub fn open(spec: &str, timeout: Duration) -> Result<Box<dyn Port>, DeviceError> {
     let io_err = |source| DeviceError::Io {
         port: spec.to_string(),
         source,
     };
+    if let Some(path) = spec.strip_prefix("unix:") {
+        let s = std::os::unix::net::UnixStream::connect(path).map_err(io_err)?;
+        s.set_read_timeout(Some(timeout)).map_err(io_err)?;
+        return Ok(Box::new(s));
+    }
     let addr = spec.strip_prefix("tcp:");
     let looks_tcp = addr.is_some() || (!spec.starts_with('/') && spec.contains(':'));
     if looks_tcp {

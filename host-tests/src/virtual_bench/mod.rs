@@ -2,14 +2,18 @@
 //! board as a process, a simulated stage controller on the stage link, simulated sensor chips on
 //! the sensor bus. The end-to-end tests, the firmware benchmarks and `campaign --virtual` share it.
 
+pub mod bench;
 pub mod chips;
 pub mod controller;
+pub mod link;
 pub mod qemu;
 pub mod sensors;
+pub mod twin_stage;
 
 pub use controller::{
     AxisConfig, Clock, Config, Controller, Event, IdealPlant, ManualClock, Plant, StageSim,
     SystemClock,
 };
+pub use link::{BenchClock, BenchLink};
 pub use qemu::{bench_elf, have_qemu, qemu_elf, repo_root, Elf, GcsHost, Qemu};
 pub use sensors::{Buses, SensorSim};

@@ -1,11 +1,15 @@
 //! The QEMU firmware as a process: build it, start it on `mps2-an386` with its serial ports on
-//! local TCP sockets, and talk GCS (serial0) and management (serial3) to it.
+//! local TCP sockets and its PSRAM on a host file (the bench's page: clock and bus mailbox, see
+//! [`super::link`]), and talk GCS (serial0) and management (serial3) to it.
 
+use super::link::{BenchClock, BenchLink, Page, RAM_FILE_LEN};
 use crate::device::Client;
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
+use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::sync::Arc;
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
@@ -144,8 +148,9 @@ fn free_port() -> u16 {
         .expect("a free local port")
 }
 
-/// Serial ports of the QEMU board: 0 host (GCS), 1 stage, 2 bus stand-in, 3 management,
-/// 4 the host link's line state (USB DTR stand-in).
+/// Serial ports of the QEMU board: 0 host (GCS), 1 stage, 2 unused (the bus stand-in moved to
+/// the bench's page), 3 management, 4 the host link's line state (USB DTR stand-in) and the
+/// bench's doorbells.
 pub const SERIALS: usize = 5;
 
 /// A running QEMU with the firmware; killed on drop.
@@ -153,8 +158,19 @@ pub struct Qemu {
     child: Child,
     ports: [u16; SERIALS],
     streams: [Option<TcpStream>; 3],
-    line: Option<TcpStream>,
+    link: Arc<BenchLink>,
     log: PathBuf,
+}
+
+/// Where the file behind the board's RAM goes: tmpfs when there is one.
+fn ram_file(tag: u16) -> PathBuf {
+    let dir = Path::new("/dev/shm");
+    let dir = if dir.is_dir() {
+        dir.to_path_buf()
+    } else {
+        std::env::temp_dir()
+    };
+    dir.join(format!("nanocal-bench-{}-{tag}", std::process::id()))
 }
 
 impl Qemu {
@@ -185,13 +201,31 @@ impl Qemu {
             std::process::id(),
             ports[0]
         ));
+        let page = Page::create(&ram_file(ports[0])).expect("the bench's RAM file");
         let mut cmd = Command::new("qemu-system-arm");
-        cmd.args(["-M", "mps2-an386", "-display", "none", "-monitor", "none"])
+        cmd.args(["-M", "mps2-an386,memory-backend=bench-ram"])
+            .arg("-object")
+            .arg(format!(
+                "memory-backend-file,id=bench-ram,size={RAM_FILE_LEN},mem-path={},share=on",
+                page.path().display()
+            ))
+            .args(["-display", "none", "-monitor", "none"])
             .args(["-semihosting-config", "enable=on,target=native"]);
+        // serial0-2 on TCP (an external GCS client such as PIPython connects to serial0), the
+        // management port and the bench's doorbells on Unix sockets: the board writes a byte
+        // at a time, which loopback TCP turns into a segment each (≈ 15 µs per byte)
+        let sockets = log.with_extension("d");
+        std::fs::create_dir_all(&sockets).expect("socket folder");
         for (i, p) in ports.iter().enumerate() {
-            cmd.arg("-chardev").arg(format!(
-                "socket,id=s{i},host=127.0.0.1,port={p},server=on,wait=off"
-            ));
+            let dev = if i >= 3 {
+                format!(
+                    "socket,id=s{i},path={},server=on,wait=off",
+                    sockets.join(format!("s{i}")).display()
+                )
+            } else {
+                format!("socket,id=s{i},host=127.0.0.1,port={p},server=on,wait=off,nodelay=on")
+            };
+            cmd.arg("-chardev").arg(dev);
             cmd.arg("-serial").arg(format!("chardev:s{i}"));
         }
         cmd.args(extra).arg("-kernel").arg(&elf);
@@ -201,26 +235,41 @@ impl Qemu {
             .stderr(logf)
             .spawn()
             .expect("start qemu-system-arm");
+        let mut child = child;
+        let line = dial_unix(&mut child, &sockets.join("s4"), 4, &log);
+        let link = BenchLink::start(page, line);
         let mut q = Self {
             child,
             ports,
             streams: [None, None, None],
-            line: None,
+            link,
             log,
         };
-        for i in 0..3 {
+        for i in [0, 1] {
             q.streams[i] = Some(q.dial(i));
         }
-        q.line = Some(q.dial(4));
         q
     }
 
     /// The host opens (`true`) or closes (`false`) the GCS port: the line state a USB host
     /// sends with CDC SET_CONTROL_LINE_STATE (DTR, bit 0), carried to the board on serial4.
     pub fn set_dtr(&mut self, on: bool) {
-        let l = self.line.as_mut().expect("line-state port");
-        l.write_all(&[0xC0 | u8::from(on)])
-            .expect("line-state port");
+        self.link.send_line_state(0xC0 | u8::from(on));
+    }
+
+    /// Process id of QEMU.
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// The bench's side of the board's link (page, doorbells, bus mailbox).
+    pub fn link(&self) -> Arc<BenchLink> {
+        self.link.clone()
+    }
+
+    /// The board's clock (free-running at 1× until [`BenchClock::lockstep`]).
+    pub fn clock(&self) -> BenchClock {
+        BenchClock::new(self.link.clone())
     }
 
     /// Send raw bytes to a serial port the test still owns (e.g. the bus stand-in's).
@@ -241,18 +290,7 @@ impl Qemu {
     }
 
     fn dial(&mut self, i: usize) -> TcpStream {
-        let deadline = Instant::now() + Duration::from_secs(20);
-        loop {
-            if let Ok(Some(st)) = self.child.try_wait() {
-                panic!("qemu exited ({st}): {}", self.log_text());
-            }
-            if let Ok(s) = TcpStream::connect(("127.0.0.1", self.ports[i])) {
-                s.set_nodelay(true).ok();
-                return s;
-            }
-            assert!(Instant::now() < deadline, "qemu serial{i} never listened");
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        dial(&mut self.child, self.ports[i], i, &self.log)
     }
 
     /// QEMU's output so far.
@@ -260,7 +298,7 @@ impl Qemu {
         std::fs::read_to_string(&self.log).unwrap_or_default()
     }
 
-    /// Take the connection to serial `i` (0 host, 1 stage, 2 bus stand-in).
+    /// Take the connection to serial `i` (0 host, 1 stage).
     pub fn connect(&mut self, i: usize) -> TcpStream {
         self.streams[i].take().expect("serial port taken once")
     }
@@ -282,14 +320,19 @@ impl Qemu {
         self.ports[0]
     }
 
-    /// Management port spec for the CLI.
+    /// Management port spec for the CLI (`unix:PATH`).
     pub fn mgmt_spec(&self) -> String {
-        format!("tcp:127.0.0.1:{}", self.ports[3])
+        format!("unix:{}", self.log.with_extension("d").join("s3").display())
     }
 
     /// A management client (serial3); one at a time.
     pub fn client(&mut self) -> Client {
-        let s = self.dial(3);
+        let s = dial_unix(
+            &mut self.child,
+            &self.log.with_extension("d").join("s3"),
+            3,
+            &self.log,
+        );
         s.set_read_timeout(Some(Duration::from_millis(50))).ok();
         let mut c = Client::new(Box::new(s), &self.mgmt_spec(), Duration::from_secs(10));
         // QEMU may still be handing over from a previous client: retry the first request
@@ -303,14 +346,51 @@ impl Qemu {
     }
 }
 
+fn dial_unix(child: &mut Child, path: &Path, i: usize, log: &Path) -> UnixStream {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        if let Ok(Some(st)) = child.try_wait() {
+            panic!(
+                "qemu exited ({st}): {}",
+                std::fs::read_to_string(log).unwrap_or_default()
+            );
+        }
+        if let Ok(s) = UnixStream::connect(path) {
+            return s;
+        }
+        assert!(Instant::now() < deadline, "qemu serial{i} never listened");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn dial(child: &mut Child, port: u16, i: usize, log: &Path) -> TcpStream {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        if let Ok(Some(st)) = child.try_wait() {
+            panic!(
+                "qemu exited ({st}): {}",
+                std::fs::read_to_string(log).unwrap_or_default()
+            );
+        }
+        if let Ok(s) = TcpStream::connect(("127.0.0.1", port)) {
+            s.set_nodelay(true).ok();
+            return s;
+        }
+        assert!(Instant::now() < deadline, "qemu serial{i} never listened");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
 impl Drop for Qemu {
     fn drop(&mut self) {
+        self.link.shutdown();
         let _ = self.child.kill();
         let _ = self.child.wait();
         if std::thread::panicking() {
             eprintln!("--- qemu log ---\n{}", self.log_text());
         }
         let _ = std::fs::remove_file(&self.log);
+        let _ = std::fs::remove_dir_all(self.log.with_extension("d"));
     }
 }
 

@@ -1,15 +1,14 @@
 //! The QEMU board's peripheral-bus stand-in, host side: serves byte-exact SPI, I2C and ADC
-//! transactions ([`nanocal_compensator::wire`]) from register-level chip simulations
-//! ([`super::chips`]). A chip-select without a chip answers FFh (the board's MISO pull-up); an
-//! I2C address without a chip is not acknowledged; the whole bus can be made to stop answering.
+//! transactions ([`nanocal_compensator::wire`], through the mailbox of the board's link,
+//! [`super::link`]) from register-level chip simulations ([`super::chips`]), at the board's clock.
+//! A chip-select without a chip answers FFh (the board's MISO pull-up); an I2C address without a
+//! chip is not acknowledged; the whole bus can be made to stop answering.
 
 use super::chips::{I2cChip, Lps22hb, Max31856, Max31865, SpiChip};
+use super::link::BenchLink;
 use nanocal_compensator::wire;
 use std::collections::HashMap;
-use std::io::{Read, Write};
-use std::net::TcpStream;
 use std::sync::{Arc, Mutex, MutexGuard};
-use std::time::Instant;
 
 /// What hangs on the buses.
 #[derive(Default)]
@@ -84,16 +83,17 @@ impl Buses {
     }
 }
 
-/// Simulated chips behind the QEMU board's bus stand-in (serial2).
+/// Simulated chips behind the QEMU board's bus stand-in.
 pub struct SensorSim {
     buses: Arc<Mutex<Buses>>,
-    t0: Instant,
+    link: Arc<BenchLink>,
 }
 
 impl SensorSim {
-    /// Serve `s` with MAX31856 thermocouple amplifiers (type K) at the given temperatures on
-    /// chip-selects 0.., the board's LPS22HB at 1013.25 hPa, and ADC channel 0 at mid-scale.
-    pub fn start(s: TcpStream, temps: &[f32]) -> Self {
+    /// Serve the bus of `link` with MAX31856 thermocouple amplifiers (type K) at the given
+    /// temperatures on chip-selects 0.., the board's LPS22HB at 1013.25 hPa, and ADC channel 0
+    /// at mid-scale.
+    pub fn start(link: Arc<BenchLink>, temps: &[f32]) -> Self {
         let mut b = Buses::default();
         for &t in temps {
             b.spi.push(Some(Box::new(Max31856::new(f64::from(t)))));
@@ -103,16 +103,17 @@ impl SensorSim {
             Box::new(Lps22hb::new(1013.25)),
         );
         b.adc = vec![Some(2048), None, None, None];
-        Self::start_with(s, b)
+        Self::start_with(link, b)
     }
 
-    /// Serve `s` with the given buses.
-    pub fn start_with(s: TcpStream, buses: Buses) -> Self {
+    /// Serve the bus of `link` with the given buses.
+    pub fn start_with(link: Arc<BenchLink>, buses: Buses) -> Self {
         let buses = Arc::new(Mutex::new(buses));
-        let t0 = Instant::now();
         let bs = buses.clone();
-        std::thread::spawn(move || serve(s, bs, t0));
-        Self { buses, t0 }
+        link.attach_bus(Box::new(move |op, target, out, n_in, now_s| {
+            bs.lock().unwrap().serve(op, target, out, n_in, now_s)
+        }));
+        Self { buses, link }
     }
 
     /// The buses (to change what the chips see).
@@ -120,9 +121,9 @@ impl SensorSim {
         self.buses.lock().unwrap()
     }
 
-    /// Seconds since the bench started.
+    /// The board's clock, s of bench time.
     pub fn now_s(&self) -> f64 {
-        self.t0.elapsed().as_secs_f64()
+        self.link.now_s()
     }
 
     /// Set the fault condition of the MAX31856 on `cs` from status-register bits (OPEN: the
@@ -163,53 +164,6 @@ impl SensorSim {
         let now = self.now_s();
         if let Some(c) = self.buses().spi[cs].as_mut() {
             c.power_on_reset(now);
-        }
-    }
-}
-
-fn serve(s: TcpStream, buses: Arc<Mutex<Buses>>, t0: Instant) {
-    let mut r = match s.try_clone() {
-        Ok(r) => r,
-        Err(_) => return,
-    };
-    let mut w = s;
-    let mut buf: Vec<u8> = Vec::new();
-    let mut b = [0u8; 256];
-    loop {
-        let n = match r.read(&mut b) {
-            Ok(0) | Err(_) => return,
-            Ok(n) => n,
-        };
-        buf.extend_from_slice(&b[..n]);
-        loop {
-            while !buf.is_empty() && buf[0] != wire::REQ {
-                buf.remove(0);
-            }
-            if buf.len() < wire::HEADER {
-                break;
-            }
-            let (op, target, n_out, n_in) =
-                (buf[1], buf[2], usize::from(buf[3]), usize::from(buf[4]));
-            if n_out > wire::MAX_DATA || n_in > wire::MAX_DATA {
-                buf.remove(0);
-                continue;
-            }
-            if buf.len() < wire::HEADER + n_out {
-                break;
-            }
-            let req: Vec<u8> = buf.drain(..wire::HEADER + n_out).collect();
-            let now = t0.elapsed().as_secs_f64();
-            let answer = buses
-                .lock()
-                .unwrap()
-                .serve(op, target, &req[wire::HEADER..], n_in, now);
-            if let Some((status, data)) = answer {
-                let mut rep = vec![wire::REP, op, target, status, data.len() as u8];
-                rep.extend_from_slice(&data);
-                if w.write_all(&rep).is_err() {
-                    return;
-                }
-            }
         }
     }
 }

@@ -136,4 +136,8 @@ impl I2cChip for Lps22hb {
             }
         }
     }
+
+    fn any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
+    }
 }

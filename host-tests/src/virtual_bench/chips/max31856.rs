@@ -16,8 +16,25 @@
 //!   registers hold their power-on zeros.
 //! - SR bits: CJ Range, TC Range, CJHIGH, CJLOW, TCHIGH, TCLOW, OVUV, OPEN; thresholds LTHFT/
 //!   LTLFT (0.0625 °C/LSB, 16-bit) and CJHF/CJLF (1 °C/LSB).
+//! - Electrical Characteristics, input-referred noise: a conversion reads the thermocouple
+//!   temperature plus white noise of [`Max31856::noise_c`] (°C RMS; 0 by default); with a
+//!   [`TempSource`] each conversion samples the temperature at the instant it completes.
 
 use super::SpiChip;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use std::sync::Arc;
+
+/// The thermocouple's temperature as a function of the bench's time (s) — e.g. the digital
+/// twin's room — sampled by each conversion when it completes.
+#[derive(Clone)]
+pub struct TempSource(pub Arc<dyn Fn(f64) -> f64 + Send + Sync>);
+
+impl std::fmt::Debug for TempSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("TempSource")
+    }
+}
 
 const DEFAULTS: [u8; 16] = [
     0x00, 0x03, 0xFF, 0x7F, 0xC0, 0x7F, 0xFF, 0x80, 0x00, 0x00, 0, 0, 0, 0, 0, 0,
@@ -42,6 +59,11 @@ pub struct Max31856 {
     pub shorted: bool,
     /// Conversions completed.
     pub conversions: u64,
+    /// Where the temperature comes from (else [`Max31856::temp_c`]).
+    pub source: Option<TempSource>,
+    /// Reading noise, °C RMS per conversion.
+    pub noise_c: f64,
+    rng: ChaCha8Rng,
     now: f64,
 }
 
@@ -59,8 +81,20 @@ impl Max31856 {
             open: false,
             shorted: false,
             conversions: 0,
+            source: None,
+            noise_c: 0.0,
+            rng: ChaCha8Rng::seed_from_u64(0x3185_6000),
             now: 0.0,
         }
+    }
+
+    /// The same chip with its temperature from `source`, `noise_c` °C RMS of reading noise, and
+    /// its noise seeded with `seed`.
+    pub fn following(mut self, source: TempSource, noise_c: f64, seed: u64) -> Self {
+        self.source = Some(source);
+        self.noise_c = noise_c;
+        self.rng = ChaCha8Rng::seed_from_u64(seed);
+        self
     }
 
     /// The register file (for tests).
@@ -98,7 +132,7 @@ impl Max31856 {
             if t > now_s {
                 break;
             }
-            self.convert();
+            self.convert(t);
             self.first = false;
             self.next_conv_s = if self.regs[0] & 0x80 != 0 {
                 Some(t + self.conversion_s(false))
@@ -108,17 +142,19 @@ impl Max31856 {
         }
     }
 
-    fn convert(&mut self) {
+    fn convert(&mut self, at_s: f64) {
         self.conversions += 1;
+        if let Some(src) = &self.source {
+            self.temp_c = (src.0)(at_s);
+        }
+        let reading_c = self.temp_c + self.noise_c * crate::twin::normal(&mut self.rng);
         let cj = (self.cold_junction_c / 0.015625)
             .round()
             .clamp(-8192.0, 8191.0) as i32;
         let cj16 = ((cj << 2) as u32 & 0xFFFF) as u16;
         self.regs[0x0A] = (cj16 >> 8) as u8;
         self.regs[0x0B] = cj16 as u8;
-        let tc = (self.temp_c / 0.0078125)
-            .round()
-            .clamp(-262_144.0, 262_143.0) as i32;
+        let tc = (reading_c / 0.0078125).round().clamp(-262_144.0, 262_143.0) as i32;
         let raw = ((tc << 5) as u32) & 0x00FF_FFFF;
         self.regs[0x0C] = (raw >> 16) as u8;
         self.regs[0x0D] = (raw >> 8) as u8;
@@ -132,10 +168,10 @@ impl Max31856 {
         }
         let lthft = i16::from_be_bytes([self.regs[5], self.regs[6]]) as f64 * 0.0625;
         let ltlft = i16::from_be_bytes([self.regs[7], self.regs[8]]) as f64 * 0.0625;
-        if self.temp_c > lthft {
+        if reading_c > lthft {
             sr |= 0x08;
         }
-        if self.temp_c < ltlft {
+        if reading_c < ltlft {
             sr |= 0x04;
         }
         if self.cold_junction_c > f64::from(self.regs[3] as i8) {
@@ -214,9 +250,11 @@ impl SpiChip for Max31856 {
     }
 
     fn power_on_reset(&mut self, _now_s: f64) {
-        let keep = (self.temp_c, self.cold_junction_c, self.open, self.shorted);
-        *self = Self::new(keep.0);
-        (self.cold_junction_c, self.open, self.shorted) = (keep.1, keep.2, keep.3);
+        let fresh = Self::new(self.temp_c);
+        let keep = std::mem::replace(self, fresh);
+        (self.cold_junction_c, self.open, self.shorted) =
+            (keep.cold_junction_c, keep.open, keep.shorted);
+        (self.source, self.noise_c, self.rng) = (keep.source, keep.noise_c, keep.rng);
     }
 }
 

@@ -30,4 +30,6 @@ pub trait I2cChip: Send {
     fn write(&mut self, bytes: &[u8], now_s: f64);
     /// A read of `out.len()` bytes from the current register address at `now_s`.
     fn read(&mut self, out: &mut [u8], now_s: f64);
+    /// The concrete chip (a bench changes its physics through it).
+    fn any_mut(&mut self) -> &mut dyn std::any::Any;
 }

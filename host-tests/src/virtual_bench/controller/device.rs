@@ -756,7 +756,12 @@ impl Controller {
                     Ok(None)
                 }
             }
-            _ => Err(2),
+            _ => {
+                if std::env::var_os("NANOCAL_GCS_TRACE").is_some() {
+                    eprintln!("controller: unknown command {line:?} at t = {t}");
+                }
+                Err(2)
+            }
         }
     }
 

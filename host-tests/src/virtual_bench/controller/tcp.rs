@@ -4,6 +4,7 @@ use super::device::{Config, Controller, Event};
 use super::plant::{IdealPlant, SystemClock};
 use std::io::{Read, Write};
 use std::net::TcpStream;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{channel, Receiver};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -13,6 +14,9 @@ use std::time::Duration;
 pub struct StageSim {
     lines: Receiver<String>,
     ctl: Arc<Mutex<Controller>>,
+    /// Bytes taken in (and acted on) and bytes answered, for a bench that must know the link is
+    /// drained before its clock moves on.
+    bytes: Arc<[AtomicU64; 2]>,
 }
 
 impl StageSim {
@@ -42,6 +46,8 @@ impl StageSim {
         let (tx, rx) = channel();
         let ctl = Arc::new(Mutex::new(ctl));
         let c2 = ctl.clone();
+        let bytes = Arc::new([AtomicU64::new(0), AtomicU64::new(0)]);
+        let counts = bytes.clone();
         std::thread::spawn(move || {
             let mut r = match s.try_clone() {
                 Ok(r) => r,
@@ -65,12 +71,29 @@ impl StageSim {
                         return;
                     }
                 }
+                // counted before they go: a bench must not think the board has read them all
+                counts[1].fetch_add(reply.len() as u64, Ordering::AcqRel);
+                counts[0].fetch_add(n as u64, Ordering::AcqRel);
                 if !reply.is_empty() && w.write_all(&reply).is_err() {
                     return;
                 }
             }
         });
-        Self { lines: rx, ctl }
+        Self {
+            lines: rx,
+            ctl,
+            bytes,
+        }
+    }
+
+    /// Bytes the controller has taken in and acted on (its replies counted in [`Self::bytes_out`]).
+    pub fn bytes_in(&self) -> u64 {
+        self.bytes[0].load(Ordering::Acquire)
+    }
+
+    /// Bytes the controller has sent back or is sending.
+    pub fn bytes_out(&self) -> u64 {
+        self.bytes[1].load(Ordering::Acquire)
     }
 
     /// The next line the controller received (`#5` for a single character).

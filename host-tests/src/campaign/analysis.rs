@@ -1,0 +1,179 @@
+//! After the last step: the validation statistics twice — from what the stage really received
+//! (the campaign's own table: each visit's error is the reference minus the target the campaign
+//! asked the compensator for) and by the file-based `validate` of the same recording (which only
+//! knows the commands and replays the compensator's fold to find the targets) — their agreement,
+//! the report's plots, and `explain` on the validation steps with what to add when the accuracy
+//! is not reached (paper 001 §II, step 5: back to step 1 with a richer model).
+
+use super::run::{CampaignError, Models};
+use crate::plan::{Phase, Plan, Step, TestKind};
+use crate::procedure::ProcedureData;
+use crate::recording::Recording;
+use crate::validate::{validate_roles, Compensation, ValidationOptions, ValidationReport};
+use std::path::Path;
+
+/// The campaign's results.
+pub struct Analysis {
+    /// Per compensation (in the plan's order): the table from what the stage received.
+    pub campaign: Vec<ValidationReport>,
+    /// The same from the file-based validation of the recording.
+    pub file: Vec<ValidationReport>,
+    /// Largest difference between the two over every test's Acc and Rep and the summaries,
+    /// nm.
+    pub max_difference_nm: f64,
+    /// `explain` on the validation steps, as text.
+    pub explain: Option<String>,
+    /// What to add to the model, from `explain` (empty when it found nothing).
+    pub advice: Vec<String>,
+}
+
+fn kinds(plan: &Plan) -> Vec<TestKind> {
+    let mut k: Vec<TestKind> = Vec::new();
+    for t in &plan.validation.order {
+        if !k.contains(t) {
+            k.push(*t);
+        }
+    }
+    k
+}
+
+fn compensation(kind: TestKind, plan: &Plan, axes: usize) -> Compensation {
+    match kind {
+        TestKind::NoModel => Compensation::None,
+        TestKind::Static => Compensation::Static,
+        TestKind::Adaptive => Compensation::Adaptive {
+            reference_um: plan
+                .validation
+                .kmz
+                .as_ref()
+                .map_or(vec![0.0; axes], |k| k.reference_um.clone()),
+            interval_s: plan
+                .validation
+                .kmz
+                .as_ref()
+                .map_or(f64::INFINITY, |k| k.interval_s),
+        },
+    }
+}
+
+/// The largest difference of two reports' per-test Acc/Rep and summary figures, nm.
+pub fn difference_nm(a: &ValidationReport, b: &ValidationReport) -> f64 {
+    let mut d: f64 = 0.0;
+    if a.tests.len() != b.tests.len() {
+        return f64::INFINITY;
+    }
+    let mut diff = |x: f64, y: f64| {
+        if x.is_nan() && y.is_nan() {
+            return;
+        }
+        d = d.max((x - y).abs() * 1e3);
+    };
+    for (x, y) in a.tests.iter().zip(&b.tests) {
+        diff(x.accuracy_um, y.accuracy_um);
+        diff(x.repeatability_um, y.repeatability_um);
+    }
+    let (s, t) = (&a.summary, &b.summary);
+    diff(s.first_acc_um, t.first_acc_um);
+    diff(s.median_acc_um, t.median_acc_um);
+    diff(s.max_acc_um, t.max_acc_um);
+    diff(s.median_rep_um, t.median_rep_um);
+    diff(s.max_rep_um, t.max_rep_um);
+    diff(a.r_s_um, b.r_s_um);
+    diff(a.r_t_um_per_h, b.r_t_um_per_h);
+    d
+}
+
+/// Validate the campaign in `dir` (its recording, plan and models); `fold_period_s` is the
+/// compensator's sample period during the campaign.
+pub fn analyse(
+    dir: &Path,
+    plan: &Plan,
+    steps: &[Step],
+    fold_period_s: f64,
+    run_explain: bool,
+) -> Result<Analysis, CampaignError> {
+    let err = |e: String| CampaignError::Fit(e);
+    let rec = Recording::read_path(dir.join(super::RECORDING)).map_err(|e| err(e.to_string()))?;
+    let data = ProcedureData::new(&rec, steps, 0.0).map_err(|e| err(e.to_string()))?;
+    let models = Models::load(dir)?;
+    let axes = plan.training.axes();
+    let kmz = plan.validation.kmz.as_ref();
+    // what the stage received is in the recording; the campaign knows what it asked for
+    let mut asked = data.clone();
+    for (i, s) in steps.iter().enumerate() {
+        for a in 0..axes {
+            asked.data.dwells.cmd_um[a][i] = s.target_um[a];
+        }
+    }
+    let opts = ValidationOptions {
+        fold_period_s,
+        cycles_per_test: 1,
+        time_h: Some(data.validation_h()),
+    };
+    let mut campaign = Vec::new();
+    let mut file = Vec::new();
+    let mut max_difference_nm: f64 = 0.0;
+    for kind in kinds(plan) {
+        let model = match kind {
+            TestKind::NoModel => None,
+            TestKind::Static => Some(&models.static_model),
+            TestKind::Adaptive => Some(&models.adaptive),
+        };
+        let f = data
+            .validate(kind, model, kmz, fold_period_s)
+            .map_err(|e| err(e.to_string()))?;
+        let mut c = validate_roles(
+            None,
+            &asked.data,
+            &Compensation::None,
+            &asked.roles(kind),
+            &opts,
+        )
+        .map_err(|e| err(e.to_string()))?;
+        c.compensation = compensation(kind, plan, axes);
+        max_difference_nm = max_difference_nm.max(difference_nm(&c, &f));
+        campaign.push(c);
+        file.push(f);
+    }
+    let (explain, advice) = if run_explain {
+        explain_validation(&data, steps).map_err(err)?
+    } else {
+        (None, Vec::new())
+    };
+    Ok(Analysis {
+        campaign,
+        file,
+        max_difference_nm,
+        explain,
+        advice,
+    })
+}
+
+/// `explain` on the validation steps (one row per step: the averaged window, the command the
+/// stage received, the compensator's temperatures).
+fn explain_validation(
+    data: &ProcedureData,
+    steps: &[Step],
+) -> Result<(Option<String>, Vec<String>), String> {
+    let validation = data
+        .data
+        .dwells
+        .filter(|i| steps[i].phase != Phase::Training);
+    if validation.len() < 50 {
+        return Ok((None, Vec::new()));
+    }
+    let rec = validation.to_recording();
+    let d = crate::explain::Data::from_recording(&rec, None).map_err(|e| e.to_string())?;
+    let report = crate::explain::explain(&d, &crate::explain::Settings::default())
+        .map_err(|e| e.to_string())?;
+    let advice = report
+        .effects()
+        .map(|e| {
+            format!(
+                "{} on {}: {} — {} (held-out RMS {:.0} → {:.0} nm)",
+                e.name, e.channel, e.description, e.deploy, e.rms_before_nm, e.rms_after_nm
+            )
+        })
+        .collect();
+    Ok((Some(report.to_text()), advice))
+}

@@ -1,0 +1,478 @@
+//! `nanocal campaign`: a whole calibration on a bench, through the compensator — the published
+//! procedure (paper 000 §4.2, Fig. 8; paper 001 §II) as one command: the training trajectory
+//! with the compensator in bypass, the fit, the validation tests with each compensation in the
+//! compensator, the KMZ re-measured at the reference pose and sent to it, the statistics, the
+//! report and `explain`. A campaign of days survives a host restart (its state is on disk,
+//! [`state`]) and a compensator reset (noticed in its status; the mode and model are set again).
+//!
+//! The same code runs a real bench (wall clock, the lab's reference instrument) and the virtual
+//! one ([`crate::virtual_bench::bench`]: the QEMU firmware in lockstep with the digital twin).
+
+pub mod analysis;
+pub mod bench;
+pub mod gcs;
+pub mod recorder;
+pub mod reference;
+pub mod run;
+pub mod state;
+
+use crate::device::Client;
+use crate::plan::{Plan, Step};
+use bench::{ReferenceReader, WallClock};
+use gcs::GcsLink;
+use nanocal_compensator::settings::{AuxSource, Settings};
+use recorder::{Layout, Recorder};
+use reference::{ClockMap, ClockMode};
+use run::{CampaignError, Links, Progress, Runner};
+use state::{BenchSpec, Stage, State};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// File name of the campaign's recording in its folder.
+pub const RECORDING: &str = "recording.csv";
+/// File name of the plan in the campaign's folder.
+pub const PLAN: &str = "plan.json";
+/// The compensator's sample period on the virtual bench unless told otherwise, ms: four times
+/// the STM32 default (250 ms), five to ten times finer than paper 001 §VI asks of thermal terms.
+pub const VIRTUAL_SAMPLE_PERIOD_MS: u16 = 1000;
+/// Plan time between the end of the set-up and the first step on a real bench, s.
+const REAL_LEAD_S: f64 = 5.0;
+
+/// A campaign to run.
+pub struct Config {
+    /// The plan (ignored on resume: the campaign's own `plan.json` is used).
+    pub plan: Option<Plan>,
+    /// The campaign's folder.
+    pub out: PathBuf,
+    /// The bench (on resume: as stored unless given).
+    pub bench: Option<BenchSpec>,
+    /// The compensator's sample period to set, ms (None: as configured; the virtual bench:
+    /// [`VIRTUAL_SAMPLE_PERIOD_MS`]).
+    pub sample_period_ms: Option<u16>,
+    /// Where to leave the stage when stopping early (default: the plan's first pose).
+    pub safe_pose_um: Option<Vec<f64>>,
+    /// Names of the temperature channels (default: the twin's on the virtual bench, else
+    /// `cs0`, `cs1`, …).
+    pub sensor_names: Option<Vec<String>>,
+    /// Candidate terms of the static model (default by axes: paper 000's 1-DoF or Eq. 22).
+    pub design: Option<crate::design::DesignSpec>,
+    /// Run `explain` at the end.
+    pub explain: bool,
+    /// Continue the campaign in `out`.
+    pub resume: bool,
+    /// Faults to stage (tests; none by default).
+    pub faults: Faults,
+}
+
+/// Faults a test stages, to see the campaign meet them (none by default).
+#[derive(Debug, Clone, Default)]
+pub struct Faults {
+    /// The virtual bench's instruments fail (ignored on a real bench).
+    pub bench: crate::virtual_bench::bench::Faults,
+    /// The compensator is reset (its management `RESET`, the firmware's own software reset)
+    /// during the hold before this step: the campaign must notice it in the status and set it
+    /// up again.
+    pub reset_before_step: Option<usize>,
+}
+
+/// What a finished campaign reports.
+pub struct Outcome {
+    /// The statistics and their agreement.
+    pub analysis: analysis::Analysis,
+    /// The plan.
+    pub plan: Plan,
+    /// The state at the end.
+    pub state: State,
+    /// Wall time of this run, s.
+    pub wall_s: f64,
+    /// QEMU's CPU time (virtual bench), s.
+    pub qemu_cpu_s: Option<f64>,
+    /// Bus transactions served (virtual bench).
+    pub bus_transactions: Option<u64>,
+}
+
+/// The twin of a plan on the virtual bench: paper 000's 1-DoF or 2-DoF stage by the number of
+/// axes (the delta robot of paper 001 has its own twin type, not on the bench yet).
+pub fn virtual_twin(plan: &Plan, seed: u64) -> Result<crate::twin::Twin, CampaignError> {
+    use crate::twin::examples;
+    match plan.training.axes() {
+        1 => Ok(examples::paper000_1dof_twin(seed)),
+        2 => Ok(examples::paper000_2dof_twin(seed)),
+        n => Err(CampaignError::Fit(format!(
+            "the virtual bench has twins for 1- and 2-axis stages; this plan has {n} axes"
+        ))),
+    }
+}
+
+/// CPU time of process `pid` (user + system), s.
+fn cpu_s(pid: u32) -> Option<f64> {
+    let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    let f: Vec<&str> = s.rsplit(')').next()?.split_whitespace().collect();
+    let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
+struct Opened {
+    links: Links,
+    vbench_pid: Option<u32>,
+    transactions: Option<Box<dyn Fn() -> u64>>,
+}
+
+fn open(
+    spec: &BenchSpec,
+    plan: &Plan,
+    steps: &[Step],
+    resume_at: usize,
+    faults: &Faults,
+) -> Result<Opened, CampaignError> {
+    let axes = plan.training.axes();
+    let plan_start = steps.get(resume_at).map_or(0.0, |s| s.t_start_s);
+    match spec {
+        BenchSpec::Virtual { seed } => {
+            if !crate::virtual_bench::have_qemu() {
+                return Err(CampaignError::NotReady {
+                    step: resume_at,
+                    what: "the virtual bench needs qemu-system-arm ≥ 10 and the thumbv7em-none-eabihf target (`bash .ci/firmware.sh` installs both)".into(),
+                });
+            }
+            let twin = virtual_twin(plan, *seed)?;
+            let traj = crate::twin::execute::trajectory(steps);
+            let mut vb = crate::virtual_bench::bench::VirtualBench::start(
+                &twin,
+                &traj,
+                crate::twin::examples::TRAINING_START_S,
+                *seed,
+                plan_start - crate::virtual_bench::bench::VirtualBench::SETUP_S,
+                &faults.bench,
+            );
+            let device = Client::new(
+                vb.management(),
+                "virtual:management",
+                Duration::from_secs(10),
+            );
+            let gcs = GcsLink::new(vb.gcs(), "virtual:gcs");
+            let src = reference::open(&vb.reference_spec(), axes, 1.0)?;
+            let reference = ReferenceReader::new(src, ClockMap::new(ClockMode::Synchronized));
+            let pid = vb.qemu().pid();
+            let link = vb.link();
+            Ok(Opened {
+                links: Links {
+                    driver: Box::new(vb),
+                    device,
+                    gcs,
+                    reference,
+                },
+                vbench_pid: Some(pid),
+                transactions: Some(Box::new(move || {
+                    link.transactions.load(std::sync::atomic::Ordering::Relaxed)
+                })),
+            })
+        }
+        BenchSpec::Real {
+            device,
+            gcs,
+            reference: r,
+            reference_to_um,
+            reference_synchronized,
+        } => {
+            let device = Client::open(device)?;
+            let gcs = GcsLink::open(gcs)?;
+            let src = reference::open(r, axes, *reference_to_um)?;
+            let mode = if *reference_synchronized {
+                ClockMode::Synchronized
+            } else {
+                ClockMode::Instrument
+            };
+            Ok(Opened {
+                links: Links {
+                    driver: Box::new(WallClock::new(plan_start - REAL_LEAD_S)),
+                    device,
+                    gcs,
+                    reference: ReferenceReader::new(src, ClockMap::new(mode)),
+                },
+                vbench_pid: None,
+                transactions: None,
+            })
+        }
+    }
+}
+
+/// Set the compensator up for the campaign and return the recording's layout.
+fn configure(
+    links: &mut Links,
+    cfg: &Config,
+    spec: &BenchSpec,
+    plan: &Plan,
+    axes: usize,
+) -> Result<(Layout, u16), CampaignError> {
+    let mut settings: Option<Result<Settings, crate::device::DeviceError>> = None;
+    {
+        let dev = &mut links.device;
+        links.driver.exchange(&mut || {
+            settings = Some(dev.identify().and_then(|_| dev.config()));
+        })?;
+    }
+    let mut s = settings.expect("ran")?;
+    let twin_names = match spec {
+        BenchSpec::Virtual { seed } => {
+            let twin = virtual_twin(plan, *seed)?;
+            let names: Vec<String> = twin
+                .cfg
+                .sensors
+                .iter()
+                .filter(|c| c.recorded)
+                .map(|c| c.name.clone())
+                .collect();
+            for (i, slot) in s.sensors.iter_mut().enumerate() {
+                *slot = (i < names.len()).then_some(nanocal_compensator::sensor::Chip::K);
+            }
+            s.aux = Default::default();
+            s.sample_period_ms = cfg.sample_period_ms.unwrap_or(VIRTUAL_SAMPLE_PERIOD_MS);
+            Some(names)
+        }
+        BenchSpec::Real { .. } => {
+            if let Some(p) = cfg.sample_period_ms {
+                s.sample_period_ms = p;
+            }
+            None
+        }
+    };
+    {
+        let (dev, s2) = (&mut links.device, s);
+        let mut r = None;
+        links
+            .driver
+            .exchange(&mut || r = Some(dev.set_config(&s2)))?;
+        r.expect("ran")?;
+    }
+    let n = s
+        .sensors
+        .iter()
+        .rposition(|c| c.is_some())
+        .map_or(0, |i| i + 1);
+    if s.sensors[..n].iter().any(|c| c.is_none()) {
+        return Err(CampaignError::NotReady {
+            step: 0,
+            what: "the compensator's temperature channels have gaps (a model's temperature i is chip-select i): configure them contiguously from CS0".into(),
+        });
+    }
+    let names = cfg
+        .sensor_names
+        .clone()
+        .or(twin_names)
+        .unwrap_or_else(|| (0..n).map(|i| format!("cs{i}")).collect());
+    if names.len() != n {
+        return Err(CampaignError::NotReady {
+            step: 0,
+            what: format!("{} sensor names for {n} temperature channels", names.len()),
+        });
+    }
+    let m = s
+        .aux
+        .iter()
+        .rposition(|a| *a != AuxSource::None)
+        .map_or(0, |i| i + 1);
+    let aux = s.aux[..m]
+        .iter()
+        .enumerate()
+        .map(|(i, a)| match a {
+            AuxSource::AirPressure => "pressure".to_string(),
+            AuxSource::Force { .. } => "force".to_string(),
+            _ => format!("aux{i}"),
+        })
+        .collect();
+    let layout = Layout {
+        axes: crate::twin::AXIS_NAMES[..axes]
+            .iter()
+            .map(|a| a.to_string())
+            .collect(),
+        temps: names,
+        aux,
+    };
+    Ok((layout, s.sample_period_ms))
+}
+
+/// Run (or resume) a campaign.
+pub fn run(
+    cfg: &Config,
+    stop: Arc<AtomicBool>,
+    progress: &mut dyn Progress,
+) -> Result<Outcome, CampaignError> {
+    let wall = Instant::now();
+    let dir = &cfg.out;
+    std::fs::create_dir_all(dir).map_err(|e| CampaignError::NotReady {
+        step: 0,
+        what: format!("{}: {e}", dir.display()),
+    })?;
+    let (plan, prior) = if cfg.resume {
+        let st = State::load(dir)?;
+        let text =
+            std::fs::read_to_string(dir.join(PLAN)).map_err(|e| CampaignError::NotReady {
+                step: 0,
+                what: format!("{}: {e}", dir.join(PLAN).display()),
+            })?;
+        let plan: Plan = serde_json::from_str(&text).map_err(|e| CampaignError::NotReady {
+            step: 0,
+            what: format!("{}: {e}", dir.join(PLAN).display()),
+        })?;
+        (plan, Some(st))
+    } else {
+        if dir.join(state::FILE).exists() {
+            return Err(CampaignError::NotReady {
+                step: 0,
+                what: format!(
+                    "{} already holds a campaign: continue it with --resume, or choose another --out",
+                    dir.display()
+                ),
+            });
+        }
+        let plan = cfg.plan.clone().ok_or_else(|| CampaignError::NotReady {
+            step: 0,
+            what: "no plan".into(),
+        })?;
+        (plan, None)
+    };
+    let steps = plan.schedule();
+    let axes = plan.training.axes();
+    let spec = cfg
+        .bench
+        .clone()
+        .or_else(|| prior.as_ref().map(|s| s.bench.clone()))
+        .ok_or_else(|| CampaignError::NotReady {
+            step: 0,
+            what: "no bench: give --device/--gcs/--reference or --virtual".into(),
+        })?;
+    let resume_at = prior.as_ref().map_or(0, |s| s.next_step);
+    let mut state = match &prior {
+        Some(s) if s.stage != Stage::Steps => s.clone(),
+        _ => {
+            let opened = open(&spec, &plan, &steps, resume_at, &cfg.faults)?;
+            let Opened {
+                mut links,
+                vbench_pid,
+                transactions,
+            } = opened;
+            let (layout, period) = configure(&mut links, cfg, &spec, &plan, axes)?;
+            links
+                .reference
+                .first(links.driver.now_s(), Duration::from_secs(10))?;
+            let state = match prior.clone() {
+                Some(mut s) => {
+                    if s.layout != layout {
+                        return Err(CampaignError::NotReady {
+                            step: s.next_step,
+                            what: format!(
+                                "the compensator's channels ({}) differ from the campaign's ({})",
+                                layout.header(),
+                                s.layout.header()
+                            ),
+                        });
+                    }
+                    s.bench = spec.clone();
+                    s.sample_period_ms = period;
+                    s
+                }
+                None => State {
+                    version: state::VERSION,
+                    bench: spec.clone(),
+                    layout: layout.clone(),
+                    sample_period_ms: period,
+                    safe_pose_um: cfg.safe_pose_um.clone().unwrap_or_else(|| {
+                        steps
+                            .first()
+                            .map_or(vec![0.0; axes], |s| s.target_um.clone())
+                    }),
+                    next_step: 0,
+                    recording_bytes: 0,
+                    stage: Stage::Steps,
+                    model_ids: None,
+                    kmz_um: None,
+                    kmz_updates: 0,
+                    device_resets: 0,
+                    interruptions: Vec::new(),
+                },
+            };
+            let rec_path = dir.join(RECORDING);
+            let recorder = if prior.is_some() {
+                Recorder::resume(&rec_path, &state.layout, state.recording_bytes)?
+            } else {
+                std::fs::write(
+                    dir.join(PLAN),
+                    serde_json::to_string_pretty(&plan).unwrap_or_default(),
+                )
+                .map_err(|e| CampaignError::NotReady {
+                    step: 0,
+                    what: format!("{}: {e}", dir.join(PLAN).display()),
+                })?;
+                Recorder::create(&rec_path, &state.layout)?
+            };
+            state.save(dir)?;
+            let gcs_axes: Vec<String> = (1..=axes).map(|a| a.to_string()).collect();
+            let design = cfg.design.clone().unwrap_or_else(|| match axes {
+                2 => crate::design::DesignSpec::published_2dof(),
+                _ => crate::design::DesignSpec::published_static(),
+            });
+            let mut runner =
+                Runner::new(dir, &plan, state, links, gcs_axes, design, recorder, stop)?;
+            runner.reset_before_step = cfg.faults.reset_before_step;
+            if prior.is_none() {
+                if let Err(e) = runner.check_travel() {
+                    // nothing ran: leave no campaign behind, so the fixed plan can start here
+                    drop(runner);
+                    for f in [state::FILE, PLAN, RECORDING] {
+                        let _ = std::fs::remove_file(dir.join(f));
+                    }
+                    return Err(e);
+                }
+            }
+            let r = runner.run(progress);
+            if std::env::var_os("NANOCAL_CAMPAIGN_PROFILE").is_some() {
+                eprintln!("campaign profile (wall s): {:?}", runner.profile());
+            }
+            let qemu_cpu = vbench_pid.and_then(cpu_s);
+            let txns = transactions.as_ref().map(|f| f());
+            r?;
+            let mut st = runner.state.clone();
+            st.interruptions.retain(|_| true);
+            drop(runner);
+            return finish(cfg, dir, plan, &steps, st, wall, qemu_cpu, txns, progress);
+        }
+    };
+    state.stage = Stage::Analysis;
+    finish(cfg, dir, plan, &steps, state, wall, None, None, progress)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn finish(
+    cfg: &Config,
+    dir: &Path,
+    plan: Plan,
+    steps: &[Step],
+    mut state: State,
+    wall: Instant,
+    qemu_cpu_s: Option<f64>,
+    bus_transactions: Option<u64>,
+    progress: &mut dyn Progress,
+) -> Result<Outcome, CampaignError> {
+    progress.note("validating: the table from the stage's commands and the file-based validate");
+    let fold_s = f64::from(state.sample_period_ms) / 1000.0;
+    let analysis = analysis::analyse(dir, &plan, steps, fold_s, cfg.explain)?;
+    let reports: Vec<&crate::validate::ValidationReport> = analysis.file.iter().collect();
+    crate::report::write_report(&dir.join("report"), &reports)
+        .map_err(|e| CampaignError::Fit(format!("report plots: {e}")))?;
+    if let Some(text) = &analysis.explain {
+        let _ = std::fs::write(dir.join("explain.txt"), text);
+    }
+    state.stage = Stage::Done;
+    state.save(dir)?;
+    Ok(Outcome {
+        analysis,
+        plan,
+        state,
+        wall_s: wall.elapsed().as_secs_f64(),
+        qemu_cpu_s,
+        bus_transactions,
+    })
+}

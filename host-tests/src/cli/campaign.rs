@@ -1,0 +1,286 @@
+//! `nanocal campaign`: run a whole calibration on a bench through the compensator, or on the
+//! virtual bench (`--virtual`: the QEMU firmware and the digital twin).
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use anyhow::Context;
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::campaign::run::Progress;
+use crate::campaign::state::BenchSpec;
+use crate::campaign::{self, Config};
+use crate::plan::{Plan, TestKind};
+
+/// Run a calibration campaign: training with the compensator in bypass, the fit, validation
+/// tests with each compensation in the compensator, KMZ re-measured at the interval, the report
+/// and `explain` — on a bench (`--device`, `--gcs`, `--reference`) or on the virtual one
+/// (`--virtual`). Everything is recorded as it goes in `--out`; a stopped campaign (Ctrl-C, a
+/// host restart, an error) continues with `--resume --out DIR`.
+#[derive(Args, Debug)]
+pub struct CampaignArgs {
+    /// The plan: a plan file (JSON, as `nanocal demo --print-plans` writes them) or a published
+    /// plan's name: paper000-1dof, paper000-2dof, paper001-robot.
+    pub plan: Option<String>,
+    /// Folder for the recording, plan, state, models, report (created if needed).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// The compensator's management port (`/dev/ttyACM1`, `tcp:HOST:PORT`, `unix:PATH`).
+    #[arg(long)]
+    pub device: Option<String>,
+    /// The compensator's GCS port (what the lab's software talks to).
+    #[arg(long)]
+    pub gcs: Option<String>,
+    /// The reference instrument: `tcp:HOST:PORT`, `serial:DEVICE[:BAUD]` (one line per sample:
+    /// `t pos…`), or `file:PATH`/`PATH.csv` (a CSV its software appends to).
+    #[arg(long)]
+    pub reference: Option<String>,
+    /// Unit of the reference's positions.
+    #[arg(long, default_value = "um", value_parser = ["um", "nm", "mm"])]
+    pub reference_unit: String,
+    /// The reference stamps samples on this host's clock (else its own clock is mapped).
+    #[arg(long)]
+    pub reference_synchronized: bool,
+    /// Run on the virtual bench: the QEMU firmware with the digital twin as controller, stage,
+    /// interferometer and sensors.
+    #[arg(long = "virtual")]
+    pub virtual_bench: bool,
+    /// Seed of the virtual bench's room and noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Continue the campaign in `--out`.
+    #[arg(long)]
+    pub resume: bool,
+    /// Set the compensator's sample (fold) period, ms (the virtual bench: 1000 by default).
+    #[arg(long)]
+    pub sample_period_ms: Option<u16>,
+    /// Where to leave the stage when stopping early, µm per axis (default: the plan's first pose).
+    #[arg(long, value_delimiter = ',')]
+    pub safe_pose_um: Option<Vec<f64>>,
+    /// Names of the temperature channels, in chip-select order.
+    #[arg(long, value_delimiter = ',')]
+    pub sensor_names: Option<Vec<String>>,
+    /// Candidate terms of the static model (as `nanocal fit --design`).
+    #[arg(long)]
+    pub design: Option<String>,
+    /// A shorter plan: at most T training cycles, C cycles per test, R rounds (`T,C,R`).
+    #[arg(long, value_delimiter = ',')]
+    pub shorten: Option<Vec<usize>>,
+    /// KMZ interval, s (default: the plan's).
+    #[arg(long)]
+    pub kmz_interval_s: Option<f64>,
+    /// Skip `explain` at the end.
+    #[arg(long)]
+    pub no_explain: bool,
+    /// Write the results as JSON here too.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+/// Resolve a plan argument.
+pub fn load_plan(arg: &str) -> anyhow::Result<Plan> {
+    match arg {
+        "paper000-1dof" => Ok(Plan::paper000_1dof()),
+        "paper000-2dof" => Ok(Plan::paper000_2dof()),
+        "paper001-robot" => Ok(Plan::paper001_robot()),
+        path => {
+            let text = std::fs::read_to_string(path).with_context(|| {
+                format!("plan `{path}`: not a published plan's name (paper000-1dof, paper000-2dof, paper001-robot) nor a readable file")
+            })?;
+            serde_json::from_str(&text).with_context(|| format!("plan file {path}"))
+        }
+    }
+}
+
+struct Bars {
+    bar: ProgressBar,
+}
+
+impl Progress for Bars {
+    fn step(&mut self, k: usize, n: usize, what: &str) {
+        if self.bar.length() != Some(n as u64) {
+            self.bar.set_length(n as u64);
+        }
+        self.bar.set_position(k as u64);
+        self.bar.set_message(what.to_string());
+    }
+    fn note(&mut self, text: &str) {
+        self.bar.println(text);
+    }
+}
+
+/// Runs `nanocal campaign`.
+pub fn run(args: CampaignArgs) -> anyhow::Result<()> {
+    let plan = match (&args.plan, args.resume) {
+        (Some(p), _) => {
+            let mut plan = load_plan(p)?;
+            if let Some(s) = &args.shorten {
+                anyhow::ensure!(s.len() == 3, "--shorten takes T,C,R (three numbers)");
+                plan = plan.shortened(s[0], s[1], s[2]);
+            }
+            if let (Some(i), Some(k)) = (args.kmz_interval_s, plan.validation.kmz.as_mut()) {
+                k.interval_s = i;
+            }
+            Some(plan)
+        }
+        (None, true) => None,
+        (None, false) => {
+            anyhow::bail!("give a plan (a file or a published plan's name) or --resume")
+        }
+    };
+    let to_um = match args.reference_unit.as_str() {
+        "nm" => 1e-3,
+        "mm" => 1e3,
+        _ => 1.0,
+    };
+    let bench = if args.virtual_bench {
+        Some(BenchSpec::Virtual { seed: args.seed })
+    } else {
+        match (&args.device, &args.gcs, &args.reference) {
+            (Some(d), Some(g), Some(r)) => Some(BenchSpec::Real {
+                device: d.clone(),
+                gcs: g.clone(),
+                reference: r.clone(),
+                reference_to_um: to_um,
+                reference_synchronized: args.reference_synchronized,
+            }),
+            (None, None, None) if args.resume => None,
+            _ => anyhow::bail!("a bench needs --device, --gcs and --reference (or --virtual)"),
+        }
+    };
+    let design = args
+        .design
+        .as_deref()
+        .map(crate::design::DesignSpec::parse)
+        .transpose()
+        .map_err(|e| anyhow::anyhow!("--design: {e}"))?;
+    let cfg = Config {
+        plan,
+        out: args.out.clone(),
+        bench,
+        sample_period_ms: args.sample_period_ms,
+        safe_pose_um: args.safe_pose_um.clone(),
+        sensor_names: args.sensor_names.clone(),
+        design,
+        explain: !args.no_explain,
+        resume: args.resume,
+        faults: Default::default(),
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        // a second Ctrl-C is not caught: the first one is being handled (the stage parks)
+        let _ = ctrlc::set_handler(move || stop.store(true, Ordering::Release));
+    }
+    let bar = ProgressBar::new(0);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{spinner} {msg:28} [{bar:30}] {pos}/{len} steps, {elapsed} elapsed, ETA {eta}",
+        )
+        .expect("static template"),
+    );
+    let mut progress = Bars { bar };
+    let outcome = campaign::run(&cfg, stop.clone(), &mut progress);
+    progress.bar.finish_and_clear();
+    let o = outcome.map_err(|e| {
+        anyhow::anyhow!(
+            "{e}\n(everything recorded so far is in {}; continue with `nanocal campaign --resume --out {}`)",
+            args.out.display(),
+            args.out.display()
+        )
+    })?;
+    print_outcome(&o, &args.out);
+    if let Some(p) = &args.json {
+        std::fs::write(p, serde_json::to_string_pretty(&json(&o))?)?;
+    }
+    Ok(())
+}
+
+fn nm(v: f64) -> String {
+    format!("{:.1}", v * 1e3)
+}
+
+fn print_outcome(o: &campaign::Outcome, out: &std::path::Path) {
+    let a = &o.analysis;
+    println!(
+        "campaign {}: {} steps over {:.1} h of plan time; {} KMZ re-measurements; {} compensator resets",
+        o.plan.name,
+        o.plan.schedule().len(),
+        o.plan.schedule().last().map_or(0.0, |s| s.t_end_s()) / 3600.0,
+        o.state.kmz_updates,
+        o.state.device_resets
+    );
+    println!("\nfrom what the stage received (the campaign's targets vs the reference):");
+    let rows: Vec<&crate::validate::ValidationReport> = a.campaign.iter().collect();
+    print!("{}", crate::validate::comparison_table(&rows));
+    println!(
+        "\nfile-based `validate` of the same recording agrees within {:.4} nm (every test's Acc and Rep, R_s, R_t)",
+        a.max_difference_nm
+    );
+    if a.campaign
+        .iter()
+        .any(|r| r.compensation.name() == TestKind::Static.name())
+    {
+        let worst = a
+            .campaign
+            .iter()
+            .filter(|r| r.compensation.name() != TestKind::NoModel.name())
+            .map(|r| r.summary.max_acc_um)
+            .fold(f64::NAN, f64::max);
+        println!("largest test accuracy with a model: {} nm", nm(worst));
+    }
+    if !a.advice.is_empty() {
+        println!("\nexplain on the validation steps — what the model leaves out (paper 001 §II step 5: add it and train again):");
+        for l in &a.advice {
+            println!("  - {l}");
+        }
+    } else if a.explain.is_some() {
+        println!("\nexplain on the validation steps found nothing more the model could carry.");
+    }
+    if let Some(c) = o.qemu_cpu_s {
+        println!(
+            "\nwall {:.1} s; QEMU CPU {:.1} s; {} bus transactions",
+            o.wall_s,
+            c,
+            o.bus_transactions.unwrap_or(0)
+        );
+    }
+    println!(
+        "wrote {}: recording.csv, plan.json, campaign.json, static.blob, adaptive.blob, report/{}",
+        out.display(),
+        if a.explain.is_some() {
+            ", explain.txt"
+        } else {
+            ""
+        }
+    );
+}
+
+fn json(o: &campaign::Outcome) -> serde_json::Value {
+    let rep = |r: &crate::validate::ValidationReport| {
+        serde_json::json!({
+            "compensation": r.compensation.name(),
+            "tests": r.tests.len(),
+            "acc_per_test_um": r.tests.iter().map(|t| t.accuracy_um).collect::<Vec<_>>(),
+            "rep_per_test_um": r.tests.iter().map(|t| t.repeatability_um).collect::<Vec<_>>(),
+            "acc_first_um": r.summary.first_acc_um,
+            "acc_max_um": r.summary.max_acc_um,
+            "r_s_um": r.r_s_um,
+            "r_t_um_per_h": r.r_t_um_per_h,
+        })
+    };
+    serde_json::json!({
+        "plan": o.plan.name,
+        "campaign": o.analysis.campaign.iter().map(rep).collect::<Vec<_>>(),
+        "validate": o.analysis.file.iter().map(rep).collect::<Vec<_>>(),
+        "max_difference_nm": o.analysis.max_difference_nm,
+        "kmz_updates": o.state.kmz_updates,
+        "device_resets": o.state.device_resets,
+        "wall_s": o.wall_s,
+        "qemu_cpu_s": o.qemu_cpu_s,
+        "bus_transactions": o.bus_transactions,
+        "advice": o.analysis.advice,
+    })
+}

@@ -1,0 +1,473 @@
+//! The virtual bench a campaign runs on (`nanocal campaign --virtual`): the QEMU firmware, and
+//! the digital twin in three roles around it — the PI controller's stage on the stage link, the
+//! interferometer (a TCP server speaking the reference line protocol of
+//! [`crate::campaign::reference`]), and the temperature sensors behind the register-level chip
+//! models on the bus stand-in. The board's clock is in lockstep with the campaign: plan time
+//! `t` is bench time `t + offset`, and nothing on the board happens between the instants the
+//! campaign lets it reach.
+
+use super::chips::{max31856::TempSource, Lps22hb, Max31856};
+use super::controller::{Clock, Config, Controller, IdealPlant, Plant, StageSim};
+use super::link::{BenchClock, BenchLink};
+use super::qemu::Qemu;
+use super::sensors::Buses;
+use super::twin_stage::TwinStage;
+use crate::campaign::bench::{BenchDriver, BenchError};
+use crate::device::Port;
+use crate::twin::{Trajectory, Twin};
+use nanocal_compensator::wire;
+use std::io::{Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+/// Serial ports whose input the bench counts (GCS host link, management).
+const COUNTED: [usize; 2] = [0, 3];
+
+/// Board time the bench lets pass at once while a request waits for the board's own timers.
+const NUDGE_S: f64 = 0.01;
+
+/// Wall time after which an exchange lets board time pass even though the board has started
+/// to answer (a reply the board finishes only after waiting for its own time).
+const ANSWERED_GRACE: Duration = Duration::from_millis(500);
+
+/// A stream that counts the bytes written into the board.
+struct Counted<S> {
+    inner: S,
+    sent: Arc<AtomicU64>,
+}
+
+impl<S: Read> Read for Counted<S> {
+    fn read(&mut self, b: &mut [u8]) -> std::io::Result<usize> {
+        self.inner.read(b)
+    }
+}
+
+impl<S: Write> Write for Counted<S> {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        // counted before they go (the bench must never see the board as having read them all
+        // while they are on their way), corrected for what did not go
+        self.sent.fetch_add(b.len() as u64, Ordering::AcqRel);
+        let r = self.inner.write(b);
+        let n = *r.as_ref().unwrap_or(&0);
+        self.sent.fetch_sub((b.len() - n) as u64, Ordering::AcqRel);
+        r
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+/// Faults the virtual bench stages at plan times, for the campaign's tests of what a bench of
+/// days meets (none by default). A device reset is the campaign's own to stage
+/// ([`crate::campaign::Config::faults`]): the bench has no second management connection.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Faults {
+    /// From this plan time on the interferometer sends nothing more; its connection stays open
+    /// (a laser that lost its beam, a program that hangs), s.
+    pub reference_silent_from_s: Option<f64>,
+    /// From this plan time on the thermocouple on this chip-select is broken: the MAX31856
+    /// reports an open circuit (datasheet, SR bit 0 OPEN, with CR0.OCFAULT enabled), s.
+    pub thermocouple_open: Option<(usize, f64)>,
+}
+
+/// The virtual bench.
+pub struct VirtualBench {
+    qemu: Qemu,
+    link: Arc<BenchLink>,
+    clock: BenchClock,
+    stage: Arc<Mutex<TwinStage>>,
+    stage_sim: StageSim,
+    /// Commands already handed to the campaign.
+    commands_seen: usize,
+    sent: [Arc<AtomicU64>; 2],
+    /// Bench time of plan time 0, s.
+    offset_s: f64,
+    reference_port: u16,
+    stop_reference: Arc<AtomicBool>,
+}
+
+/// The board's clock in plan time: the simulated controller stamps what it receives with it.
+struct PlanClock {
+    link: Arc<BenchLink>,
+    offset_s: f64,
+}
+
+impl Clock for PlanClock {
+    fn now_s(&self) -> f64 {
+        self.link.now_s() - self.offset_s
+    }
+}
+
+/// The twin as the controller's stage: the controller's own sensor follows its drive commands
+/// at once and exactly (closed loop on the E-727's capacitive sensors); where the stage really
+/// goes is the twin's business ([`TwinStage`]), which learns every target the moment the
+/// controller accepts it.
+struct TwinPlant {
+    ideal: IdealPlant,
+    targets: Vec<f64>,
+    stage: Arc<Mutex<TwinStage>>,
+}
+
+impl TwinPlant {
+    fn tell(&self, t_s: f64) {
+        self.stage
+            .lock()
+            .unwrap()
+            .command(t_s, self.targets.clone());
+    }
+}
+
+impl Plant for TwinPlant {
+    fn drive(&mut self, axis: usize, target: f64, velocity: f64, t_s: f64) {
+        self.ideal.drive(axis, target, velocity, t_s);
+        self.targets[axis] = target;
+        self.tell(t_s);
+    }
+    fn stop(&mut self, axis: usize, t_s: f64) {
+        self.ideal.stop(axis, t_s);
+        self.targets[axis] = self.ideal.position(axis, t_s);
+        self.tell(t_s);
+    }
+    fn position(&self, axis: usize, t_s: f64) -> f64 {
+        self.ideal.position(axis, t_s)
+    }
+    fn settled(&self, axis: usize, t_s: f64) -> bool {
+        self.ideal.settled(axis, t_s)
+    }
+}
+
+impl VirtualBench {
+    /// Boot the firmware with the twin around it. `traj` is the plan's schedule as dwells (plan
+    /// time 0 at the twin's absolute time `start_abs_s`); the board boots at plan time
+    /// `plan_at_boot_s` (≤ −[`Self::SETUP_S`] before a plan starts, so that configuration, upload
+    /// and the sensors' first conversions fit before it).
+    pub fn start(
+        twin: &Twin,
+        traj: &Trajectory,
+        start_abs_s: f64,
+        stream: u64,
+        plan_at_boot_s: f64,
+        faults: &Faults,
+    ) -> Self {
+        let mut qemu = Qemu::start(&[]);
+        let _ = &mut qemu;
+        let link = qemu.link();
+        let clock = qemu.clock();
+        let axes_n = twin.cfg.axes;
+        let stage = Arc::new(Mutex::new(TwinStage::new(twin, traj, start_abs_s, stream)));
+        let offset_s = -plan_at_boot_s;
+        // an E-727 whose axes rest at the plan's first pose, servo on
+        let first: Vec<f64> = traj
+            .dwells
+            .first()
+            .map(|d| d.cmd_um.clone())
+            .unwrap_or(vec![0.0; axes_n]);
+        let mut cfg = Config::e727(axes_n).ready();
+        for (a, ax) in cfg.axes.iter_mut().enumerate() {
+            ax.start = first[a];
+        }
+        let plant = TwinPlant {
+            ideal: IdealPlant::new(&first),
+            targets: first,
+            stage: stage.clone(),
+        };
+        let ctl = Controller::new(
+            cfg,
+            Box::new(plant),
+            Arc::new(PlanClock {
+                link: link.clone(),
+                offset_s,
+            }),
+        );
+        let stage_sim = StageSim::serve_controller(qemu.connect(1), ctl);
+
+        // the sensor chips read the twin's room at the board's clock
+        let mut buses = Buses::default();
+        let noise: Vec<f64> = twin
+            .cfg
+            .sensors
+            .iter()
+            .filter(|s| s.recorded)
+            .map(|s| s.noise_c)
+            .collect();
+        let n_sensors = stage.lock().unwrap().sensors().len();
+        for (i, &noise_c) in noise.iter().enumerate().take(n_sensors) {
+            let st = stage.clone();
+            let source = TempSource(Arc::new(move |bench_s: f64| {
+                st.lock().unwrap().spot_c(i, bench_s - offset_s)
+            }));
+            let chip = Max31856::new(20.0).following(source, noise_c, stream ^ (i as u64 + 1));
+            buses.spi.push(Some(Box::new(chip)));
+        }
+        buses.i2c.insert(
+            super::chips::lps22hb::ADDRESS,
+            Box::new(Lps22hb::new(1013.25)),
+        );
+        buses.adc = vec![Some(2048), None, None, None];
+        let buses = Arc::new(Mutex::new(buses));
+        let (b, st) = (buses.clone(), stage.clone());
+        let open_tc = faults.thermocouple_open;
+        link.attach_bus(Box::new(move |op, target, out, n_in, now_s| {
+            let mut b = b.lock().unwrap();
+            if let Some((cs, from_s)) = open_tc {
+                if op == wire::SPI && usize::from(target) == cs && now_s - offset_s >= from_s {
+                    if let Some(Some(chip)) = b.spi.get_mut(cs) {
+                        if let Some(tc) = chip.any_mut().downcast_mut::<Max31856>() {
+                            tc.open = true;
+                        }
+                    }
+                }
+            }
+            if op == wire::I2C {
+                let p = st.lock().unwrap().pressure_hpa(now_s - offset_s);
+                if let Some(chip) = b.i2c.get_mut(&super::chips::lps22hb::ADDRESS) {
+                    if let Some(baro) = chip_as_lps(chip.as_mut()) {
+                        baro.pressure_hpa = p;
+                    }
+                }
+            }
+            b.serve(op, target, out, n_in, now_s)
+        }));
+
+        let listener = TcpListener::bind("127.0.0.1:0").expect("interferometer port");
+        let reference_port = listener.local_addr().expect("bound").port();
+        let stop_reference = Arc::new(AtomicBool::new(false));
+        {
+            let (link, stage, stop) = (link.clone(), stage.clone(), stop_reference.clone());
+            let silent_from_s = faults.reference_silent_from_s.unwrap_or(f64::INFINITY);
+            std::thread::spawn(move || {
+                serve_interferometer(listener, link, stage, offset_s, silent_from_s, stop)
+            });
+        }
+        clock.lockstep();
+        let sent = [Arc::new(AtomicU64::new(0)), Arc::new(AtomicU64::new(0))];
+        Self {
+            qemu,
+            link,
+            clock,
+            stage,
+            stage_sim,
+            commands_seen: 0,
+            sent,
+            offset_s,
+            reference_port,
+            stop_reference,
+        }
+    }
+
+    /// Plan time the bench needs before a plan starts (boot, settings, upload, warm-up), s.
+    pub const SETUP_S: f64 = 60.0;
+
+    /// The compensator's management port (a counted stream).
+    pub fn management(&mut self) -> Box<dyn Port> {
+        let path = self.qemu.mgmt_spec();
+        let path = path.strip_prefix("unix:").expect("unix socket").to_string();
+        let s = std::os::unix::net::UnixStream::connect(path).expect("management socket");
+        s.set_read_timeout(Some(Duration::from_millis(50))).ok();
+        Box::new(Counted {
+            inner: s,
+            sent: self.sent[1].clone(),
+        })
+    }
+
+    /// The compensator's GCS port (a counted stream).
+    pub fn gcs(&mut self) -> Box<dyn Port> {
+        let s: TcpStream = self.qemu.connect(0);
+        s.set_read_timeout(Some(Duration::from_millis(50))).ok();
+        Box::new(Counted {
+            inner: s,
+            sent: self.sent[0].clone(),
+        })
+    }
+
+    /// The interferometer, as a reference specification.
+    pub fn reference_spec(&self) -> String {
+        format!("tcp:127.0.0.1:{}", self.reference_port)
+    }
+
+    /// The board's link (page, counters).
+    pub fn link(&self) -> Arc<BenchLink> {
+        self.link.clone()
+    }
+
+    /// The twin on the bench.
+    pub fn stage(&self) -> Arc<Mutex<TwinStage>> {
+        self.stage.clone()
+    }
+
+    /// Bus transactions served so far.
+    pub fn transactions(&self) -> u64 {
+        self.link.transactions.load(Ordering::Relaxed)
+    }
+
+    /// The QEMU process (its id, for CPU figures).
+    pub fn qemu(&self) -> &Qemu {
+        &self.qemu
+    }
+
+    /// Every byte the bench and the controller sent to the board has been read by it, and the
+    /// board is idle.
+    fn settled(&self) -> bool {
+        COUNTED
+            .iter()
+            .zip(&self.sent)
+            .all(|(&p, sent)| self.link.rx_bytes(p) == sent.load(Ordering::Acquire) as u32)
+            && self.link.rx_bytes(1) == self.stage_sim.bytes_out() as u32
+            && self.link.idle_at_horizon()
+    }
+
+    /// Wait until the board has done everything it had to do at this instant (it may still be
+    /// forwarding a corrected `MOV` after it answered the host) and the controller has acted on
+    /// every byte the board sent it: it stamps each command with the board's clock, which must
+    /// not move before.
+    fn sync_stage(&mut self) -> Result<(), BenchError> {
+        let start = Instant::now();
+        while !self.settled() || self.stage_sim.bytes_in() as u32 != self.link.tx_bytes(1) {
+            if start.elapsed() > Duration::from_secs(10) {
+                return Err(BenchError::Other(format!(
+                    "the stage controller took in {} of the {} bytes the board sent it",
+                    self.stage_sim.bytes_in(),
+                    self.link.tx_bytes(1)
+                )));
+            }
+            std::thread::sleep(Duration::from_micros(20));
+        }
+        Ok(())
+    }
+}
+
+impl Drop for VirtualBench {
+    fn drop(&mut self) {
+        self.stop_reference.store(true, Ordering::Release);
+    }
+}
+
+fn chip_as_lps(chip: &mut dyn super::chips::I2cChip) -> Option<&mut Lps22hb> {
+    chip.any_mut().downcast_mut::<Lps22hb>()
+}
+
+fn serve_interferometer(
+    listener: TcpListener,
+    link: Arc<BenchLink>,
+    stage: Arc<Mutex<TwinStage>>,
+    offset_s: f64,
+    silent_from_s: f64,
+    stop: Arc<AtomicBool>,
+) {
+    let Ok((mut s, _)) = listener.accept() else {
+        return;
+    };
+    s.set_nodelay(true).ok();
+    let (period, first) = {
+        let st = stage.lock().unwrap();
+        (st.period_s(), -super::twin_stage::PRE_ROLL_S)
+    };
+    let _ = writeln!(
+        s,
+        "# nanocal virtual interferometer: the digital twin; t = plan time (s), position per axis (um)"
+    );
+    let mut k: u64 = 0;
+    let mut seen = 0;
+    let mut out = String::new();
+    while !stop.load(Ordering::Acquire) && !link.stopped() {
+        seen = link.wait_advanced(seen, Duration::from_millis(100));
+        let now = link.now_s() - offset_s;
+        out.clear();
+        {
+            let mut st = stage.lock().unwrap();
+            let end = st.end_s();
+            loop {
+                let t = first + k as f64 * period;
+                if t >= now || t > end || t >= silent_from_s {
+                    break;
+                }
+                let m = st.measure(t);
+                use std::fmt::Write as _;
+                let _ = write!(out, "{t:.3}");
+                for v in m {
+                    let _ = write!(out, " {v:.6}");
+                }
+                out.push('\n');
+                k += 1;
+            }
+        }
+        if !out.is_empty() && s.write_all(out.as_bytes()).is_err() {
+            return;
+        }
+    }
+}
+
+impl BenchDriver for VirtualBench {
+    fn now_s(&self) -> f64 {
+        self.link.now_s() - self.offset_s
+    }
+
+    fn wait_until(&mut self, t_s: f64, stop: &AtomicBool) -> Result<bool, BenchError> {
+        if stop.load(Ordering::Acquire) {
+            return Ok(false);
+        }
+        self.sync_stage()?;
+        self.clock
+            .advance_to(t_s + self.offset_s, Duration::from_secs(60))?;
+        Ok(true)
+    }
+
+    fn exchange(&mut self, op: &mut (dyn FnMut() + Send)) -> Result<(), BenchError> {
+        let mut result = Ok(());
+        std::thread::scope(|sc| {
+            let h = sc.spawn(op);
+            let mut idle_since: Option<Instant> = None;
+            // what the board had sent when the host last wrote to it
+            let mut request: Option<(u64, u32)> = None;
+            while !h.is_finished() {
+                let sent: u64 = self.sent.iter().map(|s| s.load(Ordering::Acquire)).sum();
+                let replied: u32 = COUNTED
+                    .iter()
+                    .fold(0u32, |n, &p| n.wrapping_add(self.link.tx_bytes(p)));
+                if request.is_none_or(|(s, _)| s != sent) {
+                    request = Some((sent, replied));
+                }
+                // the board has started to answer the newest request: it needs no more time,
+                // and the fold it answered with must stay the one the next command meets
+                let answered = request.is_some_and(|(_, r)| r != replied);
+                if self.settled() {
+                    // the board took the request in and waits: for its own time (a flash erase)
+                    let since = *idle_since.get_or_insert_with(Instant::now);
+                    let wait = if answered {
+                        ANSWERED_GRACE
+                    } else {
+                        Duration::from_micros(50)
+                    };
+                    if since.elapsed() > wait {
+                        let next = self.link.now_s() + NUDGE_S;
+                        if let Err(e) = self.clock.advance_to(next, Duration::from_secs(60)) {
+                            result = Err(e.into());
+                            break;
+                        }
+                        idle_since = None;
+                    }
+                } else {
+                    idle_since = None;
+                }
+                std::thread::sleep(Duration::from_micros(20));
+            }
+        });
+        result
+    }
+
+    fn stage_commands(&mut self) -> Option<Vec<(f64, Vec<f64>)>> {
+        if self.sync_stage().is_err() {
+            return None;
+        }
+        let st = self.stage.lock().unwrap();
+        let new = st.commands()[self.commands_seen..].to_vec();
+        self.commands_seen = st.commands().len();
+        Some(new)
+    }
+
+    fn describe(&self) -> String {
+        "virtual bench (QEMU firmware, digital twin; the board's clock in lockstep)".into()
+    }
+}

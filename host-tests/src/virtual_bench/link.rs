@@ -1,0 +1,494 @@
+//! The bench's side of the QEMU board's link (`nanocal_compensator::bench_link` has the layout
+//! and the why): the page shared with the board through a host file that backs the board's
+//! PSRAM, the doorbells on serial4, the board's clock, and the bus mailbox.
+//!
+//! The clock runs in one of two modes:
+//! - **free-running** (the default, what the end-to-end tests use): a thread moves the horizon
+//!   with the wall clock × a scale every millisecond, so the board lives in real time (scale 1);
+//! - **lockstep** ([`BenchClock::lockstep`]): the horizon moves only when a caller says
+//!   [`BenchClock::advance_to`], which returns once the board is idle there — every timer up to
+//!   that instant has run, and no board time passes while the caller works (sends a command,
+//!   reads a status). This is what makes a simulated day deterministic and fast.
+
+use nanocal_compensator::bench_link as bl;
+use std::io::{Read, Write};
+use std::os::unix::net::UnixStream;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{fence, AtomicBool, AtomicU32, AtomicU64, Ordering};
+use std::sync::{Arc, Condvar, Mutex};
+use std::time::{Duration, Instant};
+
+/// Size of the file behind the board's PSRAM (QEMU's mps2 machines have exactly 16 MiB).
+pub const RAM_FILE_LEN: u64 = 16 * 1024 * 1024;
+const MAP_LEN: usize = 4096;
+/// How long [`BenchClock::advance_to`] watches the page without any progress of the board
+/// before it sleeps until a doorbell.
+const SPIN: Duration = Duration::from_micros(500);
+
+/// The page, mapped in this process.
+pub struct Page {
+    ptr: *mut u8,
+    path: PathBuf,
+}
+
+// SAFETY: the mapping lives as long as the Page; every access is an atomic or volatile access of
+// plain memory shared with the board (which orders its side with barriers).
+unsafe impl Send for Page {}
+// SAFETY: as above.
+unsafe impl Sync for Page {}
+
+impl Page {
+    /// Create the file that backs the board's RAM, with the page initialised (magic, version,
+    /// horizon 0), and map its first page.
+    pub fn create(path: &Path) -> std::io::Result<Page> {
+        let f = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(path)?;
+        f.set_len(RAM_FILE_LEN)?;
+        use std::os::fd::AsRawFd;
+        // SAFETY: a shared mapping of the first page of a file we just sized; checked below.
+        let ptr = unsafe {
+            libc::mmap(
+                std::ptr::null_mut(),
+                MAP_LEN,
+                libc::PROT_READ | libc::PROT_WRITE,
+                libc::MAP_SHARED,
+                f.as_raw_fd(),
+                0,
+            )
+        };
+        if ptr == libc::MAP_FAILED {
+            return Err(std::io::Error::last_os_error());
+        }
+        let page = Page {
+            ptr: ptr as *mut u8,
+            path: path.to_path_buf(),
+        };
+        page.set_u64(bl::HORIZON, 0);
+        page.set_u32(bl::VERSION, bl::VERSION_VALUE);
+        page.set_u32(bl::MAGIC, bl::MAGIC_VALUE);
+        Ok(page)
+    }
+
+    /// Path of the backing file (QEMU's `mem-path`).
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    fn a32(&self, off: usize) -> &AtomicU32 {
+        assert!(off.is_multiple_of(4) && off + 4 <= bl::PAGE_LEN);
+        // SAFETY: aligned, inside the mapping, which outlives `self`.
+        unsafe { &*(self.ptr.add(off) as *const AtomicU32) }
+    }
+
+    /// A u32 field.
+    pub fn u32(&self, off: usize) -> u32 {
+        self.a32(off).load(Ordering::Acquire)
+    }
+
+    /// Set a u32 field.
+    pub fn set_u32(&self, off: usize, v: u32) {
+        self.a32(off).store(v, Ordering::Release)
+    }
+
+    /// A u64 field the board writes as two words, low first (re-read until the high word is
+    /// the same before and after).
+    pub fn u64(&self, off: usize) -> u64 {
+        loop {
+            let hi = self.u32(off + 4);
+            let lo = self.u32(off);
+            if hi == self.u32(off + 4) {
+                return (u64::from(hi) << 32) | u64::from(lo);
+            }
+        }
+    }
+
+    /// Set a u64 field in one store (the board reads it high, low, high).
+    pub fn set_u64(&self, off: usize, v: u64) {
+        assert!(off.is_multiple_of(8));
+        // SAFETY: 8-aligned, inside the mapping.
+        let a = unsafe { &*(self.ptr.add(off) as *const AtomicU64) };
+        a.store(v, Ordering::Release)
+    }
+
+    /// `n` bytes from `off`.
+    pub fn bytes(&self, off: usize, n: usize) -> Vec<u8> {
+        assert!(off + n <= bl::PAGE_LEN);
+        // SAFETY: inside the mapping; volatile reads of memory the board may write.
+        (0..n)
+            .map(|i| unsafe { std::ptr::read_volatile(self.ptr.add(off + i)) })
+            .collect()
+    }
+
+    /// Write `b` at `off`.
+    pub fn set_bytes(&self, off: usize, b: &[u8]) {
+        assert!(off + b.len() <= bl::PAGE_LEN);
+        for (i, &v) in b.iter().enumerate() {
+            // SAFETY: inside the mapping.
+            unsafe { std::ptr::write_volatile(self.ptr.add(off + i), v) }
+        }
+    }
+}
+
+impl Drop for Page {
+    fn drop(&mut self) {
+        // SAFETY: the mapping made in `create`.
+        unsafe { libc::munmap(self.ptr as *mut libc::c_void, MAP_LEN) };
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// Serves one bus transaction: `(op, target, bytes out, bytes in, board time s)` → `(status,
+/// bytes in)`, or `None` when nothing answers.
+pub type BusHandler = Box<dyn FnMut(u8, u8, &[u8], usize, f64) -> Option<(u8, Vec<u8>)> + Send>;
+
+/// Something that must have taken in everything the board sent before the clock moves on (the
+/// stage controller's reader: it stamps each command with the board's clock).
+pub type DrainCheck = Box<dyn Fn(&Page) -> bool + Send + Sync>;
+
+/// Errors of the bench's clock.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ClockError {
+    /// The board did not reach the horizon in time (hung, reset loop, or QEMU gone).
+    #[error("the board did not reach {target_s:.3} s of bench time within {waited:?} (it is at {now_s:.3} s)")]
+    Stalled {
+        /// Where it was asked to go, s.
+        target_s: f64,
+        /// Where it is, s.
+        now_s: f64,
+        /// How long we waited.
+        waited: Duration,
+    },
+    /// The clock is free-running: lockstep calls are not allowed.
+    #[error("the bench clock is free-running; call lockstep() first")]
+    FreeRunning,
+}
+
+#[derive(Default)]
+struct Rings {
+    waiting: u64,
+}
+
+/// The bench's side of the link: page, doorbells, bus mailbox, clock.
+pub struct BenchLink {
+    page: Page,
+    line: Mutex<UnixStream>,
+    rings: Mutex<Rings>,
+    rung: Condvar,
+    bus: Mutex<Option<BusHandler>>,
+    bus_attached: Condvar,
+    drains: Mutex<Vec<DrainCheck>>,
+    lockstep: AtomicBool,
+    stop: AtomicBool,
+    /// Counts completed lockstep advances (for threads that follow the board's clock).
+    advances: Mutex<u64>,
+    advanced: Condvar,
+    /// Bus transactions served.
+    pub transactions: AtomicU64,
+}
+
+impl BenchLink {
+    /// Link over `page` and the board's serial4 (`line`). Starts the doorbell reader and the
+    /// free-running clock (scale 1).
+    pub fn start(page: Page, line: UnixStream) -> Arc<BenchLink> {
+        let reader = line.try_clone().expect("clone serial4");
+        let link = Arc::new(BenchLink {
+            page,
+            line: Mutex::new(line),
+            rings: Mutex::new(Rings::default()),
+            rung: Condvar::new(),
+            bus: Mutex::new(None),
+            bus_attached: Condvar::new(),
+            drains: Mutex::new(Vec::new()),
+            lockstep: AtomicBool::new(false),
+            stop: AtomicBool::new(false),
+            advances: Mutex::new(0),
+            advanced: Condvar::new(),
+            transactions: AtomicU64::new(0),
+        });
+        let l = link.clone();
+        std::thread::spawn(move || l.read_doorbells(reader));
+        let l = link.clone();
+        std::thread::spawn(move || l.free_run(1.0));
+        link
+    }
+
+    /// The page.
+    pub fn page(&self) -> &Page {
+        &self.page
+    }
+
+    /// Send raw bytes on serial4 (the host link's line state `C0h | DTR`).
+    pub fn send_line_state(&self, b: u8) {
+        let _ = self.line.lock().unwrap().write_all(&[b]);
+    }
+
+    /// Stop the threads (QEMU is going away).
+    pub fn shutdown(&self) {
+        self.stop.store(true, Ordering::Release);
+        self.rung.notify_all();
+        self.advanced.notify_all();
+    }
+
+    /// Serve the bus with `handler` from now on.
+    pub fn attach_bus(&self, handler: BusHandler) {
+        *self.bus.lock().unwrap() = Some(handler);
+        self.bus_attached.notify_all();
+    }
+
+    /// Add a check that must pass before the clock moves on in lockstep.
+    pub fn add_drain_check(&self, check: DrainCheck) {
+        self.drains.lock().unwrap().push(check);
+    }
+
+    /// The board's clock, s of bench time.
+    pub fn now_s(&self) -> f64 {
+        bl::ticks_to_s(self.page.u64(bl::NOW))
+    }
+
+    /// Boots of the board since QEMU started.
+    pub fn boots(&self) -> u32 {
+        self.page.u32(bl::BOOTS)
+    }
+
+    /// Bytes the board has read from serial `port` since power-on.
+    pub fn rx_bytes(&self, port: usize) -> u32 {
+        self.page.u32(bl::RX_BYTES + 4 * port)
+    }
+
+    /// Bytes the board has written to serial `port` since power-on.
+    pub fn tx_bytes(&self, port: usize) -> u32 {
+        self.page.u32(bl::TX_BYTES + 4 * port)
+    }
+
+    /// True when the board is idle at the horizon (nothing left to do before it moves).
+    pub fn idle_at_horizon(&self) -> bool {
+        self.page.u32(bl::WAITING) == 1 && self.page.u64(bl::NOW) == self.page.u64(bl::HORIZON)
+    }
+
+    /// Wait (up to `timeout`) until the clock has advanced past generation `seen`; returns the
+    /// current generation (for threads that follow the board's clock, e.g. an instrument).
+    pub fn wait_advanced(&self, seen: u64, timeout: Duration) -> u64 {
+        let g = self.advances.lock().unwrap();
+        let (g, _) = self
+            .advanced
+            .wait_timeout_while(g, timeout, |g| {
+                *g == seen && !self.stop.load(Ordering::Acquire)
+            })
+            .unwrap();
+        *g
+    }
+
+    /// True once the link is shut down.
+    pub fn stopped(&self) -> bool {
+        self.stop.load(Ordering::Acquire)
+    }
+
+    fn notify_advanced(&self) {
+        *self.advances.lock().unwrap() += 1;
+        self.advanced.notify_all();
+    }
+
+    fn read_doorbells(&self, mut r: UnixStream) {
+        let mut b = [0u8; 256];
+        loop {
+            let n = match r.read(&mut b) {
+                Ok(0) | Err(_) => {
+                    self.shutdown();
+                    return;
+                }
+                Ok(n) => n,
+            };
+            let mut waiting = false;
+            for &x in &b[..n] {
+                match x {
+                    bl::RING_BUS => self.serve_bus(),
+                    bl::RING_WAITING => waiting = true,
+                    _ => {}
+                }
+            }
+            if waiting {
+                self.rings.lock().unwrap().waiting += 1;
+                self.rung.notify_all();
+            }
+        }
+    }
+
+    /// True when the board has posted a bus request not yet answered.
+    fn bus_pending(&self) -> bool {
+        self.page.u32(bl::BUS_REQ_SEQ) != self.page.u32(bl::BUS_REP_SEQ)
+    }
+
+    /// Answer the board's pending bus request, if any (whichever thread sees it first: the
+    /// doorbell reader, or a caller of [`BenchClock::advance_to`] watching the page).
+    fn serve_bus(&self) {
+        let mut bus = self.bus.lock().unwrap();
+        let seq = self.page.u32(bl::BUS_REQ_SEQ);
+        if self.page.u32(bl::BUS_REP_SEQ) == seq {
+            return; // already served
+        }
+        let h = self
+            .page
+            .bytes(bl::BUS_REQ, nanocal_compensator::wire::HEADER);
+        let (op, target, n_out, n_in) = (h[1], h[2], usize::from(h[3]), usize::from(h[4]));
+        let n_out = n_out.min(nanocal_compensator::wire::MAX_DATA);
+        let out = self
+            .page
+            .bytes(bl::BUS_REQ + nanocal_compensator::wire::HEADER, n_out);
+        let now = self.now_s();
+        // the board waits for its reply without its clock moving: give a bench that is still
+        // being set up a moment to attach its chips
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while bus.is_none() && Instant::now() < deadline && !self.stop.load(Ordering::Acquire) {
+            bus = self
+                .bus_attached
+                .wait_timeout(bus, Duration::from_millis(50))
+                .unwrap()
+                .0;
+        }
+        let answer = bus.as_mut().and_then(|f| f(op, target, &out, n_in, now));
+        drop(bus);
+        let rep = match answer {
+            Some((status, data)) => {
+                let mut rep = vec![nanocal_compensator::wire::REP, op, target, status];
+                rep.push(data.len() as u8);
+                rep.extend_from_slice(&data);
+                rep
+            }
+            None => vec![nanocal_compensator::wire::REP, op, target, bl::NO_ANSWER, 0],
+        };
+        self.page
+            .set_bytes(bl::BUS_REP, &rep[..rep.len().min(bl::FRAME_LEN)]);
+        fence(Ordering::SeqCst);
+        self.page.set_u32(bl::BUS_REP_SEQ, seq);
+        self.transactions.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Move the horizon to `ticks` (never back) and wake the board if it waits.
+    fn set_horizon(&self, ticks: u64) {
+        if ticks > self.page.u64(bl::HORIZON) {
+            self.page.set_u64(bl::HORIZON, ticks);
+        }
+        fence(Ordering::SeqCst);
+        if self.page.u32(bl::WAITING) == 1 {
+            let _ = self.line.lock().unwrap().write_all(&[bl::RING_HORIZON]);
+        }
+    }
+
+    fn free_run(&self, scale: f64) {
+        let t0 = Instant::now();
+        let base = self.page.u64(bl::HORIZON);
+        while !self.stop.load(Ordering::Acquire) && !self.lockstep.load(Ordering::Acquire) {
+            let t = base + bl::s_to_ticks(t0.elapsed().as_secs_f64() * scale);
+            self.set_horizon(t);
+            self.notify_advanced();
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+}
+
+/// The board's clock as the bench drives it.
+#[derive(Clone)]
+pub struct BenchClock {
+    link: Arc<BenchLink>,
+}
+
+impl BenchClock {
+    /// The clock of `link`.
+    pub fn new(link: Arc<BenchLink>) -> Self {
+        Self { link }
+    }
+
+    /// Now, s of bench time (the board's clock).
+    pub fn now_s(&self) -> f64 {
+        self.link.now_s()
+    }
+
+    /// Stop the free-running thread: from now on the clock moves only by [`Self::advance_to`].
+    pub fn lockstep(&self) {
+        self.link.lockstep.store(true, Ordering::Release);
+    }
+
+    /// Let the clock run with the wall clock × `scale` again.
+    pub fn free_run(&self, scale: f64) {
+        if self.link.lockstep.swap(false, Ordering::AcqRel) {
+            let l = self.link.clone();
+            std::thread::spawn(move || l.free_run(scale));
+        }
+    }
+
+    /// Move the board's clock to `t_s` of bench time (lockstep): first wait until everything
+    /// the board sent has been taken in (drain checks), then raise the horizon and wait until
+    /// the board is idle there. `timeout` bounds the wall time of the whole step.
+    pub fn advance_to(&self, t_s: f64, timeout: Duration) -> Result<(), ClockError> {
+        if !self.link.lockstep.load(Ordering::Acquire) {
+            return Err(ClockError::FreeRunning);
+        }
+        let start = Instant::now();
+        let page = &self.link.page;
+        let target = bl::s_to_ticks(t_s).max(page.u64(bl::HORIZON));
+        let stalled = |page: &Page| ClockError::Stalled {
+            target_s: bl::ticks_to_s(target),
+            now_s: bl::ticks_to_s(page.u64(bl::NOW)),
+            waited: start.elapsed(),
+        };
+        loop {
+            let drained = self.link.drains.lock().unwrap().iter().all(|c| c(page));
+            if drained {
+                break;
+            }
+            if start.elapsed() > timeout {
+                return Err(stalled(page));
+            }
+            std::thread::sleep(Duration::from_micros(50));
+        }
+        self.link.set_horizon(target);
+        // Watch the page while the board runs towards the horizon, answering its bus requests
+        // here: no thread hand-over per transaction (the board waits for each reply). Sleep
+        // until a doorbell only when the board makes no progress for a while.
+        let mut last = (page.u64(bl::NOW), page.u32(bl::BUS_REQ_SEQ));
+        let mut quiet_since = Instant::now();
+        page.set_u32(bl::WATCHING, 1);
+        let result = loop {
+            if self.link.bus_pending() {
+                self.link.serve_bus();
+            }
+            if page.u32(bl::WAITING) == 1 && page.u64(bl::NOW) == target {
+                break Ok(());
+            }
+            if start.elapsed() > timeout || self.link.stop.load(Ordering::Acquire) {
+                break Err(stalled(page));
+            }
+            let now = (page.u64(bl::NOW), page.u32(bl::BUS_REQ_SEQ));
+            if now != last {
+                last = now;
+                quiet_since = Instant::now();
+            } else if quiet_since.elapsed() > SPIN {
+                // stop polling: the board rings from now on; look once more, then sleep
+                page.set_u32(bl::WATCHING, 0);
+                fence(Ordering::SeqCst);
+                if !self.link.bus_pending() && page.u32(bl::WAITING) == 0 {
+                    let rings = self.link.rings.lock().unwrap();
+                    let _ = self
+                        .link
+                        .rung
+                        .wait_timeout(rings, Duration::from_millis(2))
+                        .unwrap();
+                }
+                page.set_u32(bl::WATCHING, 1);
+                quiet_since = Instant::now();
+            } else {
+                std::hint::spin_loop();
+            }
+        };
+        page.set_u32(bl::WATCHING, 0);
+        if result.is_ok() {
+            self.link.notify_advanced();
+        }
+        result
+    }
+}

@@ -1,0 +1,82 @@
+//! The board's side of its link to the virtual bench: the page shared with the host
+//! (`nanocal_compensator::bench_link` has the layout and the why) and the doorbell on serial4.
+
+use core::ptr::{read_volatile, write_volatile};
+use core::sync::atomic::{fence, Ordering};
+use nanocal_compensator::bench_link as bl;
+
+fn at<T>(off: usize) -> *mut T {
+    (bl::GUEST_ADDR + off) as *mut T
+}
+
+/// Read a u32 field.
+pub fn read_u32(off: usize) -> u32 {
+    // SAFETY: an aligned word of the PSRAM page; plain memory (shared with the host).
+    unsafe { read_volatile(at::<u32>(off)) }
+}
+
+/// Write a u32 field.
+pub fn write_u32(off: usize, v: u32) {
+    // SAFETY: as above.
+    unsafe { write_volatile(at::<u32>(off), v) }
+}
+
+/// Read a u64 field (two words, low first: the host writes the horizon only while the board
+/// cannot be reading it in a torn state — it writes it with one 8-byte store, and the board's
+/// reads of the page are word reads of memory; a torn read is retried).
+pub fn read_u64(off: usize) -> u64 {
+    loop {
+        let hi = read_u32(off + 4);
+        let lo = read_u32(off);
+        if hi == read_u32(off + 4) {
+            return (u64::from(hi) << 32) | u64::from(lo);
+        }
+    }
+}
+
+/// Write a u64 field (high word last, so a reader that checks the high word twice sees it whole).
+pub fn write_u64(off: usize, v: u64) {
+    write_u32(off, v as u32);
+    write_u32(off + 4, (v >> 32) as u32);
+}
+
+/// Read a byte of the page.
+pub fn read_u8(off: usize) -> u8 {
+    // SAFETY: a byte of the PSRAM page.
+    unsafe { read_volatile(at::<u8>(off)) }
+}
+
+/// Write a byte of the page.
+pub fn write_u8(off: usize, v: u8) {
+    // SAFETY: as above.
+    unsafe { write_volatile(at::<u8>(off), v) }
+}
+
+/// Order this side's writes before the next ones (DMB: QEMU makes it a host fence).
+pub fn barrier() {
+    fence(Ordering::SeqCst);
+    cortex_m::asm::dmb();
+}
+
+/// True when the host set up the page (QEMU started with the memory backend and the bench).
+pub fn present() -> bool {
+    read_u32(bl::MAGIC) == bl::MAGIC_VALUE && read_u32(bl::VERSION) == bl::VERSION_VALUE
+}
+
+/// Count `n` bytes written to serial `port` (the host checks the stage link is drained before it
+/// moves the clock on).
+pub fn count_tx(port: usize, n: u32) {
+    if port < bl::SERIALS {
+        let off = bl::TX_BYTES + 4 * port;
+        write_u32(off, read_u32(off).wrapping_add(n));
+    }
+}
+
+/// Count `n` bytes read from serial `port` (the bench checks its input was taken in before it
+/// moves the clock on: a deterministic board time for every byte).
+pub fn count_rx(port: usize, n: u32) {
+    if port < bl::SERIALS {
+        let off = bl::RX_BYTES + 4 * port;
+        write_u32(off, read_u32(off).wrapping_add(n));
+    }
+}

@@ -6,10 +6,12 @@
 //! 1. let time run to `t_k`; the reference samples before `t_k` complete step `k − 1` (its rows
 //!    are written, and a KMZ step sends its measurement to the compensator);
 //! 2. commit the recording and the state (a resume restarts at step `k`);
-//! 3. read the compensator's status: its temperatures and aux inputs are what the rows of step
-//!    `k` carry (the fold the move is corrected with); a reset is noticed here (the mode is set
-//!    again, a lost model uploaded again), a failed sensor stops the campaign;
+//! 3. read the compensator's status; a reset is noticed here (the mode is set again, a lost
+//!    model uploaded again), a failed sensor stops the campaign;
 //! 4. `MOV` the target, then `ERR?`: a refusal stops the campaign with the compensator's reason;
+//!    with a model in service, read the status again: the same fold counter as before the move
+//!    means the move was corrected with that fold, whose temperatures and aux inputs the rows of
+//!    step `k` carry; otherwise the move is sent again (see `move_with_known_fold`);
 //! 5. set the compensator up for step `k + 1` (bypass, model, λ_KMZ) during `k`'s hold, while
 //!    the stage stands still.
 
@@ -636,6 +638,50 @@ impl<'a> Runner<'a> {
         Ok(())
     }
 
+    /// Send `line` (a `MOV`) and its `ERR?`, and return the error code with a status whose
+    /// fold is the one the move was corrected with. `before` is the status read just before.
+    ///
+    /// The recording's temperatures and aux inputs of a step must be the inputs of the fold
+    /// the compensator corrected the move with, or the file-based `validate` replays another
+    /// correction. A status read before the move is that fold only if no fold ran in
+    /// between; the sensor task folds on its own clock, so one may run while the move is on
+    /// its way (measured: a fold between the two in a few steps per test, moving the static
+    /// model's table by 2-18 nm). So the status is read again after the move: the same fold
+    /// counter means no fold ran between the two readings, and the move was corrected with
+    /// that fold; otherwise the same move is sent again (the stage takes the last target;
+    /// the fold just ran, so the next is a sample period away) — what a real bench does too.
+    /// In bypass no fold touches the move and the status read before it is recorded.
+    fn move_with_known_fold(
+        &mut self,
+        k: usize,
+        mode: Mode,
+        line: &str,
+        mut before: Status,
+    ) -> Result<(i32, Status), CampaignError> {
+        const ATTEMPTS: usize = 8;
+        for _ in 0..ATTEMPTS {
+            let l = line.to_string();
+            let code = self.gcs(move |g| {
+                g.send(&l)?;
+                g.error()
+            })?;
+            if code != 0 || mode.bypass {
+                return Ok((code, before));
+            }
+            let after = self.read_status(k)?;
+            if after.folds == before.folds && after.uptime_ms >= before.uptime_ms {
+                return Ok((code, after));
+            }
+            before = after;
+        }
+        Err(CampaignError::NotReady {
+            step: k,
+            what: format!(
+                "a fold ran during each of {ATTEMPTS} tries of the move: which fold corrected it is unknown"
+            ),
+        })
+    }
+
     fn gcs_target(&self, target: &[f64]) -> String {
         let mut line = String::from("MOV");
         for (a, v) in target.iter().enumerate() {
@@ -805,14 +851,10 @@ impl<'a> Runner<'a> {
             }
             self.apply(k, mode)?;
             let s = self.status.unwrap_or(s);
+            let line = self.gcs_target(&step.target_um);
+            let (code, s) = self.move_with_known_fold(k, mode, &line, s)?;
             self.temps = s.temps_c[..self.state.layout.temps.len()].to_vec();
             self.aux = s.aux[..self.state.layout.aux.len()].to_vec();
-            let line = self.gcs_target(&step.target_um);
-            let l = line.clone();
-            let code = self.gcs(move |g| {
-                g.send(&l)?;
-                g.error()
-            })?;
             if code != 0 {
                 let t_s = self.t_now();
                 if code == 9002 {

@@ -25,6 +25,9 @@ use crate::fit::{adaptive_from_static, encode_blob};
 use crate::plan::{Phase, Plan, Step, TestKind};
 use nanocal_compensator::mgmt::{flags, Status};
 use nanocal_model::{Model, ModelBuilder, MAX_AXES};
+
+/// GCS error 2, "unknown command": the controller executed nothing of the line.
+const GCS_UNKNOWN_COMMAND: i32 = 2;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -665,6 +668,13 @@ impl<'a> Runner<'a> {
                 g.send(&l)?;
                 g.error()
             })?;
+            if code == GCS_UNKNOWN_COMMAND {
+                // the controller did not execute the line (garbled on the way, e.g. by a reset
+                // of the compensator mid-line): nothing moved, so the same move is sent again
+                eprintln!("step {k}: the controller did not understand `{line}` (GCS error 2); sent again");
+                before = self.read_status(k)?;
+                continue;
+            }
             if code != 0 || mode.bypass {
                 return Ok((code, before));
             }
@@ -677,7 +687,7 @@ impl<'a> Runner<'a> {
         Err(CampaignError::NotReady {
             step: k,
             what: format!(
-                "a fold ran during each of {ATTEMPTS} tries of the move: which fold corrected it is unknown"
+                "each of {ATTEMPTS} tries of the move was either not understood by the controller (GCS error 2) or had a fold run during it (which fold corrected it is unknown)"
             ),
         })
     }

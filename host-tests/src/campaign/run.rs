@@ -431,16 +431,7 @@ impl<'a> Runner<'a> {
         &mut self,
         f: impl FnOnce(&mut Client) -> Result<T, DeviceError> + Send,
     ) -> Result<T, CampaignError> {
-        let mut out = None;
-        let mut f = Some(f);
-        let dev = &mut self.links.device;
-        let mut op = || {
-            if let Some(f) = f.take() {
-                out = Some(f(dev));
-            }
-        };
-        self.links.driver.exchange(&mut op)?;
-        Ok(out.expect("the exchange ran")?)
+        exchange_on(self.links.driver.as_mut(), &mut self.links.device, f)
     }
 
     /// Run one exchange on the GCS link.
@@ -448,16 +439,7 @@ impl<'a> Runner<'a> {
         &mut self,
         f: impl FnOnce(&mut GcsLink) -> Result<T, GcsError> + Send,
     ) -> Result<T, CampaignError> {
-        let mut out = None;
-        let mut f = Some(f);
-        let g = &mut self.links.gcs;
-        let mut op = || {
-            if let Some(f) = f.take() {
-                out = Some(f(g));
-            }
-        };
-        self.links.driver.exchange(&mut op)?;
-        Ok(out.expect("the exchange ran")?)
+        exchange_on(self.links.driver.as_mut(), &mut self.links.gcs, f)
     }
 
     /// Write the rows of every reference sample before `t_end_s` (they belong to the step under
@@ -936,4 +918,25 @@ fn fault_name(code: u8) -> String {
     .iter()
     .find(|f| f.code() == code)
     .map_or_else(|| "no valid reading".to_string(), |f| f.to_string())
+}
+
+/// Run `f` on `link` as one exchange of the bench (on the virtual bench: with the board's clock
+/// held while the host talks to it).
+fn exchange_on<L: Send, T: Send, E: Send>(
+    driver: &mut dyn BenchDriver,
+    link: &mut L,
+    f: impl FnOnce(&mut L) -> Result<T, E> + Send,
+) -> Result<T, CampaignError>
+where
+    CampaignError: From<E>,
+{
+    let mut out = None;
+    let mut f = Some(f);
+    let mut op = || {
+        if let Some(f) = f.take() {
+            out = Some(f(link));
+        }
+    };
+    driver.exchange(&mut op)?;
+    Ok(out.expect("the exchange ran")?)
 }

@@ -244,23 +244,16 @@ impl DeltaConfig {
             c.offset_mm = 0.020 * normal(&mut rng);
         }
         let mut spots = Vec::new();
-        for i in 1..=3 {
-            let off = 0.05 * rng.gen_range(-1.0..1.0);
-            spots.push(SensorConfig::new(
-                &format!("arm_{i}"),
-                off,
-                1200.0 + 300.0 * i as f64,
-                1.0,
-            ));
-        }
-        for i in 1..=3 {
-            let off = 0.05 * rng.gen_range(-1.0..1.0);
-            spots.push(SensorConfig::new(
-                &format!("column_{i}"),
-                off,
-                2400.0 + 300.0 * i as f64,
-                1.0,
-            ));
+        for (part, tau_base_s) in [("arm", 1200.0), ("column", 2400.0)] {
+            for i in 1..=3 {
+                let off = 0.05 * rng.gen_range(-1.0..1.0);
+                spots.push(SensorConfig::new(
+                    &format!("{part}_{i}"),
+                    off,
+                    tau_base_s + 300.0 * i as f64,
+                    1.0,
+                ));
+            }
         }
         spots.push(SensorConfig::new("base", 0.0, 3600.0, 0.9));
         for axis in ["x", "y", "z"] {

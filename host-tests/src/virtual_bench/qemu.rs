@@ -347,23 +347,24 @@ impl Qemu {
 }
 
 fn dial_unix(child: &mut Child, path: &Path, i: usize, log: &Path) -> UnixStream {
-    let deadline = Instant::now() + Duration::from_secs(20);
-    loop {
-        if let Ok(Some(st)) = child.try_wait() {
-            panic!(
-                "qemu exited ({st}): {}",
-                std::fs::read_to_string(log).unwrap_or_default()
-            );
-        }
-        if let Ok(s) = UnixStream::connect(path) {
-            return s;
-        }
-        assert!(Instant::now() < deadline, "qemu serial{i} never listened");
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    dial_with(child, i, log, || UnixStream::connect(path).ok())
 }
 
 fn dial(child: &mut Child, port: u16, i: usize, log: &Path) -> TcpStream {
+    dial_with(child, i, log, || {
+        let s = TcpStream::connect(("127.0.0.1", port)).ok()?;
+        s.set_nodelay(true).ok();
+        Some(s)
+    })
+}
+
+/// Retry `connect` until QEMU listens on serial `i` (20 s), telling QEMU's log if it exits.
+fn dial_with<S>(
+    child: &mut Child,
+    i: usize,
+    log: &Path,
+    mut connect: impl FnMut() -> Option<S>,
+) -> S {
     let deadline = Instant::now() + Duration::from_secs(20);
     loop {
         if let Ok(Some(st)) = child.try_wait() {
@@ -372,8 +373,7 @@ fn dial(child: &mut Child, port: u16, i: usize, log: &Path) -> TcpStream {
                 std::fs::read_to_string(log).unwrap_or_default()
             );
         }
-        if let Ok(s) = TcpStream::connect(("127.0.0.1", port)) {
-            s.set_nodelay(true).ok();
+        if let Some(s) = connect() {
             return s;
         }
         assert!(Instant::now() < deadline, "qemu serial{i} never listened");

@@ -141,6 +141,8 @@ pub struct Shared {
     pub refold: Signal<Cs, ()>,
     /// Settings changed: the sensor task reconfigures its chips.
     pub settings_changed: Signal<Cs, ()>,
+    /// A model was released: the fast sampler looks again at which inputs it must sample.
+    pub model_released: Signal<Cs, ()>,
     /// Bytes for the host.
     pub to_host: Pipe<Cs, PIPE_LEN>,
     /// Bytes for the stage controller.
@@ -191,6 +193,7 @@ impl Shared {
             identity,
             refold: Signal::new(),
             settings_changed: Signal::new(),
+            model_released: Signal::new(),
             to_host: Pipe::new(),
             to_stage: Pipe::new(),
             host_connected: AtomicBool::new(true),
@@ -227,6 +230,7 @@ impl Shared {
     pub fn release(&self) {
         self.model.lock(|m| m.borrow_mut().pending = false);
         self.refold.signal(());
+        self.model_released.signal(());
     }
 
     /// No model (the staged one could not be stored and none is stored).

@@ -350,12 +350,13 @@ async fn slow_cycle<B: InputBus>(bus: &SharedBus<B>, timeout: Duration, sh: &Sha
             m.slow_outside = comp.fold.slow_outside_envelope();
             m.folds = m.folds.wrapping_add(1);
             let blocked = m.faults.blocks_moves(temps) || m.aux_faults.blocks_moves(auxn);
-            Some(Some((comp, blocked)))
+            Some(Some((comp, m.folds, blocked)))
         });
         match update {
-            Some(Some((comp, blocked))) => sh.core.lock(|c| {
+            Some(Some((comp, fold, blocked))) => sh.core.lock(|c| {
                 let mut c = c.borrow_mut();
                 c.comp = Some(comp);
+                c.comp_fold = fold;
                 c.folded_at_ms = ms;
                 c.proxy.gate = if blocked {
                     Gate::SensorFault

@@ -35,8 +35,9 @@ use core::fmt;
 /// Protocol version. 2: identity in HELLO/STATUS, settings, reset, input checks, and
 /// [`Status::slow_outside`] widened from u16 to u32 (a model has up to 23 inputs with envelope
 /// bits). 3: 16 temperatures in STATUS ([`STATUS_SENSORS`]), settings layout 2 (16
-/// chip-selects).
-pub const PROTOCOL: u16 = 3;
+/// chip-selects). 4: [`Status::move_fold`] in the word that was the unused `slot_seq` (0), with
+/// [`flags::MOVE_FOLD`]; the layout is unchanged.
+pub const PROTOCOL: u16 = 4;
 /// Frame sync bytes.
 pub const SYNC: [u8; 2] = [0xA7, 0x5C];
 /// Largest payload.

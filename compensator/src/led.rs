@@ -46,6 +46,23 @@ impl LedState {
         }
     }
 
+    /// Milliseconds from `t_ms` until [`Self::lit`] next changes (`None`: a steady pattern), so
+    /// the supervisor need not wake more often than the LED changes.
+    pub fn next_edge_ms(self, t_ms: u32) -> Option<u32> {
+        let (period, on) = match self {
+            LedState::Compensating => return None,
+            LedState::Bypass => (2000, 1000),
+            LedState::NoModel => (2000, 100),
+            LedState::Fault => (200, 100),
+        };
+        let phase = t_ms % period;
+        Some(if phase < on {
+            on - phase
+        } else {
+            period - phase
+        })
+    }
+
     /// Stable code for the status report.
     pub fn code(self) -> u8 {
         match self {

@@ -35,8 +35,9 @@ use core::fmt;
 /// Protocol version. 2: identity in HELLO/STATUS, settings, reset, input checks, and
 /// [`Status::slow_outside`] widened from u16 to u32 (a model has up to 23 inputs with envelope
 /// bits). 3: 16 temperatures in STATUS ([`STATUS_SENSORS`]), settings layout 2 (16
-/// chip-selects).
-pub const PROTOCOL: u16 = 3;
+/// chip-selects). 4: [`Status::move_fold`] in the word that was the unused `slot_seq` (0), with
+/// [`flags::MOVE_FOLD`]; the layout is unchanged.
+pub const PROTOCOL: u16 = 4;
 /// Frame sync bytes.
 pub const SYNC: [u8; 2] = [0xA7, 0x5C];
 /// Largest payload.
@@ -405,6 +406,8 @@ pub mod flags {
     pub const HOST_CONNECTED: u16 = 1 << 9;
     /// Sensors are warming up: a sensor the model uses has no valid reading yet.
     pub const WARMING_UP: u16 = 1 << 10;
+    /// [`super::Status::move_fold`] is reported (always set by firmware that knows the field).
+    pub const MOVE_FOLD: u16 = 1 << 11;
 }
 
 /// The device's status report.
@@ -416,8 +419,11 @@ pub struct Status {
     pub model_id: u32,
     /// Unused since the store replaced the two slots (always 0xFF); kept for the layout.
     pub slot: u8,
-    /// Unused (0); kept for the layout.
-    pub slot_seq: u32,
+    /// The fold (the value [`Status::folds`] had) that corrected the last move forwarded to the
+    /// controller; 0: no move since start-up. With [`flags::MOVE_FOLD`] (firmware that reports
+    /// it; the field was an unused 0 before). A host that reads `move_fold == folds` knows the
+    /// temperatures in this report are the ones its last move was corrected with.
+    pub move_fold: u32,
     /// Temperatures in use, °C (NaN when unusable).
     pub temps_c: [f32; STATUS_SENSORS],
     /// Per-sensor status bits ([`crate::fault::Channel::status_bits`]).
@@ -496,7 +502,7 @@ impl Status {
         w.u16(self.flags)?;
         w.u32(self.model_id)?;
         w.u8(self.slot)?;
-        w.u32(self.slot_seq)?;
+        w.u32(self.move_fold)?;
         for t in self.temps_c {
             w.f32(t)?;
         }
@@ -538,7 +544,7 @@ impl Status {
             flags: r.u16()?,
             model_id: r.u32()?,
             slot: r.u8()?,
-            slot_seq: r.u32()?,
+            move_fold: r.u32()?,
             ..Default::default()
         };
         for t in s.temps_c.iter_mut() {

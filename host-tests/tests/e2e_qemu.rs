@@ -88,6 +88,15 @@ fn e2e_compensator_under_qemu() {
     for (i, t) in TEMPS_C.iter().enumerate() {
         assert_eq!(s.temps_c[i], *t);
     }
+    assert_ne!(
+        s.flags & flags::MOVE_FOLD,
+        0,
+        "the status reports move_fold"
+    );
+    assert_eq!(
+        s.move_fold, 0,
+        "no move corrected yet (the one without a model was refused)"
+    );
 
     // MOV: the forwarded command equals the host's f64 evaluation within 0.1 nm
     let dir0 = [0i8; MAX_AXES];
@@ -105,6 +114,32 @@ fn e2e_compensator_under_qemu() {
     assert_eq!(stage.next_line(Duration::from_secs(10)), "PUN? 1");
     let fwd = stage.next_line(Duration::from_secs(10));
     check(stage_value(&fwd, "1"), 100.0, dir0);
+
+    // the status names the fold that corrected the move; it stays while later folds run, and
+    // the next move takes the fold then in service
+    let s1 = c.status().unwrap();
+    assert!(
+        s1.move_fold != 0 && s.folds <= s1.move_fold && s1.move_fold <= s1.folds,
+        "move_fold {} outside the folds around the move ({}..={})",
+        s1.move_fold,
+        s.folds,
+        s1.folds
+    );
+    let s2 = wait_until("two more folds", Duration::from_secs(20), || {
+        let x = c.status().ok()?;
+        (x.folds >= s1.folds + 2).then_some(x)
+    });
+    assert_eq!(s2.move_fold, s1.move_fold, "no move since: the same fold");
+    host.send("MOV 1 100");
+    let _ = stage.next_line(Duration::from_secs(10));
+    let s3 = c.status().unwrap();
+    assert!(
+        s2.folds <= s3.move_fold && s3.move_fold <= s3.folds,
+        "move_fold {} outside {}..={}",
+        s3.move_fold,
+        s2.folds,
+        s3.folds
+    );
 
     // MVR becomes an absolute MOV
     host.send("MVR 1 12.5");

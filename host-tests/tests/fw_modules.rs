@@ -83,7 +83,7 @@ fn status_round_trips() {
         flags: 5,
         model_id: 0x1234,
         slot: 1,
-        slot_seq: 9,
+        move_fold: 9,
         temps_c: core::array::from_fn(|i| 20.0 + i as f32 * 0.25),
         sensor_bits: [0, 1, 2, 0, 0, 0, 0, 4, 0, 0, 0, 0, 0, 0, 0, 0x14],
         sensors: 4,

@@ -513,6 +513,30 @@ fn led_shows_what_the_stage_gets() {
     assert_eq!(fast, 500);
 }
 
+/// The supervisor sleeps until the LED's next edge: that edge must be exactly where `lit`
+/// changes, for every pattern and phase (a late edge would stretch the blink; an early one only
+/// costs a wake-up, but is wrong too).
+#[test]
+fn led_next_edge_is_where_the_pattern_changes() {
+    assert_eq!(LedState::Compensating.next_edge_ms(1234), None);
+    for state in [LedState::Bypass, LedState::NoModel, LedState::Fault] {
+        for t in 0..4000u32 {
+            let e = state.next_edge_ms(t).expect("a blinking pattern has edges");
+            assert!(e >= 1, "{state:?} at {t} ms: edge {e} ms away");
+            let lit = state.lit(t);
+            assert!(
+                (1..e).all(|d| state.lit(t + d) == lit),
+                "{state:?} at {t} ms changes before its edge {e} ms away"
+            );
+            assert_ne!(
+                state.lit(t + e),
+                lit,
+                "{state:?} at {t} ms: no change {e} ms on"
+            );
+        }
+    }
+}
+
 /// A 1-axis model with one temperature and one aux input (air pressure, hPa).
 fn pressure_model() -> nanocal_model::Model {
     use nanocal_model::{Factor, Input, ModelBuilder};

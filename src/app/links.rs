@@ -36,6 +36,8 @@ async fn pump<W: Write>(pipe: &embassy_sync::pipe::Pipe<super::Cs, PIPE_LEN>, tx
 async fn send(sh: &Shared, out: &Output) {
     if !out.to_stage.is_empty() {
         sh.to_stage.write_all(out.to_stage.as_bytes()).await;
+        // the proxy may now wait for a reply: the stage link polls its timeout from now on
+        sh.stage_sent.signal(());
     }
     let host_connected = sh
         .host_connected
@@ -76,8 +78,7 @@ async fn resume(sh: &Shared, out: &mut Output) {
                 return false;
             }
             let now = now_ms();
-            let (proxy, comp) = c.proxy_and_comp(now);
-            proxy.host_bytes(comp, &[], now, out);
+            c.drive(now, |proxy, comp| proxy.host_bytes(comp, &[], now, out));
             true
         });
         if !worked {
@@ -104,8 +105,7 @@ pub async fn host_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) -> 
             };
             feed(sh, &buf[..n], &mut out, |c, b, out| {
                 let now = now_ms();
-                let (proxy, comp) = c.proxy_and_comp(now);
-                proxy.host_bytes(comp, b, now, out)
+                c.drive(now, |proxy, comp| proxy.host_bytes(comp, b, now, out))
             })
             .await;
         }
@@ -121,12 +121,22 @@ pub async fn stage_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) ->
         let mut out = Output::new();
         let mut buf = [0u8; 64];
         loop {
-            match select(read_some(&mut rx, &mut buf), Timer::after_millis(POLL_MS)).await {
+            // poll the reply timeout only while a reply is awaited; otherwise sleep until the
+            // controller sends or something is sent to it (a wake-up every 50 ms for nothing
+            // was most of what the board did in a day on the virtual bench)
+            let awaiting = sh.core.lock(|c| c.borrow().proxy.awaiting_controller());
+            let tick = async {
+                if awaiting {
+                    Timer::after_millis(POLL_MS).await
+                } else {
+                    sh.stage_sent.wait().await
+                }
+            };
+            match select(read_some(&mut rx, &mut buf), tick).await {
                 Either::First(n) => {
                     feed(sh, &buf[..n], &mut out, |c, b, out| {
                         let now = now_ms();
-                        let (proxy, comp) = c.proxy_and_comp(now);
-                        proxy.stage_bytes(comp, b, now, out)
+                        c.drive(now, |proxy, comp| proxy.stage_bytes(comp, b, now, out))
                     })
                     .await
                 }
@@ -134,8 +144,7 @@ pub async fn stage_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) ->
                     sh.core.lock(|c| {
                         let mut c = c.borrow_mut();
                         let now = now_ms();
-                        let (proxy, comp) = c.proxy_and_comp(now);
-                        proxy.poll(comp, now, &mut out)
+                        c.drive(now, |proxy, comp| proxy.poll(comp, now, &mut out))
                     });
                     send(sh, &out).await;
                 }

@@ -432,6 +432,8 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
     let limit = super::supervisor::stale_limit_ms(sh);
     sh.core.lock(|c| {
         let c = c.borrow();
+        s.flags |= flags::MOVE_FOLD;
+        s.move_fold = c.move_fold;
         if c.proxy.bypass {
             s.flags |= flags::BYPASS;
         }

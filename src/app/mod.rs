@@ -68,6 +68,10 @@ pub struct Core {
     pub fast: FastSamples,
     /// Oldest fast sample a command may be corrected with, ms (set by the sensor task).
     pub fast_stale_ms: u32,
+    /// The fold `comp` came from ([`ModelState::folds`] then).
+    pub comp_fold: u32,
+    /// The fold that corrected the last move forwarded (0: none yet).
+    pub move_fold: u32,
 }
 
 impl Core {
@@ -77,6 +81,18 @@ impl Core {
             self.fast.apply(c, now_ms, self.fast_stale_ms);
         }
         (&mut self.proxy, self.comp.as_ref())
+    }
+
+    /// Run `f` on the proxy with the fast path (as [`Self::proxy_and_comp`]); a move it
+    /// corrects is noted with the fold it met (reported as `move_fold` in the status).
+    pub fn drive<R>(&mut self, now_ms: u32, f: impl FnOnce(&mut Proxy, Option<&Comp>) -> R) -> R {
+        let moves = self.proxy.counters.moves;
+        let (proxy, comp) = self.proxy_and_comp(now_ms);
+        let r = f(proxy, comp);
+        if self.proxy.counters.moves != moves && self.comp.is_some() {
+            self.move_fold = self.comp_fold;
+        }
+        r
     }
 }
 
@@ -141,6 +157,8 @@ pub struct Shared {
     pub refold: Signal<Cs, ()>,
     /// Settings changed: the sensor task reconfigures its chips.
     pub settings_changed: Signal<Cs, ()>,
+    /// A model was released: the fast sampler looks again at which inputs it must sample.
+    pub model_released: Signal<Cs, ()>,
     /// Bytes for the host.
     pub to_host: Pipe<Cs, PIPE_LEN>,
     /// Bytes for the stage controller.
@@ -149,6 +167,8 @@ pub struct Shared {
     pub host_connected: AtomicBool,
     /// The host closed the GCS port: the host link drops what belongs to that connection.
     pub host_hangup: Signal<Cs, ()>,
+    /// Bytes were queued for the stage controller: the stage link watches for its reply.
+    pub stage_sent: Signal<Cs, ()>,
     /// Heartbeat of the sensor task (ms since boot of its last completed cycle).
     pub sensor_beat_ms: AtomicU32,
     /// Flash double words that failed ECC on read.
@@ -170,6 +190,8 @@ impl Shared {
                 folded_at_ms: 0,
                 fast: FastSamples::new(),
                 fast_stale_ms: 0,
+                comp_fold: 0,
+                move_fold: 0,
             })),
             model: Mutex::new(RefCell::new(ModelState {
                 model: None,
@@ -191,10 +213,12 @@ impl Shared {
             identity,
             refold: Signal::new(),
             settings_changed: Signal::new(),
+            model_released: Signal::new(),
             to_host: Pipe::new(),
             to_stage: Pipe::new(),
             host_connected: AtomicBool::new(true),
             host_hangup: Signal::new(),
+            stage_sent: Signal::new(),
             sensor_beat_ms: AtomicU32::new(0),
             flash_ecc_errors: AtomicU32::new(0),
         }
@@ -227,6 +251,7 @@ impl Shared {
     pub fn release(&self) {
         self.model.lock(|m| m.borrow_mut().pending = false);
         self.refold.signal(());
+        self.model_released.signal(());
     }
 
     /// No model (the staged one could not be stored and none is stored).

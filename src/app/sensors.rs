@@ -30,6 +30,10 @@ use nanocal_model::{LagBank, MAX_AUX};
 /// Sampling period of the fast inputs, ms.
 pub const FAST_PERIOD_MS: u64 = 10;
 
+/// With no fast input in service, the fast sampler looks again this often (besides on every
+/// model release), ms.
+const IDLE_RECHECK_MS: u64 = 1_000;
+
 /// Oldest fast sample a command may be corrected with, ms: five sampling periods, plus one bus
 /// transaction's timeout (the sampler may wait for the slow cycle's transaction in progress).
 pub fn fast_stale_ms(timeout: Duration) -> u32 {
@@ -219,10 +223,20 @@ async fn read_aux<B: InputBus>(
 }
 
 /// Sample the model's fast inputs every [`FAST_PERIOD_MS`] into the command path's
-/// [`inputs::FastSamples`].
+/// [`inputs::FastSamples`]. With no fast input in the model in service the sampler sleeps until
+/// a model is released (or [`IDLE_RECHECK_MS`] pass): a wake-up every 10 ms for nothing costs
+/// power on the board and most of the emulated time of a long virtual-bench campaign.
 async fn fast_inputs<B: InputBus>(bus: &SharedBus<B>, timeout: Duration, sh: &Shared) -> ! {
     let mut baro = Baro::default();
     loop {
+        if fast_sources(sh).iter().all(Option::is_none) {
+            let _ = with_timeout(
+                Duration::from_millis(IDLE_RECHECK_MS),
+                sh.model_released.wait(),
+            )
+            .await;
+            continue;
+        }
         Timer::after_millis(FAST_PERIOD_MS).await;
         for (n, src) in fast_sources(sh).iter().enumerate() {
             let Some(src) = *src else { continue };
@@ -336,12 +350,13 @@ async fn slow_cycle<B: InputBus>(bus: &SharedBus<B>, timeout: Duration, sh: &Sha
             m.slow_outside = comp.fold.slow_outside_envelope();
             m.folds = m.folds.wrapping_add(1);
             let blocked = m.faults.blocks_moves(temps) || m.aux_faults.blocks_moves(auxn);
-            Some(Some((comp, blocked)))
+            Some(Some((comp, m.folds, blocked)))
         });
         match update {
-            Some(Some((comp, blocked))) => sh.core.lock(|c| {
+            Some(Some((comp, fold, blocked))) => sh.core.lock(|c| {
                 let mut c = c.borrow_mut();
                 c.comp = Some(comp);
+                c.comp_fold = fold;
                 c.folded_at_ms = ms;
                 c.proxy.gate = if blocked {
                     Gate::SensorFault

@@ -344,6 +344,13 @@ impl Proxy {
         }
     }
 
+    /// True while the proxy waits for the controller (a reply expected or under way): only then
+    /// does [`poll`](Self::poll) have anything to decide, so the stage link need not wake for it
+    /// otherwise.
+    pub fn awaiting_controller(&self) -> bool {
+        !self.st.queue.is_empty() || self.st.rx.active()
+    }
+
     /// True when host bytes already received can be processed now (call
     /// [`host_bytes`](Self::host_bytes) with no new bytes), or an answer of the proxy's own is
     /// due.

@@ -287,7 +287,7 @@ pub struct Runner<'a> {
     pub plan: &'a Plan,
     /// Its schedule.
     pub steps: Vec<Step>,
-    /// The state (saved after every step).
+    /// The state (saved at the start of a step, at most once a second).
     pub state: State,
     /// Links to the bench.
     pub links: Links,
@@ -309,7 +309,12 @@ pub struct Runner<'a> {
     profile: Profile,
     /// Reset the compensator during the hold before this step (a staged fault, for tests).
     pub reset_before_step: Option<usize>,
+    /// Wall time of the last state save.
+    saved_at: std::time::Instant,
 }
+
+/// Longest wall time between two saves of the state during the steps.
+const SAVE_EVERY: std::time::Duration = std::time::Duration::from_secs(1);
 
 /// Wall time per part of the steps, s.
 #[derive(Debug, Default, Clone, Copy)]
@@ -318,11 +323,11 @@ pub struct Profile {
     pub wait_s: f64,
     /// Reading the reference and writing rows.
     pub collect_s: f64,
-    /// Status reads.
+    /// Status reads (wherever they happen).
     pub status_s: f64,
     /// Setting the compensator up (bypass, uploads, KMZ).
     pub setup_s: f64,
-    /// `MOV` + `ERR?`.
+    /// `MOV` + `ERR?` (and what sets the compensator up for the step, besides status reads).
     pub mov_s: f64,
     /// Recording commits and state saves.
     pub save_s: f64,
@@ -380,6 +385,7 @@ impl<'a> Runner<'a> {
             window: Vec::new(),
             profile: Profile::default(),
             reset_before_step: None,
+            saved_at: std::time::Instant::now(),
         })
     }
 
@@ -423,6 +429,7 @@ impl<'a> Runner<'a> {
 
     fn save(&mut self) -> Result<(), CampaignError> {
         self.state.save(&self.dir)?;
+        self.saved_at = std::time::Instant::now();
         Ok(())
     }
 
@@ -500,7 +507,9 @@ impl<'a> Runner<'a> {
 
     /// Read the status; notice a reset; stop on a failed input.
     fn read_status(&mut self, k: usize) -> Result<Status, CampaignError> {
+        let t0 = std::time::Instant::now();
         let s = self.device(|c| c.status())?;
+        self.profile.status_s += t0.elapsed().as_secs_f64();
         if let Some(prev) = &self.status {
             if s.uptime_ms < prev.uptime_ms {
                 self.state.device_resets += 1;
@@ -576,6 +585,71 @@ impl<'a> Runner<'a> {
         }
     }
 
+    /// The model `kind` as it must be in service now (the adaptive one with the λ_KMZ last
+    /// measured).
+    fn wanted_model(&self, kind: TestKind) -> Result<Model, CampaignError> {
+        let models = self.models.as_ref().ok_or_else(|| {
+            CampaignError::Fit("a model test before the models were fitted".into())
+        })?;
+        Ok(match kind {
+            TestKind::Adaptive => models.adaptive_with(self.state.kmz_um.as_deref()),
+            _ => models.static_model.clone(),
+        })
+    }
+
+    /// `s` shows the compensator in `mode`, ready for moves: bypass as the mode says, and the
+    /// model it needs in service with the λ_KMZ last measured and every input read.
+    fn set_up_for(&self, s: &Status, mode: Mode) -> bool {
+        if (s.flags & flags::BYPASS != 0) != mode.bypass {
+            return false;
+        }
+        let Some(kind) = mode.model else {
+            return true;
+        };
+        let Ok(want) = self.wanted_model(kind) else {
+            return false;
+        };
+        s.flags & flags::MODEL != 0
+            && s.flags & flags::WARMING_UP == 0
+            && s.model_id == want.id()
+            && (0..want.axes()).all(|a| (s.kmz_um[a] - want.kmz_offset_um(a)).abs() < 1e-9)
+    }
+
+    /// The move of a step with one status read instead of two, when the compensator reports
+    /// which fold corrected its last move ([`flags::MOVE_FOLD`], firmware since 2026-11): send
+    /// the move and its `ERR?`, then read the status; it is the step's if the device is still
+    /// set up for `mode` (no reset), every input has a reading, and the move met the fold the
+    /// status shows (`move_fold == folds`; in bypass no fold touches the move). `None`: any of
+    /// that is not so — then the step takes the full path (status, set-up, move again), which
+    /// says what is wrong. The status read before the move is the previous step's: the device
+    /// was set up for this step at its end.
+    fn quick_move(
+        &mut self,
+        k: usize,
+        mode: Mode,
+        line: &str,
+    ) -> Result<Option<(i32, Status)>, CampaignError> {
+        let Some(prev) = self.status else {
+            return Ok(None);
+        };
+        if prev.flags & flags::MOVE_FOLD == 0 || !self.set_up_for(&prev, mode) {
+            return Ok(None);
+        }
+        let resets = self.state.device_resets;
+        let l = line.to_string();
+        let code = self.gcs(move |g| {
+            g.send(&l)?;
+            g.error()
+        })?;
+        let s = self.read_status(k)?;
+        let ours = code == 0
+            && self.state.device_resets == resets
+            && self.inputs_ok(k, &s)?
+            && self.set_up_for(&s, mode)
+            && (mode.bypass || (s.folds != 0 && s.move_fold == s.folds));
+        Ok(ours.then_some((code, s)))
+    }
+
     /// Put the compensator in `mode` (upload the model it needs — the adaptive one with the
     /// λ_KMZ last measured — and set bypass), and wait until it can take moves.
     fn apply(&mut self, k: usize, mode: Mode) -> Result<(), CampaignError> {
@@ -584,13 +658,7 @@ impl<'a> Runner<'a> {
             None => self.read_status(k)?,
         };
         if let Some(kind) = mode.model {
-            let models = self.models.as_ref().ok_or_else(|| {
-                CampaignError::Fit("a model test before the models were fitted".into())
-            })?;
-            let want = match kind {
-                TestKind::Adaptive => models.adaptive_with(self.state.kmz_um.as_deref()),
-                _ => models.static_model.clone(),
-            };
+            let want = self.wanted_model(kind)?;
             let same_kmz =
                 (0..want.axes()).all(|a| (s.kmz_um[a] - want.kmz_offset_um(a)).abs() < 1e-9);
             if s.flags & flags::MODEL == 0 || s.model_id != want.id() || !same_kmz {
@@ -822,7 +890,13 @@ impl<'a> Runner<'a> {
             self.window.clear();
             self.state.recording_bytes = self.recorder.commit()?;
             self.state.next_step = k;
-            self.save()?;
+            // the state file at most once a second of wall time: a step of the virtual bench
+            // takes milliseconds, and rewriting the file for each cost more than a tenth of the
+            // published campaign's wall time. A crash loses at most that second's steps (resume
+            // re-runs them); a stop or an error writes it at once (`interrupted`).
+            if k == start || self.saved_at.elapsed() >= SAVE_EVERY {
+                self.save()?;
+            }
             lap(&mut self.profile.save_s);
             if step.phase != Phase::Training && self.models.is_none() {
                 progress.note("fitting the static and adaptive models");
@@ -833,18 +907,24 @@ impl<'a> Runner<'a> {
                 self.save()?;
             }
             let before = self.state.device_resets;
-            let s = self.ready_status(k)?;
+            let status_before_s = self.profile.status_s;
             let mode = mode_of(step.phase);
-            if self.state.device_resets != before {
-                self.note(
-                    progress,
-                    format!("step {k}: the compensator reset; setting it up again"),
-                );
-            }
-            self.apply(k, mode)?;
-            let s = self.status.unwrap_or(s);
             let line = self.gcs_target(&step.target_um);
-            let (code, s) = self.move_with_known_fold(k, mode, &line, s)?;
+            let (code, s) = match self.quick_move(k, mode, &line)? {
+                Some(done) => done,
+                None => {
+                    let s = self.ready_status(k)?;
+                    if self.state.device_resets != before {
+                        self.note(
+                            progress,
+                            format!("step {k}: the compensator reset; setting it up again"),
+                        );
+                    }
+                    self.apply(k, mode)?;
+                    let s = self.status.unwrap_or(s);
+                    self.move_with_known_fold(k, mode, &line, s)?
+                }
+            };
             self.temps = s.temps_c[..self.state.layout.temps.len()].to_vec();
             self.aux = s.aux[..self.state.layout.aux.len()].to_vec();
             if code != 0 {
@@ -866,6 +946,8 @@ impl<'a> Runner<'a> {
             }
             self.cmd_um = self.stage_command(k, mode);
             lap(&mut self.profile.mov_s);
+            // the status reads are counted apart
+            self.profile.mov_s -= self.profile.status_s - status_before_s;
             if let Some(next) = self.steps.get(k + 1) {
                 let m = mode_of(next.phase);
                 // a KMZ measurement needs bypass until it is sent; else set up for the next step now

@@ -28,6 +28,9 @@ const COUNTED: [usize; 2] = [0, 3];
 /// Board time the bench lets pass at once while a request waits for the board's own timers.
 const NUDGE_S: f64 = 0.01;
 
+/// Wall time after which input the board has not read, while it sleeps, counts as stuck.
+const STUCK_AFTER: Duration = Duration::from_millis(5);
+
 /// Wall time after which an exchange lets board time pass even though the board has started
 /// to answer (a reply the board finishes only after waiting for its own time).
 const ANSWERED_GRACE: Duration = Duration::from_millis(500);
@@ -318,13 +321,37 @@ impl VirtualBench {
             && self.link.idle_at_horizon()
     }
 
+    /// Bytes sent to the board that it has not read yet (host link, management, stage link).
+    fn undelivered(&self) -> bool {
+        COUNTED
+            .iter()
+            .zip(&self.sent)
+            .any(|(&p, sent)| self.link.rx_bytes(p) != sent.load(Ordering::Acquire) as u32)
+            || self.link.rx_bytes(1) != self.stage_sim.bytes_out() as u32
+    }
+
+    /// Ring the board awake if its input has been stuck for [`STUCK_AFTER`]
+    /// ([`BenchLink::wake_for_input`] says why it can be).
+    fn wake_if_stuck(&self, since: &mut Option<Instant>) {
+        if !self.undelivered() {
+            *since = None;
+            return;
+        }
+        let t = *since.get_or_insert_with(Instant::now);
+        if t.elapsed() > STUCK_AFTER && self.link.wake_for_input(true) {
+            *since = Some(Instant::now());
+        }
+    }
+
     /// Wait until the board has done everything it had to do at this instant (it may still be
     /// forwarding a corrected `MOV` after it answered the host) and the controller has acted on
     /// every byte the board sent it: it stamps each command with the board's clock, which must
     /// not move before.
     fn sync_stage(&mut self) -> Result<(), BenchError> {
         let start = Instant::now();
+        let mut stuck_since = None;
         while !self.settled() || self.stage_sim.bytes_in() as u32 != self.link.tx_bytes(1) {
+            self.wake_if_stuck(&mut stuck_since);
             if start.elapsed() > Duration::from_secs(10) {
                 return Err(BenchError::Other(format!(
                     "the stage controller took in {} of the {} bytes the board sent it",
@@ -340,6 +367,12 @@ impl VirtualBench {
 
 impl Drop for VirtualBench {
     fn drop(&mut self) {
+        if self.link.pokes() > 0 {
+            eprintln!(
+                "virtual bench: woke the board {} time(s) for input stuck on its way in (QEMU's UART)",
+                self.link.pokes()
+            );
+        }
         self.stop_reference.store(true, Ordering::Release);
     }
 }
@@ -421,6 +454,7 @@ impl BenchDriver for VirtualBench {
             let mut idle_since: Option<Instant> = None;
             // what the board had sent when the host last wrote to it
             let mut request: Option<(u64, u32)> = None;
+            let mut stuck_since: Option<Instant> = None;
             while !h.is_finished() {
                 let sent: u64 = self.sent.iter().map(|s| s.load(Ordering::Acquire)).sum();
                 let replied: u32 = COUNTED
@@ -450,6 +484,7 @@ impl BenchDriver for VirtualBench {
                     }
                 } else {
                     idle_since = None;
+                    self.wake_if_stuck(&mut stuck_since);
                 }
                 std::thread::sleep(Duration::from_micros(20));
             }

@@ -189,6 +189,8 @@ pub struct BenchLink {
     advanced: Condvar,
     /// Bus transactions served.
     pub transactions: AtomicU64,
+    /// Wake-ups for input stuck on its way into the board ([`Self::wake_for_input`]).
+    pokes: AtomicU64,
 }
 
 impl BenchLink {
@@ -209,6 +211,7 @@ impl BenchLink {
             advances: Mutex::new(0),
             advanced: Condvar::new(),
             transactions: AtomicU64::new(0),
+            pokes: AtomicU64::new(0),
         });
         let l = link.clone();
         std::thread::spawn(move || l.read_doorbells(reader));
@@ -225,6 +228,27 @@ impl BenchLink {
     /// Send raw bytes on serial4 (the host link's line state `C0h | DTR`).
     pub fn send_line_state(&self, b: u8) {
         let _ = self.line.lock().unwrap().write_all(&[b]);
+    }
+
+    /// Wake the board when it waits at the horizon while input it has not read is on its way
+    /// (`undelivered`): QEMU's CMSDK UART takes a byte from its socket only when QEMU's main
+    /// loop looks at that socket again, and measured on the published campaign, once in a few
+    /// thousand requests the last byte of one stayed in the socket while the board slept (WFI)
+    /// with nothing left to wake QEMU's loop. A doorbell byte on serial4 wakes both; the board
+    /// takes it as a horizon doorbell (it only re-reads the horizon). Rate-limited by the
+    /// caller. Returns true if it rang.
+    pub fn wake_for_input(&self, undelivered: bool) -> bool {
+        if undelivered && self.page.u32(bl::WAITING) == 1 {
+            self.pokes.fetch_add(1, Ordering::Relaxed);
+            let _ = self.line.lock().unwrap().write_all(&[bl::RING_HORIZON]);
+            return true;
+        }
+        false
+    }
+
+    /// Times [`Self::wake_for_input`] had to ring.
+    pub fn pokes(&self) -> u64 {
+        self.pokes.load(Ordering::Relaxed)
     }
 
     /// Stop the threads (QEMU is going away).
@@ -485,7 +509,16 @@ impl BenchClock {
                 std::hint::spin_loop();
             }
         };
+        // Stop watching, then look once more: a request the board posted while it still saw
+        // WATCHING set was not rung, and nothing else would answer it — the board spins for its
+        // reply with its executor blocked until the QEMU-clock watchdog resets it (measured:
+        // the published campaign's STATUS timeouts and its "watchdog" resets, after a
+        // management request made the sensor task fold while an exchange's nudge ended).
         page.set_u32(bl::WATCHING, 0);
+        fence(Ordering::SeqCst);
+        if self.link.bus_pending() {
+            self.link.serve_bus();
+        }
         if result.is_ok() {
             self.link.notify_advanced();
         }

@@ -13,7 +13,7 @@
 use nanocal::campaign::run::{CampaignError, Progress, Quiet};
 use nanocal::campaign::state::{BenchSpec, State};
 use nanocal::campaign::{self, Config, Faults, Outcome, RECORDING};
-use nanocal::plan::{Phase, Plan};
+use nanocal::plan::{Phase, Plan, TestKind};
 use nanocal::virtual_bench::have_qemu;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -23,6 +23,16 @@ use std::sync::Arc;
 /// per test, one round of no model / adaptive / static.
 fn short_plan() -> Plan {
     Plan::paper000_1dof().shortened(4, 1, 1)
+}
+
+/// The steps of `plan`'s tests of `kind`, in order.
+fn steps_of(plan: &Plan, kind: TestKind) -> Vec<usize> {
+    plan.schedule()
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| matches!(s.phase, Phase::Test { kind: k, .. } if k == kind))
+        .map(|(i, _)| i)
+        .collect()
 }
 
 fn skip(test: &str) -> bool {
@@ -364,19 +374,9 @@ fn a_compensator_reset_mid_campaign_is_seen_and_the_campaign_goes_on() {
     }
     let out = fresh_dir("reset");
     let plan = short_plan();
-    let steps = plan.schedule();
     // during the static test: the model is in service, the compensator must come back to it
-    let at = steps
-        .iter()
-        .rposition(|s| {
-            matches!(
-                s.phase,
-                Phase::Test {
-                    kind: nanocal::plan::TestKind::Static,
-                    ..
-                }
-            )
-        })
+    let at = steps_of(&plan, TestKind::Static)
+        .last()
         .expect("a static test")
         - 3;
     let faults = Faults {
@@ -401,20 +401,7 @@ fn a_reset_that_takes_the_ports_away_is_reopened_and_the_campaign_goes_on() {
     }
     let out = fresh_dir("ports");
     let plan = short_plan();
-    let steps = plan.schedule();
-    let at = steps
-        .iter()
-        .position(|s| {
-            matches!(
-                s.phase,
-                Phase::Test {
-                    kind: nanocal::plan::TestKind::Adaptive,
-                    ..
-                }
-            )
-        })
-        .expect("an adaptive test")
-        + 2;
+    let at = steps_of(&plan, TestKind::Adaptive)[0] + 2;
     let faults = Faults {
         ports_lost_before_step: Some(at),
         ..Default::default()

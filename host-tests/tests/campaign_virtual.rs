@@ -7,12 +7,13 @@
 //!   through;
 //! - an unreachable device, a pose outside the travel, an instrument that falls silent and a
 //!   thermocouple that opens mid-campaign each stop it with a clear message and keep what was
-//!   recorded; a compensator reset mid-campaign is noticed and the campaign goes on.
+//!   recorded; a compensator reset mid-campaign is noticed and the campaign goes on, also when
+//!   the reset takes the compensator's ports away (USB) and they must be reopened.
 
 use nanocal::campaign::run::{CampaignError, Progress, Quiet};
 use nanocal::campaign::state::{BenchSpec, State};
 use nanocal::campaign::{self, Config, Faults, Outcome, RECORDING};
-use nanocal::plan::{Phase, Plan};
+use nanocal::plan::{Phase, Plan, TestKind};
 use nanocal::virtual_bench::have_qemu;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -22,6 +23,16 @@ use std::sync::Arc;
 /// per test, one round of no model / adaptive / static.
 fn short_plan() -> Plan {
     Plan::paper000_1dof().shortened(4, 1, 1)
+}
+
+/// The steps of `plan`'s tests of `kind`, in order.
+fn steps_of(plan: &Plan, kind: TestKind) -> Vec<usize> {
+    plan.schedule()
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| matches!(s.phase, Phase::Test { kind: k, .. } if k == kind))
+        .map(|(i, _)| i)
+        .collect()
 }
 
 fn skip(test: &str) -> bool {
@@ -363,19 +374,9 @@ fn a_compensator_reset_mid_campaign_is_seen_and_the_campaign_goes_on() {
     }
     let out = fresh_dir("reset");
     let plan = short_plan();
-    let steps = plan.schedule();
     // during the static test: the model is in service, the compensator must come back to it
-    let at = steps
-        .iter()
-        .rposition(|s| {
-            matches!(
-                s.phase,
-                Phase::Test {
-                    kind: nanocal::plan::TestKind::Static,
-                    ..
-                }
-            )
-        })
+    let at = steps_of(&plan, TestKind::Static)
+        .last()
         .expect("a static test")
         - 3;
     let faults = Faults {
@@ -386,6 +387,37 @@ fn a_compensator_reset_mid_campaign_is_seen_and_the_campaign_goes_on() {
     assert_eq!(o.state.device_resets, 1);
     assert_eq!(o.state.interruptions.len(), 1);
     assert_eq!(o.state.interruptions[0].step, at);
+    agrees_within_1_nm(&o);
+    let _ = std::fs::remove_dir_all(out);
+}
+
+/// A reset on USB takes the compensator's ports away: the campaign's handles die (staged: they
+/// fail as a vanished tty does), it opens both ports again, sees the reset in the status, sets
+/// the device up again and goes on — with the table still the file-based `validate`'s.
+#[test]
+fn a_reset_that_takes_the_ports_away_is_reopened_and_the_campaign_goes_on() {
+    if skip("a_reset_that_takes_the_ports_away") {
+        return;
+    }
+    let out = fresh_dir("ports");
+    let plan = short_plan();
+    let at = steps_of(&plan, TestKind::Adaptive)[0] + 2;
+    let faults = Faults {
+        ports_lost_before_step: Some(at),
+        ..Default::default()
+    };
+    let o = run(&config(&out, Some(plan), faults)).expect("the campaign goes on");
+    assert_eq!(o.state.device_resets, 1);
+    let what: Vec<&str> = o
+        .state
+        .interruptions
+        .iter()
+        .map(|i| i.what.as_str())
+        .collect();
+    assert_eq!(what.len(), 2, "{what:?}");
+    assert!(what[0].contains("ports went away"), "{what:?}");
+    assert!(what[1].contains("compensator reset"), "{what:?}");
+    assert!(o.state.interruptions.iter().all(|i| i.step == at));
     agrees_within_1_nm(&o);
     let _ = std::fs::remove_dir_all(out);
 }

@@ -23,7 +23,7 @@ use gcs::GcsLink;
 use nanocal_compensator::settings::{AuxSource, Settings};
 use recorder::{Layout, Recorder};
 use reference::{ClockMap, ClockMode};
-use run::{CampaignError, Links, Progress, Runner};
+use run::{CampaignError, Links, Progress, Reopen, Runner};
 use state::{BenchSpec, Stage, State};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -75,6 +75,10 @@ pub struct Faults {
     /// during the hold before this step: the campaign must notice it in the status and set it
     /// up again.
     pub reset_before_step: Option<usize>,
+    /// The compensator resets during the hold before this step and the campaign's handles on
+    /// its ports die, as when a USB device resets and enumerates again: the campaign must
+    /// reopen both ports and set the device up again.
+    pub ports_lost_before_step: Option<usize>,
 }
 
 /// What a finished campaign reports.
@@ -153,6 +157,17 @@ fn open(
                 Duration::from_secs(10),
             );
             let gcs = GcsLink::new(vb.gcs(), "virtual:gcs");
+            let mut opener = vb.port_opener();
+            let reopen: Reopen = Box::new(move || {
+                let (m, g) = opener().map_err(|e| CampaignError::NotReady {
+                    step: 0,
+                    what: format!("reopening the virtual compensator's ports: {e}"),
+                })?;
+                Ok((
+                    Client::new(m, "virtual:management", Duration::from_secs(10)),
+                    GcsLink::new(g, "virtual:gcs"),
+                ))
+            });
             let src = reference::open(&vb.reference_spec(), axes, 1.0)?;
             let reference = ReferenceReader::new(src, ClockMap::new(ClockMode::Synchronized));
             let pid = vb.qemu().pid();
@@ -163,6 +178,7 @@ fn open(
                     device,
                     gcs,
                     reference,
+                    reopen: Some(reopen),
                 },
                 vbench_pid: Some(pid),
                 transactions: Some(Box::new(move || {
@@ -177,6 +193,9 @@ fn open(
             reference_to_um,
             reference_synchronized,
         } => {
+            let (device_spec, gcs_spec) = (device.clone(), gcs.clone());
+            let reopen: Reopen =
+                Box::new(move || Ok((Client::open(&device_spec)?, GcsLink::open(&gcs_spec)?)));
             let device = Client::open(device)?;
             let gcs = GcsLink::open(gcs)?;
             let src = reference::open(r, axes, *reference_to_um)?;
@@ -191,6 +210,7 @@ fn open(
                     device,
                     gcs,
                     reference: ReferenceReader::new(src, ClockMap::new(mode)),
+                    reopen: Some(reopen),
                 },
                 vbench_pid: None,
                 transactions: None,
@@ -417,6 +437,7 @@ pub fn run(
             let mut runner =
                 Runner::new(dir, &plan, state, links, gcs_axes, design, recorder, stop)?;
             runner.reset_before_step = cfg.faults.reset_before_step;
+            runner.ports_lost_before_step = cfg.faults.ports_lost_before_step;
             if prior.is_none() {
                 if let Err(e) = runner.check_travel() {
                     // nothing ran: leave no campaign behind, so the fixed plan can start here

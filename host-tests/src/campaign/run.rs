@@ -31,6 +31,7 @@ const GCS_UNKNOWN_COMMAND: i32 = 2;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
+use std::time::Duration;
 
 /// Errors of a campaign. Every one leaves what was recorded on disk and the state to resume from.
 #[derive(Debug, thiserror::Error)]
@@ -261,6 +262,44 @@ pub struct Links {
     pub gcs: GcsLink,
     /// The reference instrument.
     pub reference: ReferenceReader,
+    /// Opens the compensator's two ports again, when they went away (a device reset on USB
+    /// re-enumerates both); `None`: they cannot be reopened.
+    pub reopen: Option<Reopen>,
+}
+
+/// Opens (management, GCS) to the compensator again.
+pub type Reopen = Box<dyn FnMut() -> Result<(Client, GcsLink), CampaignError> + Send>;
+
+/// How long the campaign tries to reopen the compensator's ports after they went away: a reset
+/// and USB enumeration take a few seconds; a board that stays away is an error.
+const REOPEN_WITHIN: std::time::Duration = std::time::Duration::from_secs(30);
+
+/// A port that is gone (what the campaign's handles become when the compensator's USB ports go
+/// away, staged by [`Runner::ports_lost_before_step`]).
+struct GonePort;
+
+impl std::io::Read for GonePort {
+    fn read(&mut self, _: &mut [u8]) -> std::io::Result<usize> {
+        Err(std::io::ErrorKind::BrokenPipe.into())
+    }
+}
+
+impl std::io::Write for GonePort {
+    fn write(&mut self, _: &[u8]) -> std::io::Result<usize> {
+        Err(std::io::ErrorKind::BrokenPipe.into())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Err(std::io::ErrorKind::BrokenPipe.into())
+    }
+}
+
+/// True for an error that says the port itself is gone (not a slow or refusing device).
+fn port_gone(e: &CampaignError) -> bool {
+    matches!(
+        e,
+        CampaignError::Device(DeviceError::Io { .. })
+            | CampaignError::Gcs(GcsError::Io { .. } | GcsError::Open(_))
+    )
 }
 
 /// Progress report of the steps (the CLI draws it).
@@ -309,6 +348,9 @@ pub struct Runner<'a> {
     profile: Profile,
     /// Reset the compensator during the hold before this step (a staged fault, for tests).
     pub reset_before_step: Option<usize>,
+    /// With that reset, the campaign's port handles die, as a USB device's do when it
+    /// resets and enumerates again (a staged fault, for tests).
+    pub ports_lost_before_step: Option<usize>,
     /// Wall time of the last state save.
     saved_at: std::time::Instant,
 }
@@ -385,6 +427,7 @@ impl<'a> Runner<'a> {
             window: Vec::new(),
             profile: Profile::default(),
             reset_before_step: None,
+            ports_lost_before_step: None,
             saved_at: std::time::Instant::now(),
         })
     }
@@ -433,20 +476,67 @@ impl<'a> Runner<'a> {
         Ok(())
     }
 
-    /// Run one exchange with the management channel.
+    /// Run one exchange with the management channel; if the port is gone, reopen both ports
+    /// and run it once more (every exchange the campaign makes can be repeated: absolute moves,
+    /// reads, uploads from the start, a KMZ from the same measurement).
     fn device<T: Send>(
         &mut self,
-        f: impl FnOnce(&mut Client) -> Result<T, DeviceError> + Send,
+        mut f: impl FnMut(&mut Client) -> Result<T, DeviceError> + Send,
     ) -> Result<T, CampaignError> {
-        exchange_on(self.links.driver.as_mut(), &mut self.links.device, f)
+        match exchange_on(self.links.driver.as_mut(), &mut self.links.device, &mut f) {
+            Err(e) if port_gone(&e) && self.reopen_ports(&e)? => {
+                exchange_on(self.links.driver.as_mut(), &mut self.links.device, &mut f)
+            }
+            r => r,
+        }
     }
 
-    /// Run one exchange on the GCS link.
+    /// Run one exchange on the GCS link (a gone port as [`Self::device`]).
     fn gcs<T: Send>(
         &mut self,
-        f: impl FnOnce(&mut GcsLink) -> Result<T, GcsError> + Send,
+        mut f: impl FnMut(&mut GcsLink) -> Result<T, GcsError> + Send,
     ) -> Result<T, CampaignError> {
-        exchange_on(self.links.driver.as_mut(), &mut self.links.gcs, f)
+        match exchange_on(self.links.driver.as_mut(), &mut self.links.gcs, &mut f) {
+            Err(e) if port_gone(&e) && self.reopen_ports(&e)? => {
+                exchange_on(self.links.driver.as_mut(), &mut self.links.gcs, &mut f)
+            }
+            r => r,
+        }
+    }
+
+    /// The compensator's ports went away (`why`): open both again, trying for
+    /// [`REOPEN_WITHIN`]. Ok(false): they cannot be reopened here (the error stands). The
+    /// next status read sees the device's reset and sets it up again.
+    fn reopen_ports(&mut self, why: &CampaignError) -> Result<bool, CampaignError> {
+        let Some(reopen) = self.links.reopen.as_mut() else {
+            return Ok(false);
+        };
+        // close the old handles first (a serial device or QEMU's socket serves one client)
+        self.links.device = Client::new(Box::new(GonePort), "closed", Duration::from_secs(1));
+        self.links.gcs = GcsLink::new(Box::new(GonePort), "closed");
+        let start = std::time::Instant::now();
+        let (device, gcs) = loop {
+            match reopen() {
+                Ok(ports) => break ports,
+                Err(e) if start.elapsed() < REOPEN_WITHIN => {
+                    let _ = e;
+                    std::thread::sleep(Duration::from_millis(500));
+                }
+                Err(e) => return Err(e),
+            }
+        };
+        self.links.device = device;
+        self.links.gcs = gcs;
+        let k = self.state.next_step;
+        self.state.interruptions.push(Interruption {
+            step: k,
+            plan_time_s: self.t_now(),
+            what: format!(
+                "the compensator's ports went away ({why}); reopened after {:.1} s",
+                start.elapsed().as_secs_f64()
+            ),
+        });
+        Ok(true)
     }
 
     /// Write the rows of every reference sample before `t_end_s` (they belong to the step under
@@ -964,6 +1054,12 @@ impl<'a> Runner<'a> {
                 // and boots while the bench's time runs to the next step
                 self.reset_before_step = None;
                 self.device(|c| c.reset())?;
+            }
+            if self.ports_lost_before_step == Some(k + 1) {
+                self.ports_lost_before_step = None;
+                self.device(|c| c.reset())?;
+                self.links.device = Client::new(Box::new(GonePort), "gone", Duration::from_secs(1));
+                self.links.gcs = GcsLink::new(Box::new(GonePort), "gone");
             }
         }
         // the last step's end

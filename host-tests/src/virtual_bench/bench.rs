@@ -62,6 +62,9 @@ impl<S: Write> Write for Counted<S> {
     }
 }
 
+/// Opens (management, GCS) ports to the compensator again.
+pub type PortOpener = Box<dyn FnMut() -> std::io::Result<(Box<dyn Port>, Box<dyn Port>)> + Send>;
+
 /// Faults the virtual bench stages at plan times, for the campaign's tests of what a bench of
 /// days meets (none by default). A device reset is the campaign's own to stage
 /// ([`crate::campaign::Config::faults`]): the bench has no second management connection.
@@ -282,6 +285,32 @@ impl VirtualBench {
         Box::new(Counted {
             inner: s,
             sent: self.sent[0].clone(),
+        })
+    }
+
+    /// Opens the management and GCS ports again, as a host does after the compensator's USB
+    /// ports went away and came back (the previous connections must be closed first: QEMU
+    /// serves one client per port).
+    pub fn port_opener(&self) -> PortOpener {
+        let path = self.qemu.mgmt_spec();
+        let path = path.strip_prefix("unix:").expect("unix socket").to_string();
+        let gcs_port = self.qemu.serial_port(0);
+        let sent = self.sent.clone();
+        Box::new(move || {
+            let m = std::os::unix::net::UnixStream::connect(&path)?;
+            m.set_read_timeout(Some(Duration::from_millis(50)))?;
+            let g = TcpStream::connect(("127.0.0.1", gcs_port))?;
+            g.set_nodelay(true)?;
+            g.set_read_timeout(Some(Duration::from_millis(50)))?;
+            let m: Box<dyn Port> = Box::new(Counted {
+                inner: m,
+                sent: sent[1].clone(),
+            });
+            let g: Box<dyn Port> = Box::new(Counted {
+                inner: g,
+                sent: sent[0].clone(),
+            });
+            Ok((m, g))
         })
     }
 

@@ -298,6 +298,11 @@ impl Qemu {
         std::fs::read_to_string(&self.log).unwrap_or_default()
     }
 
+    /// The host TCP port QEMU listens on for serial `i`.
+    pub fn serial_port(&self, i: usize) -> u16 {
+        self.ports[i]
+    }
+
     /// Take the connection to serial `i` (0 host, 1 stage).
     pub fn connect(&mut self, i: usize) -> TcpStream {
         self.streams[i].take().expect("serial port taken once")

@@ -83,6 +83,33 @@ pub fn difference_nm(a: &ValidationReport, b: &ValidationReport) -> f64 {
     d
 }
 
+/// The period at which the file-based validation replays the device's folds. A campaign's rows
+/// carry, for each step, the inputs of the fold that corrected its move (the status after the
+/// move names that fold), held over the step: read at every row, they are that fold whatever
+/// the device's sample period. Ticking at the device's period instead starts from the first
+/// row, and a tick seconds before a step's first row replays the previous step's fold (measured
+/// 9.5 nm with a 5 s period). A model with lag filters needs the device's own ticks: the
+/// readings between its folds are not in the recording, so it keeps `fold_period_s`.
+fn replay_period_s(rec: &Recording, models: &Models, fold_period_s: f64) -> f64 {
+    if !models.static_model.lags().is_empty() || !models.adaptive.lags().is_empty() {
+        return fold_period_s;
+    }
+    let Some(t) = rec.time_s() else {
+        return fold_period_s;
+    };
+    let mut dt: Vec<f64> = t
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|d| *d > 0.0)
+        .collect();
+    if dt.is_empty() {
+        return fold_period_s;
+    }
+    dt.sort_by(f64::total_cmp);
+    // the rows' interval; never longer than the device's period
+    dt[dt.len() / 2].min(fold_period_s)
+}
+
 /// Validate the campaign in `dir` (its recording, plan and models); `fold_period_s` is the
 /// compensator's sample period during the campaign.
 pub fn analyse(
@@ -96,6 +123,7 @@ pub fn analyse(
     let rec = Recording::read_path(dir.join(super::RECORDING)).map_err(|e| err(e.to_string()))?;
     let data = ProcedureData::new(&rec, steps, 0.0).map_err(|e| err(e.to_string()))?;
     let models = Models::load(dir)?;
+    let fold_period_s = replay_period_s(&rec, &models, fold_period_s);
     let axes = plan.training.axes();
     let kmz = plan.validation.kmz.as_ref();
     // what the stage received is in the recording; the campaign knows what it asked for

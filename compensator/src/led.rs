@@ -36,25 +36,26 @@ impl LedState {
         }
     }
 
+    /// The blink pattern: (period, lit for the first … of it), ms; `None`: steadily on.
+    fn blink_ms(self) -> Option<(u32, u32)> {
+        match self {
+            LedState::Compensating => None,
+            LedState::Bypass => Some((2000, 1000)),
+            LedState::NoModel => Some((2000, 100)),
+            LedState::Fault => Some((200, 100)),
+        }
+    }
+
     /// Whether the LED is lit `t_ms` into the pattern.
     pub fn lit(self, t_ms: u32) -> bool {
-        match self {
-            LedState::Compensating => true,
-            LedState::Bypass => t_ms % 2000 < 1000,
-            LedState::NoModel => t_ms % 2000 < 100,
-            LedState::Fault => t_ms % 200 < 100,
-        }
+        self.blink_ms()
+            .is_none_or(|(period, on)| t_ms % period < on)
     }
 
     /// Milliseconds from `t_ms` until [`Self::lit`] next changes (`None`: a steady pattern), so
     /// the supervisor need not wake more often than the LED changes.
     pub fn next_edge_ms(self, t_ms: u32) -> Option<u32> {
-        let (period, on) = match self {
-            LedState::Compensating => return None,
-            LedState::Bypass => (2000, 1000),
-            LedState::NoModel => (2000, 100),
-            LedState::Fault => (200, 100),
-        };
+        let (period, on) = self.blink_ms()?;
         let phase = t_ms % period;
         Some(if phase < on {
             on - phase

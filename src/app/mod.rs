@@ -75,8 +75,9 @@ pub struct Core {
 }
 
 impl Core {
-    /// The proxy, and the fast path for this call into it with the fast inputs' latest samples.
-    pub fn proxy_and_comp(&mut self, now_ms: u32) -> (&mut Proxy, Option<&Comp>) {
+    /// The proxy, and the fast path for this call into it with the fast inputs' latest samples
+    /// (callers go through [`Self::drive`], which notes the fold a move met).
+    fn proxy_and_comp(&mut self, now_ms: u32) -> (&mut Proxy, Option<&Comp>) {
         if let Some(c) = self.comp.as_mut() {
             self.fast.apply(c, now_ms, self.fast_stale_ms);
         }

@@ -25,13 +25,13 @@ use crate::fit::{adaptive_from_static, encode_blob};
 use crate::plan::{Phase, Plan, Step, TestKind};
 use nanocal_compensator::mgmt::{flags, Status};
 use nanocal_model::{Model, ModelBuilder, MAX_AXES};
-
-/// GCS error 2, "unknown command": the controller executed nothing of the line.
-const GCS_UNKNOWN_COMMAND: i32 = 2;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
+
+/// GCS error 2, "unknown command": the controller executed nothing of the line.
+const GCS_UNKNOWN_COMMAND: i32 = 2;
 
 /// Errors of a campaign. Every one leaves what was recorded on disk and the state to resume from.
 #[derive(Debug, thiserror::Error)]
@@ -267,12 +267,31 @@ pub struct Links {
     pub reopen: Option<Reopen>,
 }
 
+impl Links {
+    /// The bench's time and the management channel, for one exchange.
+    fn management(&mut self) -> (&mut dyn BenchDriver, &mut Client) {
+        (self.driver.as_mut(), &mut self.device)
+    }
+
+    /// The bench's time and the GCS port, for one exchange.
+    fn gcs_port(&mut self) -> (&mut dyn BenchDriver, &mut GcsLink) {
+        (self.driver.as_mut(), &mut self.gcs)
+    }
+
+    /// Replace both port handles with gone ones (the old ones close: a serial device or QEMU's
+    /// socket serves one client).
+    fn drop_ports(&mut self) {
+        self.device = Client::new(Box::new(GonePort), "gone", Duration::from_secs(1));
+        self.gcs = GcsLink::new(Box::new(GonePort), "gone");
+    }
+}
+
 /// Opens (management, GCS) to the compensator again.
 pub type Reopen = Box<dyn FnMut() -> Result<(Client, GcsLink), CampaignError> + Send>;
 
 /// How long the campaign tries to reopen the compensator's ports after they went away: a reset
 /// and USB enumeration take a few seconds; a board that stays away is an error.
-const REOPEN_WITHIN: std::time::Duration = std::time::Duration::from_secs(30);
+const REOPEN_WITHIN: Duration = Duration::from_secs(30);
 
 /// A port that is gone (what the campaign's handles become when the compensator's USB ports go
 /// away, staged by [`Runner::ports_lost_before_step`]).
@@ -291,6 +310,13 @@ impl std::io::Write for GonePort {
     fn flush(&mut self) -> std::io::Result<()> {
         Err(std::io::ErrorKind::BrokenPipe.into())
     }
+}
+
+/// `s` shows `want` loaded, with its λ_KMZ.
+fn serves(s: &Status, want: &Model) -> bool {
+    s.flags & flags::MODEL != 0
+        && s.model_id == want.id()
+        && (0..want.axes()).all(|a| (s.kmz_um[a] - want.kmz_offset_um(a)).abs() < 1e-9)
 }
 
 /// True for an error that says the port itself is gone (not a slow or refusing device).
@@ -356,7 +382,7 @@ pub struct Runner<'a> {
 }
 
 /// Longest wall time between two saves of the state during the steps.
-const SAVE_EVERY: std::time::Duration = std::time::Duration::from_secs(1);
+const SAVE_EVERY: Duration = Duration::from_secs(1);
 
 /// Wall time per part of the steps, s.
 #[derive(Debug, Default, Clone, Copy)]
@@ -476,55 +502,72 @@ impl<'a> Runner<'a> {
         Ok(())
     }
 
-    /// Run one exchange with the management channel; if the port is gone, reopen both ports
-    /// and run it once more (every exchange the campaign makes can be repeated: absolute moves,
-    /// reads, uploads from the start, a KMZ from the same measurement).
+    /// Run one exchange with the management channel (see [`Self::exchange`]).
     fn device<T: Send>(
         &mut self,
-        mut f: impl FnMut(&mut Client) -> Result<T, DeviceError> + Send,
+        f: impl FnMut(&mut Client) -> Result<T, DeviceError> + Send,
     ) -> Result<T, CampaignError> {
-        match exchange_on(self.links.driver.as_mut(), &mut self.links.device, &mut f) {
+        self.exchange(Links::management, f)
+    }
+
+    /// Run one exchange on the GCS link (see [`Self::exchange`]).
+    fn gcs<T: Send>(
+        &mut self,
+        f: impl FnMut(&mut GcsLink) -> Result<T, GcsError> + Send,
+    ) -> Result<T, CampaignError> {
+        self.exchange(Links::gcs_port, f)
+    }
+
+    /// Run `f` on the link `on` picks, as one exchange of the bench; if the port is gone,
+    /// reopen both ports and run it once more (every exchange the campaign makes can be
+    /// repeated: absolute moves, reads, uploads from the start, a KMZ from the same
+    /// measurement).
+    fn exchange<L: Send, T: Send, E: Send>(
+        &mut self,
+        on: fn(&mut Links) -> (&mut dyn BenchDriver, &mut L),
+        mut f: impl FnMut(&mut L) -> Result<T, E> + Send,
+    ) -> Result<T, CampaignError>
+    where
+        CampaignError: From<E>,
+    {
+        let (driver, link) = on(&mut self.links);
+        match exchange_on(driver, link, &mut f) {
             Err(e) if port_gone(&e) && self.reopen_ports(&e)? => {
-                exchange_on(self.links.driver.as_mut(), &mut self.links.device, &mut f)
+                let (driver, link) = on(&mut self.links);
+                exchange_on(driver, link, &mut f)
             }
             r => r,
         }
     }
 
-    /// Run one exchange on the GCS link (a gone port as [`Self::device`]).
-    fn gcs<T: Send>(
-        &mut self,
-        mut f: impl FnMut(&mut GcsLink) -> Result<T, GcsError> + Send,
-    ) -> Result<T, CampaignError> {
-        match exchange_on(self.links.driver.as_mut(), &mut self.links.gcs, &mut f) {
-            Err(e) if port_gone(&e) && self.reopen_ports(&e)? => {
-                exchange_on(self.links.driver.as_mut(), &mut self.links.gcs, &mut f)
-            }
-            r => r,
-        }
+    /// `MOV` (`line`) and its `ERR?`: the controller's error code.
+    fn send_move(&mut self, line: &str) -> Result<i32, CampaignError> {
+        self.gcs(|g| {
+            g.send(line)?;
+            g.error()
+        })
     }
 
     /// The compensator's ports went away (`why`): open both again, trying for
     /// [`REOPEN_WITHIN`]. Ok(false): they cannot be reopened here (the error stands). The
     /// next status read sees the device's reset and sets it up again.
     fn reopen_ports(&mut self, why: &CampaignError) -> Result<bool, CampaignError> {
-        let Some(reopen) = self.links.reopen.as_mut() else {
+        let Some(mut reopen) = self.links.reopen.take() else {
             return Ok(false);
         };
-        // close the old handles first (a serial device or QEMU's socket serves one client)
-        self.links.device = Client::new(Box::new(GonePort), "closed", Duration::from_secs(1));
-        self.links.gcs = GcsLink::new(Box::new(GonePort), "closed");
+        // the old handles close first
+        self.links.drop_ports();
         let start = std::time::Instant::now();
-        let (device, gcs) = loop {
+        let opened = loop {
             match reopen() {
-                Ok(ports) => break ports,
-                Err(e) if start.elapsed() < REOPEN_WITHIN => {
-                    let _ = e;
+                Err(_) if start.elapsed() < REOPEN_WITHIN => {
                     std::thread::sleep(Duration::from_millis(500));
                 }
-                Err(e) => return Err(e),
+                r => break r,
             }
         };
+        self.links.reopen = Some(reopen);
+        let (device, gcs) = opened?;
         self.links.device = device;
         self.links.gcs = gcs;
         let k = self.state.next_step;
@@ -699,10 +742,7 @@ impl<'a> Runner<'a> {
         let Ok(want) = self.wanted_model(kind) else {
             return false;
         };
-        s.flags & flags::MODEL != 0
-            && s.flags & flags::WARMING_UP == 0
-            && s.model_id == want.id()
-            && (0..want.axes()).all(|a| (s.kmz_um[a] - want.kmz_offset_um(a)).abs() < 1e-9)
+        s.flags & flags::WARMING_UP == 0 && serves(s, &want)
     }
 
     /// The move of a step with one status read instead of two, when the compensator reports
@@ -726,11 +766,7 @@ impl<'a> Runner<'a> {
             return Ok(None);
         }
         let resets = self.state.device_resets;
-        let l = line.to_string();
-        let code = self.gcs(move |g| {
-            g.send(&l)?;
-            g.error()
-        })?;
+        let code = self.send_move(line)?;
         let s = self.read_status(k)?;
         let ours = code == 0
             && self.state.device_resets == resets
@@ -749,9 +785,7 @@ impl<'a> Runner<'a> {
         };
         if let Some(kind) = mode.model {
             let want = self.wanted_model(kind)?;
-            let same_kmz =
-                (0..want.axes()).all(|a| (s.kmz_um[a] - want.kmz_offset_um(a)).abs() < 1e-9);
-            if s.flags & flags::MODEL == 0 || s.model_id != want.id() || !same_kmz {
+            if !serves(&s, &want) {
                 let blob = encode_blob(&want);
                 self.device(move |c| c.upload(&blob).map(|_| ()))?;
                 s = self.read_status(k)?;
@@ -803,11 +837,7 @@ impl<'a> Runner<'a> {
     ) -> Result<(i32, Status), CampaignError> {
         const ATTEMPTS: usize = 8;
         for _ in 0..ATTEMPTS {
-            let l = line.to_string();
-            let code = self.gcs(move |g| {
-                g.send(&l)?;
-                g.error()
-            })?;
+            let code = self.send_move(line)?;
             if code == GCS_UNKNOWN_COMMAND {
                 // the controller did not execute the line (garbled on the way, e.g. by a reset
                 // of the compensator mid-line): nothing moved, so the same move is sent again
@@ -891,18 +921,9 @@ impl<'a> Runner<'a> {
     /// Leave the stage at the safe pose (through the compensator; in bypass if it refuses).
     pub fn park(&mut self) -> Result<(), CampaignError> {
         let line = self.gcs_target(&self.state.safe_pose_um.clone());
-        let l = line.clone();
-        let code = self.gcs(move |g| {
-            g.send(&l)?;
-            g.error()
-        })?;
-        if code != 0 {
+        if self.send_move(&line)? != 0 {
             self.device(|c| c.bypass(true))?;
-            let l = line.clone();
-            self.gcs(move |g| {
-                g.send(&l)?;
-                g.error()
-            })?;
+            self.send_move(&line)?;
         }
         Ok(())
     }
@@ -1058,8 +1079,7 @@ impl<'a> Runner<'a> {
             if self.ports_lost_before_step == Some(k + 1) {
                 self.ports_lost_before_step = None;
                 self.device(|c| c.reset())?;
-                self.links.device = Client::new(Box::new(GonePort), "gone", Duration::from_secs(1));
-                self.links.gcs = GcsLink::new(Box::new(GonePort), "gone");
+                self.links.drop_ports();
             }
         }
         // the last step's end

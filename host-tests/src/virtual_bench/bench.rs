@@ -62,6 +62,18 @@ impl<S: Write> Write for Counted<S> {
     }
 }
 
+/// Read timeout of the bench's ports to the board.
+const PORT_READ_TIMEOUT: Duration = Duration::from_millis(50);
+
+/// A socket to the board as the bench's port: the bytes written are counted into `sent` (the
+/// bench waits until the board has read them).
+fn counted<S: Read + Write + Send + 'static>(inner: S, sent: &Arc<AtomicU64>) -> Box<dyn Port> {
+    Box::new(Counted {
+        inner,
+        sent: sent.clone(),
+    })
+}
+
 /// Opens (management, GCS) ports to the compensator again.
 pub type PortOpener = Box<dyn FnMut() -> std::io::Result<(Box<dyn Port>, Box<dyn Port>)> + Send>;
 
@@ -268,49 +280,39 @@ impl VirtualBench {
 
     /// The compensator's management port (a counted stream).
     pub fn management(&mut self) -> Box<dyn Port> {
-        let path = self.qemu.mgmt_spec();
-        let path = path.strip_prefix("unix:").expect("unix socket").to_string();
-        let s = std::os::unix::net::UnixStream::connect(path).expect("management socket");
-        s.set_read_timeout(Some(Duration::from_millis(50))).ok();
-        Box::new(Counted {
-            inner: s,
-            sent: self.sent[1].clone(),
-        })
+        let s =
+            std::os::unix::net::UnixStream::connect(self.mgmt_path()).expect("management socket");
+        s.set_read_timeout(Some(PORT_READ_TIMEOUT)).ok();
+        counted(s, &self.sent[1])
     }
 
     /// The compensator's GCS port (a counted stream).
     pub fn gcs(&mut self) -> Box<dyn Port> {
-        let s: TcpStream = self.qemu.connect(0);
-        s.set_read_timeout(Some(Duration::from_millis(50))).ok();
-        Box::new(Counted {
-            inner: s,
-            sent: self.sent[0].clone(),
-        })
+        let s = self.qemu.connect(0);
+        s.set_read_timeout(Some(PORT_READ_TIMEOUT)).ok();
+        counted(s, &self.sent[0])
+    }
+
+    /// Path of the board's management socket.
+    fn mgmt_path(&self) -> String {
+        let spec = self.qemu.mgmt_spec();
+        spec.strip_prefix("unix:").expect("unix socket").to_string()
     }
 
     /// Opens the management and GCS ports again, as a host does after the compensator's USB
     /// ports went away and came back (the previous connections must be closed first: QEMU
     /// serves one client per port).
     pub fn port_opener(&self) -> PortOpener {
-        let path = self.qemu.mgmt_spec();
-        let path = path.strip_prefix("unix:").expect("unix socket").to_string();
+        let path = self.mgmt_path();
         let gcs_port = self.qemu.serial_port(0);
         let sent = self.sent.clone();
         Box::new(move || {
             let m = std::os::unix::net::UnixStream::connect(&path)?;
-            m.set_read_timeout(Some(Duration::from_millis(50)))?;
+            m.set_read_timeout(Some(PORT_READ_TIMEOUT))?;
             let g = TcpStream::connect(("127.0.0.1", gcs_port))?;
             g.set_nodelay(true)?;
-            g.set_read_timeout(Some(Duration::from_millis(50)))?;
-            let m: Box<dyn Port> = Box::new(Counted {
-                inner: m,
-                sent: sent[1].clone(),
-            });
-            let g: Box<dyn Port> = Box::new(Counted {
-                inner: g,
-                sent: sent[0].clone(),
-            });
-            Ok((m, g))
+            g.set_read_timeout(Some(PORT_READ_TIMEOUT))?;
+            Ok((counted(m, &sent[1]), counted(g, &sent[0])))
         })
     }
 
@@ -342,12 +344,7 @@ impl VirtualBench {
     /// Every byte the bench and the controller sent to the board has been read by it, and the
     /// board is idle.
     fn settled(&self) -> bool {
-        COUNTED
-            .iter()
-            .zip(&self.sent)
-            .all(|(&p, sent)| self.link.rx_bytes(p) == sent.load(Ordering::Acquire) as u32)
-            && self.link.rx_bytes(1) == self.stage_sim.bytes_out() as u32
-            && self.link.idle_at_horizon()
+        !self.undelivered() && self.link.idle_at_horizon()
     }
 
     /// Bytes sent to the board that it has not read yet (host link, management, stage link).
@@ -367,7 +364,7 @@ impl VirtualBench {
             return;
         }
         let t = *since.get_or_insert_with(Instant::now);
-        if t.elapsed() > STUCK_AFTER && self.link.wake_for_input(true) {
+        if t.elapsed() > STUCK_AFTER && self.link.wake_for_input() {
             *since = Some(Instant::now());
         }
     }

@@ -231,14 +231,14 @@ impl BenchLink {
     }
 
     /// Wake the board when it waits at the horizon while input it has not read is on its way
-    /// (`undelivered`): QEMU's CMSDK UART takes a byte from its socket only when QEMU's main
+    /// (the caller knows that): QEMU's CMSDK UART takes a byte from its socket only when QEMU's main
     /// loop looks at that socket again, and measured on the published campaign, once in a few
     /// thousand requests the last byte of one stayed in the socket while the board slept (WFI)
     /// with nothing left to wake QEMU's loop. A doorbell byte on serial4 wakes both; the board
     /// takes it as a horizon doorbell (it only re-reads the horizon). Rate-limited by the
     /// caller. Returns true if it rang.
-    pub fn wake_for_input(&self, undelivered: bool) -> bool {
-        if undelivered && self.page.u32(bl::WAITING) == 1 {
+    pub fn wake_for_input(&self) -> bool {
+        if self.page.u32(bl::WAITING) == 1 {
             self.pokes.fetch_add(1, Ordering::Relaxed);
             let _ = self.line.lock().unwrap().write_all(&[bl::RING_HORIZON]);
             return true;

@@ -1,4 +1,4 @@
-//! Recordings in the shared CSV layout (`../shared/README.md`).
+//! Recordings in the shared CSV layout (the README's "The tools"; `data/` holds real examples).
 //!
 //! A recording is a header row followed by one row per sample. Columns are recognised by their
 //! name prefix ([`ColumnRole`]): `t` (time, s), `cmd_<axis>` (command sent to the stage, µm),

@@ -86,7 +86,7 @@ fn simulate_then_explain_writes_json_and_plots() {
 #[test]
 fn a_record_of_seconds_is_introduced_in_seconds() {
     let csv = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data/piezo-hysteresis/recording.csv");
+        .join("../data/piezo-hysteresis/recording.csv");
     let text = explain_ok(&[csv.as_os_str()]);
     let header = text.lines().next().unwrap_or_default();
     assert!(

@@ -1,4 +1,4 @@
-//! Blind-style probes: the real recordings of `../shared/data/` changed the way other real
+//! Blind-style probes: the real recordings of `data/` changed the way other real
 //! recordings differ from them — thinned, cut short, a temperature missing, readings on a
 //! coarser grid, glitches, irregular time stamps, the time axis stretched from seconds to
 //! weeks — and explain must still say the same physics, in the record's own time unit.
@@ -8,7 +8,7 @@ use nanocal::recording::Recording;
 
 fn read(rel: &str) -> Vec<(String, Vec<f64>)> {
     let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data")
+        .join("../data")
         .join(rel);
     let rec = Recording::read_path(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
     rec.names()

@@ -1,18 +1,18 @@
-//! Explain on real recordings nobody here produced (`../shared/data/`, each with a README that
+//! Explain on real recordings nobody here produced (`data/` at the repository root, each with a README that
 //! says what physics is in it). Every assertion names what the data's README tells us the
 //! machine does, so a pass means explain found that physics, not that it reproduced itself.
 
 use nanocal::explain::{explain, ChannelReport, Data, EffectReport, Report, Settings};
 use nanocal::recording::Recording;
 
-fn shared(rel: &str) -> std::path::PathBuf {
+fn data(rel: &str) -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data")
+        .join("../data")
         .join(rel)
 }
 
 fn explain_file(rel: &str) -> Report {
-    let p = shared(rel);
+    let p = data(rel);
     let rec = Recording::read_path(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
     let data = Data::from_recording(&rec, None).unwrap();
     explain(&data, &Settings::default()).unwrap()
@@ -74,7 +74,7 @@ fn param(e: &EffectReport, name: &str) -> f64 {
 /// quantisation's, not tens of nanometres.
 #[test]
 fn zprobe_drift_is_a_thermal_lag_of_minutes() {
-    let dir = shared("zprobe-drift");
+    let dir = data("zprobe-drift");
     let mut files: Vec<_> = std::fs::read_dir(&dir)
         .unwrap()
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -187,7 +187,7 @@ fn spindle_shows_a_thermal_lag_on_all_five_channels() {
     let rep = explain_file("spindle-thermal/recording.csv");
     let text = rep.to_text();
     assert_eq!(rep.channels.len(), 5);
-    let rec = Recording::read_path(shared("spindle-thermal/recording.csv")).unwrap();
+    let rec = Recording::read_path(data("spindle-thermal/recording.csv")).unwrap();
     assert_eq!(rec.temp_columns().len(), 16, "the README's sixteen sensors");
     for c in &rep.channels {
         assert_headline_tells_what_remains(c, &c.channel);

@@ -7,7 +7,7 @@ use nanocal::recording::Recording;
 
 fn spindle() -> Recording {
     let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data/spindle-thermal/recording.csv");
+        .join("../data/spindle-thermal/recording.csv");
     Recording::read_path(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
 }
 

@@ -16,10 +16,7 @@ fn tmp(name: &str) -> PathBuf {
 #[test]
 fn stepwise_cli_prints_the_matlab_like_table_and_json() {
     let dir = tmp("stepwise");
-    let hald = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../shared/peers/octave-stepwise/hald.csv"
-    );
+    let hald = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/hald-cement/hald.csv");
     let json = dir.join("h.json");
     let out = nanocal()
         .args(["stepwise", hald, "--response", "heat", "--json"])

@@ -3,11 +3,8 @@ use nanocal::recording::Recording;
 use nanocal::stepwise::{stepwise, Action, StepwiseOptions};
 
 fn hald() -> Recording {
-    let path = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../shared/peers/octave-stepwise/hald.csv"
-    );
-    Recording::read_path(path).expect("hald.csv from the shared peers folder")
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/hald-cement/hald.csv");
+    Recording::read_path(path).expect("hald.csv from data/hald-cement")
 }
 
 #[test]

@@ -1,8 +1,8 @@
 //! Differential test: nanocal's stepwise against the independent Octave implementation of MATLAB
 //! `stepwisefit` semantics (`../shared/peers/octave-stepwise/`) on random designs.
 //!
-//! Needs `octave-cli` (install: `.ci/host.sh`). Without it the test fails when `CI=true` and
-//! is skipped loudly otherwise.
+//! Needs the reference's scripts (developer machines only; skipped with one line without them) and
+//! `octave-cli` (install: `.ci/host.sh`; without it the test fails when `CI=true`, else skips).
 #![allow(clippy::needless_range_loop)]
 
 use std::path::{Path, PathBuf};
@@ -21,6 +21,29 @@ fn octave_available() -> bool {
         .arg("--version")
         .output()
         .is_ok_and(|o| o.status.success())
+}
+
+/// Whether the differential test can run here. The oracle's scripts live beside the repository
+/// (`../shared/peers/`, on developer machines only): without them the test skips with one line.
+/// With them, a missing `octave-cli` fails under `CI=true` (`.ci/host.sh` installs it) and skips
+/// otherwise.
+fn oracle_ready(test: &str) -> bool {
+    if !oracle().is_file() {
+        eprintln!(
+            "SKIPPED {test}: the Octave stepwise reference ({}) is not on this machine",
+            oracle().display()
+        );
+        return false;
+    }
+    if !octave_available() {
+        assert!(
+            std::env::var("CI").map_or(true, |v| v != "true"),
+            "octave-cli is missing in CI: run .ci/host.sh to install octave + octave-statistics"
+        );
+        eprintln!("SKIPPED {test}: octave-cli not found (install it with .ci/host.sh)");
+        return false;
+    }
+    true
 }
 
 struct Lcg(u64);
@@ -181,14 +204,7 @@ fn nums(v: &serde_json::Value) -> Vec<f64> {
 
 #[test]
 fn stepwise_matches_octave_oracle_on_random_designs() {
-    if !octave_available() {
-        if std::env::var("CI").is_ok_and(|v| v == "true") {
-            panic!("octave-cli is missing in CI: run .ci/host.sh to install octave + octave-statistics");
-        }
-        eprintln!("\n\n*** SKIPPED stepwise_matches_octave_oracle_on_random_designs: octave-cli not found ***");
-        eprintln!(
-            "*** install it with .ci/host.sh (apt-get install octave octave-statistics) ***\n\n"
-        );
+    if !oracle_ready("stepwise_matches_octave_oracle_on_random_designs") {
         return;
     }
     let dir = std::env::temp_dir().join(format!("nanocal-stepwise-oracle-{}", std::process::id()));
@@ -374,11 +390,7 @@ fn run_oracle(
 /// and the choice falls to rounding (here and in MATLAB alike).
 #[test]
 fn stepwise_matches_octave_oracle_on_degenerate_designs() {
-    if !octave_available() {
-        if std::env::var("CI").is_ok_and(|v| v == "true") {
-            panic!("octave-cli is missing in CI: run .ci/host.sh to install octave + octave-statistics");
-        }
-        eprintln!("\n\n*** SKIPPED stepwise_matches_octave_oracle_on_degenerate_designs: octave-cli not found ***\n\n");
+    if !oracle_ready("stepwise_matches_octave_oracle_on_degenerate_designs") {
         return;
     }
     let dir = std::env::temp_dir().join(format!(

@@ -142,6 +142,14 @@ fn main() {
         println!("octave-cli not found: install with .ci/host.sh to compare");
         return;
     }
+    let peer = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/peers/octave-stepwise");
+    if !peer.join("ms_stepwisefit.m").is_file() {
+        println!(
+            "the Octave stepwise reference ({}) is not on this machine: no comparison",
+            peer.display()
+        );
+        return;
+    }
     // same data, column-major raw f64 [X y], read with fread; the fit alone is timed in Octave
     let dir = std::env::temp_dir().join(format!("nanocal-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");
@@ -154,7 +162,6 @@ fn main() {
         }
     }
     drop(x);
-    let peer = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/peers/octave-stepwise");
     let script = format!(
         "addpath('{}'); fid = fopen('{}', 'r'); D = fread(fid, [{n}, {}], 'double'); fclose(fid); \
          X = D(:, 1:{p}); y = D(:, end); clear D; \

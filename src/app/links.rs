@@ -7,6 +7,7 @@
 //! the stage link, which also gives the proxy the time for its reply timeout.
 
 use super::{read_some, Core, Shared, PIPE_LEN};
+use core::sync::atomic::Ordering;
 use embassy_futures::join::join;
 use embassy_futures::select::{select, Either};
 use embassy_time::{Instant, Timer};
@@ -39,9 +40,7 @@ async fn send(sh: &Shared, out: &Output) {
         // the proxy may now wait for a reply: the stage link polls its timeout from now on
         sh.stage_sent.signal(());
     }
-    let host_connected = sh
-        .host_connected
-        .load(core::sync::atomic::Ordering::Relaxed);
+    let host_connected = sh.host_connected.load(Ordering::Relaxed);
     if !out.to_host.is_empty() && host_connected {
         sh.to_host.write_all(out.to_host.as_bytes()).await;
     }
@@ -49,15 +48,21 @@ async fn send(sh: &Shared, out: &Output) {
 
 /// Hand `buf` to the proxy through `step` until it has taken all of it, sending what it
 /// produces each time. (When it takes nothing and produces nothing, a held line fills its
-/// input: wait for the controller's answer.)
+/// input: wait for the controller's answer.) Host bytes stop when their session ends
+/// (`session`: the session they were read in).
 async fn feed(
     sh: &Shared,
     buf: &[u8],
     out: &mut Output,
+    session: Option<u32>,
     step: impl Fn(&mut Core, &[u8], &mut Output) -> usize,
 ) {
     let mut i = 0;
     while i < buf.len() {
+        if session.is_some_and(|s| s != sh.session.load(Ordering::Relaxed)) {
+            // the host closed the port meanwhile: the rest belongs to no one
+            return;
+        }
         let used = sh.core.lock(|c| step(&mut c.borrow_mut(), &buf[i..], out));
         i += used;
         send(sh, out).await;
@@ -95,15 +100,20 @@ pub async fn host_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) -> 
         let mut out = Output::new();
         let mut buf = [0u8; 64];
         loop {
+            let session = sh.session.load(Ordering::Relaxed);
             let n = match select(read_some(&mut rx, &mut buf), sh.host_hangup.wait()).await {
                 Either::First(n) => n,
-                Either::Second(()) => {
-                    // the host closed the port: nothing of that connection survives it
-                    super::end_host_session(sh);
-                    continue;
-                }
+                // the host closed or opened the port: nothing of the old connection survives
+                // it (the session was ended where the line state changed)
+                Either::Second(()) => continue,
             };
-            feed(sh, &buf[..n], &mut out, |c, b, out| {
+            if session != sh.session.load(Ordering::Relaxed)
+                || !sh.host_connected.load(Ordering::Relaxed)
+            {
+                // read in a session that has ended, or while the port is closed: no one's
+                continue;
+            }
+            feed(sh, &buf[..n], &mut out, Some(session), |c, b, out| {
                 let now = now_ms();
                 c.drive(now, |proxy, comp| proxy.host_bytes(comp, b, now, out))
             })
@@ -134,7 +144,7 @@ pub async fn stage_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) ->
             };
             match select(read_some(&mut rx, &mut buf), tick).await {
                 Either::First(n) => {
-                    feed(sh, &buf[..n], &mut out, |c, b, out| {
+                    feed(sh, &buf[..n], &mut out, None, |c, b, out| {
                         let now = now_ms();
                         c.drive(now, |proxy, comp| proxy.stage_bytes(comp, b, now, out))
                     })

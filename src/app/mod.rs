@@ -166,8 +166,12 @@ pub struct Shared {
     pub to_stage: Pipe<Cs, PIPE_LEN>,
     /// The host has the GCS port open (USB DTR; always true on links without line state).
     pub host_connected: AtomicBool,
-    /// The host closed the GCS port: the host link drops what belongs to that connection.
+    /// The host closed or opened the GCS port: the host link drops what belongs to the old
+    /// connection.
     pub host_hangup: Signal<Cs, ()>,
+    /// Host sessions so far (incremented at every open and close of the GCS port): bytes read
+    /// in one session are never handed to the proxy in the next.
+    pub session: AtomicU32,
     /// Bytes were queued for the stage controller: the stage link watches for its reply.
     pub stage_sent: Signal<Cs, ()>,
     /// Heartbeat of the sensor task (ms since boot of its last completed cycle).
@@ -219,6 +223,7 @@ impl Shared {
             to_stage: Pipe::new(),
             host_connected: AtomicBool::new(true),
             host_hangup: Signal::new(),
+            session: AtomicU32::new(0),
             stage_sent: Signal::new(),
             sensor_beat_ms: AtomicU32::new(0),
             flash_ecc_errors: AtomicU32::new(0),
@@ -293,25 +298,23 @@ pub fn count_ecc(sh: &Shared, n: u32) {
     sh.flash_ecc_errors.fetch_add(n, Ordering::Relaxed);
 }
 
-/// The host closed the GCS port (USB DTR dropped): drop the bytes queued for it and start the
-/// proxy afresh (no half-collected reply, pending error or query attribution carries over to
-/// the next connection); bypass, the move gate and the counters stay.
+/// The host closed the GCS port (USB DTR dropped), or opened it: drop the bytes queued for it
+/// and start a new host session in the proxy (no half-received line, queued line, pending
+/// error or reply still due carries over to the next connection: the replies the controller
+/// still sends for the old one are dropped, so the pairing with the controller stays exact);
+/// what the proxy read of the controller, bypass, the move gate and the counters stay.
 pub fn end_host_session(sh: &Shared) {
+    sh.session.fetch_add(1, Ordering::Relaxed);
     sh.to_host.clear();
-    sh.core.lock(|c| {
-        let mut c = c.borrow_mut();
-        let keep = (c.proxy.bypass, c.proxy.gate, c.proxy.counters);
-        let settings = sh.settings.lock(|s| *s.borrow());
-        c.proxy = fresh_proxy(&settings);
-        (c.proxy.bypass, c.proxy.gate, c.proxy.counters) = keep;
-    });
+    sh.core.lock(|c| c.borrow_mut().proxy.new_session());
 }
 
 /// Tell the application the host's line state (USB CDC SET_CONTROL_LINE_STATE, DTR bit): a
-/// fall ends the host session.
+/// fall ends the host session, a rise starts a new one (nothing received while the port was
+/// closed belongs to it).
 pub fn host_line_state(sh: &Shared, dtr: bool) {
     let was = sh.host_connected.swap(dtr, Ordering::Relaxed);
-    if was && !dtr {
+    if was != dtr {
         end_host_session(sh);
         sh.host_hangup.signal(());
     }

@@ -135,6 +135,12 @@ impl<const N: usize> LineBuf<N> {
         self.len += 1;
         Ok(())
     }
+    /// Move the last byte to position `at` (the bytes from `at` on move up by one).
+    pub fn rotate_tail(&mut self, at: usize) {
+        if at < self.len {
+            self.buf[at..self.len].rotate_right(1);
+        }
+    }
     /// Drop the first `n` bytes (the rest moves to the front).
     pub fn consume(&mut self, n: usize) {
         let n = n.min(self.len);

@@ -179,8 +179,8 @@ pub struct Counters {
     pub unanswered: u32,
     /// Replies (or marker replies) that came when nothing was waiting for them: dropped.
     pub unsolicited: u32,
-    /// Times the proxy gave up what was in flight and resynchronised (a silent controller, a
-    /// marker that brought back something else).
+    /// Times the proxy gave up what was in flight (a silent controller, a marker that brought
+    /// back something else) and resynchronised.
     pub resyncs: u32,
 }
 
@@ -367,9 +367,12 @@ impl Proxy {
                     ..
                 })
             );
+        let input = self.input.as_bytes();
         answer_due
             || (st.held.is_none()
-                && (self.input.as_bytes().contains(&b'\n') || self.input.room() == 0))
+                && (input.contains(&b'\n')
+                    || self.input.room() == 0
+                    || input.first().is_some_and(|&b| gcs::is_single_char_command(b))))
     }
 
     /// A new host session (the host closed and opened the port): nothing of the old one
@@ -429,6 +432,15 @@ impl Proxy {
         while i < input.len() {
             let b = input[i];
             if gcs::is_single_char_command(b) {
+                if gcs::single_char_has_reply(b) && self.lines_waiting() {
+                    // a query must not overtake complete lines waiting behind a held one: it
+                    // goes in their order (before the partial line it interrupted, as a
+                    // controller takes it)
+                    if !self.defer_single(b) {
+                        break; // full: the host link pauses
+                    }
+                    return i + 1;
+                }
                 if out.to_stage.room() < 2 * controller::MARKER.len() + 1 {
                     break;
                 }
@@ -473,11 +485,40 @@ impl Proxy {
         i
     }
 
+    /// True while complete host lines wait to be processed (a line is held, or lines are
+    /// queued behind it).
+    fn lines_waiting(&self) -> bool {
+        self.st.held.is_some() || self.input.as_bytes().contains(&b'\n')
+    }
+
+    /// Queue a single-character query after the complete lines waiting (before a partial line
+    /// at the end of the input). False when there is no room.
+    fn defer_single(&mut self, b: u8) -> bool {
+        if self.input.push(b).is_err() {
+            return false;
+        }
+        let bytes = self.input.as_bytes();
+        let at = bytes[..bytes.len() - 1]
+            .iter()
+            .rposition(|&c| c == b'\n' || gcs::is_single_char_command(c))
+            .map_or(0, |p| p + 1);
+        self.input.rotate_tail(at);
+        true
+    }
+
     /// Process one line from the input buffer, if one is complete (or the buffer is full
     /// without one) and no line is held. True when something was processed.
     fn step_input<C: Corrector>(&mut self, c: Option<&C>, out: &mut Output) -> bool {
         if self.st.held.is_some() {
             return false;
+        }
+        if let Some(&b) = self.input.as_bytes().first() {
+            if gcs::is_single_char_command(b) {
+                // a query deferred behind the lines that were waiting
+                self.host_single(b, out);
+                self.input.consume(1);
+                return true;
+            }
         }
         let bytes = self.input.as_bytes();
         if let Some(lf) = bytes.iter().position(|&b| b == b'\n') {
@@ -516,8 +557,10 @@ impl Proxy {
             st.reseed = Reseed::None;
             st.held_lost = false;
             st.held_runs = 0;
+            // a line cut by the stop is dropped to its end too: its rest is no line of its own
+            let partial = self.input.as_bytes().last().is_some_and(|&c| c != b'\n');
             self.input.clear();
-            self.discarding = false;
+            self.discarding = partial;
             let _ = out.to_stage.push(b);
             return;
         }
@@ -1079,7 +1122,9 @@ impl fmt::Debug for Proxy {
             .field("pending_error", &st.pending_error)
             .field("bypass", &st.bypass)
             .field("gate", &st.gate)
-            .field("in_flight", &st.in_flight())
+            .field("queue", &st.queue)
+            .field("receiving", &st.rx.kind())
+            .field("resyncing", &st.resyncing)
             .field("holding", &st.holding())
             .finish()
     }

@@ -106,6 +106,9 @@ pub(crate) enum Expect {
     /// A reply nobody waits for any more (the query of a host session that ended, a re-seed a
     /// stop cancelled): read and dropped.
     Discard,
+    /// Bytes no query asked for (none was in flight, or the rest of a reply the pairing was
+    /// lost in): read and dropped; never waited for.
+    Unsolicited,
 }
 
 /// One query in flight.
@@ -126,6 +129,7 @@ impl Entry {
 }
 
 /// A fixed-capacity ring of [`Entry`].
+#[derive(Clone)]
 pub(crate) struct Queue {
     items: [Entry; QUEUE_LEN],
     head: usize,
@@ -213,5 +217,16 @@ impl Queue {
                 }
             }
         }
+    }
+
+    /// The entries, oldest first.
+    pub(crate) fn iter(&self) -> impl Iterator<Item = &Entry> {
+        (0..self.len).map(|k| &self.items[(self.head + k) % QUEUE_LEN])
+    }
+}
+
+impl core::fmt::Debug for Queue {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_list().entries(self.iter()).finish()
     }
 }

@@ -118,7 +118,7 @@ impl ReplyRx {
     /// cancelled the line that waited for it): the rest of it is dropped.
     pub(crate) fn discard(&mut self) {
         if let Some(en) = &mut self.entry {
-            if !matches!(en.e, Expect::Marker | Expect::Internal(_)) {
+            if !matches!(en.e, Expect::Marker | Expect::Internal(_) | Expect::Unsolicited) {
                 en.e = Expect::Discard;
                 en.host = false;
             }
@@ -173,12 +173,14 @@ impl ProxyState {
                 let en = self.queue.pop().unwrap_or_else(|| {
                     // bytes no query asked for: dropped
                     self.counters.unsolicited = self.counters.unsolicited.wrapping_add(1);
-                    Entry::new(Expect::Discard, false, false)
+                    Entry::new(Expect::Unsolicited, false, false)
                 });
                 // the identification line is an own query's and the host's `*IDN?` reply,
-                // and a marker's anywhere else
+                // and a marker's anywhere else (the reply to an addressed `*IDN?`, the only
+                // kind that may go unanswered, starts with the address)
                 let deciding = self.ctrl.marker_reply().is_some()
-                    && !matches!(en.e, Expect::Snoop(Info::Idn) | Expect::Internal(Info::Idn));
+                    && !(matches!(en.e, Expect::Snoop(Info::Idn) | Expect::Internal(Info::Idn))
+                        && !en.maybe);
                 self.rx.begin(en, deciding);
             }
             let rest = &input[i..];
@@ -203,8 +205,11 @@ impl ProxyState {
                 continue;
             };
             let lf = rest.iter().position(|&b| b == b'\n');
-            if matches!(kind, Expect::Relay | Expect::Snoop(_) | Expect::Discard) {
-                let relay = kind != Expect::Discard;
+            if matches!(
+                kind,
+                Expect::Relay | Expect::Snoop(_) | Expect::Discard | Expect::Unsolicited
+            ) {
+                let relay = !matches!(kind, Expect::Discard | Expect::Unsolicited);
                 let room = out.to_host.room();
                 if relay && room == 0 {
                     break;
@@ -303,9 +308,9 @@ impl ProxyState {
                     self.resync(None::<&super::FoldCorrector>, out);
                 }
                 // the rest of this reply is dropped
-                self.rx.entry = Some(Entry::new(Expect::Discard, false, false));
+                self.rx.entry = Some(Entry::new(Expect::Unsolicited, false, false));
             }
-            Expect::Relay | Expect::Snoop(_) | Expect::Discard => {
+            Expect::Relay | Expect::Snoop(_) | Expect::Discard | Expect::Unsolicited => {
                 // the bytes held while deciding go their way, the rest streams after them
                 let held = self.rx.line.clone();
                 self.rx.line.clear();
@@ -313,7 +318,7 @@ impl ProxyState {
                 if let Some(&last) = held.last() {
                     self.rx.prev = last;
                 }
-                if en.e != Expect::Discard {
+                if !matches!(en.e, Expect::Discard | Expect::Unsolicited) {
                     let _ = out.to_host.extend(held);
                 }
                 if matches!(en.e, Expect::Snoop(_)) {
@@ -345,9 +350,10 @@ impl ProxyState {
                     self.queue.pop();
                 }
             }
+            // a marker's reply that came after the proxy stopped waiting for it
+            Expect::Unsolicited => {}
             _ => {
-                // a marker's reply that came after the proxy stopped waiting for it: the
-                // query's own reply is still to come
+                // (the query's own reply is still to come)
                 self.counters.unsolicited = self.counters.unsolicited.wrapping_add(1);
                 let _ = self.queue.push_front(en);
             }
@@ -693,7 +699,7 @@ impl ProxyState {
             if matches!(en.e, Expect::Map { .. }) {
                 self.map_chunk(c, out);
             }
-            if !matches!(en.e, Expect::Marker | Expect::Discard) {
+            if !matches!(en.e, Expect::Marker | Expect::Discard | Expect::Unsolicited) {
                 self.counters.unanswered = self.counters.unanswered.wrapping_add(1);
             }
         }
@@ -703,11 +709,12 @@ impl ProxyState {
                 Expect::Answer(a) => {
                     a.write(&mut out.to_host);
                 }
-                Expect::Marker | Expect::Discard => {}
+                Expect::Marker | Expect::Discard | Expect::Unsolicited => {}
                 _ => self.counters.unanswered = self.counters.unanswered.wrapping_add(1),
             }
         }
         self.ctrl.lost_answers();
+        self.counters.resyncs = self.counters.resyncs.wrapping_add(1);
         if self.reseed == Reseed::Asked {
             self.reseed = Reseed::Failed;
         }
@@ -721,7 +728,6 @@ impl ProxyState {
     /// marker's is dropped.
     pub(super) fn resync<C: Corrector>(&mut self, c: Option<&C>, out: &mut Output) {
         self.give_up(c, out);
-        self.counters.resyncs = self.counters.resyncs.wrapping_add(1);
         if self.ctrl.marker_reply().is_some() && self.queue.room() > 0 {
             self.resyncing = true;
             self.send_marker(out);

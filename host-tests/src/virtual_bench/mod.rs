@@ -11,7 +11,7 @@ pub mod sensors;
 pub mod twin_stage;
 
 pub use controller::{
-    AxisConfig, Clock, Config, Controller, Event, IdealPlant, ManualClock, Plant, StageSim,
+    AxisConfig, Clock, Config, Controller, Event, IdealPlant, ManualClock, Plant, Processed, StageSim,
     SystemClock,
 };
 pub use link::{BenchClock, BenchLink};

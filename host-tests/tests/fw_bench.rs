@@ -211,7 +211,11 @@ fn fw_bench_latency_throughput() {
     let n = blob::encode(&model, &mut b).unwrap();
     c.upload(&b[..n]).unwrap();
     let deadline = Instant::now() + Duration::from_secs(20);
-    while c.status().unwrap().flags & nanocal_compensator::mgmt::flags::SENSOR_BLOCK != 0
+    while c
+        .status()
+        .unwrap()
+        .flags
+        .contains(nanocal_interface::status::Flags::SENSOR_BLOCK)
         || c.status().unwrap().folds < 2
     {
         assert!(Instant::now() < deadline, "sensors never became ready");

@@ -23,7 +23,7 @@
 
 code_enum! {
     /// A GCS error the compensator raises (see the module's table).
-    pub enum GcsError: i32 {
+    pub enum GcsErrorCode: i32 {
         /// PI's code 1: illegal parameter / syntax — an unparsable number or a missing value.
         ParamSyntax = 1 => "parameter syntax: unparsable number or missing value",
         /// PI's code 7: position out of limits — the corrected command is outside the stage
@@ -58,7 +58,7 @@ code_enum! {
     }
 }
 
-impl GcsError {
+impl GcsErrorCode {
     /// True for the compensator's own codes (9001 and up), false for PI's.
     pub const fn is_compensators(self) -> bool {
         self.code() >= 9000

@@ -45,7 +45,9 @@ pub mod mgmt;
 pub mod settings;
 pub mod status;
 
-pub use gcs_error::GcsError;
+pub use gcs_error::GcsErrorCode;
+/// The fixed-capacity containers in this crate's types (e.g. [`mgmt::Hello::firmware`]).
+pub use heapless;
 /// CRC-32/ISO-HDLC (reflected, polynomial 0x04C11DB7, init and xorout all ones: zlib's CRC) —
 /// the project's one implementation, the model's ([`nanocal_model::blob::crc32`]).
 pub use nanocal_model::blob::crc32;

@@ -34,7 +34,14 @@ pub struct AxisId {
 }
 
 impl AxisId {
+    /// A one-character identifier (PI's usual `1`, `2`, `3`, or `X`, `Y`, `Z`).
+    pub const fn single(c: u8) -> Self {
+        let mut bytes = [0; MAX_AXIS_ID];
+        bytes[0] = c;
+        Self { bytes, len: 1 }
+    }
     /// An identifier from bytes; `None` when empty or too long.
+    #[inline]
     pub fn new(id: &[u8]) -> Option<Self> {
         if id.is_empty() || id.len() > MAX_AXIS_ID {
             return None;
@@ -47,6 +54,7 @@ impl AxisId {
         })
     }
     /// The identifier's bytes.
+    #[inline]
     pub fn as_bytes(&self) -> &[u8] {
         &self.bytes[..self.len as usize]
     }
@@ -232,14 +240,17 @@ impl Default for Settings {
         for s in sensors.iter_mut().take(4) {
             *s = Some(Chip::K);
         }
-        let name = |c: u8| AxisId::new(&[c]).unwrap_or_else(|| unreachable!());
         Self {
             stage_baud: 115_200,
             sensors,
             mains: Mains::Hz50,
             sample_period_ms: 250,
             stage_unit: StageUnit::Um,
-            axis_names: [name(b'1'), name(b'2'), name(b'3')],
+            axis_names: [
+                AxisId::single(b'1'),
+                AxisId::single(b'2'),
+                AxisId::single(b'3'),
+            ],
             aux: [AuxSource::None; MAX_AUX],
         }
     }

@@ -14,7 +14,7 @@
 //!     96 f64 × 3         kmz_um
 //!    120 u32 × 7         host_lines, moves, refused, mapped_replies, uploads_ok,
 //!                        uploads_rejected, folds
-//!    148 i32             pending_error (GcsError code, 0: none)
+//!    148 i32             pending_error (GcsErrorCode code, 0: none)
 //!    152 u8              last_upload_error (Refusal code, 0: none)
 //!    153 u32             uptime_ms
 //!    157 u8 × 12         uid
@@ -31,7 +31,7 @@
 //! [`Status::LEN`], this diagram, the golden bytes in the tests, and a bump of
 //! [`crate::mgmt::PROTOCOL`] — all in this file but the last.
 
-use crate::gcs_error::GcsError;
+use crate::gcs_error::GcsErrorCode;
 use crate::identity::{ResetCause, UID_LEN};
 use crate::led::LedState;
 use crate::mgmt::{PayloadError, Reader, Refusal, Writer};
@@ -147,7 +147,7 @@ impl Flags {
     /// An upload is in progress.
     pub const UPLOADING: Flags = Flags(1 << 4);
     /// Moves are refused: the controller's position unit (`PUN?`) is not the model's µm, or
-    /// the controller did not tell it ([`GcsError::UnitMismatch`] on the host's `ERR?`).
+    /// the controller did not tell it ([`GcsErrorCode::UnitMismatch`] on the host's `ERR?`).
     pub const UNIT_MISMATCH: Flags = Flags(1 << 5);
     /// The thermal fold is older than the sensor hold time (sensor task stalled): moves refused.
     pub const FOLD_STALE: Flags = Flags(1 << 8);
@@ -187,6 +187,10 @@ impl Flags {
     /// True when every flag of `other` is set.
     pub const fn contains(self, other: Flags) -> bool {
         self.0 & other.0 == other.0
+    }
+    /// True when any flag of `other` is set.
+    pub const fn intersects(self, other: Flags) -> bool {
+        self.0 & other.0 != 0
     }
     /// Set the flags of `other`.
     pub fn insert(&mut self, other: Flags) {
@@ -272,7 +276,7 @@ pub struct Status {
     /// Folds computed (slow path runs).
     pub folds: u32,
     /// Error waiting for the host's next `ERR?`.
-    pub pending_error: Option<GcsError>,
+    pub pending_error: Option<GcsErrorCode>,
     /// Why the last rejected upload was rejected.
     pub last_upload_error: Option<Refusal>,
     /// Uptime, ms.
@@ -380,7 +384,7 @@ impl Status {
         ] {
             w.u32(c)?;
         }
-        w.i32(self.pending_error.map_or(0, GcsError::code))?;
+        w.i32(self.pending_error.map_or(0, GcsErrorCode::code))?;
         w.u8(self.last_upload_error.map_or(0, Refusal::code))?;
         w.u32(self.uptime_ms)?;
         w.bytes(&self.uid)?;
@@ -427,7 +431,7 @@ impl Status {
         s.folds = r.u32()?;
         s.pending_error = match r.i32()? {
             0 => None,
-            c => Some(GcsError::from_code(c).ok_or(PayloadError::Value {
+            c => Some(GcsErrorCode::from_code(c).ok_or(PayloadError::Value {
                 field: "pending_error",
                 value: c as u32,
             })?),

@@ -6,7 +6,7 @@ use nanocal_interface::identity::ResetCause;
 use nanocal_interface::led::LedState;
 use nanocal_interface::mgmt::{InputWhy, Kind, Refusal};
 use nanocal_interface::status::{ChannelStatus, Flags, SensorFault};
-use nanocal_interface::GcsError;
+use nanocal_interface::GcsErrorCode;
 use std::collections::HashSet;
 
 macro_rules! codes_are_a_bijection {
@@ -23,7 +23,7 @@ macro_rules! codes_are_a_bijection {
 #[test]
 fn every_code_maps_back() {
     codes_are_a_bijection!(
-        GcsError,
+        GcsErrorCode,
         Refusal,
         InputWhy,
         Kind,
@@ -46,25 +46,31 @@ fn every_code_maps_back() {
 #[test]
 fn gcs_errors_mean_what_the_proxy_raises_them_for() {
     // the compensator's own codes, 9001..=9009, each with its own meaning
-    let own: Vec<i32> = GcsError::ALL
+    let own: Vec<i32> = GcsErrorCode::ALL
         .iter()
         .filter(|e| e.is_compensators())
         .map(|e| e.code())
         .collect();
     assert_eq!(own, (9001..=9009).collect::<Vec<_>>());
     // the two the campaign once mislabelled (9006 as a unit mismatch)
-    assert_eq!(GcsError::from_code(9006), Some(GcsError::TooManyQueries));
-    assert!(GcsError::TooManyQueries
+    assert_eq!(
+        GcsErrorCode::from_code(9006),
+        Some(GcsErrorCode::TooManyQueries)
+    );
+    assert!(GcsErrorCode::TooManyQueries
         .to_string()
         .contains("too many queries"));
-    assert_eq!(GcsError::from_code(9007), Some(GcsError::UnitMismatch));
-    assert!(GcsError::UnitMismatch.to_string().contains("unit"));
     assert_eq!(
-        GcsError::from_code(9008),
-        Some(GcsError::RefusedWhileCompensating)
+        GcsErrorCode::from_code(9007),
+        Some(GcsErrorCode::UnitMismatch)
     );
-    assert!(GcsError::RefusedWhileCompensating
+    assert!(GcsErrorCode::UnitMismatch.to_string().contains("unit"));
+    assert_eq!(
+        GcsErrorCode::from_code(9008),
+        Some(GcsErrorCode::RefusedWhileCompensating)
+    );
+    assert!(GcsErrorCode::RefusedWhileCompensating
         .to_string()
         .contains("refused while compensating"));
-    assert_eq!(GcsError::from_code(9010), None);
+    assert_eq!(GcsErrorCode::from_code(9010), None);
 }

@@ -13,7 +13,7 @@ use nanocal_interface::settings::{
     AuxSource, AxisId, Chip, Mains, Settings, StageUnit, TcType, Wires,
 };
 use nanocal_interface::status::{ChannelBits, ChannelStatus, Flags, SensorFault, Status};
-use nanocal_interface::GcsError;
+use nanocal_interface::GcsErrorCode;
 
 include!("golden/bytes.rs");
 
@@ -53,7 +53,7 @@ fn status() -> Status {
         uploads_ok: 1,
         uploads_rejected: 1,
         folds: 42,
-        pending_error: Some(GcsError::RefusedWhileCompensating),
+        pending_error: Some(GcsErrorCode::RefusedWhileCompensating),
         last_upload_error: Some(Refusal::UploadCrc),
         uptime_ms: 123_456,
         uid: *b"0123456789AB",

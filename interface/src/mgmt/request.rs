@@ -7,6 +7,8 @@ use crate::settings::Settings;
 use nanocal_model::MAX_AXES;
 
 /// A management request (the table in [`crate::mgmt`] has the bytes).
+// No heap on the device: the settings (and the status) travel by value, not boxed.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Request<'a> {
     /// Identify.
@@ -124,6 +126,8 @@ impl<'a> Request<'a> {
 
     /// Decode a request of kind byte `kind` (trailing bytes after the fields are ignored,
     /// except for settings, which are the whole payload). Never panics.
+    // Out of line: the firmware's management task would inline it (+650 B of STM32 flash).
+    #[inline(never)]
     pub fn decode(kind: u8, payload: &'a [u8]) -> Result<Self, PayloadError> {
         let k = Kind::from_code(kind).ok_or(PayloadError::UnknownKind(kind))?;
         let mut r = Reader::new(payload);

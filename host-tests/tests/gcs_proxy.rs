@@ -336,7 +336,8 @@ fn targets_are_forgotten_after_stops_and_re_seeded_from_the_controller() {
     }
 }
 
-/// The f64 inverse of the 1-DoF model by bisection (independent of the proxy's chord method).
+/// The f64 inverse of the 1-DoF model by bisection (independent of the model's Newton inverse,
+/// which the proxy calls).
 fn invert_f64(m: &Model, q: f64) -> f64 {
     let f = |x: f64| f64_command(m, [x, 0.0, 0.0])[0];
     let (mut lo, mut hi) = (-100.0, 600.0);

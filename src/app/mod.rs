@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! host link ─▶ line assembler ─▶ Proxy (GCS parse, Fold::correct, format) ─▶ to_stage ─▶ stage link
-//! host link ◀─ to_host ◀─ Proxy (Fold::inverse for POS?/MOV?) ◀─ line assembler ◀─ stage link
+//! host link ◀─ to_host ◀─ Proxy (Fold::inverse_from for POS?/MOV?) ◀─ line assembler ◀─ stage link
 //! sensors ─▶ drivers ─▶ fault policy ─▶ lag filters ─▶ Model::fold ─▶ Core.comp, Core.proxy.gate
 //! management ─▶ upload / store / KMZ / bypass / settings / status
 //! supervisor ─▶ fold freshness, status LED, watchdog

@@ -15,7 +15,8 @@
 //!
 //! Controller → host: replies to `POS?`, `#3` and `MOV?` are mapped back to calibrated
 //! coordinates (a `MOV?` value equal to the command sent maps back to its target exactly; other
-//! values through a chord iteration warm-started at the target, see `inverse`); every other
+//! values through the model's own inverse, `Fold::inverse_from`, started at the target, see
+//! [`Corrector::inverse`]); every other
 //! reply is relayed byte for byte, whatever its length. Several queries may be in flight: each
 //! reply is matched to its query in order (`queue`).
 //!
@@ -35,7 +36,6 @@
 //! controller's error) are dropped from the queue so later replies keep their attribution.
 
 mod corrector;
-mod inverse;
 mod moves;
 mod queue;
 mod replies;
@@ -46,7 +46,6 @@ pub use queue::MAX_IN_FLIGHT;
 use crate::command::{self, Action, Affects, Refusal};
 use crate::gcs::{self, AxisId, AxisMap, LineBuf, Split, MAP_AXES, MAX_LINE};
 use core::fmt;
-use inverse::Jacobian;
 pub use nanocal_interface::GcsErrorCode;
 use nanocal_model::HysteresisState;
 use queue::{Expect, Info, Queue};
@@ -243,13 +242,12 @@ pub struct ProxyState {
     /// the proxy's targets only if that line's move goes out.
     reseed: Targets,
     dir: [i8; MAP_AXES],
-    /// Last error the compensator raised, for the next `ERR?` (0 = none).
+    /// Last error the compensator raised, for the next `ERR?`.
     pending_error: Option<GcsErrorCode>,
     ctrl: ControllerInfo,
     queue: Queue,
     rx: ReplyRx,
     held: Option<Held>,
-    jacobian: Option<Jacobian>,
     /// The model's play operators as the commands sent left them (hysteresis memory): advanced
     /// only when a corrected target goes out, reset whenever the stage may have moved along a
     /// path the proxy did not see (see [`ProxyState::reset_hysteresis`]).
@@ -301,7 +299,6 @@ impl Proxy {
                 queue: Queue::new(),
                 rx: ReplyRx::new(),
                 held: None,
-                jacobian: None,
                 hyst: HysteresisState::new(),
                 now_ms: 0,
                 last_rx_ms: 0,
@@ -814,7 +811,6 @@ impl ProxyState {
             Some(a) if a < MAP_AXES => self.targets.known &= !(1 << a),
             _ => self.targets.known = 0,
         }
-        self.jacobian = None;
         self.hyst.reset();
     }
 

@@ -19,7 +19,7 @@ cargo fmt --all --check
 cargo clippy --all-targets -- -D warnings
 
 step "shared no_std crates build for the firmware target (with and without defmt)"
-for crate in nanocal-model nanocal-compensator; do
+for crate in nanocal-model nanocal-interface nanocal-compensator; do
     cargo clippy -p "$crate" --target thumbv7em-none-eabihf -- -D warnings
     cargo clippy -p "$crate" --target thumbv7em-none-eabihf --features defmt -- -D warnings
 done

@@ -7,9 +7,10 @@ mod fw_sim;
 
 use fw_sim::{wait_until, Qemu, SensorSim, StageSim};
 use nanocal::virtual_bench::chips::Max31856;
-use nanocal_compensator::identity::ResetCause;
-use nanocal_compensator::mgmt::{self, flags};
-use nanocal_compensator::settings::AuxSource;
+use nanocal_interface::identity::ResetCause;
+use nanocal_interface::mgmt::{Refusal, Request};
+use nanocal_interface::settings::AuxSource;
+use nanocal_interface::status::{ChannelStatus, Flags, SensorFault};
 use nanocal_model::{blob, Factor, Input, Model, ModelBuilder};
 use std::time::Duration;
 
@@ -51,7 +52,7 @@ fn e2e_first_conversion_absent_chip_brownout_and_dead_bus() {
     c.upload(&blob_of(&model)).unwrap();
     // defect: moves went out before the sensors' first conversions (fold at 0 °C)
     let s = c.status().unwrap();
-    if s.flags & flags::WARMING_UP != 0 {
+    if s.flags.contains(Flags::WARMING_UP) {
         host.send("MOV 1 10");
         let e = host.ask("ERR?");
         assert!(
@@ -61,7 +62,7 @@ fn e2e_first_conversion_absent_chip_brownout_and_dead_bus() {
     }
     let s = wait_until("first conversions", Duration::from_secs(20), || {
         let s = c.status().ok()?;
-        (s.flags & (flags::WARMING_UP | flags::SENSOR_BLOCK) == 0 && s.folds >= 1).then_some(s)
+        (!s.flags.intersects(Flags::WARMING_UP | Flags::SENSOR_BLOCK) && s.folds >= 1).then_some(s)
     });
     for (i, t) in TEMPS_C.iter().enumerate() {
         assert_eq!(
@@ -79,18 +80,22 @@ fn e2e_first_conversion_absent_chip_brownout_and_dead_bus() {
     let chip = sensors.unplug(2).unwrap();
     let s = wait_until("absent chip fails", Duration::from_secs(30), || {
         let s = c.status().ok()?;
-        (s.sensor_bits[2] & 0x0F == 2).then_some(s)
+        (s.sensor_bits[2].state == ChannelStatus::Failed).then_some(s)
     });
     assert!(s.temps_c[2].is_nan());
-    assert_eq!(s.sensor_bits[2] >> 4, 6, "no response");
-    assert_ne!(s.flags & flags::SENSOR_BLOCK, 0);
+    assert_eq!(
+        s.sensor_bits[2].last_fault,
+        Some(SensorFault::NoResponse),
+        "no response"
+    );
+    assert!(s.flags.contains(Flags::SENSOR_BLOCK));
     host.send("MOV 1 20");
     assert_eq!(host.ask("ERR?"), "9002");
     // hot-plug: the chip comes back at power-on defaults and is configured again
     sensors.plug(2, chip);
     wait_until("hot-plugged chip back", Duration::from_secs(30), || {
         let s = c.status().ok()?;
-        (s.flags & flags::SENSOR_BLOCK == 0).then_some(())
+        (!s.flags.contains(Flags::SENSOR_BLOCK)).then_some(())
     });
 
     // defect: configured once, never checked; a brown-out left the chip unconfigured
@@ -101,7 +106,8 @@ fn e2e_first_conversion_absent_chip_brownout_and_dead_bus() {
         Duration::from_secs(30),
         || {
             let s = c.status().ok()?;
-            (s.sensor_reconfigs > before && s.sensor_bits[1] & 0x0F == 0).then_some(())
+            (s.sensor_reconfigs > before && s.sensor_bits[1].state == ChannelStatus::Ok)
+                .then_some(())
         },
     );
 
@@ -109,10 +115,12 @@ fn e2e_first_conversion_absent_chip_brownout_and_dead_bus() {
     sensors.buses().dead = true;
     let s = wait_until("dead bus blocks moves", Duration::from_secs(40), || {
         let s = c.status().ok()?;
-        (s.flags & flags::SENSOR_BLOCK != 0).then_some(s)
+        (s.flags.contains(Flags::SENSOR_BLOCK)).then_some(s)
     });
     assert!(
-        s.sensor_bits[..4].iter().all(|b| b & 0x0F == 2),
+        s.sensor_bits[..4]
+            .iter()
+            .all(|b| b.state == ChannelStatus::Failed),
         "{:?}",
         s.sensor_bits
     );
@@ -121,7 +129,7 @@ fn e2e_first_conversion_absent_chip_brownout_and_dead_bus() {
     sensors.buses().dead = false;
     wait_until("recovery", Duration::from_secs(40), || {
         let s = c.status().ok()?;
-        (s.flags & flags::SENSOR_BLOCK == 0).then_some(())
+        (!s.flags.contains(Flags::SENSOR_BLOCK)).then_some(())
     });
 }
 
@@ -151,7 +159,7 @@ fn e2e_host_session_ends_when_the_port_closes() {
     let mut c = q.client();
     wait_until("DTR seen", Duration::from_secs(10), || {
         let st = c.status().ok()?;
-        (st.flags & flags::HOST_CONNECTED != 0).then_some(())
+        (st.flags.contains(Flags::HOST_CONNECTED)).then_some(())
     });
     drop(c);
     let mut host = q.reconnect_gcs();
@@ -189,7 +197,7 @@ fn e2e_watchdog_resets_a_hung_firmware_and_settings_persist() {
     c.set_config(&s).unwrap();
     // the hang: the device never answers this one
     c.timeout = Duration::from_millis(500);
-    assert!(c.request(mgmt::kind::DEBUG_HANG, &[]).is_err());
+    assert!(c.request(&Request::DebugHang).is_err());
     drop(c);
     let mut c = q.client();
     let h = c.identify().unwrap();
@@ -218,7 +226,7 @@ fn e2e_model_inputs_must_be_supplied() {
         matches!(
             e,
             nanocal::device::DeviceError::Refused {
-                code: mgmt::RESULT_INPUT,
+                refusal: Refusal::Input,
                 ..
             }
         ),
@@ -230,9 +238,8 @@ fn e2e_model_inputs_must_be_supplied() {
             .contains(": input 0, aux input with no source"),
         "{e}"
     );
-    assert_eq!(
-        c.status().unwrap().flags & flags::MODEL,
-        0,
+    assert!(
+        !c.status().unwrap().flags.contains(Flags::MODEL),
         "nothing stored"
     );
     let mut s = c.config().unwrap();
@@ -241,7 +248,7 @@ fn e2e_model_inputs_must_be_supplied() {
     c.upload(&blob_of(&model)).unwrap();
     let st = wait_until("pressure read and folded", Duration::from_secs(30), || {
         let st = c.status().ok()?;
-        (st.flags & (flags::SENSOR_BLOCK | flags::WARMING_UP) == 0 && !st.aux[0].is_nan())
+        (!st.flags.intersects(Flags::SENSOR_BLOCK | Flags::WARMING_UP) && !st.aux[0].is_nan())
             .then_some(st)
     });
     assert!(
@@ -270,7 +277,7 @@ fn e2e_model_inputs_must_be_supplied() {
         Duration::from_secs(40),
         || {
             let st = c.status().ok()?;
-            (st.flags & flags::SENSOR_BLOCK != 0).then_some(())
+            (st.flags.contains(Flags::SENSOR_BLOCK)).then_some(())
         },
     );
 }

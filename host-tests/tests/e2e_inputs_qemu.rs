@@ -14,8 +14,8 @@ mod fw_sim;
 
 use device_models::{force_model, hysteresis_model, slow, TEMP_C, WALK_UM};
 use fw_sim::{next_move, stage_value, wait_until, Qemu, SensorSim, StageSim};
-use nanocal_compensator::mgmt::flags;
-use nanocal_compensator::settings::AuxSource;
+use nanocal_interface::settings::AuxSource;
+use nanocal_interface::status::Flags;
 use nanocal_model::{blob, HysteresisState, Model, MAX_AXES};
 use std::time::Duration;
 
@@ -33,7 +33,9 @@ fn upload(c: &mut nanocal::device::Client, model: &Model) {
         Duration::from_secs(20),
         || {
             let s = c.status().ok()?;
-            (s.flags & flags::MODEL != 0 && s.flags & flags::SENSOR_BLOCK == 0 && s.folds >= 2)
+            (s.flags.contains(Flags::MODEL)
+                && !s.flags.contains(Flags::SENSOR_BLOCK)
+                && s.folds >= 2)
                 .then_some(())
         },
     );
@@ -192,7 +194,7 @@ fn e2e_fast_force_input_is_used_per_command_and_its_loss_refuses_moves() {
     set_code(Some(2548));
     wait_until("inputs usable again", Duration::from_secs(20), || {
         let s = c.status().ok()?;
-        (s.flags & flags::SENSOR_BLOCK == 0).then_some(())
+        (!s.flags.contains(Flags::SENSOR_BLOCK)).then_some(())
     });
     let mut errors = Vec::new();
     let taken = (0..20).any(|_| {

@@ -15,7 +15,7 @@ mod fw_sim;
 
 use fw_sim::{repo_root, Config, Event, Qemu, SensorSim, StageSim};
 use nanocal::published::published_1dof;
-use nanocal_compensator::mgmt::flags;
+use nanocal_interface::status::Flags;
 use nanocal_model::{blob, Model, SlowInputs, MAX_AXES};
 use std::path::PathBuf;
 use std::process::Command;
@@ -150,7 +150,7 @@ fn e2e_pipython_session_through_the_compensator() {
     let deadline = Instant::now() + Duration::from_secs(20);
     loop {
         let s = c.status().unwrap();
-        if s.flags & flags::SENSOR_BLOCK == 0 && s.folds >= 2 {
+        if !s.flags.contains(Flags::SENSOR_BLOCK) && s.folds >= 2 {
             break;
         }
         assert!(Instant::now() < deadline, "sensors never ready");

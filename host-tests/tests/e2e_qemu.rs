@@ -14,8 +14,9 @@ mod fw_sim;
 use fw_sim::{stage_value, wait_until, Qemu, SensorSim, StageSim};
 use nanocal::device::DeviceError;
 use nanocal::published::published_1dof;
-use nanocal_compensator::mgmt::flags;
 use nanocal_compensator::sensor::max31856;
+use nanocal_interface::mgmt::Refusal;
+use nanocal_interface::status::{ChannelStatus, Flags, SensorFault};
 use nanocal_model::{blob, SlowInputs, MAX_AXES};
 use std::time::Duration;
 
@@ -43,9 +44,12 @@ fn e2e_compensator_under_qemu() {
     let mut c = q.client();
     let (proto, format, _) = c.hello().expect("hello");
     assert_eq!(format, blob::FORMAT_VERSION);
-    assert_eq!(proto, nanocal_compensator::mgmt::PROTOCOL);
+    assert_eq!(proto, nanocal_interface::mgmt::PROTOCOL);
     let s = c.status().unwrap();
-    assert_eq!(s.flags & flags::MODEL, 0, "no model before the upload");
+    assert!(
+        !s.flags.contains(Flags::MODEL),
+        "no model before the upload"
+    );
     drop(c);
 
     // without a model, moves are refused (and nothing reaches the controller)
@@ -77,9 +81,11 @@ fn e2e_compensator_under_qemu() {
         Duration::from_secs(20),
         || {
             let s = c.status().ok()?;
-            let ok = s.flags & flags::MODEL != 0
-                && s.flags & flags::SENSOR_BLOCK == 0
-                && s.sensor_bits[..4].iter().all(|&b| b & 0x0F == 0)
+            let ok = s.flags.contains(Flags::MODEL)
+                && !s.flags.contains(Flags::SENSOR_BLOCK)
+                && s.sensor_bits[..4]
+                    .iter()
+                    .all(|b| b.state == ChannelStatus::Ok)
                 && s.folds >= 2;
             ok.then_some(s)
         },
@@ -88,9 +94,8 @@ fn e2e_compensator_under_qemu() {
     for (i, t) in TEMPS_C.iter().enumerate() {
         assert_eq!(s.temps_c[i], *t);
     }
-    assert_ne!(
-        s.flags & flags::MOVE_FOLD,
-        0,
+    assert!(
+        s.flags.contains(Flags::MOVE_FOLD),
         "the status reports move_fold"
     );
     assert_eq!(
@@ -207,7 +212,16 @@ fn e2e_compensator_under_qemu() {
             true,
         )
         .unwrap_err();
-    assert!(matches!(e, DeviceError::Refused { code: 9, .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError::Refused {
+                refusal: Refusal::UploadBlob,
+                ..
+            }
+        ),
+        "{e}"
+    );
     let e = c
         .upload_raw(
             &b[..n / 2],
@@ -217,7 +231,16 @@ fn e2e_compensator_under_qemu() {
             true,
         )
         .unwrap_err();
-    assert!(matches!(e, DeviceError::Refused { code: 7, .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError::Refused {
+                refusal: Refusal::UploadIncomplete,
+                ..
+            }
+        ),
+        "{e}"
+    );
     let e = c
         .upload_raw(
             &b[..n],
@@ -227,7 +250,16 @@ fn e2e_compensator_under_qemu() {
             true,
         )
         .unwrap_err();
-    assert!(matches!(e, DeviceError::Refused { code: 8, .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError::Refused {
+                refusal: Refusal::UploadCrc,
+                ..
+            }
+        ),
+        "{e}"
+    );
     let s = c.status().unwrap();
     assert_eq!(s.model_id, model.id());
     assert_eq!(s.uploads_rejected, 3);
@@ -247,11 +279,19 @@ fn e2e_compensator_under_qemu() {
         Duration::from_secs(30),
         || {
             let s = c.status().ok()?;
-            (s.flags & flags::SENSOR_BLOCK != 0).then_some(s)
+            (s.flags.contains(Flags::SENSOR_BLOCK)).then_some(s)
         },
     );
-    assert_eq!(s.sensor_bits[1] & 0x0F, 2, "sensor 1 failed");
-    assert_eq!(s.sensor_bits[1] >> 4, 1, "open thermocouple");
+    assert_eq!(
+        s.sensor_bits[1].state,
+        ChannelStatus::Failed,
+        "sensor 1 failed"
+    );
+    assert_eq!(
+        s.sensor_bits[1].last_fault,
+        Some(SensorFault::Open),
+        "open thermocouple"
+    );
     host.send("MOV 1 250");
     assert_eq!(host.ask("ERR?"), "9002");
     host.send("SVO 1 1");
@@ -264,7 +304,7 @@ fn e2e_compensator_under_qemu() {
     sensors.set_status(1, 0);
     wait_until("sensor recovery", Duration::from_secs(30), || {
         let s = c.status().ok()?;
-        (s.flags & flags::SENSOR_BLOCK == 0).then_some(())
+        (!s.flags.contains(Flags::SENSOR_BLOCK)).then_some(())
     });
     host.send("MOV 1 250");
     let fwd = stage.next_line(Duration::from_secs(10));
@@ -318,11 +358,11 @@ fn e2e_compensator_under_qemu() {
     let h = c.identify().unwrap();
     assert_eq!(
         h.reset_cause,
-        nanocal_compensator::identity::ResetCause::Software
+        nanocal_interface::identity::ResetCause::Software
     );
     let s = wait_until("model reloaded", Duration::from_secs(20), || {
         let s = c.status().ok()?;
-        (s.flags & flags::MODEL != 0).then_some(s)
+        (s.flags.contains(Flags::MODEL)).then_some(s)
     });
     assert_eq!(s.model_id, model.id());
     assert_eq!(s.kmz_um[0], kmz[0], "λ_KMZ stored with the model");
@@ -345,7 +385,7 @@ fn e2e_coupled_2dof_under_qemu() {
     c.upload(&b[..n]).unwrap();
     wait_until("sensors ready", Duration::from_secs(20), || {
         let s = c.status().ok()?;
-        (s.flags & flags::SENSOR_BLOCK == 0 && s.folds >= 2).then_some(())
+        (!s.flags.contains(Flags::SENSOR_BLOCK) && s.folds >= 2).then_some(())
     });
 
     // a single-axis MOV before any full target: the coupled axis' target is read from the

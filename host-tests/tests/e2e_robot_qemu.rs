@@ -15,8 +15,8 @@ use nanocal::procedure::ProcedureData;
 use nanocal::stepwise::StepwiseOptions;
 use nanocal::twin::delta::{DeltaConfig, DeltaTwin};
 use nanocal::twin::execute::run_plan;
-use nanocal_compensator::mgmt::flags;
 use nanocal_compensator::sensor::Chip;
+use nanocal_interface::status::Flags;
 use nanocal_model::reference::{delta_robot_78, ROBOT_HALF_STROKE_UM, ROBOT_TEMPS};
 use nanocal_model::{blob, Model, SlowInputs, MAX_AXES};
 use std::time::Duration;
@@ -125,7 +125,7 @@ fn run_under_qemu(
     c.upload(&b[..n]).expect("the robot model is accepted");
     wait_until("sensors ready", Duration::from_secs(30), || {
         let s = c.status().ok()?;
-        (s.flags & flags::MODEL != 0 && s.flags & flags::SENSOR_BLOCK == 0 && s.folds >= 2)
+        (s.flags.contains(Flags::MODEL) && !s.flags.contains(Flags::SENSOR_BLOCK) && s.folds >= 2)
             .then_some(())
     });
     let mut worst_nm = 0.0f64;

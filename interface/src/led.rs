@@ -1,24 +1,26 @@
-//! The status LED (LD2 on the B-L475E-IOT01A): what the device is doing, at a glance.
+//! The status LED (LD2 on the B-L475E-IOT01A): what the device is doing, at a glance. STATUS
+//! reports the state's code; the blink patterns below are the device's and the host's one
+//! table (`nanocal device status` prints [`LedState`]'s meaning).
 //!
-//! | state | LED |
-//! |---|---|
-//! | compensating | on |
-//! | bypass | slow blink (1 s on, 1 s off) |
-//! | no model | short flash every 2 s |
-//! | fault (moves refused: sensor failed, stale or warming up) | fast blink (5 Hz) |
+//! | state | code | LED |
+//! |---|---:|---|
+//! | compensating | 1 | on |
+//! | bypass | 2 | slow blink (1 s on, 1 s off) |
+//! | no model | 3 | short flash every 2 s |
+//! | fault (moves refused: sensor failed, stale or warming up) | 4 | fast blink (5 Hz) |
 
-/// What the LED shows.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum LedState {
-    /// A model is in service and moves are corrected.
-    Compensating,
-    /// Compensation bypassed: commands pass untouched.
-    Bypass,
-    /// No model loaded.
-    NoModel,
-    /// Moves are refused (a sensor failed, the fold is stale, or sensors are warming up).
-    Fault,
+code_enum! {
+    /// What the LED shows.
+    pub enum LedState: u8 {
+        /// A model is in service and moves are corrected.
+        Compensating = 1 => "compensating (on)",
+        /// Compensation bypassed: commands pass untouched.
+        Bypass = 2 => "bypass (slow blink)",
+        /// No model loaded.
+        NoModel = 3 => "no model (short flash)",
+        /// Moves are refused (a sensor failed, the fold is stale, or sensors are warming up).
+        Fault = 4 => "fault (fast blink)",
+    }
 }
 
 impl LedState {
@@ -62,15 +64,5 @@ impl LedState {
         } else {
             period - phase
         })
-    }
-
-    /// Stable code for the status report.
-    pub fn code(self) -> u8 {
-        match self {
-            LedState::Compensating => 1,
-            LedState::Bypass => 2,
-            LedState::NoModel => 3,
-            LedState::Fault => 4,
-        }
     }
 }

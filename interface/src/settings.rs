@@ -1,6 +1,6 @@
 //! The device's persistent settings: what is wired to the board and how the stage controller
-//! talks. Set over the management channel (`nanocal device config`), stored in flash next to
-//! the model, shown in status.
+//! talks. Set over the management channel (`CONFIG_GET`/`CONFIG_SET`, `nanocal device
+//! config`), stored in flash next to the model in this same layout.
 //!
 //! ```text
 //! offset  0  magic "NCST" | version u8 (= VERSION)
@@ -17,10 +17,140 @@
 //! the same fields, 164 bytes, mains at 89, axes at 93, aux at 120, CRC at 160) still decodes,
 //! with chip-selects 8..15 empty: settings stored by an older firmware survive an update.
 
-use crate::gcs::{AxisId, MAP_AXES};
-use crate::sensor::{Chip, Mains, TcType, Wires};
 use core::fmt;
-use nanocal_model::MAX_AUX;
+use nanocal_model::{MAX_AUX, MAX_AXES};
+
+/// Model axes the settings name (the model's maximum).
+pub const MAP_AXES: usize = MAX_AXES;
+
+/// Longest GCS axis identifier (bytes).
+pub const MAX_AXIS_ID: usize = 8;
+
+/// A GCS axis identifier (1 to [`MAX_AXIS_ID`] bytes).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AxisId {
+    bytes: [u8; MAX_AXIS_ID],
+    len: u8,
+}
+
+impl AxisId {
+    /// A one-character identifier (PI's usual `1`, `2`, `3`, or `X`, `Y`, `Z`).
+    pub const fn single(c: u8) -> Self {
+        let mut bytes = [0; MAX_AXIS_ID];
+        bytes[0] = c;
+        Self { bytes, len: 1 }
+    }
+    /// An identifier from bytes; `None` when empty or too long.
+    #[inline]
+    pub fn new(id: &[u8]) -> Option<Self> {
+        if id.is_empty() || id.len() > MAX_AXIS_ID {
+            return None;
+        }
+        let mut bytes = [0; MAX_AXIS_ID];
+        bytes[..id.len()].copy_from_slice(id);
+        Some(Self {
+            bytes,
+            len: id.len() as u8,
+        })
+    }
+    /// The identifier's bytes.
+    #[inline]
+    pub fn as_bytes(&self) -> &[u8] {
+        &self.bytes[..self.len as usize]
+    }
+}
+
+/// Mains frequency: both chips' digital filters notch it (and its harmonics).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Mains {
+    /// 50 Hz mains (Europe, most of Asia, Africa).
+    #[default]
+    Hz50,
+    /// 60 Hz mains (the Americas, parts of Japan).
+    Hz60,
+}
+
+/// Thermocouple types the MAX31856 linearises (CR1 TC TYPE, datasheet Table "CR1").
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[allow(missing_docs)]
+pub enum TcType {
+    B = 0,
+    E = 1,
+    J = 2,
+    K = 3,
+    N = 4,
+    R = 5,
+    S = 6,
+    T = 7,
+}
+
+impl TcType {
+    /// From the CR1 code (0..=7).
+    pub fn from_code(c: u8) -> Option<Self> {
+        use TcType::*;
+        Some(match c {
+            0 => B,
+            1 => E,
+            2 => J,
+            3 => K,
+            4 => N,
+            5 => R,
+            6 => S,
+            7 => T,
+            _ => return None,
+        })
+    }
+
+    /// The letter.
+    pub fn letter(self) -> char {
+        b"BEJKNRST"[self as usize] as char
+    }
+}
+
+/// RTD wiring (MAX31865 configuration D4: 1 = 3-wire, 0 = 2- or 4-wire).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Wires {
+    /// 2-wire.
+    Two = 2,
+    /// 3-wire.
+    Three = 3,
+    /// 4-wire.
+    Four = 4,
+}
+
+/// Which chip sits behind a chip-select, and how it is wired.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Chip {
+    /// MAX31856 thermocouple-to-digital converter.
+    Max31856 {
+        /// Thermocouple type.
+        tc: TcType,
+    },
+    /// MAX31865 RTD-to-digital converter.
+    Max31865 {
+        /// Reference resistor, Ω (430 on PT100 boards, 4300 on PT1000 boards).
+        r_ref_ohm: f32,
+        /// RTD resistance at 0 °C, Ω (100 for PT100, 1000 for PT1000).
+        r0_ohm: f32,
+        /// Wiring.
+        wires: Wires,
+    },
+}
+
+impl Chip {
+    /// A type K thermocouple on a MAX31856.
+    pub const K: Chip = Chip::Max31856 { tc: TcType::K };
+    /// A 3-wire PT100 on a MAX31865 with a 430 Ω reference (Adafruit/Maxim evaluation boards).
+    pub const PT100_3W: Chip = Chip::Max31865 {
+        r_ref_ohm: 430.0,
+        r0_ohm: 100.0,
+        wires: Wires::Three,
+    };
+}
 
 /// Chip-selects the settings can configure for temperature amplifiers (one per temperature
 /// input a model can read).
@@ -99,8 +229,8 @@ pub struct Settings {
     pub stage_unit: StageUnit,
     /// GCS identifiers of model axes 0, 1, 2.
     pub axis_names: [AxisId; MAP_AXES],
-    /// Source of each auxiliary model input (until blob v2 names kinds, see
-    /// [`crate::inputs::aux_source`]).
+    /// Source of each auxiliary model input: a force channel, or what an input of kind "other"
+    /// reads (the compensator's `inputs::aux_source` decides).
     pub aux: [AuxSource; MAX_AUX],
 }
 
@@ -110,14 +240,17 @@ impl Default for Settings {
         for s in sensors.iter_mut().take(4) {
             *s = Some(Chip::K);
         }
-        let name = |c: u8| AxisId::new(&[c]).unwrap_or_else(|| unreachable!());
         Self {
             stage_baud: 115_200,
             sensors,
             mains: Mains::Hz50,
             sample_period_ms: 250,
             stage_unit: StageUnit::Um,
-            axis_names: [name(b'1'), name(b'2'), name(b'3')],
+            axis_names: [
+                AxisId::single(b'1'),
+                AxisId::single(b'2'),
+                AxisId::single(b'3'),
+            ],
             aux: [AuxSource::None; MAX_AUX],
         }
     }

@@ -25,9 +25,9 @@
 //! 0x048  u32   host        WATCHING: 1 while the host polls this page (no doorbells needed)
 //! 0x050  u32×5 board       RX_BYTES[n]: bytes the board has read from serial n since power-on
 //! 0x080  u32   board       BUS_REQ_SEQ: incremented when a request is posted (after its bytes)
-//! 0x084  37 B  board       BUS_REQ: the request frame (`crate::wire` layout, A5 … )
+//! 0x084  37 B  board       BUS_REQ: the request frame (`crate::bus` layout, A5 … )
 //! 0x0C0  u32   host        BUS_REP_SEQ: set to BUS_REQ_SEQ when the reply is posted (after its bytes)
-//! 0x0C4  37 B  host        BUS_REP: the reply frame (`crate::wire` layout, 5A …)
+//! 0x0C4  37 B  host        BUS_REP: the reply frame (`crate::bus` layout, 5A …)
 //! ```
 //! All fields little-endian. Bench ticks count [`TICK_HZ`] from the start of the bench (QEMU's
 //! start), across resets of the board; the board's own `Instant` is its uptime.
@@ -38,12 +38,15 @@
 //!   polls the page then, and clears WATCHING and looks once more before it stops polling.
 //! - host → board [`RING_HORIZON`]: the horizon moved (the board wakes and reads it).
 //!
-//! A bus reply carries status [`crate::wire::OK`], [`crate::wire::NACK`], or [`NO_ANSWER`]: the
-//! addressed device did not answer at all — the board then waits for its own timeout, in
-//! simulated time, exactly as a real board waits on a dead bus.
+//! A bus reply carries status [`BusStatus::Ok`], [`BusStatus::Nack`], or
+//! [`BusStatus::NoAnswer`]: the addressed device did not answer at all — the board then waits
+//! for its own timeout, in simulated time, exactly as a real board waits on a dead bus.
 //!
 //! Without the page (QEMU started by hand without the memory backend) the board's clock follows
 //! its SysTick (1×) and the bus answers nothing.
+
+#[cfg(doc)]
+use crate::bus::BusStatus;
 
 /// Bench clock ticks per second (the boards' embassy tick rate, 1 MHz on both).
 pub const TICK_HZ: u64 = 1_000_000;
@@ -89,7 +92,7 @@ pub const BUS_REP_SEQ: usize = 0x0C0;
 /// Offset of the bus reply frame.
 pub const BUS_REP: usize = 0x0C4;
 /// Longest frame in the mailbox (header + data).
-pub const FRAME_LEN: usize = crate::wire::HEADER + crate::wire::MAX_DATA;
+pub const FRAME_LEN: usize = crate::bus::FRAME_LEN;
 
 /// Doorbell board → host: idle at the horizon.
 pub const RING_WAITING: u8 = 0xE1;
@@ -97,9 +100,6 @@ pub const RING_WAITING: u8 = 0xE1;
 pub const RING_BUS: u8 = 0xE2;
 /// Doorbell host → board: the horizon moved.
 pub const RING_HORIZON: u8 = 0xD1;
-/// Bus reply status: nothing answered (the board waits for its timeout).
-pub const NO_ANSWER: u8 = 0xFF;
-
 /// Seconds of bench time of `ticks`.
 pub fn ticks_to_s(ticks: u64) -> f64 {
     ticks as f64 / TICK_HZ as f64

@@ -599,8 +599,14 @@ fn scan_number(b: &[u8], mut i: usize) -> Option<(f64, usize)> {
     while i < n && (b[i] == b' ' || b[i] == b'\t') {
         i += 1;
     }
-    if i < n && !matches!(b[i], b',' | b'\n' | b'\r') {
-        return None;
+    // a CR is a delimiter only where it ends the line (CR LF, or CR at the end of the input);
+    // anywhere else the field is the slow path's to refuse with its text
+    if i < n {
+        match b[i] {
+            b',' | b'\n' => {}
+            b'\r' if i + 1 == n || b[i + 1] == b'\n' => {}
+            _ => return None,
+        }
     }
     if mant >= (1u64 << 53) || !(-22..=22).contains(&exp10) {
         let v = exact_decimal(mant, exp10)?;

@@ -115,3 +115,21 @@ fn whitespace_and_exotic_numbers() {
         Err(RecordingError::TooManyValues { line: 2, .. })
     ));
 }
+
+#[test]
+fn a_cr_inside_a_line_is_refused_naming_line_and_column() {
+    // found by the recording_csv fuzz target (fuzz/seeds/recording_csv/crash-cr-inside-a-line):
+    // the number scanner took a CR as the field's end even when no LF followed, and the row
+    // parser then met ':' where it expected a delimiter — a panic ("unreachable") instead of
+    // an error
+    let csv = b"t,cmd_x,meas_x\r\n0.000,2,-123.059139\r:\r\n0.005,2,3\r\n";
+    match Recording::parse(csv) {
+        Err(RecordingError::NotNumeric {
+            line, column, name, ..
+        }) => assert_eq!((line, column, name.as_str()), (2, 3, "meas_x")),
+        other => panic!("{other:?}"),
+    }
+    // a CR that ends the line (CR LF, or the input's last byte) is still a line end
+    let rec = Recording::parse(b"t,x\r\n0,1\r\n2,3\r").unwrap();
+    assert_eq!(rec.column("x").unwrap(), &[1.0, 3.0]);
+}

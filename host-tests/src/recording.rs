@@ -201,7 +201,8 @@ impl Recording {
         let mut names: Vec<String> = Vec::new();
         for (i, field) in header.split(|&b| b == b',').enumerate() {
             let name = String::from_utf8_lossy(trim(field)).into_owned();
-            let name = name.trim_matches('"').to_string();
+            // spaces inside the quotes too: the name is what the writer writes back
+            let name = name.trim_matches('"').trim().to_string();
             if name.is_empty() || names.contains(&name) {
                 return Err(RecordingError::BadHeader {
                     column: i + 1,

@@ -199,18 +199,17 @@ impl Recording {
             return Err(RecordingError::Empty);
         }
         let mut names: Vec<String> = Vec::new();
+        // a set beside the list: a header of many columns is checked in linear time
+        let mut seen = std::collections::HashSet::new();
         for (i, field) in header.split(|&b| b == b',').enumerate() {
-            let name = String::from_utf8_lossy(trim(field)).into_owned();
-            // spaces inside the quotes too: the name is what the writer writes back
-            let name = name.trim_matches('"').trim().to_string();
-            if name.is_empty() || names.contains(&name) {
+            let name = column_name(field).map_err(|problem| RecordingError::BadHeader {
+                column: i + 1,
+                problem,
+            })?;
+            if !seen.insert(name.clone()) {
                 return Err(RecordingError::BadHeader {
                     column: i + 1,
-                    problem: if name.is_empty() {
-                        "expected a column name, found nothing".into()
-                    } else {
-                        format!("column name `{name}` is repeated")
-                    },
+                    problem: format!("column name `{name}` is repeated"),
                 });
             }
             names.push(name);
@@ -620,6 +619,26 @@ fn scan_number(b: &[u8], mut i: usize) -> Option<(f64, usize)> {
         m / POW10[(-exp10) as usize]
     };
     Some((if neg { -v } else { v }, i))
+}
+
+/// A header field as a column name: spaces and tabs around it and one pair of double quotes
+/// removed. A name keeps no quote and no control character, so what the writer writes reads
+/// back as the same name.
+fn column_name(field: &[u8]) -> Result<String, String> {
+    let mut f = trim(field);
+    if let [b'"', inner @ .., b'"'] = f {
+        f = trim(inner);
+    }
+    let name = String::from_utf8_lossy(f).into_owned();
+    if name.is_empty() {
+        return Err("expected a column name, found nothing".into());
+    }
+    if name.chars().any(|c| c == '"' || c.is_control()) {
+        return Err(format!(
+            "column name {name:?} has a double quote or a control character"
+        ));
+    }
+    Ok(name)
 }
 
 #[inline]

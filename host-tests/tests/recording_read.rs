@@ -145,4 +145,16 @@ fn a_quoted_column_name_loses_its_spaces_so_it_round_trips() {
     let mut out = Vec::new();
     rec.write(&mut out).unwrap();
     assert_eq!(Recording::parse(&out).unwrap(), rec);
+    // and a name that would not read back as itself is refused, naming its column
+    // (fuzz/seeds/recording_csv/crash-name-quote-control)
+    for header in [
+        &b"t,\"  \"  \x0cf\n0,1\n"[..],
+        b"t,a\"b\n0,1\n",
+        b"t,\"\"\n0,1\n",
+    ] {
+        match Recording::parse(header) {
+            Err(RecordingError::BadHeader { column: 2, .. }) => {}
+            other => panic!("{:?}: {other:?}", String::from_utf8_lossy(header)),
+        }
+    }
 }

@@ -362,10 +362,15 @@ fn parse_body_parallel(
     names: &[String],
     header_line: usize,
 ) -> Result<Vec<Vec<f64>>, RecordingError> {
+    // the size first: asking for the parallelism reads the cgroup's files (tens of µs, more
+    // than a small file's whole parse)
+    if body.len() < (1 << 20) {
+        return parse_body(body, names, header_line);
+    }
     let threads = std::thread::available_parallelism()
         .map_or(1, |t| t.get())
         .min(8);
-    if threads < 2 || body.len() < (1 << 20) {
+    if threads < 2 {
         return parse_body(body, names, header_line);
     }
     // chunk boundaries just after a newline

@@ -638,9 +638,13 @@ fn column_name(field: &[u8]) -> Result<String, String> {
     if name.is_empty() {
         return Err("expected a column name, found nothing".into());
     }
-    if name.chars().any(|c| c == '"' || c.is_control()) {
+    // a byte-order mark too: the reader takes one off the start of the file
+    if name
+        .chars()
+        .any(|c| c == '"' || c == '\u{feff}' || c.is_control())
+    {
         return Err(format!(
-            "column name {name:?} has a double quote or a control character"
+            "column name {name:?} has a double quote, a byte-order mark or a control character"
         ));
     }
     Ok(name)

@@ -58,3 +58,25 @@ fn a_no_break_space_does_not_hide_a_command() {
     // to it: MOV 1 100 reached it uncorrected
     assert_eq!(uncorrected(b" \xA0MOV 1 100\n"), vec![]);
 }
+
+#[test]
+fn an_open_loop_command_for_an_axis_the_controller_lacks_is_no_motion() {
+    // fuzz input fuzz/seeds/gcs_proxy/sva-invalid-axis (`SVA   HLT`): the proxy relays commands
+    // that name no model axis; the simulated controller recorded `SVA HLT` as an open-loop
+    // motion of any axis, where a PI controller answers error 15 (invalid axis) and does nothing
+    for line in [&b"SVA HLT\n"[..], b"SVA 3 10\n", b"OMA HLT\n"] {
+        assert_eq!(
+            uncorrected(line),
+            vec![],
+            "{}",
+            String::from_utf8_lossy(line)
+        );
+    }
+    // a model axis is still refused by the proxy, and a relayed axis still reaches the
+    // controller as the open-loop command it is
+    assert_eq!(uncorrected(b"SVA 1 10\n"), vec![]);
+    assert!(matches!(
+        &uncorrected(b"SVO 2 0\nSVA 2 10\n")[..],
+        [Event::RawMotion { axes, .. }] if axes == &[1]
+    ));
+}

@@ -83,7 +83,7 @@ async fn line_state_task(mut rx: UartRx, sh: &'static Shared) {
             if b & 0xF0 == 0xC0 {
                 app::host_line_state(sh, b & 1 != 0);
                 // the bench waits for this before it talks to the new session
-                let off = nanocal_compensator::bench_link::LINE_STATES;
+                let off = nanocal_interface::bench_link::LINE_STATES;
                 qemu::link::write_u32(off, qemu::link::read_u32(off).wrapping_add(1));
             }
         }
@@ -133,7 +133,7 @@ fn start(spawner: Spawner) {
 
 /// The rest of the start-up needs the store (async): settings, then every task.
 #[embassy_executor::task]
-async fn boot_task(spawner: Spawner, cause: nanocal_compensator::identity::ResetCause) {
+async fn boot_task(spawner: Spawner, cause: nanocal_interface::identity::ResetCause) {
     // SAFETY: called once, here.
     let flash = unsafe { board::flash(cause) };
     let store = STORE.init(Store::new(L4Nor::new(TimedFlash(flash))));

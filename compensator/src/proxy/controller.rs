@@ -13,7 +13,7 @@
 //! query was lost because the controller stopped answering altogether is asked again.
 
 use super::queue::{Entry, Expect, Info};
-use super::{Output, ProxyState, MAX_CONTROLLER_AXES};
+use super::{GcsErrorCode, Output, ProxyState, MAX_CONTROLLER_AXES};
 use crate::gcs::{self, AxisId, LineBuf, MAP_AXES};
 
 /// Longest identification line (`*IDN?`, LF excluded) the proxy keeps as its marker's reply.
@@ -197,7 +197,7 @@ pub(crate) enum NotReady {
     /// Something is still to be read: ask (or wait for the answer).
     Learn,
     /// Refused with this GCS code.
-    Refuse(i32),
+    Refuse(GcsErrorCode),
 }
 
 impl ProxyState {
@@ -274,10 +274,10 @@ impl ProxyState {
     fn check_controller(&self, n: usize) -> Result<(), NotReady> {
         let ctrl = &self.ctrl;
         if ctrl.idn == Fact::Unanswered {
-            return Err(NotReady::Refuse(super::codes::NO_ANSWER));
+            return Err(NotReady::Refuse(GcsErrorCode::NoAnswer));
         }
         if ctrl.gcs3() {
-            return Err(NotReady::Refuse(super::codes::GCS3));
+            return Err(NotReady::Refuse(GcsErrorCode::Gcs3));
         }
         let settled = self.facts_n == n
             && ctrl.idn.settled()
@@ -291,12 +291,12 @@ impl ProxyState {
         }
         if let Fact::Known(axes) = ctrl.axes {
             if (0..n).any(|a| axes.find(self.map.id(a).unwrap_or(b"")) == Err(true)) {
-                return Err(NotReady::Refuse(super::codes::NOT_AN_AXIS));
+                return Err(NotReady::Refuse(GcsErrorCode::NotAnAxis));
             }
         }
         match ctrl.units {
             Fact::Known(u) if u == (1u8 << n) - 1 => Ok(()),
-            _ => Err(NotReady::Refuse(super::codes::UNIT_MISMATCH)),
+            _ => Err(NotReady::Refuse(GcsErrorCode::UnitMismatch)),
         }
     }
 

@@ -17,7 +17,8 @@
 //!
 //! Controller → host: replies to `POS?`, `#3` and `MOV?` are mapped back to calibrated
 //! coordinates (a `MOV?` value equal to the command sent maps back to its target exactly; other
-//! values through a chord iteration warm-started at the target, see `inverse`); every other
+//! values through the model's own inverse, `Fold::inverse_from`, started at the target, see
+//! [`Corrector::inverse`]); every other
 //! reply is relayed byte for byte, whatever its length. Several queries may be in flight: each
 //! reply is matched to its query in order, exactly — a query the controller may leave
 //! unanswered is followed by a marker of the proxy's own (`queue`), and a query naming an axis
@@ -32,8 +33,8 @@
 //! The controller: before correcting the first move the proxy reads the controller's identity,
 //! GCS syntax version, axes, and the position unit and travel of the model axes (`controller`).
 //! The model is in µm: another unit, or no answer, refuses moves (code
-//! [`codes::UNIT_MISMATCH`]); a GCS 3.0 controller (version > 2, PIPython's own test) is not
-//! supported: moves are refused ([`codes::GCS3`]) and replies relayed untouched. A corrected
+//! [`GcsErrorCode::UnitMismatch`]); a GCS 3.0 controller (version > 2, PIPython's own test) is not
+//! supported: moves are refused ([`GcsErrorCode::Gcs3`]) and replies relayed untouched. A corrected
 //! command near an end of the travel is clamped to it or refused (`travel`).
 //!
 //! Time enters only as an argument (`now_ms`), for one decision: a controller that sends
@@ -43,7 +44,6 @@
 
 mod controller;
 mod corrector;
-mod inverse;
 mod moves;
 mod queue;
 mod replies;
@@ -56,7 +56,7 @@ use crate::command::{self, Action, Affects, Refusal};
 use crate::gcs::{self, AxisMap, LineBuf, Split, MAP_AXES, MAX_LINE};
 use controller::{Certainty, ControllerInfo, Fact};
 use core::fmt;
-use inverse::Jacobian;
+pub use nanocal_interface::GcsErrorCode;
 use nanocal_model::HysteresisState;
 use queue::{Answer, Entry, Expect, Info, Queue};
 use replies::ReplyRx;
@@ -75,55 +75,6 @@ pub const HOST_OUT: usize = 1280;
 /// were due (counted from the last byte exchanged with it). PI controllers answer within
 /// milliseconds; PIPython waits seconds before it gives up on a reply.
 pub const REPLY_TIMEOUT_MS: u32 = 2_000;
-
-/// GCS error codes the compensator raises itself (answered on the host's next `ERR?`).
-pub mod codes {
-    /// PI: illegal parameter / syntax (unparsable number, missing value).
-    pub const PARAM_SYNTAX: i32 = 1;
-    /// PI: position out of limits — the corrected command is outside the stage travel the
-    /// model states by more than the clamp tolerance (see `proxy::travel`).
-    pub const POS_OUT_OF_LIMITS: i32 = 7;
-    /// PI: invalid axis identifier (a model axis named twice; a query naming an axis the
-    /// controller does not have, which the controller would leave unanswered).
-    pub const INVALID_AXIS: i32 = 15;
-    /// Compensator: the target lies outside the model's training envelope.
-    pub const OUTSIDE_ENVELOPE: i32 = 9001;
-    /// Compensator: a temperature sensor the model needs has failed; moves are refused.
-    pub const SENSOR_FAULT: i32 = 9002;
-    /// Compensator: no valid model is loaded (and compensation is not bypassed).
-    pub const NO_MODEL: i32 = 9003;
-    /// Compensator: a target the move needs (the base of an `MVR`, a coupled axis) is unknown
-    /// and the controller did not tell it (`MOV?` unanswered).
-    pub const TARGET_UNKNOWN: i32 = 9004;
-    /// Compensator: the line is longer than its buffer (and would have to be rewritten or
-    /// checked whole).
-    pub const LINE_TOO_LONG: i32 = 9005;
-    /// Compensator: more queries in flight than the proxy can match to their replies.
-    pub const TOO_MANY_QUERIES: i32 = 9006;
-    /// Compensator: the controller's position unit (`PUN?`) of a model axis is not µm, or the
-    /// controller did not tell it; moves are refused.
-    pub const UNIT_MISMATCH: i32 = 9007;
-    /// Compensator: the command would move an axis to a target the model never saw, or change
-    /// what the controller's positions mean; refused while compensating (see `src/README.md`).
-    pub const REFUSED_WHILE_COMPENSATING: i32 = 9008;
-    /// Compensator: the controller speaks GCS 3.0 (`CSV?` > 2), which the proxy does not
-    /// rewrite; moves are refused.
-    pub const GCS3: i32 = 9009;
-    /// Compensator: the line holds a byte outside GCS's printable set (a control character
-    /// other than the terminating LF and a CR before it, or a byte above 7Eh): the proxy could
-    /// not classify it, so it is not forwarded.
-    pub const NOT_PRINTABLE: i32 = 9010;
-    /// Compensator: the corrected command is outside the controller's travel (`TMN?`/`TMX?`)
-    /// by more than the clamp tolerance (0.1 µm, see `proxy::travel`).
-    pub const OUTSIDE_CONTROLLER_TRAVEL: i32 = 9011;
-    /// Compensator: a model axis is not one of the controller's axes (`SAI?`); moves are
-    /// refused.
-    pub const NOT_AN_AXIS: i32 = 9012;
-    /// Compensator: the controller does not answer (its identification `*IDN?` went
-    /// unanswered, is no usable marker, or the controller went silent while the line waited
-    /// for it); the line was not forwarded.
-    pub const NO_ANSWER: i32 = 9013;
-}
 
 /// Bytes the proxy produced, for each link. Cleared by every call that fills it.
 #[derive(Default)]
@@ -263,8 +214,8 @@ pub struct ProxyState {
     /// Generation of the held line's `MOV?`: a reply to an older one is never used.
     reseed_gen: u8,
     dir: [i8; MAP_AXES],
-    /// Last error the compensator raised, for the next `ERR?` (0 = none).
-    pending_error: i32,
+    /// Last error the compensator raised, for the next `ERR?`.
+    pending_error: Option<GcsErrorCode>,
     ctrl: ControllerInfo,
     /// The model axes the controller's per-axis facts are read for.
     facts_n: usize,
@@ -278,7 +229,6 @@ pub struct ProxyState {
     /// Waiting for the reply to the marker sent to resynchronise (every reply before it is
     /// dropped).
     resyncing: bool,
-    jacobian: Option<Jacobian>,
     /// The model's play operators as the commands sent left them (hysteresis memory): advanced
     /// only when a corrected target goes out, reset whenever the stage may have moved along a
     /// path the proxy did not see (see [`ProxyState::reset_hysteresis`]).
@@ -326,7 +276,7 @@ impl Proxy {
                 reseed: Reseed::None,
                 reseed_gen: 0,
                 dir: [0; MAP_AXES],
-                pending_error: 0,
+                pending_error: None,
                 ctrl: ControllerInfo::new(),
                 facts_n: 0,
                 queue: Queue::new(),
@@ -335,7 +285,6 @@ impl Proxy {
                 held_runs: 0,
                 held_lost: false,
                 resyncing: false,
-                jacobian: None,
                 hyst: HysteresisState::new(),
                 now_ms: 0,
                 last_rx_ms: 0,
@@ -389,7 +338,7 @@ impl Proxy {
         st.held_lost = false;
         st.held_runs = 0;
         st.reseed = Reseed::None;
-        st.pending_error = 0;
+        st.pending_error = None;
         st.queue.drop_answers();
         st.queue.retag(|en| match en.e {
             // the proxy's own queries keep their meaning, except the bases of a dropped line
@@ -535,7 +484,7 @@ impl Proxy {
         if self.input.room() == 0 {
             // a line longer than the buffer: it cannot be checked whole
             self.st.counters.host_lines = self.st.counters.host_lines.wrapping_add(1);
-            self.st.refuse(codes::LINE_TOO_LONG);
+            self.st.refuse(GcsErrorCode::LineTooLong);
             self.input.clear();
             self.discarding = true;
             return true;
@@ -625,8 +574,8 @@ impl ProxyState {
         &self.hyst
     }
 
-    /// The error waiting for the host's next `ERR?` (0 = none).
-    pub fn pending_error(&self) -> i32 {
+    /// The error waiting for the host's next `ERR?`.
+    pub fn pending_error(&self) -> Option<GcsErrorCode> {
         self.pending_error
     }
 
@@ -677,15 +626,15 @@ impl ProxyState {
         }
     }
 
-    fn refuse(&mut self, code: i32) {
-        self.pending_error = code;
+    fn refuse(&mut self, code: GcsErrorCode) {
+        self.pending_error = Some(code);
         self.counters.refused = self.counters.refused.wrapping_add(1);
     }
 
     /// Forward a line (LF appended).
     fn forward(&mut self, line: &[u8], out: &mut Output) {
         if out.to_stage.extend(line).is_err() || out.to_stage.push(b'\n').is_err() {
-            self.refuse(codes::LINE_TOO_LONG);
+            self.refuse(GcsErrorCode::LineTooLong);
         }
     }
 
@@ -694,13 +643,13 @@ impl ProxyState {
     fn long_line(&mut self, line: &[u8], clean: bool, out: &mut Output) {
         self.counters.host_lines = self.counters.host_lines.wrapping_add(1);
         if !clean {
-            self.refuse(codes::NOT_PRINTABLE);
+            self.refuse(GcsErrorCode::NotPrintable);
             return;
         }
         let s = gcs::split(line);
         let passes = self.bypass || command::action(s.command) == Action::Pass;
         if !passes {
-            self.refuse(codes::LINE_TOO_LONG);
+            self.refuse(GcsErrorCode::LineTooLong);
         } else if command::is_query(s.command) {
             self.query(Expect::Relay, Certainty::Maybe, line, out);
         } else {
@@ -720,7 +669,7 @@ impl ProxyState {
         if action == Action::Pass && s.command.eq_ignore_ascii_case(b"*IDN?") {
             action = Action::IdnQuery;
         }
-        if action == Action::ErrorQuery && self.pending_error != 0 {
+        if action == Action::ErrorQuery && self.pending_error.is_some() {
             self.answer_error(s.prefix, out);
             return;
         }
@@ -768,9 +717,9 @@ impl ProxyState {
                 if refusal == Refusal::ModelAxes && !self.names_model_axis(&s, c) {
                     self.forward(line, out);
                 } else if c.is_none() {
-                    self.refuse(codes::NO_MODEL);
+                    self.refuse(GcsErrorCode::NoModel);
                 } else {
-                    self.refuse(codes::REFUSED_WHILE_COMPENSATING);
+                    self.refuse(GcsErrorCode::RefusedWhileCompensating);
                 }
             }
             Action::SetUnit => {
@@ -834,18 +783,18 @@ impl ProxyState {
             Certainty::Maybe => true,
             Certainty::InvalidAxis => {
                 // the controller would set error 15 and answer nothing: so does the proxy
-                self.refuse(codes::INVALID_AXIS);
+                self.refuse(GcsErrorCode::InvalidAxis);
                 return;
             }
         };
         let room = if maybe { 3 } else { 1 };
         if self.queue.host_queries() >= MAX_IN_FLIGHT || self.queue.room() < room {
-            self.refuse(codes::TOO_MANY_QUERIES);
+            self.refuse(GcsErrorCode::TooManyQueries);
             return;
         }
         if maybe && !self.ensure_idn(out) {
             // no marker can be recognised: the reply could not be paired
-            self.refuse(codes::NO_ANSWER);
+            self.refuse(GcsErrorCode::NoAnswer);
             return;
         }
         self.expect(Entry::new(e, maybe, true));
@@ -887,7 +836,7 @@ impl ProxyState {
     ) {
         self.counters.host_lines = self.counters.host_lines.wrapping_add(1);
         if !clean {
-            self.refuse(codes::NOT_PRINTABLE);
+            self.refuse(GcsErrorCode::NotPrintable);
             return;
         }
         if !self.bypass && line.len() > 4 {
@@ -913,8 +862,10 @@ impl ProxyState {
 
     /// The proxy's own answer to `ERR?`, after every reply still due.
     fn answer_error(&mut self, prefix: &[u8], out: &mut Output) {
-        let a = Answer::new(prefix, self.pending_error);
-        self.pending_error = 0;
+        let Some(code) = self.pending_error.take() else {
+            return;
+        };
+        let a = Answer::new(prefix, code);
         // in turn after the replies still due; at once when none is (or none fits the queue)
         let now = self.queue.is_empty() && !self.rx.active();
         if now || !self.queue.push(Entry::new(Expect::Answer(a), false, false)) {
@@ -997,7 +948,6 @@ impl ProxyState {
             Some(a) if a < MAP_AXES => self.targets.known &= !(1 << a),
             _ => self.targets.known = 0,
         }
-        self.jacobian = None;
         self.hyst.reset();
     }
 
@@ -1010,20 +960,20 @@ impl ProxyState {
         out: &mut Output,
     ) {
         let Some(c) = c else {
-            self.refuse(codes::NO_MODEL);
+            self.refuse(GcsErrorCode::NoModel);
             return;
         };
         out.to_stage.clear();
         if self.held_runs >= MAX_HOLDS {
             self.reseed = Reseed::None;
             self.held_runs = 0;
-            self.refuse(codes::NO_ANSWER);
+            self.refuse(GcsErrorCode::NoAnswer);
             return;
         }
         let n = c.axes().min(MAP_AXES);
         let mut held = Held::new();
         if held.extend(line).is_err() {
-            self.refuse(codes::LINE_TOO_LONG);
+            self.refuse(GcsErrorCode::LineTooLong);
             return;
         }
         let mut ok = true;
@@ -1045,7 +995,7 @@ impl ProxyState {
             self.held = Some(held);
         } else {
             self.reseed = Reseed::None;
-            self.refuse(codes::TOO_MANY_QUERIES);
+            self.refuse(GcsErrorCode::TooManyQueries);
         }
     }
 
@@ -1060,7 +1010,7 @@ impl ProxyState {
             self.held_lost = false;
             self.held_runs = 0;
             self.reseed = Reseed::None;
-            self.refuse(codes::NO_ANSWER);
+            self.refuse(GcsErrorCode::NoAnswer);
             return;
         }
         if self.learning() || self.reseed == Reseed::Asked {

@@ -11,7 +11,7 @@
 
 use super::controller::NotReady;
 use super::travel::{self, Edge, Limit};
-use super::{codes, Corrector, Gate, Output, ProxyState, Reseed, Targets};
+use super::{Corrector, GcsErrorCode, Gate, Output, ProxyState, Reseed, Targets};
 use crate::command::MoveKind;
 use crate::gcs::{self, GcsError, Split, MAP_AXES};
 
@@ -27,7 +27,7 @@ pub(crate) struct Needs {
 /// Why a move was not forwarded now.
 pub(crate) enum Stop {
     /// Refused with this GCS error code.
-    Refuse(i32),
+    Refuse(GcsErrorCode),
     /// Waits for the controller's answer to the proxy's own queries.
     Hold(Needs),
 }
@@ -41,9 +41,9 @@ impl ProxyState {
         kind: MoveKind,
         out: &mut Output,
     ) -> Result<(), Stop> {
-        let c = c.ok_or(Stop::Refuse(codes::NO_MODEL))?;
+        let c = c.ok_or(Stop::Refuse(GcsErrorCode::NoModel))?;
         if self.gate != Gate::Open {
-            return Err(Stop::Refuse(codes::SENSOR_FAULT));
+            return Err(Stop::Refuse(GcsErrorCode::SensorFault));
         }
         let n = c.axes().min(MAP_AXES);
         let all = (1u8 << n) - 1;
@@ -58,18 +58,18 @@ impl ProxyState {
             let v = if kind == MoveKind::Home {
                 0
             } else {
-                let text = toks.next().ok_or(Stop::Refuse(codes::PARAM_SYNTAX))?;
+                let text = toks.next().ok_or(Stop::Refuse(GcsErrorCode::ParamSyntax))?;
                 match gcs::parse_micros_short(text) {
                     Some(v) => v,
                     None => {
-                        gcs::parse_micros(text).map_err(|_| Stop::Refuse(codes::PARAM_SYNTAX))?
+                        gcs::parse_micros(text).map_err(|_| Stop::Refuse(GcsErrorCode::ParamSyntax))?
                     }
                 }
             };
             match self.map.index(id).filter(|&a| a < n) {
                 Some(a) => {
                     if named >> a & 1 != 0 {
-                        return Err(Stop::Refuse(codes::INVALID_AXIS));
+                        return Err(Stop::Refuse(GcsErrorCode::InvalidAxis));
                     }
                     named |= 1 << a;
                     x[a] = v;
@@ -84,7 +84,7 @@ impl ProxyState {
         }
         let home_all = kind == MoveKind::Home && !any;
         if !any && !home_all {
-            return Err(Stop::Refuse(codes::PARAM_SYNTAX));
+            return Err(Stop::Refuse(GcsErrorCode::ParamSyntax));
         }
         if home_all {
             named = all;
@@ -125,7 +125,7 @@ impl ProxyState {
                         }
                     }
                 }
-                Reseed::Failed => return Err(Stop::Refuse(codes::TARGET_UNKNOWN)),
+                Reseed::Failed => return Err(Stop::Refuse(GcsErrorCode::TargetUnknown)),
                 Reseed::None | Reseed::Asked => needs.targets = true,
             }
         }
@@ -148,10 +148,10 @@ impl ProxyState {
         }
         let r = c.correct(&xf, &dir, &self.hyst);
         if r.fast_missing {
-            return Err(Stop::Refuse(codes::SENSOR_FAULT));
+            return Err(Stop::Refuse(GcsErrorCode::SensorFault));
         }
         if r.outside_envelope & all != 0 || r.fast_outside {
-            return Err(Stop::Refuse(codes::OUTSIDE_ENVELOPE));
+            return Err(Stop::Refuse(GcsErrorCode::OutsideEnvelope));
         }
         // the command is the exact target plus δ, in micros; inside the stage travel (see
         // `travel`: clamped within 0.1 µm of an end, refused beyond)
@@ -163,7 +163,7 @@ impl ProxyState {
             let (clo, chi) = (self.ctrl.fast_lo[a], self.ctrl.fast_hi[a]);
             // |x| ≤ 10¹⁸ (parse_micros), |d| < 2⁶² (f32_to_micros): no overflow
             let dq =
-                gcs::f32_to_micros(r.delta_um[a]).ok_or(Stop::Refuse(codes::POS_OUT_OF_LIMITS))?;
+                gcs::f32_to_micros(r.delta_um[a]).ok_or(Stop::Refuse(GcsErrorCode::PosOutOfLimits))?;
             q[a] = x[a] + dq;
             // (the model's travel is the blob's statement, compared in f32 as the fold holds
             // it; the controller's limits, which it enforces to the last digit, with a margin)
@@ -176,7 +176,7 @@ impl ProxyState {
             // the stage goes to the clamped command: record where that is in calibrated
             // coordinates
             self.clamped_target(c, &q, &xf, &dir, n)
-                .ok_or(Stop::Refuse(codes::OUTSIDE_CONTROLLER_TRAVEL))?
+                .ok_or(Stop::Refuse(GcsErrorCode::OutsideControllerTravel))?
         } else {
             x
         };
@@ -187,7 +187,7 @@ impl ProxyState {
         } else if written.is_ok() {
             written = out.to_stage.push(b'\n');
         }
-        written.map_err(|_| Stop::Refuse(codes::LINE_TOO_LONG))?;
+        written.map_err(|_| Stop::Refuse(GcsErrorCode::LineTooLong))?;
         // the one place a corrected target goes out: its targets and commands are recorded
         // (every model axis; the slots of other axes are never read), and the hysteresis
         // memory follows it
@@ -226,8 +226,8 @@ impl ProxyState {
                 *clamped |= 1 << a;
                 Ok(limit)
             }
-            Edge::Outside(Limit::Model) => Err(Stop::Refuse(codes::POS_OUT_OF_LIMITS)),
-            Edge::Outside(Limit::Controller) => Err(Stop::Refuse(codes::OUTSIDE_CONTROLLER_TRAVEL)),
+            Edge::Outside(Limit::Model) => Err(Stop::Refuse(GcsErrorCode::PosOutOfLimits)),
+            Edge::Outside(Limit::Controller) => Err(Stop::Refuse(GcsErrorCode::OutsideControllerTravel)),
         }
     }
 
@@ -247,8 +247,7 @@ impl ProxyState {
         for a in 0..n {
             qf[a] = gcs::micros_to_f32(q[a]);
         }
-        let mut none = None;
-        let (_, delta) = super::inverse::invert(c, &qf, dir, &self.hyst, Some(*x), &mut none)?;
+        let (_, delta) = c.inverse(&qf, dir, &self.hyst, Some(x))?;
         let mut xs = [0i64; MAP_AXES];
         for a in 0..n {
             xs[a] = q[a].saturating_sub(gcs::f32_to_micros(delta[a])?);

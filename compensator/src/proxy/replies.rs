@@ -16,7 +16,6 @@
 //! pairing was lost: the proxy resynchronises. Bytes nobody asked for are dropped.
 
 use super::controller::{lines_of, Fact};
-use super::inverse::invert;
 use super::queue::{Entry, Expect, Info};
 use super::{Corrector, Output, ProxyState, Reseed, Targets};
 use crate::gcs::{self, LineBuf, MAP_AXES};
@@ -544,7 +543,7 @@ impl ProxyState {
             }
             x0
         });
-        let (_, delta) = invert(c, &q, &self.dir, &self.hyst, x0, &mut self.jacobian)?;
+        let (_, delta) = c.inverse(&q, &self.dir, &self.hyst, x0.as_ref())?;
         // x = q − δ(x) in micros: exact reply, f32 δ (an f32 position would round by up to
         // 0.24 nm at 5 mm)
         let mut x = [None; MAP_AXES];
@@ -656,8 +655,7 @@ impl ProxyState {
                     self.forget(Some(a));
                 }
             }
-            let mut none = None;
-            let Some((_, delta)) = invert(c, &qf, &self.dir, &self.hyst, None, &mut none) else {
+            let Some((_, delta)) = c.inverse(&qf, &self.dir, &self.hyst, None) else {
                 self.counters.inverse_failures = self.counters.inverse_failures.wrapping_add(1);
                 return;
             };

@@ -10,7 +10,7 @@
 //! the calibrated position of the clamped command, not the target asked for — and a command
 //! further out is **refused**, naming which travel it left: the model's (GCS code 7, as a
 //! controller says it) or the controller's (the compensator's own code, see
-//! [`super::codes::OUTSIDE_CONTROLLER_TRAVEL`]).
+//! [`super::GcsErrorCode::OutsideControllerTravel`]).
 //!
 //! 0.1 µm is the resolution of a stage's travel specification, well inside a corrected
 //! command's distance from its target at the ends (tens of µm with thermal drift), and small

@@ -321,7 +321,9 @@ impl Proxy {
             || (st.held.is_none()
                 && (input.contains(&b'\n')
                     || self.input.room() == 0
-                    || input.first().is_some_and(|&b| gcs::is_single_char_command(b))))
+                    || input
+                        .first()
+                        .is_some_and(|&b| gcs::is_single_char_command(b))))
     }
 
     /// A new host session (the host closed and opened the port): nothing of the old one

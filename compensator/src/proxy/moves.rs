@@ -11,7 +11,7 @@
 
 use super::controller::NotReady;
 use super::travel::{self, Edge, Limit};
-use super::{Corrector, GcsErrorCode, Gate, Output, ProxyState, Reseed, Targets};
+use super::{Corrector, Gate, GcsErrorCode, Output, ProxyState, Reseed, Targets};
 use crate::command::MoveKind;
 use crate::gcs::{self, GcsError, Split, MAP_AXES};
 
@@ -61,9 +61,8 @@ impl ProxyState {
                 let text = toks.next().ok_or(Stop::Refuse(GcsErrorCode::ParamSyntax))?;
                 match gcs::parse_micros_short(text) {
                     Some(v) => v,
-                    None => {
-                        gcs::parse_micros(text).map_err(|_| Stop::Refuse(GcsErrorCode::ParamSyntax))?
-                    }
+                    None => gcs::parse_micros(text)
+                        .map_err(|_| Stop::Refuse(GcsErrorCode::ParamSyntax))?,
                 }
             };
             match self.map.index(id).filter(|&a| a < n) {
@@ -162,8 +161,8 @@ impl ProxyState {
             let qa = r.q_um[a];
             let (clo, chi) = (self.ctrl.fast_lo[a], self.ctrl.fast_hi[a]);
             // |x| ≤ 10¹⁸ (parse_micros), |d| < 2⁶² (f32_to_micros): no overflow
-            let dq =
-                gcs::f32_to_micros(r.delta_um[a]).ok_or(Stop::Refuse(GcsErrorCode::PosOutOfLimits))?;
+            let dq = gcs::f32_to_micros(r.delta_um[a])
+                .ok_or(Stop::Refuse(GcsErrorCode::PosOutOfLimits))?;
             q[a] = x[a] + dq;
             // (the model's travel is the blob's statement, compared in f32 as the fold holds
             // it; the controller's limits, which it enforces to the last digit, with a margin)
@@ -227,7 +226,9 @@ impl ProxyState {
                 Ok(limit)
             }
             Edge::Outside(Limit::Model) => Err(Stop::Refuse(GcsErrorCode::PosOutOfLimits)),
-            Edge::Outside(Limit::Controller) => Err(Stop::Refuse(GcsErrorCode::OutsideControllerTravel)),
+            Edge::Outside(Limit::Controller) => {
+                Err(Stop::Refuse(GcsErrorCode::OutsideControllerTravel))
+            }
         }
     }
 

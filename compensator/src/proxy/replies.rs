@@ -117,7 +117,10 @@ impl ReplyRx {
     /// cancelled the line that waited for it): the rest of it is dropped.
     pub(crate) fn discard(&mut self) {
         if let Some(en) = &mut self.entry {
-            if !matches!(en.e, Expect::Marker | Expect::Internal(_) | Expect::Unsolicited) {
+            if !matches!(
+                en.e,
+                Expect::Marker | Expect::Internal(_) | Expect::Unsolicited
+            ) {
                 en.e = Expect::Discard;
                 en.host = false;
             }
@@ -178,8 +181,8 @@ impl ProxyState {
                 // and a marker's anywhere else (the reply to an addressed `*IDN?`, the only
                 // kind that may go unanswered, starts with the address)
                 let deciding = self.ctrl.marker_reply().is_some()
-                    && !(matches!(en.e, Expect::Snoop(Info::Idn) | Expect::Internal(Info::Idn))
-                        && !en.maybe);
+                    && (en.maybe
+                        || !matches!(en.e, Expect::Snoop(Info::Idn) | Expect::Internal(Info::Idn)));
                 self.rx.begin(en, deciding);
             }
             let rest = &input[i..];

@@ -152,7 +152,7 @@ impl Gen {
             }
             16..=17 => "3",
             18 => "2",
-            _ => *["5", "A", "x"].choose(rng).unwrap(),
+            _ => ["5", "A", "x"].choose(rng).unwrap(),
         }
     }
 

@@ -266,9 +266,9 @@ impl Rig {
         let mut budget = n;
         while budget > 0 && !self.host_tx.is_empty() {
             let chunk: Vec<u8> = self.host_tx.iter().take(budget).copied().collect();
-            let used =
-                self.proxy
-                    .host_bytes(Some(&self.comp), &chunk, self.now_ms, &mut self.out);
+            let used = self
+                .proxy
+                .host_bytes(Some(&self.comp), &chunk, self.now_ms, &mut self.out);
             let produced = !self.out.is_empty();
             self.route();
             self.host_tx.drain(..used);
@@ -298,9 +298,9 @@ impl Rig {
         let mut budget = n;
         while budget > 0 && !self.stage_rx.is_empty() {
             let chunk: Vec<u8> = self.stage_rx.iter().take(budget).copied().collect();
-            let used =
-                self.proxy
-                    .stage_bytes(Some(&self.comp), &chunk, self.now_ms, &mut self.out);
+            let used = self
+                .proxy
+                .stage_bytes(Some(&self.comp), &chunk, self.now_ms, &mut self.out);
             self.stage_rx.drain(..used);
             self.stage_since_ms = self.now_ms;
             budget -= used.min(budget);
@@ -429,7 +429,10 @@ pub fn run(setup: &Setup, seed: u64, steps: u64) -> Result<Stats, Box<Violation>
                 rig.ctl
                     .peek_processed()
                     .iter()
-                    .map(|p| (p.line.clone(), String::from_utf8_lossy(&p.reply).into_owned()))
+                    .map(|p| (
+                        p.line.clone(),
+                        String::from_utf8_lossy(&p.reply).into_owned()
+                    ))
                     .collect::<Vec<_>>()
             );
         }
@@ -467,7 +470,10 @@ pub fn run(setup: &Setup, seed: u64, steps: u64) -> Result<Stats, Box<Violation>
 }
 
 /// Run every setup for `steps` steps from each of `seeds`.
-pub fn run_all(seeds: impl Iterator<Item = u64> + Clone, steps: u64) -> Result<Stats, Box<Violation>> {
+pub fn run_all(
+    seeds: impl Iterator<Item = u64> + Clone,
+    steps: u64,
+) -> Result<Stats, Box<Violation>> {
     let mut total = Stats::default();
     for setup in setups() {
         for seed in seeds.clone() {

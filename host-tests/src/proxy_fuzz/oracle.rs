@@ -108,11 +108,10 @@ impl Oracle {
                 (lo.max(c.min), hi.min(c.max))
             })
             .collect();
-        let envelope = (0..n).map(|a| model.envelope(Input::Axis(a as u8))).collect();
-        let ids = (1..=n)
-            .map(|a| a.to_string())
-            .collect::<Vec<_>>()
-            .join(" ");
+        let envelope = (0..n)
+            .map(|a| model.envelope(Input::Axis(a as u8)))
+            .collect();
+        let ids = (1..=n).map(|a| a.to_string()).collect::<Vec<_>>().join(" ");
         let own = ["*IDN?".to_string(), "CSV?".into(), "SAI?".into()]
             .into_iter()
             .chain(["PUN?", "TMN?", "TMX?", "MOV?"].map(|q| format!("{q} {ids}")))
@@ -186,7 +185,10 @@ impl Oracle {
                 let mut t = t.to_string();
                 if self.own.contains(&t) {
                     t = String::from_utf8_lossy(
-                        &seg.iter().copied().filter(|&b| !is_single(b)).collect::<Vec<_>>(),
+                        &seg.iter()
+                            .copied()
+                            .filter(|&b| !is_single(b))
+                            .collect::<Vec<_>>(),
                     )
                     .trim_end_matches('\r')
                     .to_string();
@@ -297,7 +299,7 @@ impl Oracle {
                 }
             }
         } else {
-            if toks.len() % 2 != 0 {
+            if !toks.len().is_multiple_of(2) {
                 return; // a value missing: refused
             }
             for c in toks.chunks(2) {
@@ -490,6 +492,7 @@ impl Oracle {
     /// The calibrated targets a host move asks for, when the controller held targets whose
     /// calibrated position is `xb`, and their commands as the proxy must send them (clamped
     /// within 0.1 µm of the travel); `Err` when the proxy must refuse it.
+    #[allow(clippy::needless_range_loop)] // axes index several arrays at once
     fn expected(
         &self,
         h: &HostMove,
@@ -622,7 +625,9 @@ impl Oracle {
                     };
                     let gv: f64 = gv.trim().parse().map_err(|_| mismatch())?;
                     let cont = |l: &[u8]| l.ends_with(b" \n");
-                    if gpre != *pre || self.model_axis(gaxis) != Some(*a) || cont(rline) != cont(gline)
+                    if gpre != *pre
+                        || self.model_axis(gaxis) != Some(*a)
+                        || cont(rline) != cont(gline)
                     {
                         return Err(mismatch());
                     }
@@ -742,6 +747,6 @@ fn is_error_answer(r: &[u8]) -> bool {
     s.lines().count() == 1
         && s.trim()
             .split(' ')
-            .last()
+            .next_back()
             .is_some_and(|t| t.parse::<i32>().is_ok())
 }

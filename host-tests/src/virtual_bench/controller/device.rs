@@ -272,7 +272,10 @@ impl Controller {
 
     /// The commands processed since the last call (recording on).
     pub fn take_processed(&mut self) -> Vec<Processed> {
-        self.processed.as_mut().map(std::mem::take).unwrap_or_default()
+        self.processed
+            .as_mut()
+            .map(std::mem::take)
+            .unwrap_or_default()
     }
 
     /// The configuration.
@@ -326,7 +329,12 @@ impl Controller {
     }
 
     /// Run one command, recording it when recording is on.
-    fn processing(&mut self, line: String, out: &mut Vec<u8>, f: impl FnOnce(&mut Self, &mut Vec<u8>)) {
+    fn processing(
+        &mut self,
+        line: String,
+        out: &mut Vec<u8>,
+        f: impl FnOnce(&mut Self, &mut Vec<u8>),
+    ) {
         if self.processed.is_none() {
             return f(self, out);
         }

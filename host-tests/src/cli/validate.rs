@@ -33,6 +33,68 @@ pub struct ValidateArgs {
     /// test's per-pose Acc and Rep.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// The fit report of the model (`nanocal fit --json`): with it, the table and the JSON say
+    /// how often the static compensation's measured error fell inside the fit's 95 % prediction
+    /// interval (coverage).
+    #[arg(long)]
+    pub fit_json: Option<PathBuf>,
+}
+
+/// The prediction bands of `model`, one per axis, from a fit report written by `nanocal fit
+/// --json`; an error naming the file when it does not belong to the model.
+pub fn read_bands(
+    path: &Path,
+    model: &Model,
+) -> anyhow::Result<Vec<crate::uncertainty::PredictionBand>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let v: serde_json::Value = serde_json::from_str(&text)
+        .with_context(|| format!("{}: not JSON", path.display()))?;
+    let id = v["model_id"].as_u64();
+    if id != Some(u64::from(model.id())) {
+        anyhow::bail!(
+            "{}: fit report of model id {:?}, but the blob's id is {}",
+            path.display(),
+            id,
+            model.id()
+        );
+    }
+    let axes = v["axes"]
+        .as_array()
+        .with_context(|| format!("{}: no `axes` array (not a fit report)", path.display()))?;
+    if axes.len() != model.axes() {
+        anyhow::bail!(
+            "{}: {} axes, the model has {}",
+            path.display(),
+            axes.len(),
+            model.axes()
+        );
+    }
+    axes.iter()
+        .enumerate()
+        .map(|(a, ax)| {
+            if let Some(e) = ax["prediction_band_error"].as_str() {
+                anyhow::bail!("{}: axis {a} has no prediction band: {e}", path.display());
+            }
+            let band: crate::uncertainty::PredictionBand =
+                serde_json::from_value(ax["prediction_band"].clone()).with_context(|| {
+                    format!("{}: axis {a}: bad `prediction_band`", path.display())
+                })?;
+            let terms = model
+                .terms()
+                .iter()
+                .filter(|t| t.output as usize == a)
+                .count();
+            if band.regressors() != terms {
+                anyhow::bail!(
+                    "{}: axis {a}: the band has {} regressors, the model {terms} terms: not this model's fit",
+                    path.display(),
+                    band.regressors()
+                );
+            }
+            Ok(band)
+        })
+        .collect()
 }
 
 /// What `validate` and `report` both read, and how they validate.
@@ -255,6 +317,21 @@ pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
         "{}",
         comparison_table(&[&reports[0], &reports[1], &reports[2]])
     );
+    let coverage = match &args.fit_json {
+        Some(path) => {
+            let model = read_model(&args.inputs.model)?;
+            let bands = read_bands(path, &model)?;
+            let c = crate::validate::coverage(&reports[1], &model, &bands, 0.95)?;
+            println!(
+                "coverage of the fit's 95 % prediction interval (static): {:.1} % of {} visit-axes inside (nominal 95 %; median half-width {:.1} nm)",
+                100.0 * c.fraction(),
+                c.n,
+                c.median_half_width_um * 1e3
+            );
+            Some(c)
+        }
+        None => None,
+    };
     if reports[1].outside_envelope > 0 {
         println!(
             "note: {} of {} visits had temperature/aux inputs outside the training envelope",
@@ -273,7 +350,13 @@ pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
         }
     }
     if let Some(path) = &args.json {
-        let json = serde_json::Value::Array(reports.iter().map(report_json).collect());
+        let mut all: Vec<serde_json::Value> = reports.iter().map(report_json).collect();
+        if let Some(c) = &coverage {
+            all[1]["prediction_interval_coverage"] = serde_json::json!({
+                "nominal": c.level, "measured": c.fraction(), "inside": c.inside,
+                "visit_axes": c.n, "median_half_width_um": c.median_half_width_um});
+        }
+        let json = serde_json::Value::Array(all);
         std::fs::write(path, serde_json::to_string_pretty(&json)?)
             .with_context(|| format!("writing {}", path.display()))?;
     }

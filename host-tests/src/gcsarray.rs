@@ -163,9 +163,8 @@ impl GcsArray {
                 if l.trim().is_empty() {
                     continue;
                 }
-                return Err(GcsArrayError::BadHeader {
+                return Err(GcsArrayError::BadRow {
                     line,
-                    key: String::new(),
                     problem: format!(
                         "expected a `# KEY = value` header line or `# END_HEADER`, found `{l}`"
                     ),
@@ -303,7 +302,7 @@ mod tests {
         let e = GcsArray::parse("# DIM = two\n# END_HEADER\n").unwrap_err();
         assert!(e.to_string().starts_with("line 1: header `DIM`"), "{e}");
         let e = GcsArray::parse("# DIM = 1\n1\n").unwrap_err();
-        assert!(e.to_string().starts_with("line 2: header"), "{e}");
+        assert!(e.to_string().starts_with("line 2: expected a `# KEY"), "{e}");
         let e = GcsArray::parse("# DIM = 1\n# END_HEADER\n1\nx\n").unwrap_err();
         assert!(e.to_string().starts_with("line 4: value 1"), "{e}");
         let e = GcsArray::parse("# DIM = 1\n").unwrap_err();

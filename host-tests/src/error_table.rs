@@ -80,8 +80,12 @@ impl Conditions {
             0.5 * (lo + hi)
         };
         Conditions {
-            axes_um: (0..model.axes()).map(|a| mid(Input::Axis(a as u8))).collect(),
-            temps_c: (0..model.temps()).map(|t| mid(Input::Temp(t as u8))).collect(),
+            axes_um: (0..model.axes())
+                .map(|a| mid(Input::Axis(a as u8)))
+                .collect(),
+            temps_c: (0..model.temps())
+                .map(|t| mid(Input::Temp(t as u8)))
+                .collect(),
             aux: (0..model.aux()).map(|n| mid(Input::Aux(n as u8))).collect(),
         }
     }

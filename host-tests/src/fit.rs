@@ -245,11 +245,7 @@ pub fn fit_dwells(d: &Dwells, opts: &FitOptions) -> Result<FitReport, FitError> 
             }
         }
     }
-    let temp_cols: Vec<&[f64]> = frame
-        .temps
-        .iter()
-        .filter_map(|n| d.channel(n))
-        .collect();
+    let temp_cols: Vec<&[f64]> = frame.temps.iter().filter_map(|n| d.channel(n)).collect();
     let temp_vif = variance_inflation(&frame.temps, &temp_cols);
     Ok(FitReport {
         model,
@@ -262,7 +258,11 @@ pub fn fit_dwells(d: &Dwells, opts: &FitOptions) -> Result<FitReport, FitError> 
 
 /// The regressors of output axis `axis` at `inputs`: the model's own terms of that axis, in the
 /// model's order (the columns of [`AxisFit::band`]).
-pub fn band_regressors(model: &Model, axis: usize, inputs: &nanocal_model::ScaledInputs) -> Vec<f64> {
+pub fn band_regressors(
+    model: &Model,
+    axis: usize,
+    inputs: &nanocal_model::ScaledInputs,
+) -> Vec<f64> {
     model
         .terms()
         .iter()
@@ -290,14 +290,14 @@ pub fn held_out_accuracy(
         let rep = fit_dwells(&train, opts)?;
         let slow = rep.frame.slow_inputs(&test);
         let mut per_axis = vec![Vec::with_capacity(test.len()); axes];
-        for i in 0..test.len() {
+        for (i, slow_i) in slow.iter().enumerate() {
             let mut x = [0.0; MAX_AXES];
             let mut dir = [0i8; MAX_AXES];
             for a in 0..axes {
                 x[a] = test.meas_um[a][i];
                 dir[a] = test.dir[a][i];
             }
-            let q = rep.model.eval_f64(&x, &dir, &slow[i]);
+            let q = rep.model.eval_f64(&x, &dir, slow_i);
             for a in 0..axes {
                 per_axis[a].push(test.cmd_um[a][i] - q[a]);
             }
@@ -306,7 +306,10 @@ pub fn held_out_accuracy(
             errors[a].push(e);
         }
     }
-    Ok(errors.iter().map(|e| HeldOut::from_block_errors(e)).collect())
+    Ok(errors
+        .iter()
+        .map(|e| HeldOut::from_block_errors(e))
+        .collect())
 }
 
 /// Writes a model as a blob file.

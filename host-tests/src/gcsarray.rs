@@ -191,11 +191,15 @@ impl GcsArray {
         let count = |key: &'static str| -> Result<Option<usize>, GcsArrayError> {
             match header.iter().find(|(k, _)| k == key) {
                 None => Ok(None),
-                Some((_, v)) => v.parse::<usize>().map(Some).map_err(|_| GcsArrayError::BadHeader {
-                    line: line_of(key).unwrap_or(0),
-                    key: key.to_string(),
-                    problem: format!("expected a whole number, found `{v}`"),
-                }),
+                Some((_, v)) => {
+                    v.parse::<usize>()
+                        .map(Some)
+                        .map_err(|_| GcsArrayError::BadHeader {
+                            line: line_of(key).unwrap_or(0),
+                            key: key.to_string(),
+                            problem: format!("expected a whole number, found `{v}`"),
+                        })
+                }
             }
         };
         let dim = count("DIM")?;
@@ -206,15 +210,17 @@ impl GcsArray {
                 let code: u32 = v.parse().map_err(|_| GcsArrayError::BadHeader {
                     line: line_of("SEPARATOR").unwrap_or(0),
                     key: "SEPARATOR".into(),
-                    problem: format!("expected a character code (32 space, 9 tab, 44 comma), found `{v}`"),
+                    problem: format!(
+                        "expected a character code (32 space, 9 tab, 44 comma), found `{v}`"
+                    ),
                 })?;
-                let c = char::from_u32(code).filter(|c| !c.is_alphanumeric() && *c != '.' && *c != '-' && *c != '+').ok_or_else(|| {
-                    GcsArrayError::BadHeader {
+                let c = char::from_u32(code)
+                    .filter(|c| !c.is_alphanumeric() && *c != '.' && *c != '-' && *c != '+')
+                    .ok_or_else(|| GcsArrayError::BadHeader {
                         line: line_of("SEPARATOR").unwrap_or(0),
                         key: "SEPARATOR".into(),
                         problem: format!("character code {code} cannot separate numbers"),
-                    }
-                })?;
+                    })?;
                 Some(c)
             }
         };
@@ -224,12 +230,10 @@ impl GcsArray {
                 None | Some(' ') => l.split_whitespace().collect(),
                 Some(c) => l.trim().split(c).map(str::trim).collect(),
             };
-            let want = dim.unwrap_or_else(|| {
-                if tables.is_empty() {
-                    fields.len()
-                } else {
-                    tables.len()
-                }
+            let want = dim.unwrap_or(if tables.is_empty() {
+                fields.len()
+            } else {
+                tables.len()
             });
             if fields.len() != want {
                 return Err(GcsArrayError::BadRow {
@@ -246,7 +250,11 @@ impl GcsArray {
             for (j, f) in fields.iter().enumerate() {
                 let v: f64 = f.parse().map_err(|_| GcsArrayError::BadRow {
                     line: *line,
-                    problem: format!("value {} (table {}): expected a number, found `{f}`", j + 1, j + 1),
+                    problem: format!(
+                        "value {} (table {}): expected a number, found `{f}`",
+                        j + 1,
+                        j + 1
+                    ),
                 })?;
                 tables[j].push(v);
             }
@@ -302,12 +310,18 @@ mod tests {
         let e = GcsArray::parse("# DIM = two\n# END_HEADER\n").unwrap_err();
         assert!(e.to_string().starts_with("line 1: header `DIM`"), "{e}");
         let e = GcsArray::parse("# DIM = 1\n1\n").unwrap_err();
-        assert!(e.to_string().starts_with("line 2: expected a `# KEY"), "{e}");
+        assert!(
+            e.to_string().starts_with("line 2: expected a `# KEY"),
+            "{e}"
+        );
         let e = GcsArray::parse("# DIM = 1\n# END_HEADER\n1\nx\n").unwrap_err();
         assert!(e.to_string().starts_with("line 4: value 1"), "{e}");
         let e = GcsArray::parse("# DIM = 1\n").unwrap_err();
         assert_eq!(e, GcsArrayError::NoEndHeader(1));
         let e = GcsArray::parse("# NDATA = 3\n# END_HEADER\n1\n").unwrap_err();
-        assert!(matches!(e, GcsArrayError::CountMismatch { key: "NDATA", .. }));
+        assert!(matches!(
+            e,
+            GcsArrayError::CountMismatch { key: "NDATA", .. }
+        ));
     }
 }

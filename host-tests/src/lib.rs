@@ -13,6 +13,7 @@ pub mod error_table;
 pub mod explain;
 pub mod fit;
 pub mod gcsarray;
+pub mod html_report;
 pub mod iso9283;
 pub mod linalg;
 pub mod plan;

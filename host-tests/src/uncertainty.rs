@@ -37,7 +37,9 @@ pub enum UncertaintyError {
         found: usize,
     },
     /// No residual degrees of freedom: the interval is undefined.
-    #[error("no residual degrees of freedom ({rows} rows, {params} parameters): no prediction interval")]
+    #[error(
+        "no residual degrees of freedom ({rows} rows, {params} parameters): no prediction interval"
+    )]
     NoResidualDof {
         /// Rows used.
         rows: usize,
@@ -162,7 +164,11 @@ impl PredictionBand {
         };
         let k = p + 1;
         let r: Vec<Vec<f64>> = (0..k)
-            .map(|i| (0..k).map(|j| if j >= i { comp.get(i, j) } else { 0.0 }).collect())
+            .map(|i| {
+                (0..k)
+                    .map(|j| if j >= i { comp.get(i, j) } else { 0.0 })
+                    .collect()
+            })
             .collect();
         // unit-variance columns: |R_ii| = sqrt(n − 1) · sqrt(1 − R²_i|previous), so a tiny ratio
         // to sqrt(n) is a column that the previous ones (nearly) reproduce
@@ -297,7 +303,10 @@ pub fn correlation(a: &[f64], b: &[f64]) -> f64 {
 pub fn collinearity_warnings(vifs: &[Vif], what: &str) -> Vec<String> {
     let mut out = Vec::new();
     let mut said: Vec<(String, String)> = Vec::new();
-    for v in vifs.iter().filter(|v| v.vif > VIF_WARN || v.vif.is_infinite()) {
+    for v in vifs
+        .iter()
+        .filter(|v| v.vif > VIF_WARN || v.vif.is_infinite())
+    {
         match &v.partner {
             Some((other, r)) => {
                 let key = if v.name < *other {
@@ -352,7 +361,12 @@ pub struct HeldOut {
 impl HeldOut {
     /// Summarises held-out errors given per block.
     pub fn from_block_errors(errors: &[Vec<f64>]) -> Self {
-        let all: Vec<f64> = errors.iter().flatten().copied().filter(|e| e.is_finite()).collect();
+        let all: Vec<f64> = errors
+            .iter()
+            .flatten()
+            .copied()
+            .filter(|e| e.is_finite())
+            .collect();
         let rms_of = |v: &[f64]| (v.iter().map(|e| e * e).sum::<f64>() / v.len() as f64).sqrt();
         HeldOut {
             blocks: errors.len(),
@@ -394,7 +408,10 @@ mod tests {
         for x0 in [3.0, 5.5, 20.0] {
             let want = 1.0 / n + (x0 - xm).powi(2) / sxx;
             let got = band.leverage(&[x0]).unwrap();
-            assert!((got - want).abs() < 1e-13 * want.max(1.0), "{got} vs {want}");
+            assert!(
+                (got - want).abs() < 1e-13 * want.max(1.0),
+                "{got} vs {want}"
+            );
         }
         assert_eq!(band.dfe, 10);
         let hw = band.half_width(&[xm], 0.95).unwrap();
@@ -417,7 +434,10 @@ mod tests {
         assert!(v[2].vif < 2.0, "{v:?}");
         let w = collinearity_warnings(&v, "temperature");
         assert_eq!(w.len(), 1, "{w:?}");
-        assert!(w[0].contains("temp_a and temp_b carry the same information"), "{w:?}");
+        assert!(
+            w[0].contains("temp_a and temp_b carry the same information"),
+            "{w:?}"
+        );
     }
 
     #[test]

@@ -671,10 +671,8 @@ pub fn coverage(
         let k = v.reached_um.len();
         let mut x = [0.0; MAX_AXES];
         let mut dir = [0i8; MAX_AXES];
-        for a in 0..k {
-            x[a] = v.reached_um[a];
-            dir[a] = v.dir[a];
-        }
+        x[..k].copy_from_slice(&v.reached_um[..k]);
+        dir[..k].copy_from_slice(&v.dir[..k]);
         let scaled = model.scale(&x, &dir, &v.slow);
         for (a, band) in bands.iter().enumerate().take(k) {
             if !v.error_um[a].is_finite() {

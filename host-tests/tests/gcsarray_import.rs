@@ -113,17 +113,29 @@ fn malformed_files_and_mappings_are_refused_with_the_line_named() {
         }
         let o = c.output().unwrap();
         assert!(!o.status.success(), "accepted: {text}");
-        assert!(!dir.join("o.csv").exists(), "wrote an output for a refused input");
+        assert!(
+            !dir.join("o.csv").exists(),
+            "wrote an output for a refused input"
+        );
         String::from_utf8_lossy(&o.stderr).into_owned()
     };
     let good_header = "# SEPARATOR = 32 \n# DIM = 2 \n# SAMPLE_TIME = 1 \n# END_HEADER \n";
     let map = ["cmd_x=1", "meas_x=2"];
     let e = run(&format!("{good_header}1 2 \n3 \n"), &map);
-    assert!(e.contains("line 6: expected 2 values (DIM), found 1"), "{e}");
+    assert!(
+        e.contains("line 6: expected 2 values (DIM), found 1"),
+        "{e}"
+    );
     let e = run(&format!("{good_header}1 2 \n3 abc \n"), &map);
-    assert!(e.contains("line 6: value 2 (table 2): expected a number, found `abc`"), "{e}");
+    assert!(
+        e.contains("line 6: value 2 (table 2): expected a number, found `abc`"),
+        "{e}"
+    );
     let e = run("# DIM = 2 \n1 2\n", &map);
-    assert!(e.contains("line 2: expected a `# KEY = value` header line"), "{e}");
+    assert!(
+        e.contains("line 2: expected a `# KEY = value` header line"),
+        "{e}"
+    );
     let e = run("# DIM = 2 \n# SEPARATOR = x \n# END_HEADER \n", &map);
     assert!(e.contains("line 2: header `SEPARATOR`"), "{e}");
     let e = run("# DIM = 2 \n# NDATA = 5 \n# END_HEADER \n1 2\n", &map);
@@ -132,7 +144,10 @@ fn malformed_files_and_mappings_are_refused_with_the_line_named() {
     assert!(e.contains("no GCSArray header"), "{e}");
     // the mapping must name the reference
     let e = run(&format!("{good_header}1 2 \n"), &["cmd_x=1"]);
-    assert!(e.contains("name the table that is the reference measurement of axis x: meas_x=TABLE"), "{e}");
+    assert!(
+        e.contains("name the table that is the reference measurement of axis x: meas_x=TABLE"),
+        "{e}"
+    );
     let e = run(&format!("{good_header}1 2 \n"), &["cmd_x=1", "meas_x=3"]);
     assert!(e.contains("no table `3`; the file has tables 1, 2"), "{e}");
     std::fs::remove_dir_all(&dir).ok();

@@ -540,7 +540,11 @@ fn hald_matches_octave_oracle_in_every_output() {
         .map(|b| b.as_bool().unwrap())
         .collect();
     assert_eq!(got.inmodel, inm);
-    near(got.intercept, want["intercept"].as_f64().unwrap(), "intercept");
+    near(
+        got.intercept,
+        want["intercept"].as_f64().unwrap(),
+        "intercept",
+    );
     near(got.rmse, want["rmse"].as_f64().unwrap(), "rmse");
     near(got.r_squared, want["r2"].as_f64().unwrap(), "R²");
     near(got.fstat, want["fstat"].as_f64().unwrap(), "F");

@@ -16,6 +16,8 @@
 //! v = diag(inv(corrcoef(d(:,1:4))));                          % VIF of x1..x4
 //! % v = 38.496211490635758 254.4231658509249 46.868386333574087 282.512864788569
 //! ```
+#![allow(clippy::excessive_precision)] // Octave's numbers are quoted as it printed them (%.17g)
+
 use std::path::PathBuf;
 use std::process::Command;
 
@@ -62,7 +64,10 @@ fn stepwise_reports_matlab_statistics_and_the_prediction_interval_on_hald() {
     // stepwiselm documents for the same two steps on the same data.
     let se = v["se"].as_array().unwrap();
     for (got, want) in se.iter().zip([0.1384, 0.1856, 0.1992, 0.0486]) {
-        assert!((got.as_f64().unwrap() - want).abs() < 5e-5, "se {got} vs {want}");
+        assert!(
+            (got.as_f64().unwrap() - want).abs() < 5e-5,
+            "se {got} vs {want}"
+        );
     }
     let h = v["history"].as_array().unwrap();
     assert!(rel(h[0]["p"].as_f64().unwrap(), 0.000576232) < 1e-6);
@@ -181,24 +186,44 @@ fn fit_reports_uncertainty_validate_reports_coverage_and_the_table_reads_back() 
         text.contains("95 % prediction interval of the correction over the training envelope"),
         "{text}"
     );
-    assert!(text.contains("held-out accuracy, axis x (4 blocks of time"), "{text}");
-    assert!(text.contains("variance inflation of each temperature"), "{text}");
-    let f: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(&fit_json).unwrap()).unwrap();
+    assert!(
+        text.contains("held-out accuracy, axis x (4 blocks of time"),
+        "{text}"
+    );
+    assert!(
+        text.contains("variance inflation of each temperature"),
+        "{text}"
+    );
+    let f: serde_json::Value = serde_json::from_slice(&std::fs::read(&fit_json).unwrap()).unwrap();
     let ax = &f["axes"][0];
     // MATLAB stepwisefit's outputs, per axis
-    for k in ["b", "se", "pval", "inmodel", "history", "fstat", "r2_adjusted", "dfe"] {
+    for k in [
+        "b",
+        "se",
+        "pval",
+        "inmodel",
+        "history",
+        "fstat",
+        "r2_adjusted",
+        "dfe",
+    ] {
         assert!(!ax["stepwisefit"][k].is_null(), "stepwisefit.{k} missing");
     }
     let pi = &ax["prediction_interval_95_training_um"];
     let (lo, hi) = (pi["min"].as_f64().unwrap(), pi["max"].as_f64().unwrap());
     // a band of a few rmse: t(0.975) · s · sqrt(1 + h) with 0 < h < 1
     let rmse = ax["rmse_um"].as_f64().unwrap();
-    assert!(lo >= 1.9 * rmse && hi <= 2.1 * rmse * 2f64.sqrt(), "{lo} {hi} {rmse}");
+    assert!(
+        lo >= 1.9 * rmse && hi <= 2.1 * rmse * 2f64.sqrt(),
+        "{lo} {hi} {rmse}"
+    );
     let ho = &ax["held_out_um"];
     assert_eq!(ho["blocks"].as_u64(), Some(4));
     assert!(ho["rms"].as_f64().unwrap() > 0.0);
-    assert!(!f["temperature_vif"]["columns"].as_array().unwrap().is_empty());
+    assert!(!f["temperature_vif"]["columns"]
+        .as_array()
+        .unwrap()
+        .is_empty());
 
     let vjson = dir.join("v.json");
     let text = run_ok(
@@ -249,18 +274,20 @@ fn fit_reports_uncertainty_validate_reports_coverage_and_the_table_reads_back() 
         .as_f64()
         .unwrap();
     eprintln!("coverage of the 95 % interval on the training data: {own:.3}");
-    assert!(own > 0.8 && own <= 1.0, "coverage on the training data {own}");
+    assert!(
+        own > 0.8 && own <= 1.0,
+        "coverage on the training data {own}"
+    );
 
     // a fit report of another model is refused
     let other = dir.join("other.blob");
-    run_ok(
-        nanocal()
-            .arg("fit")
-            .arg(&tr)
-            .arg("-o")
-            .arg(&other)
-            .args(["--published-static", "--blocks", "0", "--id", "7"]),
-    );
+    run_ok(nanocal().arg("fit").arg(&tr).arg("-o").arg(&other).args([
+        "--published-static",
+        "--blocks",
+        "0",
+        "--id",
+        "7",
+    ]));
     let o = nanocal()
         .arg("validate")
         .arg(&other)
@@ -277,8 +304,7 @@ fn fit_reports_uncertainty_validate_reports_coverage_and_the_table_reads_back() 
     );
 
     // error table: read back, every row reproduces the model
-    let model =
-        nanocal_model::blob::decode(&std::fs::read(&blob).unwrap()).expect("blob decodes");
+    let model = nanocal_model::blob::decode(&std::fs::read(&blob).unwrap()).expect("blob decodes");
     assert!(model.temps() >= 1);
     let temps: Vec<f64> = (0..model.temps()).map(|t| 22.4 + 0.1 * t as f64).collect();
     let temps_arg = temps
@@ -326,7 +352,10 @@ fn fit_reports_uncertainty_validate_reports_coverage_and_the_table_reads_back() 
             worst = worst.max((q - r.position_um).abs());
         }
     }
-    assert!(worst < 1e-6, "table does not reproduce the model: {worst} µm");
+    assert!(
+        worst < 1e-6,
+        "table does not reproduce the model: {worst} µm"
+    );
     // the correction is not trivially zero
     assert!(rows.iter().any(|r| r.forward_error_um.abs() > 0.01));
     std::fs::remove_dir_all(&dir).ok();

@@ -86,7 +86,10 @@ pub fn to_recording(
         } else {
             1.0
         };
-        cols.push((col.to_string(), g.tables[i].iter().map(|v| v * scale).collect()));
+        cols.push((
+            col.to_string(),
+            g.tables[i].iter().map(|v| v * scale).collect(),
+        ));
     }
     let axes: Vec<&str> = cols
         .iter()

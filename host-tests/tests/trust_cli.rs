@@ -360,3 +360,58 @@ fn fit_reports_uncertainty_validate_reports_coverage_and_the_table_reads_back() 
     assert!(rows.iter().any(|r| r.forward_error_um.abs() > 0.01));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A 2-DoF stage gets ISO 9283 pose figures in x–y, one per compensation: each pose with its
+/// barycentre offset as an arrow and its repeatability circle, on a stated scale.
+#[test]
+fn report_draws_2dof_pose_figures_per_compensation() {
+    let dir = tmp("pose2d");
+    let tr = dir.join("training.csv");
+    let va = dir.join("validation.csv");
+    for (traj, path) in [("training", &tr), ("validation", &va)] {
+        run_ok(
+            nanocal()
+                .args([
+                    "simulate",
+                    "--preset",
+                    "published2dof",
+                    "--trajectory",
+                    traj,
+                    "--out",
+                ])
+                .arg(path),
+        );
+    }
+    let blob = dir.join("m.blob");
+    run_ok(
+        nanocal()
+            .arg("fit")
+            .arg(&tr)
+            .arg("-o")
+            .arg(&blob)
+            .args(["--terms", "eq22", "--fixed", "--blocks", "0"]),
+    );
+    let plots = dir.join("plots");
+    run_ok(
+        nanocal()
+            .arg("report")
+            .arg(&blob)
+            .arg(&va)
+            .args(["--reference-pose-um", "0,0", "--out"])
+            .arg(&plots),
+    );
+    for comp in ["no_model", "static", "adaptive_KMZ"] {
+        let svg = std::fs::read_to_string(plots.join(format!("pose_xy_{comp}.svg")))
+            .unwrap_or_else(|e| panic!("pose_xy_{comp}.svg: {e}"));
+        assert!(svg.contains("first test (ISO 9283 pose figure; offsets and circles ×"));
+        assert!(svg.contains("repeatability circle RP ×"));
+        assert!(svg.contains("barycentre offset AP ×"));
+        // arrows and circles are drawn: many polyline points
+        assert!(
+            svg.matches("<polyline").count() >= 10,
+            "{comp}: no arrows/circles"
+        );
+        assert!(plots.join(format!("pose_xy_{comp}.png")).is_file());
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

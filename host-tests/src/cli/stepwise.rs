@@ -229,6 +229,8 @@ pub struct Trust {
     pub vif: Vec<crate::uncertainty::Vif>,
     /// Held-out accuracy (stepwise rerun without each block), if asked.
     pub held_out: Option<crate::uncertainty::HeldOut>,
+    /// Why there is no held-out accuracy although it was asked for (too few rows, …).
+    pub held_out_error: Option<String>,
 }
 
 impl Trust {
@@ -264,9 +266,7 @@ impl Trust {
         };
         let sel_names: Vec<String> = sel.iter().map(|&j| names[j].clone()).collect();
         let vif = variance_inflation(&sel_names, &refs);
-        let held_out = if blocks == 0 {
-            None
-        } else {
+        let held_out = |blocks: usize| -> anyhow::Result<HeldOut> {
             let ranges = time_blocks(used.len(), blocks)?;
             let mut errors = Vec::new();
             for &(start, end) in &ranges {
@@ -298,13 +298,21 @@ impl Trust {
                         .collect::<Vec<f64>>(),
                 );
             }
-            Some(HeldOut::from_block_errors(&errors))
+            Ok(HeldOut::from_block_errors(&errors))
+        };
+        let (held_out, held_out_error) = match blocks {
+            0 => (None, None),
+            k => match held_out(k) {
+                Ok(h) => (Some(h), None),
+                Err(e) => (None, Some(format!("{e:#}"))),
+            },
         };
         Ok(Trust {
             pi95,
             pi_error,
             vif,
             held_out,
+            held_out_error,
         })
     }
 
@@ -325,6 +333,9 @@ impl Trust {
             }
         }
         s += &crate::cli::trust::vif_text(&self.vif, "column");
+        if let Some(e) = &self.held_out_error {
+            let _ = writeln!(s, "held-out accuracy not computed: {e}");
+        }
         if let Some(h) = &self.held_out {
             let _ = writeln!(
                 s,
@@ -342,6 +353,7 @@ impl Trust {
             "prediction_interval_error": self.pi_error,
             "vif": crate::cli::trust::vif_json(&self.vif, "column"),
             "held_out": self.held_out.as_ref().map(crate::cli::trust::held_out_json),
+            "held_out_error": self.held_out_error,
         })
     }
 }

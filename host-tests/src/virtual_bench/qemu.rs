@@ -4,6 +4,7 @@
 
 use super::link::{BenchClock, BenchLink, Page, RAM_FILE_LEN};
 use crate::device::Client;
+use nanocal_interface::bench_link;
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::os::unix::net::UnixStream;
@@ -254,7 +255,16 @@ impl Qemu {
     /// The host opens (`true`) or closes (`false`) the GCS port: the line state a USB host
     /// sends with CDC SET_CONTROL_LINE_STATE (DTR, bit 0), carried to the board on serial4.
     pub fn set_dtr(&mut self, on: bool) {
-        self.link.send_line_state(0xC0 | u8::from(on));
+        let dtr = if on { bench_link::LINE_DTR } else { 0 };
+        self.link.send_line_state(bench_link::LINE_HOST | dtr);
+    }
+
+    /// The management client opens (`true`) or closes (`false`) the management port: its line
+    /// state (DTR), as [`Self::set_dtr`]'s for the GCS port. The board drops a management frame
+    /// still arriving when the port closes.
+    pub fn set_mgmt_dtr(&mut self, on: bool) {
+        let dtr = if on { bench_link::LINE_DTR } else { 0 };
+        self.link.send_line_state(bench_link::LINE_MGMT | dtr);
     }
 
     /// Process id of QEMU.

@@ -13,17 +13,8 @@ apt_install() {
     as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y "$@"
 }
 
-rustup target add thumbv7em-none-eabihf
 rustup component add clippy rustfmt
-
-qemu_major() { qemu-system-arm --version 2>/dev/null | sed -n 's/.*version \([0-9]*\)\..*/\1/p' | head -n1; }
-if [ "$(qemu_major || true)" = "" ] || [ "$(qemu_major)" -lt 10 ]; then
-    if ! grep -rqs "bookworm-backports" /etc/apt/sources.list /etc/apt/sources.list.d/; then
-        bash "$(dirname "$0")/add-backports.sh"
-    fi
-    apt_install -t bookworm-backports qemu-system-arm
-fi
-qemu-system-arm --version | head -n1
+bash "$(dirname "$0")/qemu.sh"
 
 # PIPython (PI's Python library, from PyPI) for tests/e2e_pipython.rs, in a venv under target/.
 venv=target/pipython-venv

@@ -211,17 +211,13 @@ fn fw_bench_latency_throughput() {
     let mut b = vec![0u8; blob::MAX_BLOB_LEN];
     let n = blob::encode(&model, &mut b).unwrap();
     c.upload(&b[..n]).unwrap();
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while c
-        .status()
-        .unwrap()
-        .flags
-        .contains(nanocal_interface::status::Flags::SENSOR_BLOCK)
-        || c.status().unwrap().folds < 2
-    {
-        assert!(Instant::now() < deadline, "sensors never became ready");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    fw_sim::wait_until("sensors ready", &q.clock(), 20.0, || {
+        let s = c.status().ok()?;
+        (!s.flags
+            .contains(nanocal_interface::status::Flags::SENSOR_BLOCK)
+            && s.folds >= 2)
+            .then_some(())
+    });
     // the first move waits for the controller's syntax version and unit: not measured
     host.send("MOV 1 10");
     for want in ["CSV?", "PUN? 1", "MOV 1 "] {

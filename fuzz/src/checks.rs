@@ -159,7 +159,10 @@ pub fn mgmt_frames(input: &[u8]) {
             while let Some(wait) = dec.wait_ms(now) {
                 assert!(wait <= mgmt::FRAME_TIMEOUT_MS, "a wait beyond the timeout");
                 waits += 1;
-                assert!(waits <= mgmt::MAX_FRAME, "the decoder never gives up its bytes");
+                assert!(
+                    waits <= mgmt::MAX_FRAME,
+                    "the decoder never gives up its bytes"
+                );
                 now = now.wrapping_add(wait.max(1));
                 while let Some(r) = dec.next(now) {
                     take(&mut dec, r, stream.len());

@@ -191,7 +191,10 @@ fn the_clock_may_wrap() {
     let mut d = Decoder::new();
     let t0 = u32::MAX - 100;
     feed_all(&mut d, &cut_chunk(), t0);
-    assert_eq!(d.wait_ms(t0.wrapping_add(200)), Some(FRAME_TIMEOUT_MS - 200));
+    assert_eq!(
+        d.wait_ms(t0.wrapping_add(200)),
+        Some(FRAME_TIMEOUT_MS - 200)
+    );
     assert_eq!(
         drain(&mut d, t0.wrapping_add(FRAME_TIMEOUT_MS)),
         vec![Err(FrameError::Timeout)]

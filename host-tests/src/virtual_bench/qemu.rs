@@ -345,6 +345,17 @@ impl Qemu {
         format!("unix:{}", self.log.with_extension("d").join("s3").display())
     }
 
+    /// A raw connection to the management port (serial3), for tests that send bytes no client
+    /// would (a frame cut off); one connection at a time, as [`Self::client`]'s.
+    pub fn mgmt_stream(&mut self) -> UnixStream {
+        dial_unix(
+            &mut self.child,
+            &self.log.with_extension("d").join("s3"),
+            3,
+            &self.log,
+        )
+    }
+
     /// A management client (serial3); one at a time.
     pub fn client(&mut self) -> Client {
         let s = dial_unix(

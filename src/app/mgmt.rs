@@ -288,8 +288,7 @@ async fn handle<F: NorFlash>(
                 });
                 info!(
                     "model {=u32:#x} (blob CRC {=u32:#x}) stored and installed",
-                    id,
-                    model_crc32
+                    id, model_crc32
                 );
                 Reply::UploadCommit {
                     model_id: id,

@@ -375,6 +375,12 @@ fn clocks() -> Config {
     });
     config.rcc.sys = Sysclk::PLL1_R;
     config.rcc.mux.clk48sel = mux::Clk48sel::MSI;
+    // The ADC's kernel clock: CCIPR.ADCSEL resets to 00, "no clock" (RM0351 §6.4.28), and
+    // embassy-stm32 leaves ADC_CCR.CKMODE at 00 (the asynchronous clock), so an unset mux
+    // leaves the ADC unclocked: `Adc::new` spins on ADCAL for ever and the watchdog resets the
+    // board every 2 s (issue 16; tests/stm32_boot.rs). SYSCLK (80 MHz) is within the ADC's
+    // 80 MHz maximum (datasheet fADC).
+    config.rcc.mux.adcsel = mux::Adcsel::SYS;
     config
 }
 

@@ -74,6 +74,8 @@ const CR_BKER: u32 = 1 << 11;
 const CR_STRT: u32 = 1 << 16;
 const CR_LOCK: u32 = 1 << 31;
 const ECCR_ECCD: u32 = 1 << 31;
+const ACR_DCEN: u32 = 1 << 10;
+const ACR_DCRST: u32 = 1 << 12;
 
 /// Set by the NMI handler when a flash read hit a double ECC error.
 static ECC_ERROR: AtomicBool = AtomicBool::new(false);
@@ -155,12 +157,29 @@ impl L4Flash {
         Ok(())
     }
 
-    /// Reset the data cache after an erase (RM0351 §3.3.3: stale lines may hold old data).
-    fn reset_dcache() {
+    /// Switch the data cache off for a program or erase of bank 2; whether it was on.
+    ///
+    /// Errata ES0250 ("Data cache might be corrupted during Flash memory read-while-write
+    /// operation"): with DCEN set while bank 2 is programmed or erased and code runs from bank
+    /// 1, the data cache can keep stale lines. ST's HAL and Zephyr's L4 driver switch DCEN off
+    /// around every program and erase and reset the cache after it; so does this driver
+    /// (tests/e2e_stm32.rs: with the cache left on across programming, an upload's read-back
+    /// saw erased bytes and the store refused it).
+    fn dcache_off() -> bool {
         let acr = reg(FLASH_ACR);
-        set(FLASH_ACR, acr & !(1 << 10));
-        set(FLASH_ACR, (acr & !(1 << 10)) | (1 << 12));
-        set(FLASH_ACR, acr & !(1 << 12));
+        set(FLASH_ACR, acr & !ACR_DCEN);
+        acr & ACR_DCEN != 0
+    }
+
+    /// Reset the data cache (DCRST works only with DCEN clear, RM0351 §3.7.1) and switch it
+    /// back on if it was.
+    fn dcache_restore(was_on: bool) {
+        let acr = reg(FLASH_ACR) & !ACR_DCEN;
+        set(FLASH_ACR, acr | ACR_DCRST);
+        set(FLASH_ACR, acr & !ACR_DCRST);
+        if was_on {
+            set(FLASH_ACR, acr | ACR_DCEN);
+        }
     }
 }
 
@@ -186,11 +205,12 @@ impl RawFlash for L4Flash {
         let page = (STORE_BASE + offset - BANK2_BASE) / PAGE as u32;
         Self::wait_idle(500).await?;
         Self::unlock();
+        let dcache = Self::dcache_off();
         set(FLASH_CR, CR_PER | CR_BKER | (page << 3));
         set(FLASH_CR, CR_PER | CR_BKER | (page << 3) | CR_STRT);
         let r = Self::wait_idle(1000).await;
         set(FLASH_CR, CR_LOCK);
-        Self::reset_dcache();
+        Self::dcache_restore(dcache);
         r
     }
 
@@ -198,12 +218,14 @@ impl RawFlash for L4Flash {
         let a = (STORE_BASE + offset) as usize;
         Self::wait_idle(0).await?;
         Self::unlock();
+        let dcache = Self::dcache_off();
         set(FLASH_CR, CR_PG);
         let w = |i: usize| u32::from_le_bytes([data[i], data[i + 1], data[i + 2], data[i + 3]]);
         set(a, w(0));
         set(a + 4, w(4));
         let r = Self::wait_idle(0).await;
         set(FLASH_CR, CR_LOCK);
+        Self::dcache_restore(dcache);
         r
     }
 }

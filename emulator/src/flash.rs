@@ -256,7 +256,7 @@ impl FlashCtl {
         }
         match self.first_word.take() {
             None => {
-                if addr % 8 != 0 {
+                if !addr.is_multiple_of(8) {
                     self.sr |= 1 << 5; // PGAERR
                     return;
                 }

@@ -78,7 +78,7 @@ impl Usart {
             return;
         }
         let frame = self.frame_ps(hz);
-        self.baud = if frame > 0 { 10 * PS / frame } else { 0 };
+        self.baud = (10 * PS).checked_div(frame).unwrap_or(0);
         // transmitter
         while let Some((b, done)) = self.shift {
             if now < done {
@@ -178,11 +178,7 @@ impl Usart {
             0x04 => self.cr[1] = v,
             0x08 => self.cr[2] = v,
             0x0C => self.brr = v & 0xFFFF,
-            0x18 => {
-                if v & (1 << 3) != 0 {
-                    self.isr &= !(1 << 5); // RXFRQ
-                }
-            }
+            0x18 if v & (1 << 3) != 0 => self.isr &= !(1 << 5), // RQR.RXFRQ
             0x20 => {
                 // ICR: PECF 0, FECF 1, NCF 2, ORECF 3, IDLECF 4, TCCF 6
                 self.isr &= !(v & 0x5F);
@@ -340,18 +336,14 @@ impl Spi {
                 self.cr1 = v;
                 let br = (v >> 3) & 7;
                 let sck = pclk2 >> (br + 1);
-                self.byte_ps = if sck == 0 { u64::MAX / 4 } else { 8 * PS / sck };
+                self.byte_ps = (8 * PS).checked_div(sck).unwrap_or(u64::MAX / 4);
                 if v & (1 << 6) == 0 {
                     self.tx.clear();
                     self.shift = None;
                 }
             }
             0x04 => self.cr2 = v,
-            0x08 => {
-                if v & (1 << 6) == 0 {
-                    self.ovr = false;
-                }
-            }
+            0x08 if v & (1 << 6) == 0 => self.ovr = false,
             0x0C => {
                 if !self.enabled() {
                     return;

@@ -13,7 +13,7 @@
 //! - **ECC** (§3.3.4): reading a torn double word of the store sets ECCR.ECCD with its address and
 //!   raises the NMI.
 //! - **The data cache** (§3.3.3: 8 lines of 32 bytes on the D-code bus; DCEN, DCRST) and the
-//!   erratum in ES0250 §2.2.? "Data cache might be corrupted during Flash memory
+//!   erratum in ES0250 (STM32L47x/L48x errata) "Data cache might be corrupted during Flash memory
 //!   read-while-write operation": a program or erase of bank 2 started while DCEN is set leaves
 //!   the lines the cache holds stale — later reads of them return the old contents until DCRST.
 //!   ST's HAL and Zephyr switch DCEN off and reset the cache around every program and erase.

@@ -85,7 +85,7 @@ pub struct HostHandle {
 }
 
 impl HostHandle {
-    /// Plug the cable into the OTG connector (CN9 on this board… see src/README.md).
+    /// Plug the cable into the board's USB OTG connector (VBUS on PA9).
     pub fn attach(&self) {
         self.shared.lock().unwrap().attached = true;
     }

@@ -2,11 +2,11 @@
 //! peripherals ([`crate::chip`]), resets (power-on, software, watchdog, power cut), and the clock
 //! the board lives on.
 //!
-//! **Time.** The core runs one instruction per HCLK cycle; board time advances by the cycles run
-//! (a busy loop takes board time, so a spin on a flag that never sets starves the watchdog after
-//! 2 s of board time, as on the chip). While the core sleeps (WFE/WFI) board time jumps to the
-//! next event of a peripheral, but never ahead of the wall clock × `scale`: the board is
-//! "free-running" like the QEMU board, and the tests' wall-clock timeouts keep their meaning.
+//! **Time** ([`crate::clock`]). The core runs one instruction per HCLK cycle; board time advances
+//! by the cycles run (a busy loop takes board time, so a spin on a flag that never sets starves
+//! the watchdog after 2 s of board time, as on the chip). While the core sleeps (WFE/WFI) board
+//! time jumps to the next event of a peripheral or SysTick. It never passes the horizon the
+//! driver sets, and never looks at the wall clock: a loaded machine runs the same board, slower.
 //!
 //! **Exceptions** (ARM DDI 0403E §B1.5.6 "Exception entry behavior", §B1.5.8 "Exception return
 //! behavior"): at an instruction boundary the highest-priority pending exception that beats the
@@ -18,6 +18,7 @@
 //! whose fetch faults; that fault is the exception return.
 
 use crate::chip::{Chip, Halt};
+use crate::clock::Clock;
 use crate::elf::Image;
 use crate::flash::{StoreFlash, STORE_BASE, STORE_SIZE};
 use crate::io::Io;
@@ -25,11 +26,10 @@ use crate::nvic::exc;
 use crate::rcc::{csr, Rcc};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
 use unicorn_engine::unicorn_const::{uc_error, Arch, Mode, Prot};
-use unicorn_engine::{ArmCpuModel, RegisterARM, Unicorn};
+use unicorn_engine::{ArmCpuModel, HookType, RegisterARM, Unicorn};
 
-const PS: u64 = 1_000_000_000_000;
+use crate::clock::PS;
 /// Instructions per slice: interrupts are taken and peripherals move between slices (≈ 25 µs
 /// at 80 MHz).
 const SLICE: u64 = 2_000;
@@ -98,8 +98,24 @@ pub struct Control {
     /// Cut the power when the store's flash has done this many more operations (the one that
     /// finds 0 is torn), then power on again.
     pub cut_after_ops: Arc<Mutex<Option<u32>>>,
-    /// Board time runs at most this many times the wall clock (1.0: real time).
-    pub scale: Arc<Mutex<f64>>,
+    /// The board's clock: the horizon it runs to, where it paused.
+    pub clock: Arc<Clock>,
+    /// Faults to inject, taken by the board at its next step.
+    pub inject: Arc<Mutex<Inject>>,
+}
+
+/// Faults a test injects into the board (each taken once).
+#[derive(Clone, Debug, Default)]
+pub struct Inject {
+    /// Lose this many of the next bytes UART4 receives to an overrun (the CPU "too slow").
+    pub uart_overruns: u32,
+    /// The next data read of the flash double word at this address (bank 1 or 2) fails with a
+    /// double ECC error (ECCR.ECCD and the NMI, RM0351 §3.3.4).
+    pub ecc_at: Option<u32>,
+    /// SPI1 stops shifting (SCK held) until the next reset: a transfer in progress never ends.
+    pub spi_stall: bool,
+    /// UART4's transmitter stops (TXE/TC never set again) until the next reset.
+    pub uart_tx_stall: bool,
 }
 
 impl Default for Control {
@@ -108,7 +124,8 @@ impl Default for Control {
             stop: Arc::new(AtomicBool::new(false)),
             status: Arc::new(Mutex::new(Status::default())),
             cut_after_ops: Arc::new(Mutex::new(None)),
-            scale: Arc::new(Mutex::new(1.0)),
+            clock: Arc::new(Clock::default()),
+            inject: Arc::new(Mutex::new(Inject::default())),
         }
     }
 }
@@ -143,12 +160,12 @@ pub struct Board<'a> {
     image: Image,
     frames: Vec<Frame>,
     sleeping: Option<Hint>,
-    wall0: Instant,
-    /// Board time at which the wall clock reference was taken, ps.
-    board0_ps: u64,
-    total_ps: u64,
     control: Control,
+    /// Instructions executed since the board was created.
+    instructions: u64,
     boots: Vec<ResetKindRecord>,
+    /// The read watch of an injected ECC error in bank 1.
+    ecc_hook: Option<unicorn_engine::UcHookId>,
 }
 
 /// Board set-up failures.
@@ -323,7 +340,8 @@ impl<'a> Board<'a> {
                                                             // the instruction counter and the slice limit, per translation block: a block's
                                                             // instructions are counted when it starts (Thumb-2 lengths from the first halfword);
                                                             // a slice ends at the first block boundary past its limit
-        let mut lengths = std::collections::HashMap::<u64, u64>::new();
+                                                            // (block size, instructions) by halfword of the code region: a lookup per block
+        let mut lengths = vec![(0u32, 0u32); (code_len / 2) as usize];
         let code = image.code.clone();
         uc.add_block_hook(1, 0, move |uc: &mut Unicorn<'_, Cpu>, addr, size| {
             let cpu = uc.get_data_mut();
@@ -331,9 +349,15 @@ impl<'a> Board<'a> {
                 let _ = uc.emu_stop();
                 return;
             }
-            let n = *lengths
-                .entry(addr)
-                .or_insert_with(|| count_instructions(&code, addr as u32, size));
+            let n = match lengths.get_mut(((addr as u32).wrapping_sub(0x0800_0000) / 2) as usize) {
+                Some(e) if e.0 == size => u64::from(e.1),
+                Some(e) => {
+                    let n = count_instructions(&code, addr as u32, size);
+                    *e = (size, n as u32);
+                    n
+                }
+                None => count_instructions(&code, addr as u32, size),
+            };
             cpu.executed += n;
         })?;
         for (op, hint) in [(2u16, Hint::Wfe), (3, Hint::Wfi), (4, Hint::Sev)] {
@@ -353,10 +377,9 @@ impl<'a> Board<'a> {
             image,
             frames: vec![],
             sleeping: None,
-            wall0: Instant::now(),
-            board0_ps: 0,
-            total_ps: 0,
             control,
+            instructions: 0,
+            ecc_hook: None,
             boots: vec![],
         };
         b.boot(ResetKind::PowerOn)?;
@@ -399,7 +422,7 @@ impl<'a> Board<'a> {
         self.uc.reg_write(RegisterARM::PC, u64::from(pc | 1))?;
         self.frames.clear();
         self.sleeping = None;
-        let at_s = self.total_ps as f64 / PS as f64;
+        let at_s = self.uc.get_data().chip.now_ps as f64 / PS as f64;
         self.boots.push(ResetKindRecord { kind, at_s });
         self.control.status.lock().unwrap().boots = self.boots.clone();
         Ok(())
@@ -614,13 +637,6 @@ impl<'a> Board<'a> {
         chip.cycles += cyc;
         chip.io.now_s = chip.now_ps as f64 / PS as f64;
         chip.nvic.systick_advance(from, chip.cycles);
-        self.total_ps += d;
-    }
-
-    /// Board time the wall clock allows now, ps.
-    fn wall_ps(&self) -> u64 {
-        let scale = *self.control.scale.lock().unwrap();
-        self.board0_ps + (self.wall0.elapsed().as_secs_f64() * scale * PS as f64) as u64
     }
 
     /// Move the peripherals the DMA serves (SPI1 on channels 2 and 3).
@@ -661,11 +677,13 @@ impl<'a> Board<'a> {
     fn publish(&mut self) {
         let pc = self.reg(RegisterARM::PC);
         let name = self.image.name_of(pc);
-        let total = self.total_ps;
+        let instructions = self.instructions;
         let chip = &mut self.uc.get_data_mut().chip;
+        let total = chip.now_ps;
         let led = chip.gpio[1].odr & (1 << 14) != 0 && (chip.gpio[1].moder >> 28) & 3 == 1;
         let mut st = self.control.status.lock().unwrap();
         st.now_s = total as f64 / PS as f64;
+        st.instructions = instructions;
         st.led = led;
         st.led_rises = chip.led_rises;
         st.unmodelled = chip.unmodelled.iter().copied().collect();
@@ -676,24 +694,70 @@ impl<'a> Board<'a> {
         st.pc = format!("{pc:#010x} {name}");
     }
 
+    /// Apply the faults a test asked for.
+    fn take_injections(&mut self) {
+        let inj = std::mem::take(&mut *self.control.inject.lock().unwrap());
+        let chip = &mut self.uc.get_data_mut().chip;
+        chip.io.uart_rx.lose_next += inj.uart_overruns;
+        if inj.spi_stall {
+            chip.spi1.stalled = true;
+        }
+        if inj.uart_tx_stall {
+            chip.uart4.tx_stalled = true;
+        }
+        if let Some(a) = inj.ecc_at {
+            chip.flash.inject_ecc(a);
+            let in_code = (crate::flash::BASE..STORE_BASE).contains(&a);
+            if in_code && self.ecc_hook.is_none() {
+                // code and constants are plain ROM for Unicorn: watch data reads of that
+                // double word (instruction fetches are not modelled failing)
+                let w = u64::from(a & !7);
+                self.ecc_hook = self
+                    .uc
+                    .add_mem_hook(
+                        HookType::MEM_READ,
+                        w,
+                        w + 7,
+                        |uc: &mut Unicorn<'_, Cpu>, _, addr, _, _| {
+                            let cpu = uc.get_data_mut();
+                            if cpu.chip.flash.take_injected_ecc(addr as u32) {
+                                cpu.chip.nvic.pending[exc::NMI] = true;
+                                cpu.limit = cpu.executed + 2;
+                            }
+                            true
+                        },
+                    )
+                    .ok();
+            }
+        }
+    }
+
+    /// Pause at the horizon (publishing where the board is first); false when asked to stop.
+    fn pause(&mut self, next_event_ps: Option<u64>) -> bool {
+        self.publish();
+        let now = self.chip().now_ps;
+        let go_on = self.control.clock.clone().pause(now, next_event_ps);
+        // what the clients did while the board was paused arrives now
+        self.chip().io.poll_inputs();
+        go_on
+    }
+
     /// Run until stopped or halted.
     pub fn run(&mut self) -> Option<Halt> {
-        let mut last_publish = Instant::now();
-        let mut instructions = 0u64;
-        loop {
+        let clock = self.control.clock.clone();
+        let mut slices = 0u64;
+        // sleeping steps in a row that found an event due but could not move time
+        let mut stuck = 0u32;
+        let result = loop {
             if self.control.stop.load(Ordering::Relaxed) {
                 self.publish();
-                return None;
-            }
-            if last_publish.elapsed() > Duration::from_millis(20) {
-                self.publish();
-                self.control.status.lock().unwrap().instructions = instructions;
-                last_publish = Instant::now();
+                break None;
             }
             let cut = self.control.cut_after_ops.lock().unwrap().take();
             if let Some(n) = cut {
                 self.chip().store.ops_until_cut = Some(n);
             }
+            self.take_injections();
             // resets
             let (sysreset, wdg, cut) = {
                 let c = self.chip();
@@ -715,7 +779,7 @@ impl<'a> Board<'a> {
             if let Some(kind) = reset {
                 self.log(format!("reset: {kind:?}"));
                 if let Err(e) = self.system_reset(kind) {
-                    return Some(Halt::Fault(format!("reset failed: {e}")));
+                    break Some(Halt::Fault(format!("reset failed: {e}")));
                 }
                 continue;
             }
@@ -725,11 +789,15 @@ impl<'a> Board<'a> {
                 let Halt::Fault(why) = h;
                 let h = Halt::Fault(format!("{why} (at {pc})"));
                 self.control.status.lock().unwrap().halt = Some(format!("{h:?}"));
-                return Some(h);
+                break Some(h);
             }
             self.chip().update();
             self.service_dma();
-            self.chip().io.flush();
+            if self.chip().io.flush() {
+                // a client got bytes: let whoever drives the board look at them at this time
+                let now = self.chip().now_ps;
+                clock.hold_at(now);
+            }
             // exceptions
             let primask = self.reg(RegisterARM::PRIMASK) & 1 != 0;
             let basepri = self.reg(RegisterARM::BASEPRI);
@@ -741,6 +809,8 @@ impl<'a> Board<'a> {
                     continue;
                 }
             }
+            let horizon = clock.horizon_ps();
+            let now = self.chip().now_ps;
             if let Some(kind) = self.sleeping {
                 let wake = match kind {
                     Hint::Wfi => self.chip().nvic.wfi_wake(basepri),
@@ -753,9 +823,9 @@ impl<'a> Board<'a> {
                 };
                 if wake {
                     self.sleeping = None;
+                    stuck = 0;
                     continue;
                 }
-                let now = self.chip().now_ps;
                 let cycles = self.chip().cycles;
                 let hclk = self.chip().rcc.clocks().hclk.max(1);
                 let systick = self
@@ -766,31 +836,38 @@ impl<'a> Board<'a> {
                 let target = [self.chip().next_event(), systick]
                     .into_iter()
                     .flatten()
-                    .min()
-                    .unwrap_or(u64::MAX)
-                    .max(now);
-                let wall = self.wall_ps();
-                if target <= wall {
-                    self.advance(0, target - now);
+                    .min();
+                match target {
+                    Some(t) if t <= now => {
+                        // due now: update() handles it; if it never does, a model is broken
+                        stuck += 1;
+                        if stuck > 10_000 {
+                            self.chip().fault(format!(
+                                "an event due at {t} ps is never handled (board at {now} ps)"
+                            ));
+                        }
+                        continue;
+                    }
+                    Some(t) if t <= horizon => {
+                        stuck = 0;
+                        self.advance(0, t - now);
+                        continue;
+                    }
+                    _ => {}
+                }
+                stuck = 0;
+                if now < horizon {
+                    self.advance(0, horizon - now);
                     continue;
                 }
-                // wait in wall time (at most 1 ms at a time), watching for input
-                if self.chip().io.input_waiting() {
-                    if wall > now {
-                        self.advance(0, wall - now);
-                    }
-                    // input arrives at the board's "now": let the models see it
-                    let c = self.chip();
-                    c.update();
-                    if c.nvic.next_exception(false, 0).is_none() {
-                        std::thread::sleep(Duration::from_micros(200));
-                    }
-                    continue;
+                if !self.pause(target) {
+                    break None;
                 }
-                std::thread::sleep(Duration::from_micros(300));
-                let wall = self.wall_ps().min(target);
-                if wall > now {
-                    self.advance(0, wall - now);
+                continue;
+            }
+            if now >= horizon {
+                if !self.pause(None) {
+                    break None;
                 }
                 continue;
             }
@@ -808,8 +885,15 @@ impl<'a> Board<'a> {
                 let cpu = self.uc.get_data_mut();
                 (cpu.executed, cpu.hint.take())
             };
-            instructions += executed;
+            self.instructions += executed;
             self.advance(executed.max(1), 0);
+            slices += 1;
+            if slices.is_multiple_of(64) {
+                self.chip().io.poll_inputs();
+            }
+            if slices.is_multiple_of(4096) {
+                self.publish();
+            }
             let pc_now = self.reg(RegisterARM::PC);
             match r {
                 Ok(()) => {}
@@ -855,7 +939,10 @@ impl<'a> Board<'a> {
                     }
                 }
             }
-        }
+        };
+        let now = self.chip().now_ps;
+        clock.stop(now);
+        result
     }
 
     /// Return addresses found on the stack (a crude backtrace: code addresses with the Thumb
@@ -876,7 +963,7 @@ impl<'a> Board<'a> {
     }
 
     fn log(&mut self, what: String) {
-        let t = self.total_ps as f64 / PS as f64;
+        let t = self.uc.get_data().chip.now_ps as f64 / PS as f64;
         let mut st = self.control.status.lock().unwrap();
         st.log.push(format!("{t:.6} s: {what}"));
         if st.log.len() > 100 {

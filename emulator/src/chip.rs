@@ -224,7 +224,7 @@ impl Chip {
                 if !self.clocked(Enable::Ahb2(crate::rcc::ahb2::ADC)) {
                     return 0;
                 }
-                self.adc.read(word - 0x5004_0000, now)
+                self.adc.read(word - 0x5004_0000, now, &mut self.io)
             }
             _ => {
                 if !self.plain.contains_key(&word) {
@@ -340,7 +340,8 @@ impl Chip {
             0x5004_0000..=0x5004_03FF => {
                 if self.clocked(Enable::Ahb2(crate::rcc::ahb2::ADC)) {
                     let rcc = &self.rcc;
-                    self.adc.write(word - 0x5004_0000, v, now, rcc);
+                    self.adc
+                        .write(word - 0x5004_0000, v, now, rcc, &mut self.io);
                 }
             }
             _ => {
@@ -376,7 +377,7 @@ impl Chip {
         let c = self.rcc.clocks();
         let en15 = self.clocked(Enable::Apb2(16));
         self.tim15.update(now, c.tim2, en15);
-        self.adc.update(now);
+        self.adc.update(now, &mut self.io);
         let hz = self.rcc.uart4_hz();
         if self.clocked(Enable::Apb1(19)) {
             self.uart4.update(now, hz, &mut self.io);
@@ -416,7 +417,10 @@ impl Chip {
             self.adc.next_event(),
             self.iwdg.running.then_some(self.iwdg.deadline_ps),
             self.flash.busy_until(),
-            self.uart4.next_event(),
+            self.rcc
+                .enabled(Enable::Apb1(19))
+                .then(|| self.uart4.next_event(self.rcc.uart4_hz(), &self.io))
+                .flatten(),
             self.spi1.next_event(),
             self.i2c2.next_event(),
             self.usb.next_event(&self.io.usb),

@@ -83,6 +83,8 @@ pub struct FlashCtl {
     pub errors: Vec<String>,
     /// A power cut tore an operation: the board loses power.
     pub power_lost: bool,
+    /// Injected: the next read of this double word fails with a double ECC error.
+    pub ecc_inject: Option<u32>,
 }
 
 impl Default for FlashCtl {
@@ -101,6 +103,7 @@ impl Default for FlashCtl {
             ecc_errors: 0,
             errors: vec![],
             power_lost: false,
+            ecc_inject: None,
         }
     }
 }
@@ -116,6 +119,36 @@ impl FlashCtl {
     /// After a system reset (the cache is cleared; the store keeps its contents).
     pub fn reset() -> Self {
         Self::default()
+    }
+
+    /// The next data read of the double word at `addr` fails with a double ECC error.
+    pub fn inject_ecc(&mut self, addr: u32) {
+        self.ecc_inject = Some(addr & !7);
+    }
+
+    /// A read of `addr` (anywhere in the flash) with an injected ECC error pending for it:
+    /// ECCR records it (ADDR is the double word's offset in its bank, BK_ECC its bank, ECCD,
+    /// RM0351 §3.7.7) and the caller raises the NMI. True when it was the injected one.
+    pub fn take_injected_ecc(&mut self, addr: u32) -> bool {
+        let Some(a) = self.ecc_inject else {
+            return false;
+        };
+        if addr & !7 != a {
+            return false;
+        }
+        self.ecc_inject = None;
+        self.record_ecc(a);
+        true
+    }
+
+    fn record_ecc(&mut self, a: u32) {
+        let (bank2, off) = if a >= BANK2 {
+            (1 << 19, a - BANK2)
+        } else {
+            (0, a - BASE)
+        };
+        self.eccr = (self.eccr & (1 << 24)) | (1 << 31) | bank2 | (off & 0x7_FFFF);
+        self.ecc_errors += 1;
     }
 
     /// Wait states programmed.
@@ -311,14 +344,15 @@ impl FlashCtl {
                     let a = line + (k * DWORD) as u32;
                     let _ = store.take_ecc_error();
                     let d = store.read_dword(a - STORE_BASE);
-                    if store.take_ecc_error() && (a..a + DWORD as u32).contains(&addr) {
+                    let torn = store.take_ecc_error();
+                    if (a..a + DWORD as u32).contains(&addr) {
                         // only the double word actually read reports (§3.3.4)
-                        self.eccr = (self.eccr & (1 << 24))
-                            | (1 << 31)
-                            | (1 << 19)
-                            | ((a - BANK2) & 0x7_FFFF);
-                        self.ecc_errors += 1;
-                        fx.nmi = true;
+                        if torn {
+                            self.record_ecc(a);
+                            fx.nmi = true;
+                        } else if self.take_injected_ecc(a) {
+                            fx.nmi = true;
+                        }
                     }
                     data[k * DWORD..(k + 1) * DWORD].copy_from_slice(&d);
                 }

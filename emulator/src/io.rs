@@ -3,9 +3,7 @@
 //! supply these ([`Wiring`]); the board's models call them at the board's clock.
 
 use std::collections::VecDeque;
-use std::io::{Read, Write};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::{channel, Receiver, TryRecvError};
 use std::sync::{Arc, Mutex};
 
 /// The chips on the sensor buses, as the bench models them.
@@ -47,56 +45,22 @@ impl SensorBus for NoChips {
     }
 }
 
-/// A byte stream into and out of a UART (the stage controller's RS-232 through the MAX3232).
-pub struct SerialEnd {
-    rx: Receiver<Vec<u8>>,
-    pending: VecDeque<u8>,
-    tx: Box<dyn Write + Send>,
-    out: Vec<u8>,
-    closed: bool,
+/// What hangs on UART4's TX and RX lines: the stage controller, called on the board's thread
+/// at the board's time (so its replies are as deterministic as the board).
+pub trait UartPeer: Send {
+    /// A byte the board's UART finished sending at board time `now_s`; the bytes the peer
+    /// sends back in answer (they start on the RX line at `now_s`).
+    fn byte_from_board(&mut self, b: u8, now_s: f64) -> Vec<u8>;
 }
 
-impl SerialEnd {
-    /// Connect a stream: a thread reads it; writes go out after each slice of the board.
-    pub fn new<S: Read + Write + Send + 'static>(
-        mut reader: S,
-        writer: Box<dyn Write + Send>,
-    ) -> Self {
-        let (tx, rx) = channel();
-        std::thread::spawn(move || {
-            let mut b = [0u8; 512];
-            loop {
-                match reader.read(&mut b) {
-                    Ok(0) | Err(_) => return,
-                    Ok(n) => {
-                        if tx.send(b[..n].to_vec()).is_err() {
-                            return;
-                        }
-                    }
-                }
-            }
-        });
-        Self {
-            rx,
-            pending: VecDeque::new(),
-            tx: writer,
-            out: vec![],
-            closed: false,
-        }
-    }
-
-    fn fill(&mut self) {
-        loop {
-            match self.rx.try_recv() {
-                Ok(v) => self.pending.extend(v),
-                Err(TryRecvError::Empty) => return,
-                Err(TryRecvError::Disconnected) => {
-                    self.closed = true;
-                    return;
-                }
-            }
-        }
-    }
+/// The stage link's RX line: bytes the peer sent, with the board time each may start, ps.
+#[derive(Default)]
+pub struct UartLine {
+    /// Bytes on their way to the board.
+    pub queue: VecDeque<(u8, u64)>,
+    /// Fault injection: the next this many received bytes are lost to an overrun, as if the
+    /// CPU had not read RDR in time (RM0351 §40.5.5).
+    pub lose_next: u32,
 }
 
 /// The board's chip-select wiring: (GPIO port, pin) of CS0, CS1, … (src/README.md).
@@ -128,7 +92,9 @@ pub struct Io {
     /// Chip-select low now.
     selected: Option<usize>,
     /// The stage controller on UART4.
-    pub uart: Option<SerialEnd>,
+    pub uart: Option<Box<dyn UartPeer>>,
+    /// UART4's RX line.
+    pub uart_rx: UartLine,
     /// A slave holds SDA low (until a bus recovery).
     pub sda_held: Arc<AtomicBool>,
     /// The USB host.
@@ -139,7 +105,7 @@ impl Io {
     /// A board with `bus` on its sensor buses and the given USB host.
     pub fn new(
         bus: Arc<Mutex<dyn SensorBus>>,
-        uart: Option<SerialEnd>,
+        uart: Option<Box<dyn UartPeer>>,
         usb: crate::usb::Host,
     ) -> Self {
         Self {
@@ -147,49 +113,30 @@ impl Io {
             bus,
             selected: None,
             uart,
+            uart_rx: UartLine::default(),
             sda_held: Arc::new(AtomicBool::new(false)),
             usb,
         }
     }
 
-    /// A byte the UART sent.
-    pub fn uart_send(&mut self, b: u8) {
+    /// A byte the UART finished sending at `now_ps`: the peer answers onto the RX line.
+    pub fn uart_send(&mut self, b: u8, now_ps: u64) {
         if let Some(u) = self.uart.as_mut() {
-            u.out.push(b);
-        }
-    }
-
-    /// The next byte on the UART's RX line, if one is there.
-    pub fn uart_take(&mut self) -> Option<u8> {
-        let u = self.uart.as_mut()?;
-        u.fill();
-        u.pending.pop_front()
-    }
-
-    /// Bytes are waiting on the RX line.
-    pub fn uart_pending(&mut self) -> bool {
-        self.uart.as_mut().is_some_and(|u| {
-            u.fill();
-            !u.pending.is_empty()
-        })
-    }
-
-    /// Send what the UART wrote.
-    pub fn flush(&mut self) {
-        if let Some(u) = self.uart.as_mut() {
-            if !u.out.is_empty() && !u.closed {
-                if u.tx.write_all(&u.out).is_err() {
-                    u.closed = true;
-                }
-                u.out.clear();
+            let now_s = now_ps as f64 / crate::clock::PS as f64;
+            for r in u.byte_from_board(b, now_s) {
+                self.uart_rx.queue.push_back((r, now_ps));
             }
         }
-        self.usb.flush();
     }
 
-    /// Something from outside waits for the board (wakes it from sleep).
-    pub fn input_waiting(&mut self) -> bool {
-        self.uart_pending() || self.usb.has_work()
+    /// Take in what came from outside while the board was paused (USB clients).
+    pub fn poll_inputs(&mut self) {
+        self.usb.poll_sockets();
+    }
+
+    /// Hand the USB clients what the device sent; true when a client got bytes.
+    pub fn flush(&mut self) -> bool {
+        self.usb.flush()
     }
 
     /// A GPIO level changed: a chip-select edge selects or deselects its chip.

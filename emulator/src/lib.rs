@@ -6,6 +6,7 @@
 
 pub mod board;
 pub mod chip;
+pub mod clock;
 pub mod elf;
 pub mod flash;
 pub mod io;
@@ -15,6 +16,7 @@ pub mod rcc;
 pub mod simple;
 pub mod usb;
 
-pub use board::{Board, BoardError, Control, ResetKind, Status};
+pub use board::{Board, BoardError, Control, Inject, ResetKind, Status};
 pub use chip::Halt;
-pub use io::{Io, NoChips, SensorBus, SerialEnd};
+pub use clock::{Clock, Pause, PS};
+pub use io::{Io, NoChips, SensorBus, UartPeer};

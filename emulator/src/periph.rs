@@ -33,6 +33,8 @@ pub struct Usart {
     pub overruns: u64,
     /// Baud rate in force, for the bench.
     pub baud: u64,
+    /// Injected: the transmitter is stuck (the byte in the shift register never leaves).
+    pub tx_stalled: bool,
 }
 
 impl Usart {
@@ -81,55 +83,68 @@ impl Usart {
         self.baud = (10 * PS).checked_div(frame).unwrap_or(0);
         // transmitter
         while let Some((b, done)) = self.shift {
-            if now < done {
+            if now < done || self.tx_stalled {
                 break;
             }
-            io.uart_send(b);
+            io.uart_send(b, done);
             self.shift = self.tdr.take().map(|n| (n, done + frame));
             if self.shift.is_none() {
                 self.isr |= 1 << 6; // TC
             }
         }
-        // receiver
-        if self.cr[0] & (1 << 2) != 0 {
-            loop {
-                let at = self.rx_free_at.max(now.saturating_sub(frame));
-                if at + frame > now {
-                    break;
-                }
-                let Some(b) = io.uart_take() else {
-                    break;
-                };
-                if self.isr & (1 << 5) != 0 {
-                    // RXNE still set: the byte is lost (ORE), unless overrun detection is off
-                    if self.cr[2] & (1 << 12) == 0 {
-                        self.isr |= 1 << 3;
-                        self.overruns += 1;
-                    } else {
-                        self.rdr = b;
-                    }
+        // receiver: the bytes on the line arrive back to back, each one frame long
+        let receiving = self.cr[0] & (1 << 2) != 0;
+        while let Some(&(b, start)) = io.uart_rx.queue.front() {
+            let done = start.max(self.rx_free_at) + frame;
+            if done > now {
+                break;
+            }
+            io.uart_rx.queue.pop_front();
+            self.rx_free_at = done;
+            if !receiving {
+                continue; // RE off: the receiver ignores the line
+            }
+            self.idle_at = Some(done + frame);
+            let lost = io.uart_rx.lose_next > 0;
+            if lost || self.isr & (1 << 5) != 0 {
+                // RXNE still set (or the injected "CPU too slow"): the byte is lost (ORE),
+                // unless overrun detection is off (CR3.OVRDIS)
+                io.uart_rx.lose_next = io.uart_rx.lose_next.saturating_sub(1);
+                if self.cr[2] & (1 << 12) == 0 || lost {
+                    self.isr |= 1 << 3;
+                    self.overruns += 1;
                 } else {
                     self.rdr = b;
-                    self.isr |= 1 << 5;
                 }
-                self.rx_free_at = at + frame;
-                self.idle_at = Some(at + 2 * frame);
+            } else {
+                self.rdr = b;
+                self.isr |= 1 << 5;
             }
-            if let Some(t) = self.idle_at {
-                if now >= t && !io.uart_pending() {
-                    self.isr |= 1 << 4; // IDLE
-                    self.idle_at = None;
-                }
+        }
+        if let Some(t) = self.idle_at {
+            // IDLE: a whole idle frame after the last byte (§40.8.10)
+            let next_start = io.uart_rx.queue.front().map(|q| q.1.max(self.rx_free_at));
+            if now >= t && next_start.is_none_or(|s| s >= t) {
+                self.isr |= 1 << 4;
+                self.idle_at = None;
+            } else if next_start.is_some_and(|s| s < t) {
+                self.idle_at = None; // the next byte follows before the line went idle
             }
         }
     }
 
-    /// When the next byte completes, ps.
-    pub fn next_event(&self) -> Option<u64> {
-        [self.shift.map(|s| s.1), self.idle_at]
-            .into_iter()
-            .flatten()
-            .min()
+    /// When the next byte completes (sent or received) or the line goes idle, ps.
+    pub fn next_event(&self, hz: u64, io: &Io) -> Option<u64> {
+        if !self.enabled() {
+            return None;
+        }
+        let rx = io
+            .uart_rx
+            .queue
+            .front()
+            .map(|&(_, start)| start.max(self.rx_free_at) + self.frame_ps(hz));
+        let tx = self.shift.filter(|_| !self.tx_stalled).map(|s| s.1);
+        [tx, self.idle_at, rx].into_iter().flatten().min()
     }
 
     /// The interrupt line (RXNEIE covers RXNE and ORE, §40.8.1).
@@ -218,6 +233,8 @@ pub struct Spi {
     ovr: bool,
     /// Bytes exchanged.
     pub bytes: u64,
+    /// Injected: SCK stopped, the byte in flight never completes.
+    pub stalled: bool,
 }
 
 impl Spi {
@@ -265,7 +282,7 @@ impl Spi {
     /// Progress the transfer up to `now`.
     pub fn update(&mut self, now: u64, io: &mut Io, gpio: &[Gpio]) {
         while let Some((b, done)) = self.shift {
-            if now < done {
+            if now < done || self.stalled {
                 break;
             }
             let r = io.spi_exchange(b, gpio);
@@ -282,7 +299,7 @@ impl Spi {
 
     /// When the byte in flight completes, ps.
     pub fn next_event(&self) -> Option<u64> {
-        self.shift.map(|s| s.1)
+        self.shift.filter(|_| !self.stalled).map(|s| s.1)
     }
 
     /// The interrupt line (RXNEIE, TXEIE, ERRIE with OVR).

@@ -380,8 +380,12 @@ pub struct Adc {
     cal_done: Option<u64>,
     rdy_at: Option<u64>,
     conv_done: Option<u64>,
-    /// Codes by channel (12 bit), set by the bench (None: the input reads 0).
-    pub inputs: [Option<u16>; 19],
+}
+
+/// The board's analog inputs by ADC1 channel: A0 = PC5 is ADC12_IN14 (datasheet DS10969,
+/// Table 16 "STM32L475xx pin definitions"), the force input the bench's channel 0 drives.
+fn bench_channel(adc_channel: u32) -> Option<u8> {
+    (adc_channel == 14).then_some(0)
 }
 
 impl Default for Adc {
@@ -396,7 +400,6 @@ impl Default for Adc {
             cal_done: None,
             rdy_at: None,
             conv_done: None,
-            inputs: [None; 19],
         }
     }
 }
@@ -423,8 +426,9 @@ impl Adc {
         (hz != 0).then(|| cycles * 1_000_000_000_000 / hz)
     }
 
-    /// Progress calibration, enable and conversion up to `now_ps`.
-    pub fn update(&mut self, now_ps: u64) {
+    /// Progress calibration, enable and conversion up to `now_ps` (a conversion samples its
+    /// channel from `io`; an unconnected input reads 0).
+    pub fn update(&mut self, now_ps: u64, io: &mut crate::io::Io) {
         if self.cal_done.is_some_and(|t| now_ps >= t) {
             self.cal_done = None;
             self.cr &= !(1 << 31);
@@ -437,7 +441,12 @@ impl Adc {
         if self.conv_done.is_some_and(|t| now_ps >= t) {
             self.conv_done = None;
             let ch = (self.other[0x30 / 4] >> 6) & 0x1F; // SQR1.SQ1
-            self.dr = u32::from(self.inputs.get(ch as usize).copied().flatten().unwrap_or(0));
+            self.dr = u32::from(
+                bench_channel(ch)
+                    .and_then(|c| io.adc(c))
+                    .unwrap_or(0)
+                    .min(0xFFF),
+            );
             if self.isr & (1 << 2) != 0 {
                 self.isr |= 1 << 4; // OVR
             }
@@ -460,8 +469,8 @@ impl Adc {
     }
 
     /// Read an ADC1 register (offset from 0x5004_0000) or a common one (0x300..).
-    pub fn read(&mut self, off: u32, now_ps: u64) -> u32 {
-        self.update(now_ps);
+    pub fn read(&mut self, off: u32, now_ps: u64, io: &mut crate::io::Io) -> u32 {
+        self.update(now_ps, io);
         match off {
             0x00 => self.isr,
             0x04 => self.ier,
@@ -478,8 +487,8 @@ impl Adc {
     }
 
     /// Write a register.
-    pub fn write(&mut self, off: u32, v: u32, now_ps: u64, rcc: &Rcc) {
-        self.update(now_ps);
+    pub fn write(&mut self, off: u32, v: u32, now_ps: u64, rcc: &Rcc, io: &mut crate::io::Io) {
+        self.update(now_ps, io);
         let hz = self.clock_hz(rcc);
         match off {
             0x00 => self.isr &= !v,

@@ -24,27 +24,79 @@
 
 use crate::io::Io;
 use std::collections::VecDeque;
-use std::io::{Read, Write};
+use std::io::{ErrorKind, Read, Write};
+use std::net::{TcpListener, TcpStream};
 use std::os::unix::net::{UnixListener, UnixStream};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 
-const PS: u64 = 1_000_000_000_000;
 /// Board time between two host transactions (a frame holds many; 50 µs keeps the model simple).
 const STEP_PS: u64 = 50_000_000;
 const EPS: usize = 6;
+/// Bytes a port's client has not read yet beyond which the host stops polling the bulk IN
+/// endpoint (the tty's buffer is full; the device sees NAKs).
+const CLIENT_BACKLOG: usize = 4096;
+
+/// A client's connection to a CDC port (a Unix socket, or TCP for PIPython's socket gateway).
+enum Conn {
+    Unix(UnixStream),
+    Tcp(TcpStream),
+}
+
+impl Conn {
+    fn read(&mut self, b: &mut [u8]) -> std::io::Result<usize> {
+        match self {
+            Conn::Unix(s) => s.read(b),
+            Conn::Tcp(s) => s.read(b),
+        }
+    }
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        match self {
+            Conn::Unix(s) => s.write(b),
+            Conn::Tcp(s) => s.write(b),
+        }
+    }
+    fn shutdown(&self) {
+        let _ = match self {
+            Conn::Unix(s) => s.shutdown(std::net::Shutdown::Both),
+            Conn::Tcp(s) => s.shutdown(std::net::Shutdown::Both),
+        };
+    }
+}
+
+enum Listener {
+    Unix(UnixListener),
+    Tcp(TcpListener),
+}
+
+impl Listener {
+    /// A waiting connection, non-blocking.
+    fn accept(&self) -> Option<Conn> {
+        match self {
+            Listener::Unix(l) => l.accept().ok().map(|(s, _)| {
+                let _ = s.set_nonblocking(true);
+                Conn::Unix(s)
+            }),
+            Listener::Tcp(l) => l.accept().ok().map(|(s, _)| {
+                let _ = s.set_nonblocking(true);
+                let _ = s.set_nodelay(true);
+                Conn::Tcp(s)
+            }),
+        }
+    }
+}
 
 /// One CDC-ACM port as the tests see it.
 #[derive(Default)]
 struct PortState {
     /// A client has the port open.
     open: bool,
-    /// The open/close the host has not yet told the device.
-    line_state_due: Option<bool>,
+    /// The opens/closes the host has not yet told the device, oldest first.
+    line_state_due: VecDeque<bool>,
     /// Bytes from the client for the device (bulk OUT).
     out: VecDeque<u8>,
-    /// The client's socket (bulk IN data goes there).
-    client: Option<UnixStream>,
+    /// Bulk IN bytes received for the client and not yet written to its socket.
+    backlog: Vec<u8>,
     /// Bulk IN bytes the host received while the port was open.
     received: u64,
     /// The interface numbers (communication, data) and endpoints (notify IN, bulk OUT, bulk IN).
@@ -53,7 +105,7 @@ struct PortState {
     ep_in: usize,
 }
 
-/// What the host knows; shared with the tests and the socket threads.
+/// What the host knows; shared with the tests.
 #[derive(Default)]
 pub struct HostShared {
     /// The cable is plugged in (VBUS).
@@ -75,13 +127,33 @@ pub struct HostShared {
     /// Where the host is (for failure reports).
     pub state: String,
     ports: Vec<PortState>,
+    /// The port sockets clients connect to, by port.
+    listeners: [Vec<Listener>; 2],
+    /// The open connection of each port.
+    clients: [Option<Conn>; 2],
+    /// The host application reads port k (false: it stopped reading; once its buffer is
+    /// full the host no longer polls the bulk IN endpoint).
+    reading: [bool; 2],
+    /// Opens and closes of each port requested by the test ([`HostHandle::toggle_dtr`]).
+    dtr_pulses: [u32; 2],
+    /// SET_CONTROL_LINE_STATE requests the device accepted, by port.
+    line_states: [u32; 2],
+}
+
+/// The socket folder, removed when the last handle goes.
+struct SocketDir(PathBuf);
+
+impl Drop for SocketDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
 }
 
 /// The tests' handle: plug, unplug, port sockets, what the host saw.
 #[derive(Clone)]
 pub struct HostHandle {
     shared: Arc<Mutex<HostShared>>,
-    dir: Arc<PathBuf>,
+    dir: Arc<SocketDir>,
 }
 
 impl HostHandle {
@@ -104,12 +176,43 @@ impl HostHandle {
 
     /// Socket path of CDC port `k` (0: the GCS port, interface 0; 1: management, interface 2).
     pub fn port_path(&self, k: usize) -> PathBuf {
-        self.dir.join(format!("acm{k}"))
+        self.dir.0.join(format!("acm{k}"))
     }
 
     /// The port spec for the nanocal CLI (`unix:PATH`).
     pub fn port_spec(&self, k: usize) -> String {
         format!("unix:{}", self.port_path(k).display())
+    }
+
+    /// Serve CDC port `k` on a local TCP port too (PIPython's socket gateway speaks TCP); the
+    /// port number.
+    pub fn tcp_port(&self, k: usize) -> u16 {
+        let l = TcpListener::bind("127.0.0.1:0").expect("bind a local TCP port");
+        l.set_nonblocking(true).expect("non-blocking listener");
+        let port = l.local_addr().expect("local address").port();
+        self.shared.lock().unwrap().listeners[k].push(Listener::Tcp(l));
+        port
+    }
+
+    /// The host application stops (`false`) or resumes reading port `k`.
+    pub fn set_reading(&self, k: usize, reading: bool) {
+        self.shared.lock().unwrap().reading[k] = reading;
+    }
+
+    /// The client of port `k` closes and opens it again at once (DTR 1 → 0 → 1: two line
+    /// state requests back to back, the connection kept).
+    pub fn toggle_dtr(&self, k: usize) {
+        self.shared.lock().unwrap().dtr_pulses[k] += 1;
+    }
+
+    /// SET_CONTROL_LINE_STATE requests of port `k` the device has accepted (opens and closes).
+    pub fn line_states(&self, k: usize) -> u32 {
+        self.with(|s| s.line_states[k])
+    }
+
+    /// Bulk IN bytes the host took for port `k` while it was open.
+    pub fn received(&self, k: usize) -> u64 {
+        self.with(|s| s.ports.get(k).map_or(0, |p| p.received))
     }
 }
 
@@ -123,8 +226,6 @@ pub struct Host {
     ctl: Option<Control>,
     /// Descriptors still to read during enumeration.
     todo: VecDeque<Request>,
-    /// Which port's line state is being sent.
-    line_port: Option<usize>,
     /// Bytes for the clients, flushed after each slice.
     pending_in: Vec<(usize, Vec<u8>)>,
 }
@@ -182,7 +283,8 @@ enum Phase {
 }
 
 impl Host {
-    /// A host with its cable unplugged, sockets for the CDC ports under a fresh folder.
+    /// A host with its cable unplugged, sockets for the CDC ports under a fresh folder (removed
+    /// when the host and every handle are gone).
     pub fn new() -> (Host, HostHandle) {
         let dir = std::env::temp_dir().join(format!(
             "nanocal-stm32-usb-{}-{}",
@@ -190,43 +292,38 @@ impl Host {
             next_id()
         ));
         let _ = std::fs::create_dir_all(&dir);
-        let shared = Arc::new(Mutex::new(HostShared::default()));
+        let mut sh = HostShared {
+            reading: [true; 2],
+            ..HostShared::default()
+        };
         for k in 0..2 {
             let l = UnixListener::bind(dir.join(format!("acm{k}"))).expect("bind a port socket");
-            let sh = shared.clone();
-            std::thread::spawn(move || serve_port(l, k, sh));
+            l.set_nonblocking(true).expect("non-blocking listener");
+            sh.listeners[k].push(Listener::Unix(l));
         }
+        let shared = Arc::new(Mutex::new(sh));
         let handle = HostHandle {
             shared: shared.clone(),
-            dir: Arc::new(dir),
+            dir: Arc::new(SocketDir(dir)),
         };
-        (
-            Host {
-                shared,
-                stage: Stage::Detached,
-                next_ps: 0,
-                addr: 0,
-                ctl: None,
-                todo: VecDeque::new(),
-                line_port: None,
-                pending_in: vec![],
-            },
-            handle,
-        )
+        (Host::with_shared(shared), handle)
     }
 
-    /// A host with no sockets and no cable (a stand-in while the board swaps its chip state).
-    pub fn placeholder() -> Host {
+    fn with_shared(shared: Arc<Mutex<HostShared>>) -> Host {
         Host {
-            shared: Arc::new(Mutex::new(HostShared::default())),
+            shared,
             stage: Stage::Detached,
             next_ps: 0,
             addr: 0,
             ctl: None,
             todo: VecDeque::new(),
-            line_port: None,
             pending_in: vec![],
         }
+    }
+
+    /// A host with no sockets and no cable (a stand-in while the board swaps its chip state).
+    pub fn placeholder() -> Host {
+        Host::with_shared(Arc::new(Mutex::new(HostShared::default())))
     }
 
     /// A cable is plugged in.
@@ -234,33 +331,93 @@ impl Host {
         self.shared.lock().unwrap().attached
     }
 
-    /// The host has something for the device (wakes a sleeping board).
-    pub fn has_work(&self) -> bool {
-        let s = self.shared.lock().unwrap();
-        match self.stage {
-            Stage::Detached => s.attached,
-            Stage::Running => s
-                .ports
-                .iter()
-                .any(|p| p.line_state_due.is_some() || (p.open && !p.out.is_empty())),
-            _ => false,
+    /// Take in what the clients did while the board was paused: new connections open their
+    /// port (once the device is configured; before that the tty does not exist and the
+    /// connection is refused), their bytes go to the device, a closed connection closes the
+    /// port; and write out what they have not read yet.
+    pub fn poll_sockets(&mut self) {
+        let mut guard = self.shared.lock().unwrap();
+        let s = &mut *guard;
+        for k in 0..2 {
+            for l in &s.listeners[k] {
+                while let Some(c) = l.accept() {
+                    let usable = s.configured && k < s.ports.len() && s.clients[k].is_none();
+                    if !usable {
+                        c.shutdown();
+                        continue;
+                    }
+                    let p = &mut s.ports[k];
+                    p.open = true;
+                    p.line_state_due.push_back(true);
+                    s.clients[k] = Some(c);
+                }
+            }
+            while s.dtr_pulses[k] > 0 {
+                s.dtr_pulses[k] -= 1;
+                if let Some(p) = s.ports.get_mut(k).filter(|p| p.open) {
+                    p.line_state_due.extend([false, true]);
+                }
+            }
+            let Some(c) = s.clients[k].as_mut() else {
+                continue;
+            };
+            let mut closed = false;
+            let mut b = [0u8; 512];
+            loop {
+                match c.read(&mut b) {
+                    Ok(0) => {
+                        closed = true;
+                        break;
+                    }
+                    Ok(n) => s.ports[k].out.extend(&b[..n]),
+                    Err(e) if e.kind() == ErrorKind::WouldBlock => break,
+                    Err(e) if e.kind() == ErrorKind::Interrupted => continue,
+                    Err(_) => {
+                        closed = true;
+                        break;
+                    }
+                }
+            }
+            let p = &mut s.ports[k];
+            while !closed && !p.backlog.is_empty() {
+                match c.write(&p.backlog) {
+                    Ok(0) => closed = true,
+                    Ok(n) => {
+                        p.backlog.drain(..n);
+                    }
+                    Err(e) if e.kind() == ErrorKind::WouldBlock => break,
+                    Err(e) if e.kind() == ErrorKind::Interrupted => continue,
+                    Err(_) => closed = true,
+                }
+            }
+            if closed {
+                // the client closed its end: the tty is closed (DTR drops); what the device
+                // sent for it is gone with it
+                s.clients[k] = None;
+                p.open = false;
+                p.out.clear();
+                p.backlog.clear();
+                p.line_state_due.push_back(false);
+            }
         }
     }
 
-    /// Hand the clients what the device sent.
-    pub fn flush(&mut self) {
+    /// Hand the clients what the device sent; true when a client got bytes.
+    pub fn flush(&mut self) -> bool {
         if self.pending_in.is_empty() {
-            return;
+            return false;
         }
-        let mut s = self.shared.lock().unwrap();
-        for (k, data) in self.pending_in.drain(..) {
-            if let Some(p) = s.ports.get_mut(k) {
-                p.received += data.len() as u64;
-                if let Some(c) = p.client.as_mut() {
-                    let _ = c.write_all(&data);
+        {
+            let mut s = self.shared.lock().unwrap();
+            for (k, data) in self.pending_in.drain(..) {
+                if let Some(p) = s.ports.get_mut(k) {
+                    p.received += data.len() as u64;
+                    p.backlog.extend_from_slice(&data);
                 }
             }
         }
+        self.poll_sockets();
+        true
     }
 
     /// The device reset itself: it disconnects (its pull-up goes away); the host enumerates
@@ -273,15 +430,20 @@ impl Host {
         };
         self.ctl = None;
         self.todo.clear();
-        self.line_port = None;
+        self.pending_in.clear();
         let mut s = self.shared.lock().unwrap();
         s.configured = false;
-        for p in &mut s.ports {
+        for k in 0..2 {
             // the tty goes away with the device; a client must open the port again
-            p.line_state_due = None;
-            p.client = None;
+            if let Some(c) = s.clients[k].take() {
+                c.shutdown();
+            }
+        }
+        for p in &mut s.ports {
+            p.line_state_due.clear();
             p.open = false;
             p.out.clear();
+            p.backlog.clear();
         }
     }
 }
@@ -290,50 +452,6 @@ fn next_id() -> u64 {
     use std::sync::atomic::{AtomicU64, Ordering};
     static N: AtomicU64 = AtomicU64::new(0);
     N.fetch_add(1, Ordering::Relaxed)
-}
-
-/// Accept clients of CDC port `k`: each connection opens the port, its bytes go to the device,
-/// its end closes the port.
-fn serve_port(l: UnixListener, k: usize, shared: Arc<Mutex<HostShared>>) {
-    for conn in l.incoming() {
-        let Ok(mut conn) = conn else { return };
-        {
-            let mut s = shared.lock().unwrap();
-            if !s.configured || s.ports.len() <= k {
-                drop(s);
-                let _ = conn.shutdown(std::net::Shutdown::Both);
-                continue;
-            }
-            let p = &mut s.ports[k];
-            p.open = true;
-            p.line_state_due = Some(true);
-            p.client = conn.try_clone().ok();
-        }
-        let mut b = [0u8; 256];
-        loop {
-            match conn.read(&mut b) {
-                Ok(0) | Err(_) => break,
-                Ok(n) => {
-                    let mut s = shared.lock().unwrap();
-                    if let Some(p) = s.ports.get_mut(k) {
-                        p.out.extend(&b[..n]);
-                    }
-                }
-            }
-        }
-        let mut s = shared.lock().unwrap();
-        if let Some(p) = s.ports.get_mut(k) {
-            p.open = false;
-            p.client = None;
-            p.out.clear();
-            p.line_state_due = Some(false);
-        }
-    }
-}
-
-/// Remove a port socket folder.
-pub fn remove_sockets(dir: &Path) {
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 /// An entry of the receive FIFO: the status word and the packet.
@@ -636,13 +754,30 @@ impl Otg {
     }
 
     /// When the host acts next, ps: while it enumerates or a control transfer runs, and while
-    /// the device has IN data queued or the host OUT data for it.
+    /// a port has line state to send, OUT data for the device, or IN data queued that the host
+    /// polls for.
     pub fn next_event(&self, host: &Host) -> Option<u64> {
-        let busy = !matches!(host.stage, Stage::Detached | Stage::Running)
-            || host.ctl.is_some()
-            || !host.todo.is_empty()
-            || (host.stage == Stage::Running && self.tx.iter().any(|t| !t.is_empty()))
-            || (host.stage == Stage::Detached && host.attached());
+        let busy = match host.stage {
+            Stage::Detached => host.attached(),
+            Stage::Running => {
+                host.ctl.is_some() || !host.todo.is_empty() || {
+                    let s = host.shared.lock().unwrap();
+                    s.ports.iter().enumerate().any(|(k, p)| {
+                        !p.line_state_due.is_empty()
+                            || (p.open
+                                && (!p.out.is_empty()
+                                    || (s.reading[k]
+                                        && p.backlog.len() < CLIENT_BACKLOG
+                                        && !self.tx[p.ep_in].is_empty())))
+                    })
+                }
+            }
+            // waiting for the device: its register writes move the host on
+            Stage::Powered => self.session && self.dctl & 2 == 0 && self.gccfg & (1 << 16) != 0,
+            Stage::Reset => self.gintsts & (1 << 12) == 0,
+            Stage::EnumDone => self.gintsts & (1 << 13) == 0,
+            Stage::Enumerating => true,
+        };
         busy.then_some(host.next_ps)
     }
 
@@ -737,7 +872,9 @@ impl Otg {
             return;
         }
         host.next_ps = now + STEP_PS;
-        if let Ok(mut s) = host.shared.try_lock() {
+        if host.stage == Stage::Running {
+            // (the state line is for failures to enumerate)
+        } else if let Ok(mut s) = host.shared.try_lock() {
             s.state = format!(
                 "{:?} ctl {:?} todo {} gintsts {:#x} gintmsk {:#x} dctl {:#x} gccfg {:#x} diepctl0 {:#x} dieptsiz0 {:#x} tx0 {} rx {} nak0 {}",
                 host.stage,
@@ -813,7 +950,7 @@ impl Otg {
             let shared = host.shared.clone();
             let mut s = shared.lock().unwrap();
             for k in 0..s.ports.len() {
-                if let Some(open) = s.ports[k].line_state_due.take() {
+                if let Some(open) = s.ports[k].line_state_due.pop_front() {
                     let comm = u16::from(s.ports[k].comm_if);
                     if open {
                         host.todo.push_back(Request {
@@ -846,8 +983,11 @@ impl Otg {
                         s.ports[k].out.drain(..n);
                     }
                 }
-                if let Some(pkt) = self.take_in(ep_in) {
-                    ins.push((k, pkt));
+                let polls_in = s.reading[k] && s.ports[k].backlog.len() < CLIENT_BACKLOG;
+                if polls_in {
+                    if let Some(pkt) = self.take_in(ep_in) {
+                        ins.push((k, pkt));
+                    }
                 }
             }
             drop(s);
@@ -972,7 +1112,11 @@ impl Otg {
                 host.stage = Stage::Running;
             }
             Purpose::LineCoding => {}
-            Purpose::LineState(_, _) => {}
+            Purpose::LineState(k, _) => {
+                if let Some(n) = s.line_states.get_mut(k) {
+                    *n += 1;
+                }
+            }
         }
     }
 }
@@ -1040,6 +1184,5 @@ fn parse_cdc_ports(cfg: &[u8]) -> Vec<PortState> {
         }
         i += len;
     }
-    let _ = PS;
     ports
 }

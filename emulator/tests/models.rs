@@ -6,6 +6,16 @@ use nanocal_stm32_board::flash::{wait_states_needed, FlashCtl, StoreFlash, STORE
 use nanocal_stm32_board::nvic::{exc, Nvic};
 use nanocal_stm32_board::rcc::Rcc;
 use nanocal_stm32_board::simple::{Adc, Timer};
+use nanocal_stm32_board::{usb, Io, NoChips};
+use std::sync::{Arc, Mutex};
+
+fn no_io() -> Io {
+    Io::new(
+        Arc::new(Mutex::new(NoChips)),
+        None,
+        usb::Host::placeholder(),
+    )
+}
 
 const MS: u64 = 1_000_000_000;
 
@@ -75,9 +85,10 @@ fn backup_domain_needs_dbp() {
 /// 1 ms.
 fn calibrates(rcc: &Rcc) -> bool {
     let mut adc = Adc::default();
-    adc.write(0x08, 1 << 28, 0, rcc); // DEEPPWD off, ADVREGEN
-    adc.write(0x08, (1 << 28) | (1 << 31), 0, rcc); // ADCAL
-    adc.read(0x08, MS) & (1 << 31) == 0
+    let mut io = no_io();
+    adc.write(0x08, 1 << 28, 0, rcc, &mut io); // DEEPPWD off, ADVREGEN
+    adc.write(0x08, (1 << 28) | (1 << 31), 0, rcc, &mut io); // ADCAL
+    adc.read(0x08, MS, &mut io) & (1 << 31) == 0
 }
 
 #[test]
@@ -213,4 +224,87 @@ fn nvic_takes_the_highest_priority_that_beats_the_running_one() {
         "NMI ignores PRIMASK"
     );
     assert!(n.wfi_wake(0));
+}
+
+/// A stage controller that answers every byte with two bytes.
+struct Echo;
+
+impl nanocal_stm32_board::UartPeer for Echo {
+    fn byte_from_board(&mut self, b: u8, _now_s: f64) -> Vec<u8> {
+        vec![b, b'\n']
+    }
+}
+
+#[test]
+fn uart_bytes_take_a_frame_each_and_an_unread_byte_overruns() {
+    use nanocal_stm32_board::periph::Usart;
+    let mut io = Io::new(
+        Arc::new(Mutex::new(NoChips)),
+        Some(Box::new(Echo)),
+        usb::Host::placeholder(),
+    );
+    let hz = 80_000_000;
+    let mut u = Usart::default();
+    u.write(0x0C, 694, 0, hz, &mut io); // BRR: 80 MHz / 694 = 115 274 Bd
+    u.write(0x00, 1 | (1 << 2) | (1 << 3), 0, hz, &mut io); // UE, RE, TE
+                                                            // baud = fCK / BRR (OVER8 = 0, RM0351 §40.5.4); a frame is 10 bits
+    let frame_ps = 10 * 1_000_000_000_000u64 / (hz / 694);
+    u.write(0x28, u32::from(b'A'), 0, hz, &mut io);
+    // the byte is on the wire for one frame; the answer follows back to back
+    assert_eq!(u.next_event(hz, &io), Some(frame_ps));
+    u.update(frame_ps, hz, &mut io);
+    assert_eq!(
+        u.next_event(hz, &io),
+        Some(2 * frame_ps),
+        "first byte of the answer"
+    );
+    u.update(2 * frame_ps, hz, &mut io);
+    assert_eq!(
+        u.read(0x1C, 2 * frame_ps, hz, &mut io) & (1 << 5),
+        1 << 5,
+        "RXNE"
+    );
+    // RDR not read: the second byte of the answer overruns (ORE), RDR keeps the first
+    u.update(3 * frame_ps, hz, &mut io);
+    let isr = u.read(0x1C, 3 * frame_ps, hz, &mut io);
+    assert_eq!(isr & (1 << 3), 1 << 3, "ORE");
+    assert_eq!(u.read(0x24, 3 * frame_ps, hz, &mut io), u32::from(b'A'));
+    assert_eq!(u.overruns, 1);
+    // an injected overrun loses a byte that would have been read in time
+    u.write(0x20, 1 << 3, 3 * frame_ps, hz, &mut io); // ORECF
+    io.uart_rx.lose_next = 1;
+    u.write(0x28, u32::from(b'B'), 3 * frame_ps, hz, &mut io);
+    u.update(5 * frame_ps, hz, &mut io);
+    assert_eq!(u.overruns, 2, "'B' lost");
+    u.update(6 * frame_ps, hz, &mut io);
+    assert_eq!(u.read(0x24, 6 * frame_ps, hz, &mut io), u32::from(b'\n'));
+}
+
+#[test]
+fn the_clock_pauses_at_the_horizon_and_on_output() {
+    use nanocal_stm32_board::Clock;
+    let clock = Arc::new(Clock::default());
+    let c = clock.clone();
+    // a "board" that moves 1 ms at a time up to the horizon, and holds after 5 ms (output)
+    let t = std::thread::spawn(move || {
+        let mut now = 0u64;
+        loop {
+            if now >= c.horizon_ps() {
+                if !c.pause(now, None) {
+                    return now;
+                }
+                continue;
+            }
+            now += MS;
+            if now == 5 * MS {
+                c.hold_at(now);
+            }
+        }
+    });
+    assert_eq!(clock.wait_paused(0).now_ps, 0, "starts paused at 0");
+    assert_eq!(clock.run_to(10 * MS).now_ps, 5 * MS, "paused on its output");
+    assert_eq!(clock.run_to(10 * MS).now_ps, 10 * MS);
+    assert_eq!(clock.run_to(3 * MS).now_ps, 10 * MS, "never back");
+    clock.stop(0);
+    assert_eq!(t.join().unwrap(), 10 * MS);
 }

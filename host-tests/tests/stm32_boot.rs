@@ -9,7 +9,6 @@
 mod stm32_sim;
 
 use nanocal_stm32_board::ResetKind;
-use std::time::Duration;
 use stm32_sim::Stm32;
 
 #[test]
@@ -18,9 +17,7 @@ fn stm32_boots_past_adc_calibration_without_watchdog_resets() {
     board.usb.attach();
     // 5 s of board time: two watchdog periods. The supervisor task flashes LD2 ("no model":
     // a short flash every 2 s) only once main has spawned the tasks.
-    let s = board.wait_for("5 s of board time", Duration::from_secs(300), |s| {
-        s.now_s >= 5.0
-    });
+    let s = board.run_for(5.0);
     let resets: Vec<_> = s.boots.iter().skip(1).collect();
     assert!(
         resets.is_empty(),

@@ -380,6 +380,38 @@ impl Stm32 {
         }
     }
 
+    /// Ask the device's status through `c` until `f` holds, running the board
+    /// [`STEP_S`] × 10 between looks, within `within_s` of board time.
+    pub fn status_until(
+        &self,
+        c: &mut Client,
+        what: &str,
+        within_s: f64,
+        mut f: impl FnMut(&nanocal_compensator::mgmt::Status) -> bool,
+    ) -> nanocal_compensator::mgmt::Status {
+        let t0 = self.now_s();
+        loop {
+            let s = c.status().expect("status");
+            if f(&s) {
+                return s;
+            }
+            assert!(
+                self.now_s() - t0 < within_s,
+                "no {what} within {within_s} s of board time: {s:?}"
+            );
+            self.run_for(10.0 * STEP_S);
+        }
+    }
+
+    /// Set the fault condition of the MAX31856 on `cs` from status-register bits (OPEN: the
+    /// thermocouple breaks; OVUV: shorted).
+    pub fn set_tc_status(&self, cs: usize, sr: u8) {
+        let mut b = self.buses.lock().unwrap();
+        let c: &mut nanocal::virtual_bench::chips::Max31856 = b.spi_mut(cs);
+        c.open = sr & 0x01 != 0;
+        c.shorted = sr & 0x02 != 0;
+    }
+
     /// Stop the board (power off) and take its store's flash.
     pub fn power_off(mut self) -> Box<StoreFlash> {
         self.control.stop.store(true, Ordering::Relaxed);
@@ -518,6 +550,17 @@ impl Gcs {
             out.push('\n');
         }
     }
+}
+
+/// The value of `axis` in a forwarded `MOV` line.
+pub fn stage_value(line: &str, axis: &str) -> f64 {
+    let t: Vec<&str> = line.split_whitespace().collect();
+    assert_eq!(t.first(), Some(&"MOV"), "forwarded line {line:?}");
+    let i = t
+        .iter()
+        .position(|a| *a == axis)
+        .unwrap_or_else(|| panic!("axis {axis} in {line:?}"));
+    t[i + 1].parse().unwrap()
 }
 
 /// The MAX31856 / LPS22HB / force set-up of the QEMU e2e tests.

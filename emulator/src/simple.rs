@@ -380,6 +380,8 @@ pub struct Adc {
     cal_done: Option<u64>,
     rdy_at: Option<u64>,
     conv_done: Option<u64>,
+    /// The enable completed (ADRDY was set; clearing the flag does not disable the ADC).
+    ready: bool,
 }
 
 /// The board's analog inputs by ADC1 channel: A0 = PC5 is ADC12_IN14 (datasheet DS10969,
@@ -400,6 +402,7 @@ impl Default for Adc {
             cal_done: None,
             rdy_at: None,
             conv_done: None,
+            ready: false,
         }
     }
 }
@@ -437,6 +440,7 @@ impl Adc {
         if self.rdy_at.is_some_and(|t| now_ps >= t) {
             self.rdy_at = None;
             self.isr |= 1;
+            self.ready = true;
         }
         if self.conv_done.is_some_and(|t| now_ps >= t) {
             self.conv_done = None;
@@ -510,8 +514,10 @@ impl Adc {
                 if v & 2 != 0 && cr & 1 != 0 {
                     cr &= !1; // ADDIS
                     self.isr &= !1;
+                    self.ready = false;
                 }
-                if v & 4 != 0 && cr & 1 != 0 && self.isr & 1 != 0 {
+                // ADSTART: "only when ADEN = 1 and ADDIS = 0" (§18.6.3), once enabled
+                if v & 4 != 0 && cr & 1 != 0 && self.ready {
                     cr |= 4;
                     // sampling time of SQ1's channel + 12.5 cycles (12-bit)
                     let ch = (self.other[0x30 / 4] >> 6) & 0x1F;

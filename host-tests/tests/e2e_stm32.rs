@@ -44,7 +44,11 @@ fn e2e_stm32_upload_sensors_and_corrected_moves() {
     let s = c.status().unwrap();
     assert_eq!(s.flags & flags::MODEL, 0, "no model before the upload");
     let id = c.identify().unwrap();
-    assert_eq!(id.reset_cause, ResetCause::PowerOn, "RCC_CSR says power-on (BORRSTF)");
+    assert_eq!(
+        id.reset_cause,
+        ResetCause::PowerOn,
+        "RCC_CSR says power-on (BORRSTF)"
+    );
 
     // without a model, moves are refused (and nothing reaches the controller)
     let mut host = b.gcs();
@@ -99,7 +103,11 @@ fn e2e_stm32_upload_sensors_and_corrected_moves() {
     let reply = host.ask("MOV?");
     let x = reply.strip_prefix("1=").unwrap().parse::<f64>().unwrap();
     assert!((x - 112.5).abs() <= 2e-4, "MOV? mapped to {x}");
-    assert_eq!(b.stage.drain(), ["POS? 1", "MOV?"], "queries forwarded untouched");
+    assert_eq!(
+        b.stage.drain(),
+        ["POS? 1", "MOV?"],
+        "queries forwarded untouched"
+    );
 
     // many targets, both directions
     let mut prev = 112.5;
@@ -132,7 +140,13 @@ fn e2e_stm32_upload_sensors_and_corrected_moves() {
     let mut bad = blob_bytes[..n].to_vec();
     bad[24] ^= 0x10;
     let e = c
-        .upload_raw(&bad, n as u32, blob::crc32(&bad), blob::FORMAT_VERSION, true)
+        .upload_raw(
+            &bad,
+            n as u32,
+            blob::crc32(&bad),
+            blob::FORMAT_VERSION,
+            true,
+        )
         .unwrap_err();
     assert!(matches!(e, DeviceError::Refused { code: 9, .. }), "{e}");
     let e = c
@@ -168,7 +182,9 @@ fn e2e_stm32_upload_sensors_and_corrected_moves() {
     assert_eq!(b.stage_line(1.0), "SVO 1 1", "blocked MOV not forwarded");
     // recovery: three good readings
     b.set_tc_status(1, 0);
-    b.status_until(&mut c, "sensor recovery", 2.0, |s| s.flags & flags::SENSOR_BLOCK == 0);
+    b.status_until(&mut c, "sensor recovery", 2.0, |s| {
+        s.flags & flags::SENSOR_BLOCK == 0
+    });
     host.send("MOV 1 250");
     check(stage_value(&b.stage_line(1.0), "1"), 250.0, [1, 0, 0]);
 
@@ -185,7 +201,10 @@ fn e2e_stm32_upload_sensors_and_corrected_moves() {
     let shifted = model.eval_f64(&[250.0, 0.0, 0.0], &[0; MAX_AXES], &slow())[0] + kmz[0];
     host.send("MOV 1 250");
     let got = stage_value(&b.stage_line(1.0), "1");
-    assert!((got - shifted).abs() <= 1e-4, "after KMZ: {got} vs {shifted}");
+    assert!(
+        (got - shifted).abs() <= 1e-4,
+        "after KMZ: {got} vs {shifted}"
+    );
 
     // a reset (AIRCR.SYSRESETREQ): the device re-enumerates, the model and its λ_KMZ come
     // back from flash, the reset cause says why
@@ -196,10 +215,16 @@ fn e2e_stm32_upload_sensors_and_corrected_moves() {
     assert_eq!(booted.boots[1].kind, ResetKind::Software);
     let mut c = b.mgmt();
     assert_eq!(c.identify().unwrap().reset_cause, ResetCause::Software);
-    let s = b.status_until(&mut c, "model reloaded", 2.0, |s| s.flags & flags::MODEL != 0);
+    let s = b.status_until(&mut c, "model reloaded", 2.0, |s| {
+        s.flags & flags::MODEL != 0
+    });
     assert_eq!(s.model_id, model.id());
     assert_eq!(s.kmz_um[0], kmz[0], "λ_KMZ stored with the model");
-    assert_eq!(b.usb.with(|h| h.enumerations), 2, "enumerated again after the reset");
+    assert_eq!(
+        b.usb.with(|h| h.enumerations),
+        2,
+        "enumerated again after the reset"
+    );
     let st = b.status();
     assert_eq!(st.boots.len(), 2, "no other reset: {:?}", st.log);
     assert_eq!(st.uart_overruns, 0, "no stage-link byte lost");

@@ -65,14 +65,17 @@ pub struct Status {
     pub led_rises: u64,
     /// Registers accessed that no model covers.
     pub unmodelled: Vec<u32>,
-    /// Double ECC errors the flash raised.
+    /// Double ECC errors the flash raised since the board was created.
     pub ecc_errors: u64,
-    /// Reads that returned stale data from the flash data cache (ES0250).
+    /// Reads that returned stale data from the flash data cache (ES0250), since creation.
     pub stale_cache_reads: u64,
-    /// Stage-link bytes lost to UART overruns.
+    /// Stage-link bytes lost to UART overruns, since creation.
     pub uart_overruns: u64,
     /// Flash operations (programs, erases) on the store since power-on.
     pub flash_ops: u64,
+    /// The longest stretch the core ran without sleeping (WFI/WFE) since the board was
+    /// created or [`Inject::reset_busy_record`], s: how long the executor was blocked at most.
+    pub longest_busy_s: f64,
     /// The PC where the core last was, with its function.
     pub pc: String,
     /// Notable events (faults taken, resets), oldest first (the last 100).
@@ -98,6 +101,9 @@ pub struct Control {
     /// Cut the power when the store's flash has done this many more operations (the one that
     /// finds 0 is torn), then power on again.
     pub cut_after_ops: Arc<Mutex<Option<u32>>>,
+    /// Power the board off and on again now, with this store flash in it (a test's fixed
+    /// starting point, on a board whose emulator is warm).
+    pub power_cycle_with: Arc<Mutex<Option<Box<StoreFlash>>>>,
     /// The board's clock: the horizon it runs to, where it paused.
     pub clock: Arc<Clock>,
     /// Faults to inject, taken by the board at its next step.
@@ -116,6 +122,8 @@ pub struct Inject {
     pub spi_stall: bool,
     /// UART4's transmitter stops (TXE/TC never set again) until the next reset.
     pub uart_tx_stall: bool,
+    /// Start [`Status::longest_busy_s`] afresh.
+    pub reset_busy_record: bool,
 }
 
 impl Default for Control {
@@ -124,6 +132,7 @@ impl Default for Control {
             stop: Arc::new(AtomicBool::new(false)),
             status: Arc::new(Mutex::new(Status::default())),
             cut_after_ops: Arc::new(Mutex::new(None)),
+            power_cycle_with: Arc::new(Mutex::new(None)),
             clock: Arc::new(Clock::default()),
             inject: Arc::new(Mutex::new(Inject::default())),
         }
@@ -166,6 +175,10 @@ pub struct Board<'a> {
     boots: Vec<ResetKindRecord>,
     /// The read watch of an injected ECC error in bank 1.
     ecc_hook: Option<unicorn_engine::UcHookId>,
+    /// When the core last woke (or the record started), ps.
+    awake_since: u64,
+    /// The longest stretch awake, ps.
+    longest_busy_ps: u64,
 }
 
 /// Board set-up failures.
@@ -299,8 +312,11 @@ impl<'a> Board<'a> {
                 cpu.limit = cpu.executed;
             }),
         )?;
-        uc.mem_map(0x1000_0000, 32 * 1024, Prot::ALL)?;
-        uc.mem_map(0x2000_0000, 96 * 1024, Prot::ALL)?;
+        // SRAM without EXEC: Unicorn treats every RAM page as holding code until told
+        // otherwise, so stores to executable RAM take the slow path that invalidates
+        // translations (the firmware runs from flash only; a jump into RAM stops the board)
+        uc.mem_map(0x1000_0000, 32 * 1024, Prot::READ | Prot::WRITE)?;
+        uc.mem_map(0x2000_0000, 96 * 1024, Prot::READ | Prot::WRITE)?;
         uc.mem_map(0x1FFF_0000, 0x8000, Prot::READ)?;
         for (base, size) in [
             (0x4000_0000u64, 0x3_0000u64),
@@ -380,6 +396,8 @@ impl<'a> Board<'a> {
             control,
             instructions: 0,
             ecc_hook: None,
+            awake_since: 0,
+            longest_busy_ps: 0,
             boots: vec![],
         };
         b.boot(ResetKind::PowerOn)?;
@@ -421,7 +439,9 @@ impl<'a> Board<'a> {
         self.uc.reg_write(RegisterARM::LR, 0xFFFF_FFFF)?;
         self.uc.reg_write(RegisterARM::PC, u64::from(pc | 1))?;
         self.frames.clear();
-        self.sleeping = None;
+        if self.sleeping.take().is_some() {
+            self.awake_since = self.uc.get_data().chip.now_ps;
+        }
         let at_s = self.uc.get_data().chip.now_ps as f64 / PS as f64;
         self.boots.push(ResetKindRecord { kind, at_s });
         self.control.status.lock().unwrap().boots = self.boots.clone();
@@ -463,6 +483,10 @@ impl<'a> Board<'a> {
         let mut chip = Chip::with_rcc(rcc, store, io);
         chip.now_ps = old.now_ps;
         chip.cycles = old.cycles;
+        // the board's tallies run over resets
+        chip.flash.ecc_errors = old.flash.ecc_errors;
+        chip.flash.stale_reads = old.flash.stale_reads;
+        chip.uart4.overruns = old.uart4.overruns;
         self.uc.get_data_mut().chip = chip;
         self.boot(kind)
     }
@@ -691,7 +715,19 @@ impl<'a> Board<'a> {
         st.stale_cache_reads = chip.flash.stale_reads;
         st.uart_overruns = chip.uart4.overruns;
         st.flash_ops = chip.flash.ops;
+        let awake = if self.sleeping.is_none() {
+            total - self.awake_since.min(total)
+        } else {
+            0
+        };
+        st.longest_busy_s = self.longest_busy_ps.max(awake) as f64 / PS as f64;
         st.pc = format!("{pc:#010x} {name}");
+    }
+
+    /// The core went to sleep: the stretch it was awake ends.
+    fn note_sleep(&mut self) {
+        let now = self.uc.get_data().chip.now_ps;
+        self.longest_busy_ps = self.longest_busy_ps.max(now - self.awake_since.min(now));
     }
 
     /// Apply the faults a test asked for.
@@ -704,6 +740,11 @@ impl<'a> Board<'a> {
         }
         if inj.uart_tx_stall {
             chip.uart4.tx_stalled = true;
+        }
+        let now = chip.now_ps;
+        if inj.reset_busy_record {
+            self.longest_busy_ps = 0;
+            self.awake_since = now;
         }
         if let Some(a) = inj.ecc_at {
             chip.flash.inject_ecc(a);
@@ -767,6 +808,11 @@ impl<'a> Board<'a> {
                     c.flash.power_lost,
                 )
             };
+            let replaced = self.control.power_cycle_with.lock().unwrap().take();
+            let cut = cut || replaced.is_some();
+            if let Some(store) = replaced {
+                *self.chip().store = *store;
+            }
             let reset = if cut {
                 Some(ResetKind::PowerOn)
             } else if wdg {
@@ -805,7 +851,9 @@ impl<'a> Board<'a> {
             if let Some(n) = next {
                 if !self.in_it_block() {
                     self.enter(n);
-                    self.sleeping = None;
+                    if self.sleeping.take().is_some() {
+                        self.awake_since = self.chip().now_ps;
+                    }
                     continue;
                 }
             }
@@ -823,6 +871,7 @@ impl<'a> Board<'a> {
                 };
                 if wake {
                     self.sleeping = None;
+                    self.awake_since = now;
                     stuck = 0;
                     continue;
                 }
@@ -933,9 +982,13 @@ impl<'a> Board<'a> {
                                 nv.event = false;
                             } else {
                                 self.sleeping = Some(Hint::Wfe);
+                                self.note_sleep();
                             }
                         }
-                        Hint::Wfi => self.sleeping = Some(Hint::Wfi),
+                        Hint::Wfi => {
+                            self.sleeping = Some(Hint::Wfi);
+                            self.note_sleep();
+                        }
                     }
                 }
             }

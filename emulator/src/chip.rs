@@ -378,6 +378,7 @@ impl Chip {
         let en15 = self.clocked(Enable::Apb2(16));
         self.tim15.update(now, c.tim2, en15);
         self.adc.update(now, &mut self.io);
+        self.flash.finish(now);
         let hz = self.rcc.uart4_hz();
         if self.clocked(Enable::Apb1(19)) {
             self.uart4.update(now, hz, &mut self.io);

@@ -156,7 +156,8 @@ impl FlashCtl {
         self.acr & 7
     }
 
-    fn finish(&mut self, now_ps: u64) {
+    /// Complete the operation in progress if its time has come.
+    pub fn finish(&mut self, now_ps: u64) {
         if let Some(b) = self.busy {
             if now_ps >= b.until_ps {
                 self.busy = None;

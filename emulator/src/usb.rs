@@ -339,6 +339,54 @@ impl Host {
         let mut guard = self.shared.lock().unwrap();
         let s = &mut *guard;
         for k in 0..2 {
+            while s.dtr_pulses[k] > 0 {
+                s.dtr_pulses[k] -= 1;
+                if let Some(p) = s.ports.get_mut(k).filter(|p| p.open) {
+                    p.line_state_due.extend([false, true]);
+                }
+            }
+            // the open connection first: a client that closed and connected again is seen
+            // closing, then opening
+            if let Some(c) = s.clients[k].as_mut() {
+                let mut closed = false;
+                let mut b = [0u8; 512];
+                loop {
+                    match c.read(&mut b) {
+                        Ok(0) => {
+                            closed = true;
+                            break;
+                        }
+                        Ok(n) => s.ports[k].out.extend(&b[..n]),
+                        Err(e) if e.kind() == ErrorKind::WouldBlock => break,
+                        Err(e) if e.kind() == ErrorKind::Interrupted => continue,
+                        Err(_) => {
+                            closed = true;
+                            break;
+                        }
+                    }
+                }
+                let p = &mut s.ports[k];
+                while !closed && !p.backlog.is_empty() {
+                    match c.write(&p.backlog) {
+                        Ok(0) => closed = true,
+                        Ok(n) => {
+                            p.backlog.drain(..n);
+                        }
+                        Err(e) if e.kind() == ErrorKind::WouldBlock => break,
+                        Err(e) if e.kind() == ErrorKind::Interrupted => continue,
+                        Err(_) => closed = true,
+                    }
+                }
+                if closed {
+                    // the client closed its end: the tty is closed (DTR drops); what the
+                    // device sent for it is gone with it
+                    s.clients[k] = None;
+                    p.open = false;
+                    p.out.clear();
+                    p.backlog.clear();
+                    p.line_state_due.push_back(false);
+                }
+            }
             for l in &s.listeners[k] {
                 while let Some(c) = l.accept() {
                     let usable = s.configured && k < s.ports.len() && s.clients[k].is_none();
@@ -351,53 +399,6 @@ impl Host {
                     p.line_state_due.push_back(true);
                     s.clients[k] = Some(c);
                 }
-            }
-            while s.dtr_pulses[k] > 0 {
-                s.dtr_pulses[k] -= 1;
-                if let Some(p) = s.ports.get_mut(k).filter(|p| p.open) {
-                    p.line_state_due.extend([false, true]);
-                }
-            }
-            let Some(c) = s.clients[k].as_mut() else {
-                continue;
-            };
-            let mut closed = false;
-            let mut b = [0u8; 512];
-            loop {
-                match c.read(&mut b) {
-                    Ok(0) => {
-                        closed = true;
-                        break;
-                    }
-                    Ok(n) => s.ports[k].out.extend(&b[..n]),
-                    Err(e) if e.kind() == ErrorKind::WouldBlock => break,
-                    Err(e) if e.kind() == ErrorKind::Interrupted => continue,
-                    Err(_) => {
-                        closed = true;
-                        break;
-                    }
-                }
-            }
-            let p = &mut s.ports[k];
-            while !closed && !p.backlog.is_empty() {
-                match c.write(&p.backlog) {
-                    Ok(0) => closed = true,
-                    Ok(n) => {
-                        p.backlog.drain(..n);
-                    }
-                    Err(e) if e.kind() == ErrorKind::WouldBlock => break,
-                    Err(e) if e.kind() == ErrorKind::Interrupted => continue,
-                    Err(_) => closed = true,
-                }
-            }
-            if closed {
-                // the client closed its end: the tty is closed (DTR drops); what the device
-                // sent for it is gone with it
-                s.clients[k] = None;
-                p.open = false;
-                p.out.clear();
-                p.backlog.clear();
-                p.line_state_due.push_back(false);
             }
         }
     }

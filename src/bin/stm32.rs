@@ -84,6 +84,19 @@ static ECC_ERROR: AtomicBool = AtomicBool::new(false);
 /// timer (embassy-time's timers need an executor task; at start-up nothing else runs).
 static BOOTING: AtomicBool = AtomicBool::new(true);
 
+/// IWDG key register (RM0351 §32.4.1): 0xAAAA reloads the counter.
+const IWDG_KR: usize = 0x4000_3000;
+
+/// Reload the watchdog while the store is read (and repaired) at boot, before any task runs:
+/// the supervisor is not there yet, and a store full of items takes longer than the watchdog's
+/// 2 s to scan (tests/e2e_stm32_power_cut.rs: a store whose free space was used up reset the
+/// board at every boot). Once the tasks run this does nothing.
+fn feed_watchdog_while_booting() {
+    if BOOTING.load(Ordering::Relaxed) {
+        set(IWDG_KR, 0xAAAA);
+    }
+}
+
 fn reg(a: usize) -> u32 {
     // SAFETY: FLASH controller register, 32-bit access.
     unsafe { read_volatile(a as *const u32) }
@@ -141,6 +154,7 @@ impl L4Flash {
     async fn wait_idle(poll_us: u64) -> Result<(), FlashError> {
         while reg(FLASH_SR) & SR_BSY != 0 {
             if BOOTING.load(Ordering::Relaxed) {
+                feed_watchdog_while_booting();
                 continue;
             }
             if poll_us == 0 {
@@ -189,6 +203,7 @@ impl RawFlash for L4Flash {
     }
 
     fn read_dword(&mut self, offset: u32) -> [u8; DWORD] {
+        feed_watchdog_while_booting();
         let a = (STORE_BASE + offset) as usize;
         let (lo, hi) = (reg(a), reg(a + 4));
         let mut d = [0u8; DWORD];

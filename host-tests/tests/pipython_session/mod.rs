@@ -218,7 +218,7 @@ pub fn check(stdout: &str, model: &Model, events: Vec<Event>, seen: Vec<String>)
     ];
     assert_eq!(targets.len(), meant.len(), "{targets:?}");
     for ((q, by), x) in targets.iter().zip(meant) {
-        let want = command(&model, x);
+        let want = command(model, x);
         assert!(
             (q - want).abs() <= 5e-4,
             "target for {x} µm: controller got {q} ({by}), correction {want}"

@@ -163,6 +163,15 @@ impl UartPeer for Stage {
     }
 }
 
+/// An E-727 with one axis, servo on, whose stage arrives at once.
+pub fn e727() -> Config {
+    let mut cfg = Config::e727(1).ready();
+    for a in &mut cfg.axes {
+        a.velocity = 1e12;
+    }
+    cfg
+}
+
 /// Default step of [`Stm32::run_until`]: its condition is looked at this often (board time),
 /// and whenever the board hands a USB client bytes.
 const STEP_S: f64 = 0.01;
@@ -188,11 +197,7 @@ impl Stm32 {
     /// Power the board on with `buses` on its sensor buses and an E-727 with one axis, servo
     /// on, whose stage arrives at once, on UART4. The board is paused at 0 s.
     pub fn start(buses: Buses) -> Self {
-        let mut cfg = Config::e727(1).ready();
-        for a in &mut cfg.axes {
-            a.velocity = 1e12;
-        }
-        Self::start_with(buses, cfg, None)
+        Self::start_with(buses, e727(), None)
     }
 
     /// Power the board on with the given chips, controller and store flash (`None`: erased).

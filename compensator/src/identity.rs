@@ -23,6 +23,14 @@ pub enum ResetCause {
     Other,
     /// No flag set (unknown).
     Unknown,
+    /// The firmware panicked (a bug); the site is in [`Site`].
+    Panic,
+    /// A double ECC error outside the store: the firmware's own flash (code, constants) is
+    /// damaged — reflash the board; the address is in [`Site`].
+    FlashEcc,
+    /// The CPU faulted (HardFault: an undefined instruction, a bad access); the PC is in
+    /// [`Site`].
+    Fault,
 }
 
 impl ResetCause {
@@ -37,6 +45,9 @@ impl ResetCause {
             ResetCause::LowPower => 6,
             ResetCause::Other => 7,
             ResetCause::Unknown => 0,
+            ResetCause::Panic => 8,
+            ResetCause::FlashEcc => 9,
+            ResetCause::Fault => 10,
         }
     }
 
@@ -50,6 +61,9 @@ impl ResetCause {
             5 => ResetCause::WindowWatchdog,
             6 => ResetCause::LowPower,
             7 => ResetCause::Other,
+            8 => ResetCause::Panic,
+            9 => ResetCause::FlashEcc,
+            10 => ResetCause::Fault,
             _ => ResetCause::Unknown,
         }
     }
@@ -90,7 +104,70 @@ impl fmt::Display for ResetCause {
             ResetCause::LowPower => "illegal low-power entry",
             ResetCause::Other => "option-byte load or firewall",
             ResetCause::Unknown => "unknown",
+            ResetCause::Panic => "panic (a firmware bug)",
+            ResetCause::FlashEcc => "double ECC error in the firmware's flash (reflash the board)",
+            ResetCause::Fault => "CPU fault (HardFault)",
         })
+    }
+}
+
+/// Where a reset the firmware recorded itself came from ([`ResetCause::Panic`],
+/// [`ResetCause::FlashEcc`], [`ResetCause::Fault`]): kept over the reset (on the STM32 board in
+/// RTC backup registers) and reported in HELLO after the reset cause as text.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Site<'a> {
+    /// Nothing recorded.
+    None,
+    /// A source line (a panic).
+    Line {
+        /// Source file.
+        file: &'a str,
+        /// Line.
+        line: u32,
+    },
+    /// An address (the double word with the ECC error, or the faulting PC).
+    Address(u32),
+}
+
+impl Site<'_> {
+    /// The site as text into `out` (`file:line`, or `0x` and eight hex digits); its length
+    /// (cut to `out`).
+    pub fn write(&self, out: &mut [u8]) -> usize {
+        let mut n = 0;
+        let mut push = |b: u8| {
+            if let Some(c) = out.get_mut(n) {
+                *c = b;
+                n += 1;
+            }
+        };
+        match *self {
+            Site::None => {}
+            Site::Line { file, line } => {
+                file.bytes().for_each(&mut push);
+                push(b':');
+                let mut digits = [0u8; 10];
+                let mut k = 0;
+                let mut v = line;
+                loop {
+                    digits[k] = b'0' + (v % 10) as u8;
+                    k += 1;
+                    v /= 10;
+                    if v == 0 {
+                        break;
+                    }
+                }
+                digits[..k].iter().rev().for_each(|&d| push(d));
+            }
+            Site::Address(a) => {
+                const HEX: &[u8; 16] = b"0123456789abcdef";
+                push(b'0');
+                push(b'x');
+                for i in (0..8).rev() {
+                    push(HEX[((a >> (4 * i)) & 0xF) as usize]);
+                }
+            }
+        }
+        n
     }
 }
 

@@ -23,7 +23,8 @@
 //! | `RESET` 0x32 | – | – (the device resets after replying) |
 //!
 //! `HELLO` data, after the three u16: firmware version (len u8, ASCII), chip UID (12 bytes),
-//! reset cause u8 ([`crate::identity::ResetCause::code`]).
+//! reset cause u8 ([`crate::identity::ResetCause::code`]), reset site (len u8, ASCII:
+//! [`crate::identity::Site::write`], empty when the firmware recorded none).
 //!
 //! Result codes: 0 ok; 1..=9 [`crate::upload::UploadError::code`]; [`RESULT_STORAGE`];
 //! [`RESULT_NO_MODEL`]; [`RESULT_BAD_REQUEST`]; [`RESULT_UNKNOWN_KIND`]; [`RESULT_INPUT`] (the
@@ -36,8 +37,9 @@ use core::fmt;
 /// [`Status::slow_outside`] widened from u16 to u32 (a model has up to 23 inputs with envelope
 /// bits). 3: 16 temperatures in STATUS ([`STATUS_SENSORS`]), settings layout 2 (16
 /// chip-selects). 4: [`Status::move_fold`] in the word that was the unused `slot_seq` (0), with
-/// [`flags::MOVE_FOLD`]; the layout is unchanged.
-pub const PROTOCOL: u16 = 4;
+/// [`flags::MOVE_FOLD`]; the layout is unchanged. 5: HELLO ends with the reset site; reset
+/// causes 8 (panic), 9 (double ECC error outside the store), 10 (CPU fault).
+pub const PROTOCOL: u16 = 5;
 /// Frame sync bytes.
 pub const SYNC: [u8; 2] = [0xA7, 0x5C];
 /// Largest payload.

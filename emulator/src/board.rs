@@ -73,6 +73,10 @@ pub struct Status {
     pub uart_overruns: u64,
     /// Flash operations (programs, erases) on the store since power-on.
     pub flash_ops: u64,
+    /// Times a chip-select went low while another was still low (two chips on the bus).
+    pub cs_conflicts: u64,
+    /// UART4's baud rate in force (from BRR and its clock).
+    pub stage_baud: u64,
     /// The longest stretch the core ran without sleeping (WFI/WFE) since the board was
     /// created or [`Inject::reset_busy_record`], s: how long the executor was blocked at most.
     pub longest_busy_s: f64,
@@ -124,6 +128,10 @@ pub struct Inject {
     pub uart_tx_stall: bool,
     /// Start [`Status::longest_busy_s`] afresh.
     pub reset_busy_record: bool,
+    /// Call the function at this address with these four arguments (R0–R3) from thread mode
+    /// at the next instruction boundary outside an exception — as if the code running had
+    /// called it (e.g. `core::panicking::panic_bounds_check`, to exercise the panic path).
+    pub call: Option<(u32, [u32; 4])>,
 }
 
 impl Default for Control {
@@ -175,6 +183,8 @@ pub struct Board<'a> {
     boots: Vec<ResetKindRecord>,
     /// The read watch of an injected ECC error in bank 1.
     ecc_hook: Option<unicorn_engine::UcHookId>,
+    /// A call injected, waiting for thread mode.
+    pending_call: Option<(u32, [u32; 4])>,
     /// When the core last woke (or the record started), ps.
     awake_since: u64,
     /// The longest stretch awake, ps.
@@ -396,6 +406,7 @@ impl<'a> Board<'a> {
             control,
             instructions: 0,
             ecc_hook: None,
+            pending_call: None,
             awake_since: 0,
             longest_busy_ps: 0,
             boots: vec![],
@@ -473,6 +484,9 @@ impl<'a> Board<'a> {
             (old.rcc.bdcr, old.rcc.csr & 0xFF00_0000)
         };
         let mut rcc = Rcc::system_reset(bdcr);
+        if kind != ResetKind::PowerOn {
+            rcc.bkp = old.rcc.bkp;
+        }
         rcc.csr |= csr_flags | flag | csr::PINRSTF;
         let mut store = old.store;
         if kind == ResetKind::PowerOn {
@@ -715,6 +729,8 @@ impl<'a> Board<'a> {
         st.stale_cache_reads = chip.flash.stale_reads;
         st.uart_overruns = chip.uart4.overruns;
         st.flash_ops = chip.flash.ops;
+        st.cs_conflicts = chip.io.cs_conflicts;
+        st.stage_baud = chip.uart4.baud;
         let awake = if self.sleeping.is_none() {
             total - self.awake_since.min(total)
         } else {
@@ -733,6 +749,9 @@ impl<'a> Board<'a> {
     /// Apply the faults a test asked for.
     fn take_injections(&mut self) {
         let inj = std::mem::take(&mut *self.control.inject.lock().unwrap());
+        if inj.call.is_some() {
+            self.pending_call = inj.call;
+        }
         let chip = &mut self.uc.get_data_mut().chip;
         chip.io.uart_rx.lose_next += inj.uart_overruns;
         if inj.spi_stall {
@@ -843,6 +862,30 @@ impl<'a> Board<'a> {
                 // a client got bytes: let whoever drives the board look at them at this time
                 let now = self.chip().now_ps;
                 clock.hold_at(now);
+            }
+            if self.pending_call.is_some()
+                && self.chip().nvic.active.is_empty()
+                && !self.in_it_block()
+            {
+                let (target, args) = self.pending_call.take().unwrap_or_default();
+                let pc = self.reg(RegisterARM::PC);
+                for (r, v) in [
+                    RegisterARM::R0,
+                    RegisterARM::R1,
+                    RegisterARM::R2,
+                    RegisterARM::R3,
+                ]
+                .into_iter()
+                .zip(args)
+                {
+                    self.set(r, v);
+                }
+                self.set(RegisterARM::LR, pc | 1);
+                self.set(RegisterARM::PC, target | 1);
+                if self.sleeping.take().is_some() {
+                    self.awake_since = self.chip().now_ps;
+                }
+                self.log(format!("injected call to {target:#010x}"));
             }
             // exceptions
             let primask = self.reg(RegisterARM::PRIMASK) & 1 != 0;

@@ -160,6 +160,12 @@ impl Chip {
         let word = addr & !3;
         let shift = 8 * (addr & 3);
         let v = match word {
+            0x4000_2800..=0x4000_2BFF => {
+                if !self.clocked(Enable::Apb1(10)) {
+                    return 0;
+                }
+                self.rcc.rtc_read(word - 0x4000_2800)
+            }
             0x4000_3000..=0x4000_33FF => self.iwdg.read(word - 0x4000_3000),
             0x4000_4C00..=0x4000_4FFF => {
                 if !self.clocked(Enable::Apb1(19)) {
@@ -259,6 +265,11 @@ impl Chip {
             (old & !mask) | ((value << shift) & mask)
         };
         match word {
+            0x4000_2800..=0x4000_2BFF => {
+                if self.clocked(Enable::Apb1(10)) {
+                    self.rcc.rtc_write(word - 0x4000_2800, v);
+                }
+            }
             0x4000_3000..=0x4000_33FF => self.iwdg.write(word - 0x4000_3000, v, now, &mut self.rcc),
             0x4000_4C00..=0x4000_4FFF => {
                 if self.clocked(Enable::Apb1(19)) {
@@ -395,6 +406,8 @@ impl Chip {
             self.usb.update(now, clk48, &mut self.io);
             self.gpio[0].external[9] = Some(self.io.usb_attached());
         }
+        // SDA (PB11) held low by a slave: what the pin reads, whatever drives it
+        self.gpio[1].external[11] = self.io.i2c_sda_held().then_some(false);
         let lines = &mut self.nvic.lines;
         lines[16 + irq::TIM15] = self.tim15.irq();
         lines[16 + irq::ADC1_2] = self.adc.irq();

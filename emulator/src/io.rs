@@ -91,6 +91,8 @@ pub struct Io {
     pub bus: Arc<Mutex<dyn SensorBus>>,
     /// Chip-select low now.
     selected: Option<usize>,
+    /// Times a chip-select went low while another was still low.
+    pub cs_conflicts: u64,
     /// The stage controller on UART4.
     pub uart: Option<Box<dyn UartPeer>>,
     /// UART4's RX line.
@@ -112,6 +114,7 @@ impl Io {
             now_s: 0.0,
             bus,
             selected: None,
+            cs_conflicts: 0,
             uart,
             uart_rx: UartLine::default(),
             sda_held: Arc::new(AtomicBool::new(false)),
@@ -146,6 +149,12 @@ impl Io {
         };
         let mut bus = self.bus.lock().unwrap();
         if !level {
+            if self.selected.is_some_and(|o| o != cs) {
+                // two chips selected: both would drive MISO; the model keeps talking to the
+                // first and counts the fault
+                self.cs_conflicts += 1;
+                return;
+            }
             self.selected = Some(cs);
             bus.spi_select(cs, self.now_s);
         } else if self.selected == Some(cs) {

@@ -100,6 +100,9 @@ pub struct Rcc {
     pub ccipr: u32,
     /// BDCR (backup domain: kept over a system reset).
     pub bdcr: u32,
+    /// RTC backup registers BKP0R..BKP31R (backup domain: kept over a system reset, cleared by
+    /// a power cut — the board has no backup battery — and by BDCR.BDRST; RM0351 §38.3.15).
+    pub bkp: [u32; 32],
     /// CSR.
     pub csr: u32,
     /// ICSCR.
@@ -148,6 +151,7 @@ impl Rcc {
             cier: 0,
             ccipr: 0,
             bdcr,
+            bkp: [0; 32],
             csr: 0x0C00_0600 & !(csr::BORRSTF | csr::PINRSTF), // MSISRANGE 6
             icscr: 0x1000_0000,
             pwr_cr1: 0x200, // VOS range 1
@@ -363,6 +367,9 @@ impl Rcc {
                 if self.pwr_cr1 & (1 << 8) == 0 {
                     return;
                 }
+                if v & (1 << 16) != 0 {
+                    self.bkp = [0; 32]; // BDRST resets the backup domain
+                }
                 let mut b = v & !(1 << 1 | 1 << 6);
                 if v & 1 != 0 {
                     b |= 1 << 1; // LSERDY: the board's 32.768 kHz crystal X2 (UM2153 §6.5)
@@ -445,6 +452,24 @@ impl Rcc {
             return Err(format!("PLL VCO {vco} Hz (N = {n}) outside 64..344 MHz"));
         }
         Ok(())
+    }
+
+    /// Read an RTC register (offset from 0x4000_2800): the backup registers; the rest reads 0
+    /// (the calendar is not modelled).
+    pub fn rtc_read(&self, off: u32) -> u32 {
+        match off {
+            0x50..=0xCC => self.bkp[((off - 0x50) / 4) as usize],
+            _ => 0,
+        }
+    }
+
+    /// Write an RTC register: the backup registers, with the backup domain unlocked (DBP).
+    pub fn rtc_write(&mut self, off: u32, v: u32) {
+        if let 0x50..=0xCC = off {
+            if self.pwr_cr1 & (1 << 8) != 0 {
+                self.bkp[((off - 0x50) / 4) as usize] = v;
+            }
+        }
     }
 
     /// Read a PWR register.

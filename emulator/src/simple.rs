@@ -51,7 +51,11 @@ impl Gpio {
     pub fn level(&self, p: usize) -> bool {
         let mode = (self.moder >> (2 * p)) & 3;
         if mode == 1 {
-            return self.odr & (1 << p) != 0;
+            let driven = self.odr & (1 << p) != 0;
+            // open drain: a high output only releases the line; something outside may hold
+            // it low (an I2C slave on SDA)
+            let open_drain = self.otyper & (1 << p) != 0;
+            return driven && !(open_drain && self.external[p] == Some(false));
         }
         if let Some(l) = self.external[p] {
             return l;

@@ -2,17 +2,22 @@
 //! settings, reset.
 
 use super::supervisor::led_state;
-use super::{fresh_proxy, now_ms, read_some, Comp, Shared};
+use super::{fresh_proxy, now_ms, read_some, task, Comp, Shared};
 use core::sync::atomic::Ordering;
+use embassy_futures::select::{select, Either};
 use embedded_io_async::{Read, Write};
 use embedded_storage_async::nor_flash::NorFlash;
 use nanocal_compensator::inputs;
+use nanocal_compensator::l4flash::EccErrors;
 use nanocal_compensator::mgmt::{self, flags, kind, Decoder, Reader, Status, Writer};
 use nanocal_compensator::proxy::Gate;
 use nanocal_compensator::settings::{self, Settings};
 use nanocal_compensator::store::Store;
 use nanocal_compensator::upload::Upload;
 use nanocal_model::{blob, MAX_AXES};
+
+/// How long a reply may wait for the host to read it, ms.
+const REPLY_STALL_MS: u64 = 1_000;
 
 /// Firmware version reported in HELLO.
 pub const VERSION: &str = env!("CARGO_PKG_VERSION");
@@ -111,7 +116,7 @@ fn encode_staged(sh: &Shared, out: &mut [u8]) -> Option<usize> {
 /// Run the management channel. The store's scratch receives uploads (a blob is either being
 /// received or being written); `reset` resets the device (after the reply to a `RESET` went
 /// out).
-pub async fn management<R: Read, W: Write, F: NorFlash>(
+pub async fn management<R: Read, W: Write, F: NorFlash + EccErrors>(
     mut rx: R,
     mut tx: W,
     store: &mut Store<F>,
@@ -130,6 +135,7 @@ pub async fn management<R: Read, W: Write, F: NorFlash>(
             load_model(store, sh).await;
             load = false;
         }
+        super::note_flash_ecc_errors(sh, store.flash().ecc_errors());
         let n = read_some(&mut rx, &mut inbuf).await;
         for &b in &inbuf[..n] {
             match dec.feed(b) {
@@ -137,9 +143,22 @@ pub async fn management<R: Read, W: Write, F: NorFlash>(
                     let f = dec.frame();
                     let (k, seq) = (f.kind, f.seq);
                     let reply = &mut frame[mgmt::PAYLOAD_AT..][..mgmt::MAX_PAYLOAD];
-                    let len = handle(k, f.payload, reply, &mut upload, store, sh).await;
+                    let len = {
+                        let _busy = sh.beats[task::MGMT].busy(now_ms());
+                        handle(k, f.payload, reply, &mut upload, store, sh).await
+                    };
+                    super::note_flash_ecc_errors(sh, store.flash().ecc_errors());
                     if let Ok(m) = mgmt::seal(k | kind::REPLY, seq, len, &mut frame) {
-                        let _ = tx.write_all(&frame[..m]).await;
+                        // a host that does not read its reply loses it, not the device its
+                        // management channel
+                        let sent = select(
+                            embassy_time::Timer::after_millis(REPLY_STALL_MS),
+                            tx.write_all(&frame[..m]),
+                        )
+                        .await;
+                        if let Either::First(()) = sent {
+                            warn!("management reply not read for 1 s: dropped");
+                        }
                         let _ = tx.flush().await;
                     }
                     load = sh.model.lock(|m| m.borrow().pending);
@@ -180,6 +199,12 @@ async fn handle<F: NorFlash>(
             let _ = w.bytes(VERSION.as_bytes());
             let _ = w.bytes(&sh.identity.uid);
             let _ = w.u8(sh.identity.reset_cause.code());
+            // appended in protocol 1 without a version change: older hosts stop reading
+            // before it
+            let mut site = [0u8; 64];
+            let n = sh.identity.reset_site.write(&mut site);
+            let _ = w.u8(n as u8);
+            let _ = w.bytes(&site[..n]);
             return w.len();
         }
         kind::STATUS => {

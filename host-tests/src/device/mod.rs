@@ -108,6 +108,9 @@ pub struct Hello {
     pub uid: [u8; 12],
     /// Why the device last reset.
     pub reset_cause: ResetCause,
+    /// Where, when the firmware recorded it: a panic's `file:line`, the address of a double
+    /// ECC error or of a CPU fault (empty otherwise, and from firmware before protocol 5).
+    pub reset_site: String,
 }
 
 /// The chip UID as the USB serial number shows it (24 hex digits).
@@ -246,6 +249,10 @@ impl Client {
         let mut uid = [0u8; 12];
         uid.copy_from_slice(r.bytes(12).map_err(p)?);
         let reset_cause = ResetCause::from_code(r.u8().map_err(p)?);
+        let reset_site = match r.u8() {
+            Ok(n) => String::from_utf8_lossy(r.bytes(usize::from(n)).map_err(p)?).into_owned(),
+            Err(_) => String::new(),
+        };
         Ok(Hello {
             protocol,
             blob_format,
@@ -253,6 +260,7 @@ impl Client {
             firmware,
             uid,
             reset_cause,
+            reset_site,
         })
     }
 

@@ -117,11 +117,12 @@ pub struct Control {
 /// Faults a test injects into the board (each taken once).
 #[derive(Clone, Debug, Default)]
 pub struct Inject {
-    /// Lose this many of the next bytes UART4 receives to an overrun (the CPU "too slow").
-    pub uart_overruns: u32,
-    /// The next data read of the flash double word at this address (bank 1 or 2) fails with a
-    /// double ECC error (ECCR.ECCD and the NMI, RM0351 §3.3.4).
-    pub ecc_at: Option<u32>,
+    /// Lose a byte UART4 receives to an overrun, as if the CPU had been too slow to read it:
+    /// the byte this many bytes from now (0: the next).
+    pub uart_lose_byte: Option<u32>,
+    /// The next data read of a flash double word in this address range (bank 1 or 2) fails
+    /// with a double ECC error (ECCR.ECCD and the NMI, RM0351 §3.3.4).
+    pub ecc_in: Option<std::ops::Range<u32>>,
     /// SPI1 stops shifting (SCK held) until the next reset: a transfer in progress never ends.
     pub spi_stall: bool,
     /// UART4's transmitter stops (TXE/TC never set again) until the next reset.
@@ -753,7 +754,9 @@ impl<'a> Board<'a> {
             self.pending_call = inj.call;
         }
         let chip = &mut self.uc.get_data_mut().chip;
-        chip.io.uart_rx.lose_next += inj.uart_overruns;
+        if let Some(k) = inj.uart_lose_byte {
+            chip.io.uart_rx.lose_in = Some(k);
+        }
         if inj.spi_stall {
             chip.spi1.stalled = true;
         }
@@ -765,19 +768,18 @@ impl<'a> Board<'a> {
             self.longest_busy_ps = 0;
             self.awake_since = now;
         }
-        if let Some(a) = inj.ecc_at {
-            chip.flash.inject_ecc(a);
-            let in_code = (crate::flash::BASE..STORE_BASE).contains(&a);
+        if let Some(r) = inj.ecc_in {
+            let in_code = (crate::flash::BASE..STORE_BASE).contains(&r.start);
+            chip.flash.inject_ecc(r.clone());
             if in_code && self.ecc_hook.is_none() {
-                // code and constants are plain ROM for Unicorn: watch data reads of that
-                // double word (instruction fetches are not modelled failing)
-                let w = u64::from(a & !7);
+                // code and constants are plain ROM for Unicorn: watch data reads of the range
+                // (instruction fetches are not modelled failing)
                 self.ecc_hook = self
                     .uc
                     .add_mem_hook(
                         HookType::MEM_READ,
-                        w,
-                        w + 7,
+                        u64::from(r.start),
+                        u64::from(r.end.max(r.start + 1) - 1),
                         |uc: &mut Unicorn<'_, Cpu>, _, addr, _, _| {
                             let cpu = uc.get_data_mut();
                             if cpu.chip.flash.take_injected_ecc(addr as u32) {

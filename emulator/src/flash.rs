@@ -71,8 +71,10 @@ pub struct FlashCtl {
     key_step: u8,
     first_word: Option<(u32, u32)>,
     busy: Option<Busy>,
-    /// The data cache: (line address, contents, stale) in fill order.
-    cache: Vec<(u32, [u8; LINE as usize], bool)>,
+    /// The data cache in fill order: line address, contents, stale (ES0250), and the double
+    /// words of the line that failed ECC when it was filled (bit per double word: reported
+    /// when one of them is read).
+    cache: Vec<(u32, [u8; LINE as usize], bool, u8)>,
     /// Operations (programs, erases) on the store since power-on.
     pub ops: u64,
     /// Reads that returned stale cached data (ES0250 erratum).
@@ -83,8 +85,8 @@ pub struct FlashCtl {
     pub errors: Vec<String>,
     /// A power cut tore an operation: the board loses power.
     pub power_lost: bool,
-    /// Injected: the next read of this double word fails with a double ECC error.
-    pub ecc_inject: Option<u32>,
+    /// Injected: the next read of a double word in this range fails with a double ECC error.
+    pub ecc_inject: Option<std::ops::Range<u32>>,
 }
 
 impl Default for FlashCtl {
@@ -121,23 +123,20 @@ impl FlashCtl {
         Self::default()
     }
 
-    /// The next data read of the double word at `addr` fails with a double ECC error.
-    pub fn inject_ecc(&mut self, addr: u32) {
-        self.ecc_inject = Some(addr & !7);
+    /// The next data read of a double word in `range` fails with a double ECC error.
+    pub fn inject_ecc(&mut self, range: std::ops::Range<u32>) {
+        self.ecc_inject = Some(range);
     }
 
     /// A read of `addr` (anywhere in the flash) with an injected ECC error pending for it:
     /// ECCR records it (ADDR is the double word's offset in its bank, BK_ECC its bank, ECCD,
     /// RM0351 §3.7.7) and the caller raises the NMI. True when it was the injected one.
     pub fn take_injected_ecc(&mut self, addr: u32) -> bool {
-        let Some(a) = self.ecc_inject else {
-            return false;
-        };
-        if addr & !7 != a {
+        if !self.ecc_inject.as_ref().is_some_and(|r| r.contains(&addr)) {
             return false;
         }
         self.ecc_inject = None;
-        self.record_ecc(a);
+        self.record_ecc(addr & !7);
         true
     }
 
@@ -332,28 +331,22 @@ impl FlashCtl {
         let line = addr & !(LINE - 1);
         let dcen = self.acr & (1 << 10) != 0;
         let cached = self.cache.iter().find(|l| l.0 == line).copied();
-        let bytes = match (dcen, cached) {
-            (true, Some((_, data, stale))) => {
+        let (bytes, torn) = match (dcen, cached) {
+            (true, Some((_, data, stale, torn))) => {
                 if stale {
                     self.stale_reads += 1;
                 }
-                data
+                (data, torn)
             }
             _ => {
                 let mut data = [0u8; LINE as usize];
+                let mut torn = 0u8;
                 for k in 0..(LINE as usize / DWORD) {
                     let a = line + (k * DWORD) as u32;
                     let _ = store.take_ecc_error();
                     let d = store.read_dword(a - STORE_BASE);
-                    let torn = store.take_ecc_error();
-                    if (a..a + DWORD as u32).contains(&addr) {
-                        // only the double word actually read reports (§3.3.4)
-                        if torn {
-                            self.record_ecc(a);
-                            fx.nmi = true;
-                        } else if self.take_injected_ecc(a) {
-                            fx.nmi = true;
-                        }
+                    if store.take_ecc_error() {
+                        torn |= 1 << k;
                     }
                     data[k * DWORD..(k + 1) * DWORD].copy_from_slice(&d);
                 }
@@ -361,11 +354,20 @@ impl FlashCtl {
                     if self.cache.len() == LINES {
                         self.cache.remove(0);
                     }
-                    self.cache.push((line, data, false));
+                    self.cache.push((line, data, false, torn));
                 }
-                data
+                (data, torn)
             }
         };
+        // only the double word actually read reports (§3.3.4), also from a cached line
+        let k = (addr - line) as usize / DWORD;
+        let a = line + (k * DWORD) as u32;
+        if torn & (1 << k) != 0 {
+            self.record_ecc(a);
+            fx.nmi = true;
+        } else if self.take_injected_ecc(a) {
+            fx.nmi = true;
+        }
         let o = (addr - line) as usize;
         let mut v = 0u64;
         for i in 0..size {

@@ -58,9 +58,9 @@ pub trait UartPeer: Send {
 pub struct UartLine {
     /// Bytes on their way to the board.
     pub queue: VecDeque<(u8, u64)>,
-    /// Fault injection: the next this many received bytes are lost to an overrun, as if the
-    /// CPU had not read RDR in time (RM0351 §40.5.5).
-    pub lose_next: u32,
+    /// Fault injection: the received byte this many bytes from now is lost to an overrun, as
+    /// if the CPU had not read RDR in time (RM0351 §40.5.5).
+    pub lose_in: Option<u32>,
 }
 
 /// The board's chip-select wiring: (GPIO port, pin) of CS0, CS1, … (src/README.md).

@@ -105,11 +105,14 @@ impl Usart {
                 continue; // RE off: the receiver ignores the line
             }
             self.idle_at = Some(done + frame);
-            let lost = io.uart_rx.lose_next > 0;
+            let lost = io.uart_rx.lose_in == Some(0);
+            io.uart_rx.lose_in = match io.uart_rx.lose_in {
+                Some(k) if k > 0 => Some(k - 1),
+                _ => None,
+            };
             if lost || self.isr & (1 << 5) != 0 {
                 // RXNE still set (or the injected "CPU too slow"): the byte is lost (ORE),
                 // unless overrun detection is off (CR3.OVRDIS)
-                io.uart_rx.lose_next = io.uart_rx.lose_next.saturating_sub(1);
                 if self.cr[2] & (1 << 12) == 0 || lost {
                     self.isr |= 1 << 3;
                     self.overruns += 1;

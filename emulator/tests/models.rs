@@ -272,7 +272,7 @@ fn uart_bytes_take_a_frame_each_and_an_unread_byte_overruns() {
     assert_eq!(u.overruns, 1);
     // an injected overrun loses a byte that would have been read in time
     u.write(0x20, 1 << 3, 3 * frame_ps, hz, &mut io); // ORECF
-    io.uart_rx.lose_next = 1;
+    io.uart_rx.lose_in = Some(0);
     u.write(0x28, u32::from(b'B'), 3 * frame_ps, hz, &mut io);
     u.update(5 * frame_ps, hz, &mut io);
     assert_eq!(u.overruns, 2, "'B' lost");

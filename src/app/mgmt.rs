@@ -319,7 +319,9 @@ async fn handle<F: NorFlash>(
             let _ = w.bytes(&s.encode());
             return w.len();
         }
-        kind::CONFIG_SET => match Settings::decode(payload) {
+        // decoded as stored records are, then held to today's ranges (a stored record may come
+        // from a firmware with other limits; a new one may not)
+        kind::CONFIG_SET => match Settings::decode(payload).and_then(|s| s.validate().map(|()| s)) {
             Ok(s) => match store.save_settings(&s.encode()).await {
                 Ok(()) => {
                     apply_settings(sh, s);

@@ -191,6 +191,8 @@ pub struct Stm32 {
     pub usb: usb::HostHandle,
     /// The stage controller on UART4.
     pub stage: Stage,
+    /// The LPS22HB holds I2C2's SDA low (until nine clocks free it).
+    sda_held: Arc<std::sync::atomic::AtomicBool>,
 }
 
 impl Stm32 {
@@ -211,6 +213,7 @@ impl Stm32 {
             Some(Box::new(stage.clone())),
             host,
         );
+        let sda_held = io.sda_held.clone();
         let control = Control::default();
         let c = control.clone();
         let thread = std::thread::spawn(move || {
@@ -233,6 +236,7 @@ impl Stm32 {
             buses,
             usb: handle,
             stage,
+            sda_held,
         };
         b.clock().wait_paused(0);
         b
@@ -408,6 +412,17 @@ impl Stm32 {
         }
     }
 
+    /// A slave holds SDA low (as after a reset in the middle of a read), until nine clocks on
+    /// SCL free the bus.
+    pub fn hold_sda(&self) {
+        self.sda_held.store(true, Ordering::Relaxed);
+    }
+
+    /// SDA is held low now.
+    pub fn sda_is_held(&self) -> bool {
+        self.sda_held.load(Ordering::Relaxed)
+    }
+
     /// Set the fault condition of the MAX31856 on `cs` from status-register bits (OPEN: the
     /// thermocouple breaks; OVUV: shorted).
     pub fn set_tc_status(&self, cs: usize, sr: u8) {
@@ -555,6 +570,60 @@ impl Gcs {
             out.push('\n');
         }
     }
+}
+
+/// The image's section `name`: (address, size).
+pub fn section(name: &str) -> (u32, u32) {
+    let elf = nanocal::virtual_bench::Elf::read(&stm32_elf());
+    elf.sections
+        .iter()
+        .find(|(n, _, _)| n == name)
+        .map(|&(_, a, s)| (a, s))
+        .unwrap_or_else(|| panic!("section {name} in the image"))
+}
+
+/// The address of a symbol whose demangled name contains `part`.
+pub fn symbol_containing(part: &str) -> u32 {
+    let elf = nanocal::virtual_bench::Elf::read(&stm32_elf());
+    elf.symbols
+        .iter()
+        .find(|(n, v)| n.contains(part) && *v != 0)
+        .map(|&(_, v)| v)
+        .unwrap_or_else(|| panic!("a symbol with {part:?} in the image"))
+}
+
+/// A `core::panic::Location` of the image in `file` (the compiler emits one per panic site):
+/// its address and line. Found as (address of the file name, its length, line, column) in the
+/// flash image.
+pub fn panic_location(file: &str) -> (u32, u32) {
+    let bytes = std::fs::read(stm32_elf()).unwrap();
+    let image = nanocal_stm32_board::elf::Image::parse(&bytes).expect("the image parses");
+    let find = |needle: &[u8]| -> Vec<u32> {
+        let mut hits = vec![];
+        for seg in &image.segments {
+            for (i, w) in seg.data.windows(needle.len()).enumerate() {
+                if w == needle {
+                    hits.push(seg.paddr + i as u32);
+                }
+            }
+        }
+        hits
+    };
+    for name_at in find(file.as_bytes()) {
+        let mut key = name_at.to_le_bytes().to_vec();
+        key.extend_from_slice(&(file.len() as u32).to_le_bytes());
+        if let Some(&loc) = find(&key).first() {
+            let seg = image
+                .segments
+                .iter()
+                .find(|s| (s.paddr..s.paddr + s.data.len() as u32).contains(&loc))
+                .unwrap();
+            let o = (loc - seg.paddr) as usize + 8;
+            let line = u32::from_le_bytes(seg.data[o..o + 4].try_into().unwrap());
+            return (loc, line);
+        }
+    }
+    panic!("no panic location in {file}")
 }
 
 /// The value of `axis` in a forwarded `MOV` line.

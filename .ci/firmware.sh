@@ -13,17 +13,8 @@ apt_install() {
     as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y "$@"
 }
 
-rustup target add thumbv7em-none-eabihf
 rustup component add clippy rustfmt
-
-qemu_major() { qemu-system-arm --version 2>/dev/null | sed -n 's/.*version \([0-9]*\)\..*/\1/p' | head -n1; }
-if [ "$(qemu_major || true)" = "" ] || [ "$(qemu_major)" -lt 10 ]; then
-    if ! grep -rqs "bookworm-backports" /etc/apt/sources.list /etc/apt/sources.list.d/; then
-        bash "$(dirname "$0")/add-backports.sh"
-    fi
-    apt_install -t bookworm-backports qemu-system-arm
-fi
-qemu-system-arm --version | head -n1
+bash "$(dirname "$0")/qemu.sh"
 
 # PIPython (PI's Python library, from PyPI) for tests/e2e_pipython.rs, in a venv under target/.
 venv=target/pipython-venv
@@ -40,10 +31,9 @@ cargo clippy --release -- -D warnings
 cargo clippy --release --no-default-features --features qemu -- -D warnings
 cargo fmt --check
 
-# Image sizes, and the STM32 image's budget (issue 16; the STM32L475VG has 1 MiB of flash and
-# 128 KiB of RAM): flash = vector table + text + rodata + data <= 256 KiB, static RAM = data +
-# bss + uninit <= 64 KiB. GNU size reads the ARM ELF's
-# section headers (binutils is on every Debian).
+# Image sizes, and the STM32 image's budget: flash = vector table + text + rodata + data
+# <= 256 KiB, static RAM = data + bss + uninit <= 64 KiB (of the STM32L475VG's 1 MiB and
+# 128 KiB). GNU size reads the ARM ELF's section headers (binutils is on every Debian).
 command -v size >/dev/null || apt_install binutils
 elf=target/thumbv7em-none-eabihf/release/nanocal-fw
 size -A "$elf" target/thumbv7em-none-eabihf/release/nanocal-fw-qemu | grep -E '^(target/.*|\.vector_table|\.text|\.rodata|\.data|\.bss|\.uninit) '

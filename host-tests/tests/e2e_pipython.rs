@@ -14,12 +14,11 @@
 mod fw_sim;
 mod pipython_session;
 
-use fw_sim::{Qemu, SensorSim, StageSim};
+use fw_sim::{wait_until, Qemu, SensorSim, StageSim};
 use nanocal::published::published_1dof;
-use nanocal_compensator::mgmt::flags;
+use nanocal_interface::status::Flags;
 use nanocal_model::blob;
 use pipython_session::{controller, TEMPS_C};
-use std::time::{Duration, Instant};
 
 #[test]
 fn e2e_pipython_session_through_the_compensator() {
@@ -34,8 +33,6 @@ fn e2e_pipython_session_through_the_compensator() {
     let Some(mut q) = Qemu::start_or_skip("e2e_pipython") else {
         return;
     };
-    // the halted move lasts 1 s (`controller()`), so the HLT that follows it over QEMU's
-    // serial ports reaches the controller in time even on a loaded machine
     let stage = StageSim::serve(q.connect(1), controller());
     let _sensors = SensorSim::start(q.link(), &TEMPS_C);
     let host_port = q.gcs_port();
@@ -44,15 +41,10 @@ fn e2e_pipython_session_through_the_compensator() {
     let mut b = vec![0u8; blob::MAX_BLOB_LEN];
     let n = blob::encode(&model, &mut b).unwrap();
     c.upload(&b[..n]).unwrap();
-    let deadline = Instant::now() + Duration::from_secs(20);
-    loop {
-        let s = c.status().unwrap();
-        if s.flags & flags::SENSOR_BLOCK == 0 && s.folds >= 2 {
-            break;
-        }
-        assert!(Instant::now() < deadline, "sensors never ready");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wait_until("sensors ready", &q.clock(), 20.0, || {
+        let s = c.status().ok()?;
+        (!s.flags.contains(Flags::SENSOR_BLOCK) && s.folds >= 2).then_some(())
+    });
 
     let stdout = pipython_session::run(&py, host_port);
     pipython_session::check(&stdout, &model, stage.events(), stage.drain());

@@ -14,9 +14,10 @@ mod stm32_sim;
 
 use nanocal::device::DeviceError;
 use nanocal::published::published_1dof;
-use nanocal_compensator::identity::ResetCause;
-use nanocal_compensator::mgmt::flags;
 use nanocal_compensator::sensor::max31856;
+use nanocal_interface::identity::ResetCause;
+use nanocal_interface::mgmt::Refusal;
+use nanocal_interface::status::{ChannelStatus, Flags, SensorFault};
 use nanocal_model::{blob, SlowInputs, MAX_AXES};
 use nanocal_stm32_board::ResetKind;
 use stm32_sim::{default_buses, stage_value, Stm32};
@@ -40,9 +41,12 @@ fn e2e_stm32_upload_sensors_and_corrected_moves() {
     let mut c = b.mgmt();
     let (proto, format, _) = c.hello().expect("hello");
     assert_eq!(format, blob::FORMAT_VERSION);
-    assert_eq!(proto, nanocal_compensator::mgmt::PROTOCOL);
+    assert_eq!(proto, nanocal_interface::mgmt::PROTOCOL);
     let s = c.status().unwrap();
-    assert_eq!(s.flags & flags::MODEL, 0, "no model before the upload");
+    assert!(
+        !s.flags.contains(Flags::MODEL),
+        "no model before the upload"
+    );
     let id = c.identify().unwrap();
     assert_eq!(
         id.reset_cause,
@@ -64,9 +68,11 @@ fn e2e_stm32_upload_sensors_and_corrected_moves() {
 
     // the sensors' first conversions (MAX31856 over SPI1 + DMA) fold the model
     let s = b.status_until(&mut c, "sensors read and model folded", 5.0, |s| {
-        s.flags & flags::MODEL != 0
-            && s.flags & flags::SENSOR_BLOCK == 0
-            && s.sensor_bits[..4].iter().all(|&b| b & 0x0F == 0)
+        s.flags.contains(Flags::MODEL)
+            && !s.flags.contains(Flags::SENSOR_BLOCK)
+            && s.sensor_bits[..4]
+                .iter()
+                .all(|b| b.state == ChannelStatus::Ok)
             && s.folds >= 2
     });
     assert_eq!(s.model_id, model.id());
@@ -148,7 +154,16 @@ fn e2e_stm32_upload_sensors_and_corrected_moves() {
             true,
         )
         .unwrap_err();
-    assert!(matches!(e, DeviceError::Refused { code: 9, .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError::Refused {
+                refusal: Refusal::UploadBlob,
+                ..
+            }
+        ),
+        "{e}"
+    );
     let e = c
         .upload_raw(
             &blob_bytes[..n / 2],
@@ -158,7 +173,16 @@ fn e2e_stm32_upload_sensors_and_corrected_moves() {
             true,
         )
         .unwrap_err();
-    assert!(matches!(e, DeviceError::Refused { code: 7, .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError::Refused {
+                refusal: Refusal::UploadIncomplete,
+                ..
+            }
+        ),
+        "{e}"
+    );
     let s = c.status().unwrap();
     assert_eq!(s.model_id, model.id());
     assert_eq!((s.uploads_ok, s.uploads_rejected), (1, 2));
@@ -172,10 +196,18 @@ fn e2e_stm32_upload_sensors_and_corrected_moves() {
     // a sensor fault: held for the hold time (5 s), then shown in the status and blocking moves
     b.set_tc_status(1, max31856::SR_OPEN);
     let s = b.status_until(&mut c, "sensor fault to block moves", 7.0, |s| {
-        s.flags & flags::SENSOR_BLOCK != 0
+        s.flags.contains(Flags::SENSOR_BLOCK)
     });
-    assert_eq!(s.sensor_bits[1] & 0x0F, 2, "sensor 1 failed");
-    assert_eq!(s.sensor_bits[1] >> 4, 1, "open thermocouple");
+    assert_eq!(
+        s.sensor_bits[1].state,
+        ChannelStatus::Failed,
+        "sensor 1 failed"
+    );
+    assert_eq!(
+        s.sensor_bits[1].last_fault,
+        Some(SensorFault::Open),
+        "open thermocouple"
+    );
     host.send("MOV 1 250");
     assert_eq!(host.ask("ERR?"), "9002");
     host.send("SVO 1 1");
@@ -183,7 +215,7 @@ fn e2e_stm32_upload_sensors_and_corrected_moves() {
     // recovery: three good readings
     b.set_tc_status(1, 0);
     b.status_until(&mut c, "sensor recovery", 2.0, |s| {
-        s.flags & flags::SENSOR_BLOCK == 0
+        !s.flags.contains(Flags::SENSOR_BLOCK)
     });
     host.send("MOV 1 250");
     check(stage_value(&b.stage_line(1.0), "1"), 250.0, [1, 0, 0]);
@@ -216,7 +248,7 @@ fn e2e_stm32_upload_sensors_and_corrected_moves() {
     let mut c = b.mgmt();
     assert_eq!(c.identify().unwrap().reset_cause, ResetCause::Software);
     let s = b.status_until(&mut c, "model reloaded", 2.0, |s| {
-        s.flags & flags::MODEL != 0
+        s.flags.contains(Flags::MODEL)
     });
     assert_eq!(s.model_id, model.id());
     assert_eq!(s.kmz_um[0], kmz[0], "λ_KMZ stored with the model");

@@ -8,11 +8,12 @@ mod stm32_sim;
 use embassy_futures::block_on;
 use nanocal::device::DeviceError;
 use nanocal::published::published_1dof;
-use nanocal_compensator::identity::ResetCause;
 use nanocal_compensator::l4flash::L4Nor;
-use nanocal_compensator::mgmt::{self, kind};
-use nanocal_compensator::settings::Settings;
 use nanocal_compensator::store::Store;
+use nanocal_interface::identity::ResetCause;
+use nanocal_interface::mgmt::{Refusal, Request};
+use nanocal_interface::settings::Settings;
+use nanocal_interface::status::ChannelStatus;
 use nanocal_model::blob;
 use nanocal_stm32_board::flash::StoreFlash;
 use nanocal_stm32_board::ResetKind;
@@ -35,7 +36,12 @@ fn stm32_ecc_error_in_the_firmware_flash_resets_and_is_reported() {
         s.boots.len() > 1
     });
     assert_eq!(s.ecc_errors, 1, "{:?}", s.log);
-    assert_eq!(s.boots[1].kind, ResetKind::Software, "reset at once: {:?}", s.log);
+    assert_eq!(
+        s.boots[1].kind,
+        ResetKind::Software,
+        "reset at once: {:?}",
+        s.log
+    );
     let h = b.mgmt().identify().unwrap();
     assert_eq!(h.reset_cause, ResetCause::FlashEcc);
     let addr = u32::from_str_radix(h.reset_site.trim_start_matches("0x"), 16)
@@ -76,9 +82,17 @@ fn stm32_torn_store_double_words_are_counted_in_the_status() {
     b.usb.attach();
     let s = b.mgmt().status().unwrap();
     assert_eq!(s.model_id, model.id(), "the complete model is in service");
-    assert!(s.flash_ecc_errors > 0, "torn double words read: {}", s.flash_ecc_errors);
+    assert!(
+        s.flash_ecc_errors > 0,
+        "torn double words read: {}",
+        s.flash_ecc_errors
+    );
     let st = b.status();
-    assert_eq!(st.ecc_errors, u64::from(s.flash_ecc_errors), "every NMI counted once");
+    assert_eq!(
+        st.ecc_errors,
+        u64::from(s.flash_ecc_errors),
+        "every NMI counted once"
+    );
     assert_eq!(st.boots.len(), 1, "no reset: {:?}", st.log);
 }
 
@@ -95,15 +109,23 @@ fn stm32_panic_is_reported_with_its_site() {
     let panic_bounds_check = symbol_containing("panic_bounds_check");
     b.inject(|i| i.call = Some((panic_bounds_check, [5, 3, loc, 0])));
     let s = b.run_until("the reset after the panic", 1.0, |s| s.boots.len() > 1);
-    assert_eq!(s.boots[1].kind, ResetKind::Software, "reset at once: {:?}", s.log);
+    assert_eq!(
+        s.boots[1].kind,
+        ResetKind::Software,
+        "reset at once: {:?}",
+        s.log
+    );
     let h = b.mgmt().identify().unwrap();
     assert_eq!(h.reset_cause, ResetCause::Panic);
-    assert_eq!(h.reset_site, format!("src/bin/stm32.rs:{line}"));
+    assert_eq!(h.reset_site.as_str(), format!("src/bin/stm32.rs:{line}"));
     // the record is read once: the next reset reports its own cause
     b.mgmt().reset().unwrap();
     b.run_until("the software reset", 1.0, |s| s.boots.len() > 2);
     let h = b.mgmt().identify().unwrap();
-    assert_eq!((h.reset_cause, h.reset_site.as_str()), (ResetCause::Software, ""));
+    assert_eq!(
+        (h.reset_cause, h.reset_site.as_str()),
+        (ResetCause::Software, "")
+    );
 }
 
 /// Defect 8: a wedged link task is caught. UART4's transmitter stops (TXE never sets again):
@@ -143,7 +165,9 @@ fn stm32_spi_timeout_releases_the_chip_select() {
     b.usb.attach();
     let mut c = b.mgmt();
     b.status_until(&mut c, "the first conversions", 2.0, |s| {
-        s.sensor_bits[..4].iter().all(|&x| x & 0x0F == 0)
+        s.sensor_bits[..4]
+            .iter()
+            .all(|x| x.state == ChannelStatus::Ok)
     });
     b.inject(|i| i.spi_stall = true);
     // several sample periods: every transaction times out
@@ -151,7 +175,9 @@ fn stm32_spi_timeout_releases_the_chip_select() {
     assert_eq!(s.cs_conflicts, 0, "chip-selects low together: {:?}", s.log);
     // the stalled chips fail after the fault policy's hold time; nothing else breaks
     b.status_until(&mut c, "the sensors failed", 7.0, |s| {
-        s.sensor_bits[..4].iter().all(|&x| x & 0x0F == 2)
+        s.sensor_bits[..4]
+            .iter()
+            .all(|x| x.state == ChannelStatus::Failed)
     });
     assert_eq!(b.status().cs_conflicts, 0);
     assert_eq!(b.status().boots.len(), 1);
@@ -168,9 +194,15 @@ fn stm32_stage_baud_rates_the_uart_cannot_make_are_refused() {
     let mut s: Settings = c.config().unwrap();
     s.stage_baud = 1200;
     // bypass the host's own check: the device must refuse by itself
-    let e = c.request(kind::CONFIG_SET, &s.encode()).unwrap_err();
+    let e = c.request(&Request::ConfigSet(s)).unwrap_err();
     assert!(
-        matches!(e, DeviceError::Refused { code, .. } if code == mgmt::RESULT_SETTINGS),
+        matches!(
+            e,
+            DeviceError::Refused {
+                refusal: Refusal::Settings,
+                ..
+            }
+        ),
         "{e}"
     );
     assert_eq!(c.config().unwrap().stage_baud, 115_200, "nothing stored");

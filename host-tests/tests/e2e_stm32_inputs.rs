@@ -12,8 +12,8 @@ mod stm32_sim;
 
 use device_models::{force_model, slow, TEMP_C};
 use nanocal::virtual_bench::chips::{lps22hb, Lps22hb};
-use nanocal_compensator::mgmt::flags;
-use nanocal_compensator::settings::AuxSource;
+use nanocal_interface::settings::AuxSource;
+use nanocal_interface::status::Flags;
 use nanocal_model::{blob, AuxKind, AuxSpec, Factor, Input, Model, ModelBuilder, MAX_AXES};
 use stm32_sim::{default_buses, stage_value, Stm32};
 
@@ -22,7 +22,7 @@ fn upload(b: &Stm32, c: &mut nanocal::device::Client, model: &Model) {
     let n = blob::encode(model, &mut bytes).unwrap();
     c.upload(&bytes[..n]).expect("model accepted");
     b.status_until(c, "sensors read and model folded", 5.0, |s| {
-        s.flags & flags::MODEL != 0 && s.flags & flags::SENSOR_BLOCK == 0 && s.folds >= 2
+        s.flags.contains(Flags::MODEL) && !s.flags.contains(Flags::SENSOR_BLOCK) && s.folds >= 2
     });
 }
 

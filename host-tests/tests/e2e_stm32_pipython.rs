@@ -14,7 +14,7 @@ mod pipython_session;
 mod stm32_sim;
 
 use nanocal::published::published_1dof;
-use nanocal_compensator::mgmt::flags;
+use nanocal_interface::status::Flags;
 use nanocal_model::blob;
 use pipython_session::{controller, TEMPS_C};
 use stm32_sim::{default_buses, Stm32};
@@ -56,7 +56,7 @@ fn e2e_stm32_pipython_session_through_the_compensator() {
     assert!(String::from_utf8_lossy(&out.stdout).contains("in service"));
     let mut c = b.mgmt();
     b.status_until(&mut c, "sensors ready", 5.0, |s| {
-        s.flags & flags::SENSOR_BLOCK == 0 && s.folds >= 2
+        !s.flags.contains(Flags::SENSOR_BLOCK) && s.folds >= 2
     });
     drop(c);
 

@@ -22,8 +22,8 @@ mod stm32_sim;
 use embassy_futures::block_on;
 use nanocal::published::published_1dof;
 use nanocal_compensator::l4flash::L4Nor;
-use nanocal_compensator::mgmt::{flags, Status};
 use nanocal_compensator::store::Store;
+use nanocal_interface::status::{Flags, Status};
 use nanocal_model::{blob, Factor, Input, Model, ModelBuilder};
 use nanocal_stm32_board::flash::StoreFlash;
 use nanocal_stm32_board::ResetKind;
@@ -79,7 +79,7 @@ fn cut_during(
     let st = c.status().expect("status after the cut");
     assert_eq!(
         c.identify().unwrap().reset_cause,
-        nanocal_compensator::identity::ResetCause::PowerOn
+        nanocal_interface::identity::ResetCause::PowerOn
     );
     st
 }
@@ -122,9 +122,8 @@ fn cut_every_upload_op(b: &Stm32, start: &StoreFlash, ids: (u32, u32), blob_b: &
     for k in 0..upload_ops {
         power_cycle(b, start);
         let s = cut_during(b, k, "an upload", |c| c.upload(blob_b).is_ok());
-        assert_ne!(
-            s.flags & flags::MODEL,
-            0,
+        assert!(
+            s.flags.contains(Flags::MODEL),
             "upload cut at {k}: no model in service"
         );
         let new = s.model_id == ids.1;

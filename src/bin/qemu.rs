@@ -130,7 +130,7 @@ fn start(spawner: Spawner) {
 
 /// The rest of the start-up needs the store (async): settings, then every task.
 #[embassy_executor::task]
-async fn boot_task(spawner: Spawner, cause: nanocal_compensator::identity::ResetCause) {
+async fn boot_task(spawner: Spawner, cause: nanocal_interface::identity::ResetCause) {
     // SAFETY: called once, here.
     let flash = unsafe { board::flash(cause) };
     let store = STORE.init(Store::new(L4Nor::new(TimedFlash(flash))));
@@ -138,7 +138,7 @@ async fn boot_task(spawner: Spawner, cause: nanocal_compensator::identity::Reset
     let identity = Identity {
         uid: *b"QEMU-mps2-an",
         reset_cause: cause,
-        reset_site: nanocal_compensator::identity::Site::None,
+        reset_site: nanocal_interface::identity::Site::None,
     };
     let sh: &'static Shared = SHARED.init(Shared::new(settings, identity));
     // SAFETY: each UART index is taken exactly once, here.

@@ -24,9 +24,7 @@ use embassy_time::{Duration, Timer};
 use embassy_usb::class::cdc_acm::{CdcAcmClass, State};
 use embassy_usb::UsbDevice;
 use nanocal_compensator::clock;
-use nanocal_compensator::identity::{self, ResetCause, Site};
 use nanocal_compensator::l4flash::L4Nor;
-use nanocal_compensator::settings::{Settings, MAX_STAGE_BAUD, MIN_STAGE_BAUD};
 use nanocal_compensator::store::Store;
 use nanocal_fw::app::{self, Identity, Shared};
 use nanocal_fw::stm32::buses::{Buses, I2C_TIMEOUT};
@@ -34,6 +32,8 @@ use nanocal_fw::stm32::crash;
 use nanocal_fw::stm32::flash::{self, L4Flash, ERASE};
 use nanocal_fw::stm32::stage::{StageRx, StageRxWatch, RX_RING};
 use nanocal_fw::stm32::usb::{LineWatch, UsbDriver, UsbRx, UsbTx, USB_PACKET};
+use nanocal_interface::identity::{self, ResetCause, Site};
+use nanocal_interface::settings::{Settings, MAX_STAGE_BAUD, MIN_STAGE_BAUD};
 use static_cell::StaticCell;
 
 bind_interrupts!(struct Irqs {

@@ -9,7 +9,7 @@
 //! domain unlocked (PWR_CR1.DBP, §5.1.5).
 
 use core::ptr::{read_volatile, write_volatile};
-use nanocal_compensator::identity::{ResetCause, Site};
+use nanocal_interface::identity::{ResetCause, Site};
 
 const RCC_APB1ENR1: usize = 0x4002_1058;
 const APB1ENR1_PWREN: u32 = 1 << 28;

@@ -4,7 +4,8 @@
 //! more: pairing them with the next queries would hand the host (or the proxy's own `MOV?`
 //! re-seed) someone else's answer.
 
-use super::{codes, Corrector, Output, Proxy, ProxyState};
+use super::GcsErrorCode;
+use super::{Corrector, Output, Proxy, ProxyState};
 
 /// How long the controller's line must stay silent after lost bytes before the proxy pairs
 /// replies with queries again, ms: longer than the gap between the bytes of one reply, far
@@ -40,7 +41,7 @@ impl Proxy {
     /// been quiet for [`RESYNC_QUIET_MS`] the proxy drops what the controller sends and holds
     /// the host's lines (stops excepted); then it gives up the replies that were due, forgets
     /// the targets (a move that needs one asks `MOV?` afresh) and answers the host's next
-    /// `ERR?` with [`codes::LINK_LOST`].
+    /// `ERR?` with [`GcsErrorCode::LinkLost`].
     pub fn stage_bytes_lost(&mut self, now_ms: u32) {
         let st = &mut self.st;
         st.resync = true;
@@ -72,7 +73,7 @@ impl Proxy {
 
 impl ProxyState {
     /// After lost bytes: once the line has been quiet for [`RESYNC_QUIET_MS`], give up the
-    /// replies that were due, forget the targets, and raise [`codes::LINK_LOST`].
+    /// replies that were due, forget the targets, and raise [`GcsErrorCode::LinkLost`].
     pub(super) fn try_end_resync<C: Corrector>(&mut self, c: Option<&C>, out: &mut Output) {
         let now = self.now_ms;
         let quiet = now.wrapping_sub(self.last_rx_ms) >= RESYNC_QUIET_MS
@@ -84,8 +85,8 @@ impl ProxyState {
         self.give_up_replies(c, out);
         self.forget(None);
         self.reseed = super::Targets::default();
-        if self.pending_error == 0 {
-            self.pending_error = codes::LINK_LOST;
+        if self.pending_error.is_none() {
+            self.pending_error = Some(GcsErrorCode::LinkLost);
         }
         self.try_release(c, out);
     }

@@ -396,8 +396,8 @@ impl Stm32 {
         c: &mut Client,
         what: &str,
         within_s: f64,
-        mut f: impl FnMut(&nanocal_compensator::mgmt::Status) -> bool,
-    ) -> nanocal_compensator::mgmt::Status {
+        mut f: impl FnMut(&nanocal_interface::status::Status) -> bool,
+    ) -> nanocal_interface::status::Status {
         let t0 = self.now_s();
         loop {
             let s = c.status().expect("status");

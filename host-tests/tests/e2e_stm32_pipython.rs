@@ -4,8 +4,8 @@
 //! on a local TCP port for PIPython's socket gateway) with a simulated C-867 on UART4.
 //!
 //! Both are external processes the rig cannot step, so here — and only here — the board is
-//! paced by the wall clock ([`stm32_sim::Stm32::paced`], real time): the halted move lasts 1 s
-//! of board time, which leaves PIPython's HLT ample time on a loaded machine.
+//! paced by the wall clock ([`stm32_sim::Stm32::paced`], real time): the halted move would last
+//! 125 s of board time, which leaves PIPython's HLT ample time on a loaded machine.
 //!
 //! Python as in tests/e2e_pipython.rs; without it the test is skipped loudly — except in CI
 //! (`CI` set), where it fails.

@@ -111,8 +111,8 @@ pub fn python() -> Option<PathBuf> {
 /// Temperatures the simulated sensors report (exact in MAX31856 LSBs).
 pub const TEMPS_C: [f32; 4] = [22.0, 22.125, 21.875, 22.25];
 
-/// A C-867 with two axes in µm: servo off and unreferenced at power-up; moves take time — the
-/// 250 µm move halted on the way lasts 1 s at this velocity.
+/// A C-867 with two axes in µm: servo off and unreferenced at power-up; moves take time (the
+/// script slows axis 1 to 2 µm/s for the move it halts on the way: 125 s to its target).
 pub fn controller() -> Config {
     let mut cfg = Config::c867(2, "µm");
     for a in &mut cfg.axes {

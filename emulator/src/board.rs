@@ -300,9 +300,12 @@ impl<'a> Board<'a> {
                     .read_store(STORE_BASE + off as u32, size, &mut chip.store);
                 if fx.nmi {
                     // the flash interface signals the ECC error after the read completes: the
-                    // core takes the NMI two instructions later (a barrier makes it precise)
+                    // core takes the NMI at the end of the translation block holding the read
+                    // (the firmware's DSB+ISB after a store read ends the block, as the
+                    // barrier makes it precise on the chip; the slice limit is counted in
+                    // whole blocks, so "two instructions on" was the block after next)
                     chip.nvic.pending[exc::NMI] = true;
-                    cpu.limit = cpu.executed + 2;
+                    cpu.limit = cpu.executed;
                 }
                 v
             }),

@@ -252,7 +252,8 @@ impl Device {
             }
             Request::UploadAbort => self.upload.abort(),
             Request::ConfigSet(s) => {
-                s.validate().expect("decoded settings are valid");
+                s.validate_stored()
+                    .expect("decoded settings are valid as a stored record");
                 settings(&[0].into_iter().chain(s.encode()).collect::<Vec<u8>>());
             }
             Request::SetKmz {
@@ -309,11 +310,13 @@ fn host_client(stream: &[u8]) {
     }
     let _ = c.status();
     if let Ok(s) = c.config() {
-        s.validate().expect("decoded settings are valid");
+        s.validate_stored()
+            .expect("decoded settings are valid as a stored record");
     }
 }
 
-/// Settings (`nanocal_interface::settings`): decoding never panics; what decodes is valid and
+/// Settings (`nanocal_interface::settings`): decoding never panics; what decodes is valid (as
+/// a stored record: `validate_stored`) and
 /// encodes to bytes that decode to the same settings, and encoding them again gives the same
 /// bytes. (Not the input's bytes: the decoder ignores the fields of an empty slot and the
 /// axis-name bytes past a name's length, which encode as zeros.) Mode byte bit 0: the harness
@@ -331,7 +334,8 @@ pub fn settings(input: &[u8]) {
     let Ok(s) = Settings::decode(&b) else {
         return;
     };
-    s.validate().expect("decoded settings are valid");
+    s.validate_stored()
+        .expect("decoded settings are valid as a stored record");
     let again = s.encode();
     assert_eq!(Settings::decode(&again), Ok(s), "encode/decode round trip");
     let back = Settings::decode(&again).unwrap();

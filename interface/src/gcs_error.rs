@@ -2,7 +2,7 @@
 //! refuses a line (nothing is forwarded to the controller).
 //!
 //! Three are PI's own codes with PI's meaning (GCS 2.0, the controller manuals' error table), so
-//! a host that knows PI's codes understands them; 9001–9009 are the compensator's own, above
+//! a host that knows PI's codes understands them; 9001–9010 are the compensator's own, above
 //! PI's range. The firmware's proxy raises exactly these, and the host's messages (`nanocal
 //! campaign`, `nanocal device status`) come from the same table.
 //!
@@ -20,6 +20,7 @@
 //! | 9007 | the controller's position unit is not µm, or it did not tell it |
 //! | 9008 | refused while compensating |
 //! | 9009 | the controller speaks GCS 3.0 |
+//! | 9010 | bytes from the controller were lost: the replies that were due are dropped |
 
 code_enum! {
     /// A GCS error the compensator raises (see the module's table).
@@ -55,6 +56,10 @@ code_enum! {
         /// The controller speaks GCS 3.0 (`CSV?` above 2), which the proxy does not rewrite:
         /// moves are refused.
         Gcs3 = 9009 => "the controller speaks GCS 3.0, which the compensator does not support",
+        /// Bytes from the controller were lost (a UART overrun, a full receive buffer): the
+        /// replies that were due are dropped and the targets forgotten; a move that needs one
+        /// asks `MOV?` afresh.
+        LinkLost = 9010 => "bytes from the controller were lost: the replies that were due were dropped",
     }
 }
 

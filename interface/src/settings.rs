@@ -331,12 +331,27 @@ const AXES_AT: usize = NOW.axes_at;
 const AUX_AT: usize = NOW.aux_at;
 const CRC_AT: usize = NOW.crc_at;
 
+/// Lowest stage-link baud rate: the STM32 board's UART4 divides its 80 MHz clock by at most
+/// 65 535 and has no prescaler (RM0351 §40.5.4), so 1 221 Bd is its floor; 1 200 Bd was
+/// accepted, then the UART could not be configured and the board stopped at every boot.
+pub const MIN_STAGE_BAUD: u32 = 2_400;
+/// Highest stage-link baud rate.
+pub const MAX_STAGE_BAUD: u32 = 1_000_000;
+
 impl Settings {
-    /// Check ranges: baud 1200..=1 Mbaud, period 50 ms..=60 s, resistors positive.
+    /// Check ranges: baud [`MIN_STAGE_BAUD`]..=[`MAX_STAGE_BAUD`], period 50 ms..=60 s,
+    /// resistors positive.
     pub fn validate(&self) -> Result<(), SettingsError> {
-        if !(1200..=1_000_000).contains(&self.stage_baud) {
+        if !(MIN_STAGE_BAUD..=MAX_STAGE_BAUD).contains(&self.stage_baud) {
             return Err(SettingsError::Field(5));
         }
+        self.validate_stored()
+    }
+
+    /// [`Self::validate`] without the baud rate's range, for a stored record: one stored by a
+    /// firmware with other limits still gives its sensors, axes and inputs (the board falls
+    /// back to the default rate when it cannot make the stored one).
+    pub fn validate_stored(&self) -> Result<(), SettingsError> {
         for (i, s) in self.sensors.iter().enumerate() {
             if let Some(Chip::Max31865 {
                 r_ref_ohm, r0_ohm, ..
@@ -421,7 +436,8 @@ impl Settings {
         b
     }
 
-    /// Decode (this version's layout, or version 1's) and validate.
+    /// Decode (this version's layout, or version 1's) and validate as a stored record
+    /// ([`Self::validate_stored`]: the baud rate is not held to this firmware's range).
     pub fn decode(b: &[u8]) -> Result<Self, SettingsError> {
         if b.len() < 5 {
             return Err(SettingsError::Length);
@@ -495,7 +511,7 @@ impl Settings {
                 _ => return Err(SettingsError::Field(o as u16)),
             };
         }
-        s.validate()?;
+        s.validate_stored()?;
         Ok(s)
     }
 }

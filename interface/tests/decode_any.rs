@@ -89,7 +89,8 @@ fn mutated_settings_with_a_fixed_crc() {
         let crc = nanocal_interface::crc32(&b[..n]);
         b[n..].copy_from_slice(&crc.to_le_bytes());
         if let Ok(s) = Settings::decode(&b) {
-            assert!(s.validate().is_ok());
+            // a stored record may hold a baud rate of a firmware with other limits
+            assert!(s.validate_stored().is_ok());
         }
     }
 }

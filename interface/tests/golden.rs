@@ -4,7 +4,7 @@
 //! when both sides change together; these fail when the bytes change at all.
 
 use nanocal_interface::bus::{BusOp, BusReply, BusRequest, BusStatus};
-use nanocal_interface::identity::ResetCause;
+use nanocal_interface::identity::{ResetCause, Site};
 use nanocal_interface::led::LedState;
 use nanocal_interface::mgmt::{
     self, Decoder, Hello, InputCode, InputWhy, Kind, Reader, Refusal, Reply, Request, Writer,
@@ -223,7 +223,12 @@ fn every_reply_frame() {
         max_chunk: 256,
         firmware,
         uid: core::array::from_fn(|i| i as u8),
-        reset_cause: ResetCause::PowerOn,
+        reset_cause: ResetCause::Panic,
+        reset_site: Site::Line {
+            file: "src/bin/stm32.rs",
+            line: 42,
+        }
+        .text(),
     };
     reply_is(Reply::Hello(hello), 0x01, 1, &REP_HELLO);
     reply_is(Reply::Status(status()), 0x02, 2, &REP_STATUS);

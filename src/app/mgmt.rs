@@ -2,12 +2,13 @@
 //! settings, reset.
 
 use super::supervisor::led_state;
-use super::{fresh_proxy, now_ms, read_some, Comp, Shared};
+use super::{fresh_proxy, now_ms, read_some, task, Comp, Shared};
 use core::sync::atomic::Ordering;
-use embassy_futures::select::{select3, Either3};
+use embassy_futures::select::{select, select3, Either, Either3};
 use embedded_io_async::{Read, Write};
 use embedded_storage_async::nor_flash::NorFlash;
 use nanocal_compensator::inputs;
+use nanocal_compensator::l4flash::EccErrors;
 use nanocal_compensator::proxy::Gate;
 use nanocal_compensator::store::Store;
 use nanocal_compensator::upload::Upload;
@@ -16,6 +17,9 @@ use nanocal_interface::mgmt::{self, Decoder, Hello, Kind, Refusal, Reply, Reques
 use nanocal_interface::settings::{self, Settings};
 use nanocal_interface::status::{Flags, Status, STATUS_AUX, STATUS_SENSORS};
 use nanocal_model::{blob, MAX_AXES};
+
+/// How long a reply may wait for the host to read it, ms.
+const REPLY_STALL_MS: u64 = 1_000;
 
 /// Firmware version reported in HELLO.
 pub const VERSION: &str = env!("CARGO_PKG_VERSION");
@@ -135,7 +139,7 @@ enum Wake {
 /// (`mgmt::FRAME_TIMEOUT_MS` after its first byte) and the bytes after it are searched again
 /// for a sync, so the requests that followed are answered, not swallowed; the management
 /// port's closing (its line state, where the board has it) drops a half frame at once.
-pub async fn management<R: Read, W: Write, F: NorFlash>(
+pub async fn management<R: Read, W: Write, F: NorFlash + EccErrors>(
     mut rx: R,
     mut tx: W,
     store: &mut Store<F>,
@@ -154,6 +158,7 @@ pub async fn management<R: Read, W: Write, F: NorFlash>(
             load_model(store, sh).await;
             load = false;
         }
+        super::note_flash_ecc_errors(sh, store.flash().ecc_errors());
         let wait_ms = dec.wait_ms(now_ms()).unwrap_or(u32::MAX);
         let wake = match select3(
             read_some(&mut rx, &mut inbuf),
@@ -187,7 +192,11 @@ pub async fn management<R: Read, W: Write, F: NorFlash>(
                     Ok(()) => {
                         let f = dec.frame();
                         let (k, seq) = (f.kind, f.seq);
-                        let reply = handle(k, f.payload, &mut upload, store, sh).await;
+                        let reply = {
+                            let _busy = sh.beats[task::MGMT].busy(now_ms());
+                            handle(k, f.payload, &mut upload, store, sh).await
+                        };
+                        super::note_flash_ecc_errors(sh, store.flash().ecc_errors());
                         if answer(&mut tx, &mut frame, k, seq, reply).await {
                             embassy_time::Timer::after_millis(50).await;
                             reset();
@@ -223,7 +232,15 @@ async fn answer<W: Write>(
     let len = w.len();
     drop(reply);
     if let Ok(m) = mgmt::seal(k | mgmt::REPLY, seq, len, frame) {
-        let _ = tx.write_all(&frame[..m]).await;
+        // a host that does not read its reply loses it, not the device its management channel
+        let sent = select(
+            embassy_time::Timer::after_millis(REPLY_STALL_MS),
+            tx.write_all(&frame[..m]),
+        )
+        .await;
+        if let Either::First(()) = sent {
+            warn!("management reply not read for 1 s: dropped");
+        }
         let _ = tx.flush().await;
     }
     resets
@@ -331,6 +348,9 @@ async fn handle<F: NorFlash>(
             Reply::Bypass
         }
         Request::ConfigGet => Reply::ConfigGet(sh.settings.lock(|s| *s.borrow())),
+        // decoded as stored records are, then held to today's ranges (a stored record may come
+        // from a firmware with other limits; a new one may not)
+        Request::ConfigSet(s) if s.validate().is_err() => Reply::refused(Refusal::Settings),
         Request::ConfigSet(s) => match store.save_settings(&s.encode()).await {
             Ok(()) => {
                 apply_settings(sh, s);
@@ -361,6 +381,7 @@ fn hello(sh: &Shared) -> Hello {
         firmware,
         uid: sh.identity.uid,
         reset_cause: sh.identity.reset_cause,
+        reset_site: sh.identity.reset_site.text(),
     }
 }
 

@@ -32,7 +32,7 @@ use nanocal_compensator::fault::{Faults, Policy, MAX_CHANNELS};
 use nanocal_compensator::gcs::AxisMap;
 use nanocal_compensator::inputs::{self, FastSamples};
 use nanocal_compensator::proxy::{FoldCorrector, Gate, Proxy};
-use nanocal_interface::identity::ResetCause;
+use nanocal_interface::identity::{ResetCause, Site};
 use nanocal_interface::mgmt::Refusal;
 use nanocal_interface::settings::Settings;
 use nanocal_model::{Model, SlowInputs, MAX_AUX};
@@ -105,6 +105,8 @@ pub struct Identity {
     pub uid: [u8; 12],
     /// Why it last reset.
     pub reset_cause: ResetCause,
+    /// Where, when the firmware recorded it (a panic's line, an ECC error's address).
+    pub reset_site: Site<'static>,
 }
 
 /// The model and everything the slow path and management need.
@@ -178,8 +180,80 @@ pub struct Shared {
     pub stage_sent: Signal<Cs, ()>,
     /// Heartbeat of the sensor task (ms since boot of its last completed cycle).
     pub sensor_beat_ms: AtomicU32,
+    /// The link and management tasks, busy or idle ([`task`]): the supervisor stops petting the
+    /// watchdog when one stays busy past its limit.
+    pub beats: [Beat; task::COUNT],
     /// Flash double words that failed ECC on read.
     pub flash_ecc_errors: AtomicU32,
+    /// Host sessions ended so far (the host pump drops what belongs to an older one).
+    pub host_session: AtomicU32,
+    /// A host session ended: the host pump's write in progress is cancelled.
+    pub host_cancel: Signal<Cs, ()>,
+    /// Bytes for the host dropped because it did not read them.
+    pub host_bytes_dropped: AtomicU32,
+}
+
+/// The tasks with heartbeats ([`Shared::beats`]) and how long each may stay busy.
+pub mod task {
+    /// Host link, host → proxy (waits for room toward the stage controller).
+    pub const HOST_IN: usize = 0;
+    /// Stage link, controller → proxy (never waits for the host).
+    pub const STAGE_IN: usize = 1;
+    /// Stage link, proxy → controller (waits for the UART to send).
+    pub const STAGE_OUT: usize = 2;
+    /// Management: one request, store writes included.
+    pub const MGMT: usize = 3;
+    /// Tasks with a heartbeat.
+    pub const COUNT: usize = 4;
+    /// How long each may stay busy, ms: 256 bytes at 1 200 Bd take 2.1 s; a store write with
+    /// its erases ~0.2 s.
+    pub const LIMIT_MS: [u32; COUNT] = [5_000, 5_000, 5_000, 5_000];
+    /// Names, for the log.
+    pub const NAMES: [&str; COUNT] = [
+        "host link",
+        "stage link (in)",
+        "stage link (out)",
+        "management",
+    ];
+}
+
+/// A task's heartbeat: since when it has been busy (0: idle).
+pub struct Beat(AtomicU32);
+
+/// Busy until dropped.
+pub struct Busy<'a>(&'a Beat);
+
+impl Beat {
+    /// Idle.
+    pub const fn new() -> Self {
+        Self(AtomicU32::new(0))
+    }
+
+    /// Busy from `now_ms` until the guard is dropped.
+    pub fn busy(&self, now_ms: u32) -> Busy<'_> {
+        self.0.store(now_ms | 1, Ordering::Relaxed);
+        Busy(self)
+    }
+
+    /// How long it has been busy at `now_ms` (0 when idle).
+    pub fn busy_for_ms(&self, now_ms: u32) -> u32 {
+        match self.0.load(Ordering::Relaxed) {
+            0 => 0,
+            since => now_ms.wrapping_sub(since),
+        }
+    }
+}
+
+impl Default for Beat {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Drop for Busy<'_> {
+    fn drop(&mut self) {
+        self.0 .0.store(0, Ordering::Relaxed);
+    }
 }
 
 impl Shared {
@@ -229,7 +303,11 @@ impl Shared {
             mgmt_hangup: Signal::new(),
             stage_sent: Signal::new(),
             sensor_beat_ms: AtomicU32::new(0),
+            beats: [const { Beat::new() }; task::COUNT],
             flash_ecc_errors: AtomicU32::new(0),
+            host_session: AtomicU32::new(0),
+            host_cancel: Signal::new(),
+            host_bytes_dropped: AtomicU32::new(0),
         }
     }
 
@@ -299,23 +377,23 @@ pub fn now_ms() -> u32 {
     embassy_time::Instant::now().as_millis() as u32
 }
 
-/// Count a flash ECC error (the board's NMI handler or its storage wrapper calls this).
-pub fn count_ecc(sh: &Shared, n: u32) {
-    sh.flash_ecc_errors.fetch_add(n, Ordering::Relaxed);
+/// The store's flash has handed over `total` double words that failed ECC since start-up (as
+/// corrupt: a torn write), for the status.
+pub fn note_flash_ecc_errors(sh: &Shared, total: u32) {
+    sh.flash_ecc_errors.store(total, Ordering::Relaxed);
 }
 
-/// The host closed the GCS port (USB DTR dropped): drop the bytes queued for it and start the
-/// proxy afresh (no half-collected reply, pending error or query attribution carries over to
-/// the next connection); bypass, the move gate and the counters stay.
+/// The host closed the GCS port (USB DTR dropped): drop the bytes queued for it (and cancel the
+/// one being written) and start the proxy afresh — no half-collected reply, pending error or
+/// query attribution carries over to the next connection, and the replies still due from the
+/// controller are read and dropped instead of answering the next session's first queries
+/// ([`nanocal_compensator::proxy::Proxy::end_host_session`]); bypass, the move gate and the
+/// counters stay.
 pub fn end_host_session(sh: &Shared) {
+    sh.host_session.fetch_add(1, Ordering::AcqRel);
     sh.to_host.clear();
-    sh.core.lock(|c| {
-        let mut c = c.borrow_mut();
-        let keep = (c.proxy.bypass, c.proxy.gate, c.proxy.counters);
-        let settings = sh.settings.lock(|s| *s.borrow());
-        c.proxy = fresh_proxy(&settings);
-        (c.proxy.bypass, c.proxy.gate, c.proxy.counters) = keep;
-    });
+    sh.host_cancel.signal(());
+    sh.core.lock(|c| c.borrow_mut().proxy.end_host_session());
 }
 
 /// Tell the application the host's line state (USB CDC SET_CONTROL_LINE_STATE, DTR bit): a

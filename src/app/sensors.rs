@@ -27,6 +27,9 @@ use nanocal_compensator::sensor::{Driver, Outcome, SensorFault, MAX_TXN};
 use nanocal_interface::settings::{AuxSource, Settings};
 use nanocal_model::{LagBank, MAX_AUX};
 
+/// Times the barometer is asked at start-up before it counts as absent.
+const PROBES: usize = 3;
+
 /// Sampling period of the fast inputs, ms.
 pub const FAST_PERIOD_MS: u64 = 10;
 
@@ -117,17 +120,25 @@ struct Baro {
 }
 
 impl Baro {
+    /// Whether the barometer answers, asked up to [`PROBES`] times: a bus a slave holds at
+    /// power-up fails the first transaction, which frees it (the board's bus recovery).
     async fn probe<B: InputBus>(bus: &SharedBus<B>, timeout: Duration) -> bool {
-        let mut id = [0u8; 1];
-        let mut bus = bus.lock().await;
-        matches!(
-            with_timeout(
-                timeout,
-                bus.i2c(lps22hb::ADDRESS, &[lps22hb::WHO_AM_I], &mut id)
-            )
-            .await,
-            Ok(Ok(()))
-        ) && id[0] == lps22hb::ID
+        for _ in 0..PROBES {
+            let mut id = [0u8; 1];
+            let mut bus = bus.lock().await;
+            let answered = matches!(
+                with_timeout(
+                    timeout,
+                    bus.i2c(lps22hb::ADDRESS, &[lps22hb::WHO_AM_I], &mut id)
+                )
+                .await,
+                Ok(Ok(()))
+            );
+            if answered {
+                return id[0] == lps22hb::ID;
+            }
+        }
+        false
     }
 
     async fn read<B: InputBus>(

@@ -1,8 +1,11 @@
 //! The supervisor task: refuses moves on a stale fold, drives the status LED, and pets the
-//! watchdog only while the sensor task makes progress — a hung sensor task or a blocked
-//! executor resets the board (IWDG on the STM32, the CMSDK watchdog on QEMU).
+//! watchdog only while the sensor task makes progress and no link or management task is stuck
+//! in a step that should end (a stage-link write the UART never sends, a store write) — a hung
+//! task or a blocked executor resets the board (IWDG on the STM32, the CMSDK watchdog on
+//! QEMU). Waiting for input is no hang, nor is a host that does not read (its bytes are
+//! dropped, see `links.rs`).
 
-use super::{now_ms, Shared};
+use super::{now_ms, task, Shared};
 use core::sync::atomic::Ordering;
 use embassy_time::Timer;
 use nanocal_compensator::proxy::Gate;
@@ -62,7 +65,15 @@ pub async fn supervisor<B: Board>(mut board: B, sh: &Shared) -> ! {
             .next_edge_ms(now)
             .map_or(SUPERVISE_MS, |e| e.clamp(1, SUPERVISE_MS));
         let beat = sh.sensor_beat_ms.load(Ordering::Relaxed);
-        if now.wrapping_sub(beat) <= limit || now < limit {
+        let sensors_alive = now.wrapping_sub(beat) <= limit || now < limit;
+        let stuck = (0..task::COUNT).find(|&t| sh.beats[t].busy_for_ms(now) > task::LIMIT_MS[t]);
+        if let Some(t) = stuck {
+            warn!(
+                "{=str} stuck: the watchdog will reset the board",
+                task::NAMES[t]
+            );
+        }
+        if sensors_alive && stuck.is_none() {
             board.pet_watchdog();
         }
     }

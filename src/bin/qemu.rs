@@ -143,6 +143,7 @@ async fn boot_task(spawner: Spawner, cause: nanocal_interface::identity::ResetCa
     let identity = Identity {
         uid: *b"QEMU-mps2-an",
         reset_cause: cause,
+        reset_site: nanocal_interface::identity::Site::None,
     };
     let sh: &'static Shared = SHARED.init(Shared::new(settings, identity));
     // SAFETY: each UART index is taken exactly once, here.

@@ -39,6 +39,7 @@ mod corrector;
 mod moves;
 mod queue;
 mod replies;
+mod session;
 
 pub use corrector::{Corrected, Corrector, FoldCorrector};
 pub use queue::MAX_IN_FLIGHT;
@@ -115,6 +116,8 @@ pub struct Counters {
     pub inverse_failures: u32,
     /// Queries the controller never answered (dropped after [`REPLY_TIMEOUT_MS`]).
     pub unanswered: u32,
+    /// Times bytes from the controller were lost (UART overrun, full receive buffer).
+    pub link_losses: u32,
 }
 
 /// What the proxy knows of the model axes' targets.
@@ -261,6 +264,9 @@ pub struct ProxyState {
     pub gate: Gate,
     /// Counters.
     pub counters: Counters,
+    /// Bytes from the controller were lost: until the line is quiet, nothing received can be
+    /// paired with a query and no host line goes out ([`Proxy::stage_bytes_lost`]).
+    resync: bool,
 }
 
 impl Default for Proxy {
@@ -306,6 +312,7 @@ impl Proxy {
                 bypass: false,
                 gate: Gate::Open,
                 counters: Counters::default(),
+                resync: false,
             },
         }
     }
@@ -314,7 +321,7 @@ impl Proxy {
     /// does [`poll`](Self::poll) have anything to decide, so the stage link need not wake for it
     /// otherwise.
     pub fn awaiting_controller(&self) -> bool {
-        !self.st.queue.is_empty() || self.st.rx.active()
+        !self.st.queue.is_empty() || self.st.rx.active() || self.st.resync
     }
 
     /// True when host bytes already received can be processed now (call
@@ -341,6 +348,9 @@ impl Proxy {
     ) -> usize {
         out.clear();
         self.st.now_ms = now_ms;
+        if let Some(taken) = self.resync_hold(input, out) {
+            return taken;
+        }
         if !self.st.queue.is_empty() {
             self.st.emit_answers(out);
         }
@@ -891,6 +901,10 @@ impl ProxyState {
     fn poll<C: Corrector>(&mut self, c: Option<&C>, now_ms: u32, out: &mut Output) {
         out.clear();
         self.now_ms = now_ms;
+        if self.resync {
+            self.try_end_resync(c, out);
+            return;
+        }
         self.emit_answers(out);
         let waiting = !self.queue.is_empty() || self.rx.active();
         let quiet = now_ms.wrapping_sub(self.last_rx_ms) > REPLY_TIMEOUT_MS

@@ -80,6 +80,9 @@ pub(crate) enum Expect {
     Internal(Info),
     /// The proxy's own answer to the host's `ERR?`.
     Answer(Answer),
+    /// A reply that belongs to nobody any more (its host session ended): read to its end and
+    /// dropped, so that it pairs with no later query ([`super::Proxy::end_host_session`]).
+    Discard,
 }
 
 /// A fixed-capacity ring of [`Expect`].
@@ -128,6 +131,18 @@ impl Queue {
         self.len -= 1;
         Some(e)
     }
+    /// Every entry still expecting a reply becomes [`Expect::Discard`]; the proxy's own answers
+    /// (no reply of the controller's) are dropped.
+    pub(crate) fn discard_all(&mut self) {
+        let mut kept = Self::new();
+        while let Some(e) = self.pop() {
+            if !matches!(e, Expect::Answer(_)) {
+                kept.push(Expect::Discard);
+            }
+        }
+        *self = kept;
+    }
+
     /// How many of the entries are the proxy's own queries for `info`.
     pub(crate) fn count_internal(&self, info: Info) -> usize {
         (0..self.len)

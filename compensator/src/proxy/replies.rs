@@ -93,6 +93,12 @@ impl ReplyRx {
         matches!(self.kind, Some(Expect::Internal(_)))
     }
 
+    /// Go on receiving `old`'s reply (a session ended in the middle of it) as one to drop.
+    pub(crate) fn continue_as_discard(&mut self, old: &ReplyRx) {
+        self.begin(Expect::Discard);
+        self.prev = old.prev;
+    }
+
     fn begin(&mut self, e: Expect) {
         self.kind = Some(e);
         self.prev = b'\n';
@@ -118,6 +124,10 @@ impl ProxyState {
         if !input.is_empty() {
             self.last_rx_ms = now_ms;
         }
+        if self.resync {
+            // bytes were lost: nothing that arrives can be paired until the line is quiet
+            return input.len();
+        }
         if !self.queue.is_empty() {
             self.emit_answers(out);
         }
@@ -133,14 +143,21 @@ impl ProxyState {
             };
             let rest = &input[i..];
             let lf = rest.iter().position(|&b| b == b'\n');
-            if matches!(kind, Expect::Relay | Expect::Snoop(_)) {
-                let room = out.to_host.room();
+            if matches!(kind, Expect::Relay | Expect::Snoop(_) | Expect::Discard) {
+                let discard = kind == Expect::Discard;
+                let room = if discard {
+                    usize::MAX
+                } else {
+                    out.to_host.room()
+                };
                 if room == 0 {
                     break;
                 }
                 let n = lf.map_or(rest.len(), |p| p + 1).min(room);
                 let chunk = &rest[..n];
-                let _ = out.to_host.extend(chunk);
+                if !discard {
+                    let _ = out.to_host.extend(chunk);
+                }
                 i += n;
                 if matches!(kind, Expect::Snoop(_)) {
                     self.collect(chunk);

@@ -242,8 +242,13 @@ pub fn run(cmd: DeviceCommand) -> anyhow::Result<()> {
         DeviceCommand::Status { port } => {
             let mut c = Client::open(&port)?;
             let h = c.identify()?;
+            let site = if h.reset_site.is_empty() {
+                String::new()
+            } else {
+                format!(" at {}", h.reset_site)
+            };
             println!(
-                "firmware {} (protocol {}, blob format {})  chip UID {}  last reset: {}",
+                "firmware {} (protocol {}, blob format {})  chip UID {}  last reset: {}{site}",
                 h.firmware,
                 h.protocol,
                 h.blob_format,

@@ -12,7 +12,7 @@
 //!
 //! | kind | request payload | reply data |
 //! |---|---|---|
-//! | `HELLO` 0x01 | – | protocol u16, blob format u16, max chunk u16, firmware (len u8, ASCII), chip UID (12 bytes), reset cause u8 |
+//! | `HELLO` 0x01 | – | protocol u16, blob format u16, max chunk u16, firmware (len u8, ASCII), chip UID (12 bytes), reset cause u8, reset site (len u8, ASCII, empty when none) |
 //! | `STATUS` 0x02 | – | [`Status`] ([`crate::status`] has the layout) |
 //! | `UPLOAD_BEGIN` 0x10 | total_len u32, crc32 u32, format u16 | – |
 //! | `UPLOAD_CHUNK` 0x11 | offset u32, bytes (≤ [`MAX_CHUNK`]) | received u32 |
@@ -61,7 +61,9 @@ pub use request::Request;
 /// bytes did not change with the move.) 5: the model's content hash — the CRC-32 its blob
 /// carries — in `STATUS` (`Status::model_crc32`, in place of the reserved byte at offset 6:
 /// every later field moved by 3 bytes) and in `UPLOAD_COMMIT`'s reply (in place of its
-/// reserved byte); the model id alone did not tell two models apart (issue 21).
+/// reserved byte); the model id alone did not tell two models apart (issue 21); HELLO ends
+/// with the reset site; reset causes 8 (panic), 9 (double ECC error outside the store), 10 (CPU
+/// fault) (issue 16).
 pub const PROTOCOL: u16 = 5;
 /// Largest upload chunk (payload minus the offset).
 pub const MAX_CHUNK: usize = 256;

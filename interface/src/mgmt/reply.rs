@@ -3,7 +3,7 @@
 use super::frame::{PayloadError, Reader, Writer};
 use super::kind::Kind;
 use super::refusal::{InputCode, Refusal};
-use crate::identity::{ResetCause, UID_LEN};
+use crate::identity::{ResetCause, MAX_SITE, UID_LEN};
 use crate::settings::Settings;
 use crate::status::Status;
 use nanocal_model::MAX_AXES;
@@ -29,6 +29,9 @@ pub struct Hello {
     pub uid: [u8; UID_LEN],
     /// Why the device last reset.
     pub reset_cause: ResetCause,
+    /// Where, when the firmware recorded it (a panic's `file:line`, an address as `0x…`;
+    /// [`crate::identity::Site::text`]); empty otherwise.
+    pub reset_site: heapless::String<MAX_SITE>,
 }
 
 /// A management reply's payload: the result byte and what follows it (the table in
@@ -114,7 +117,9 @@ impl Reply {
                 w.u8(h.firmware.len() as u8)?;
                 w.bytes(h.firmware.as_bytes())?;
                 w.bytes(&h.uid)?;
-                w.u8(h.reset_cause.code())
+                w.u8(h.reset_cause.code())?;
+                w.u8(h.reset_site.len() as u8)?;
+                w.bytes(h.reset_site.as_bytes())
             }
             Reply::Status(s) => s.encode(w),
             Reply::UploadChunk { received } => w.u32(*received),
@@ -178,6 +183,11 @@ impl Reply {
                     field: "reset_cause",
                     value: c.into(),
                 })?;
+                let n = r.u8()?;
+                let text = core::str::from_utf8(r.bytes(usize::from(n))?)
+                    .map_err(|_| PayloadError::Text)?;
+                let mut reset_site = heapless::String::new();
+                reset_site.push_str(text).map_err(|_| PayloadError::Text)?;
                 Reply::Hello(Hello {
                     protocol,
                     blob_format,
@@ -185,6 +195,7 @@ impl Reply {
                     firmware,
                     uid,
                     reset_cause,
+                    reset_site,
                 })
             }
             Kind::Status => Reply::Status(Status::decode(&mut r)?),

@@ -47,7 +47,7 @@ custom_settings = settings(57600, {0: (1, 3, 0.0, 0.0), 1: (1, 7, 0.0, 0.0), 2: 
                            [(1, 0, 0.0, 0.0), (2, 0, 0.01, -20.48), (0, 0, 0.0, 0.0), (0, 0, 0.0, 0.0)])
 assert len(default_settings) == 244
 
-hello = struct.pack('<HHH', 5, 2, 256) + bytes([5]) + b'0.1.0' + bytes(range(12)) + bytes([1])
+hello = struct.pack('<HHH', 5, 2, 256) + bytes([5]) + b'0.1.0' + bytes(range(12)) + bytes([8]) + bytes([19]) + b'src/bin/stm32.rs:42'
 items = [
     ("STATUS_BYTES", status(), "The status of `status()` alone (206 bytes)."),
     ("SETTINGS_DEFAULT", default_settings, "`Settings::default()` (244 bytes)."),
@@ -64,7 +64,7 @@ items = [
     ("REQ_CONFIG_SET", frame(0x31, 10, custom_settings), "CONFIG_SET of `custom_settings()`, seq 10."),
     ("REQ_RESET", frame(0x32, 11, b''), "RESET, seq 11."),
     ("REQ_DEBUG_HANG", frame(0x7E, 12, b''), "DEBUG_HANG, seq 12."),
-    ("REP_HELLO", frame(0x81, 1, bytes([0]) + hello), "HELLO reply: protocol 5, blob format 2, chunk 256, firmware \"0.1.0\", UID 00..0B, power-on."),
+    ("REP_HELLO", frame(0x81, 1, bytes([0]) + hello), "HELLO reply: protocol 5, blob format 2, chunk 256, firmware \"0.1.0\", UID 00..0B, panic at src/bin/stm32.rs:42."),
     ("REP_STATUS", frame(0x82, 2, bytes([0]) + status()), "STATUS reply with `status()`."),
     ("REP_UPLOAD_BEGIN", frame(0x90, 3, bytes([0])), "UPLOAD_BEGIN reply: ok."),
     ("REP_UPLOAD_CHUNK", frame(0x91, 4, bytes([0]) + struct.pack('<I', 260)), "UPLOAD_CHUNK reply: 260 bytes received."),

@@ -5,9 +5,10 @@
 //! The search runs on independent units (dwell means of a step-and-settle procedure, samples
 //! otherwise, merged into at most [`MAX_SCAN_UNITS`] blocks): at every boundary and at several
 //! scales, a line fitted on each side is extrapolated to the boundary and the two compared
-//! (slow drift cancels, an abrupt change does not). The best boundary must be abrupt — a line
-//! with a step explains the window around it to the noise level, clearly better than any
-//! smooth cubic — before the row is pinned down on the samples.
+//! (slow drift cancels, an abrupt change does not). The clearest boundary must be abrupt — in a
+//! short window around it a line with a step explains far more than any smooth cubic — and
+//! must not coincide with a step of any recorded input (then that input's response explains
+//! it), before the row is pinned down on the samples.
 
 use super::data::Data;
 use super::fit::median;
@@ -19,8 +20,6 @@ pub const MAX_SCAN_UNITS: usize = 5000;
 const SCALES: [usize; 4] = [4, 12, 36, 108];
 /// A step's local evidence over a smooth cubic, in noise variances (Δχ²).
 const MIN_ABRUPT_CHI2: f64 = 30.0;
-/// The step model must explain its window to within this factor of the noise variance.
-const MAX_WINDOW_CHI2_PER_DOF: f64 = 3.0;
 
 /// A located step of the residual.
 #[derive(Clone, Debug, PartialEq)]
@@ -103,12 +102,13 @@ fn jump(m: &[f64], j: usize, w: usize) -> f64 {
     line_at(&m[j..j + w], -0.5) - line_at(&m[j - w..j], w as f64 - 0.5)
 }
 
-/// Whether input `x` (on the scan's units) changes at boundary `j` as it rarely does: its jump
-/// there (at scale `w`) beyond 5 robust standard deviations of its jumps at all boundaries.
-fn input_steps(x: &[f64], j: usize, w: usize) -> bool {
+/// The jump of input `x` (on the scan's units) at boundary `j` (scale `w`, the largest within two
+/// units of it) when it is one the input rarely makes: beyond 3 robust standard deviations of
+/// its jumps at all boundaries.
+fn input_steps(x: &[f64], j: usize, w: usize) -> Option<f64> {
     let n = x.len();
     if j < w || j + w > n {
-        return false;
+        return None;
     }
     let mut all: Vec<f64> = (w..=n - w)
         .step_by((n / 2000).max(1))
@@ -119,9 +119,9 @@ fn input_steps(x: &[f64], j: usize, w: usize) -> bool {
     let sd = 1.4826 * median(&mut dev);
     let here = (j.saturating_sub(2)..=(j + 2).min(n - w))
         .filter(|&k| k >= w)
-        .map(|k| (jump(x, k, w) - med).abs())
-        .fold(0.0, f64::max);
-    sd > 0.0 && here > 5.0 * sd
+        .map(|k| jump(x, k, w) - med)
+        .fold(0.0f64, |a, v| if v.abs() > a.abs() { v } else { a });
+    (sd > 0.0 && here.abs() > 3.0 * sd).then_some(here)
 }
 
 /// RSS of least squares of `y` on the columns `x` (with an intercept).
@@ -131,7 +131,8 @@ fn rss_of(x: &[&[f64]], y: &[f64]) -> Option<(f64, Vec<f64>, Vec<f64>)> {
     Some((ls.rss, ls.coeffs, se))
 }
 
-/// The window [j − w, j + w) of units: RSS of a line with a step at j, RSS of a smooth cubic.
+/// The window [j − w, j + w) of units: how much a step at j explains beyond a smooth cubic
+/// (the RSS drop, in noise variances), and what the step model leaves (in noise variances).
 fn abrupt_chi2(m: &[f64], j: usize, w: usize, sigma: f64) -> Option<(f64, f64)> {
     let (a, b) = (j.saturating_sub(w), (j + w).min(m.len()));
     if j - a < 3 || b - j < 3 {
@@ -145,13 +146,19 @@ fn abrupt_chi2(m: &[f64], j: usize, w: usize, sigma: f64) -> Option<(f64, f64)> 
     let (rss_step, _, _) = rss_of(&[&k, &k2, &step], y)?;
     let (rss_smooth, _, _) = rss_of(&[&k, &k2, &k3], y)?;
     let s2 = sigma * sigma;
-    let dof = (y.len() - 4).max(1) as f64;
-    Some(((rss_smooth - rss_step) / s2, rss_step / s2 / dof))
+    Some(((rss_smooth - rss_step) / s2, rss_step / s2))
 }
 
 /// Find the clearest abrupt step of residual `r` on channel `ch`, if any (the residual's
-/// structure in position and direction is taken out first by the caller).
-pub fn find_step(d: &Data, ch: usize, r: &[f64], floor: &NoiseFloor) -> Option<Event> {
+/// structure in position and direction is taken out first by the caller); `temp_gains` are the
+/// baseline's static gains of the temperatures, µm/°C.
+pub fn find_step(
+    d: &Data,
+    ch: usize,
+    r: &[f64],
+    floor: &NoiseFloor,
+    temp_gains: &[f64],
+) -> Option<Event> {
     let units = unit_series(d, ch, r);
     let m: Vec<f64> = units.iter().map(|u| u.2).collect();
     let nu = m.len();
@@ -169,17 +176,21 @@ pub fn find_step(d: &Data, ch: usize, r: &[f64], floor: &NoiseFloor) -> Option<E
     .max(1e-12);
     let scales: Vec<usize> = SCALES.iter().copied().filter(|&w| 4 * w <= nu).collect();
     let z_min = (2.0 * ((nu * scales.len().max(1)) as f64).ln()).sqrt() + 3.5;
-    // the recorded inputs on the same units: a step of the response that coincides with a
-    // step of an input is that input's doing (a lag explains it), not a slip
-    let inputs: Vec<Vec<f64>> = d
+    // the temperatures on the same units: a step of the response that coincides with a step of
+    // a temperature big enough (through its static gain) to make it is that temperature's doing
+    // (the structure lags what the sensor saw at once), not a slip
+    let inputs: Vec<(Vec<f64>, f64)> = d
         .temps
         .iter()
-        .chain(d.aux.iter())
-        .map(|(_, x)| {
-            units
-                .iter()
-                .map(|u| x[u.0..u.1].iter().sum::<f64>() / (u.1 - u.0) as f64)
-                .collect()
+        .zip(temp_gains)
+        .map(|((_, x), &g)| {
+            (
+                units
+                    .iter()
+                    .map(|u| x[u.0..u.1].iter().sum::<f64>() / (u.1 - u.0) as f64)
+                    .collect(),
+                g,
+            )
         })
         .collect();
     let mut candidates: Vec<(f64, usize, usize)> = Vec::new();
@@ -205,14 +216,23 @@ pub fn find_step(d: &Data, ch: usize, r: &[f64], floor: &NoiseFloor) -> Option<E
             continue;
         }
         tried.push(j);
-        // abrupt: the step explains the window to the noise, and far better than a smooth curve
-        let Some((gain, fit)) = abrupt_chi2(&m, j, 2 * w, sigma) else {
-            continue;
-        };
-        if gain < MIN_ABRUPT_CHI2 || fit > MAX_WINDOW_CHI2_PER_DOF {
+        // abrupt: in a short window around it (±8 or ±24 units) a line with a step explains far
+        // more than any smooth cubic — at least as much as is left around it, which other
+        // structure may make large
+        let abrupt = SCALES[..2].iter().any(|&v| {
+            abrupt_chi2(&m, j, 2 * v, sigma)
+                .is_some_and(|(gain, rss_step)| gain >= MIN_ABRUPT_CHI2 && gain >= rss_step)
+        });
+        if !abrupt {
             continue;
         }
-        if inputs.iter().any(|x| input_steps(x, j, w)) {
+        let own = jump(&m, j, SCALES[0]);
+        if inputs.iter().any(|(x, g)| {
+            SCALES
+                .iter()
+                .filter(|&&v| v <= w)
+                .any(|&v| input_steps(x, j, v).is_some_and(|s| (g * s).abs() >= 0.25 * own.abs()))
+        }) {
             continue;
         }
         best = Some((z, j, w));

@@ -115,7 +115,7 @@ const FROZEN_LOG_P: f64 = -18.4; // ln(1e-8)
 const MIN_FROZEN_ROWS: usize = 10;
 /// A channel unusable (frozen, saturated, missing) over more than this share of the rows is
 /// left out of the model instead of leaving its rows out of every fit.
-const MAX_EXCLUDED_SHARE: f64 = 0.5;
+const MAX_EXCLUDED_SHARE: f64 = 0.8;
 /// A time step this many typical steps long (and 3× the 99th percentile) is a jump.
 const JUMP_STEPS: f64 = 10.0;
 /// Evidence (log-likelihood ratio, summed over the signals that can tell) that a time jump is

@@ -33,6 +33,7 @@ pub mod plot;
 pub mod report;
 pub mod robust;
 pub mod search;
+pub mod targeted;
 pub mod units;
 
 use crate::effects::{candidates, Candidate, Estimate, Fitted, Proposal};
@@ -440,9 +441,19 @@ fn explain_channel_once(
     // events first: a residual that steps once and stays is located and modelled as an offset
     // from its row on before any effect is named, so no drift is handed the credit
     let mut found_events: Vec<events::Event> = Vec::new();
+    let temp_gains: Vec<f64> = {
+        let offset = if d.against_simulation || d.channels[ch].u.is_none() {
+            0
+        } else {
+            3
+        };
+        (0..d.temps.len())
+            .map(|i| base_fit.ls.coeffs.get(offset + i).copied().unwrap_or(0.0))
+            .collect()
+    };
     for _ in 0..MAX_EVENTS {
         let clean = events::without_pose_structure(d, ch, &cur_fit.residuals);
-        let Some(mut ev) = events::find_step(d, ch, &clean, &floor) else {
+        let Some(mut ev) = events::find_step(d, ch, &clean, &floor, &temp_gains) else {
             break;
         };
         let col = events::step_column(d.rows(), ev.row);
@@ -742,6 +753,77 @@ fn explain_channel_once(
             ));
         }
     }
+    // targeted tests for effects at or below the noise, with a family-wise false-alarm rate
+    let targeted = targeted::run(d, ch, &model.with(&[]), y, &rows);
+    let family = targeted.len();
+    for t in targeted.iter().filter(|t| t.significant) {
+        if accepted.contains(&t.effect) {
+            continue;
+        }
+        let Some(cand) = candidates().into_iter().find(|c| c.name() == t.effect) else {
+            continue;
+        };
+        let new_cols = model.with(&t.columns);
+        let f = fit::fit_rows(&new_cols, y, &rows)?;
+        let cv_new = fit::cross_validate(&new_cols, y, &design, &rows)?;
+        let m = model.cols.len();
+        let proposal = Proposal::linear(t.columns.clone());
+        let se = f.ls.std_errors();
+        let fitted = Fitted {
+            proposal: &proposal,
+            coeffs: &f.ls.coeffs[m..],
+            se: &se[m..],
+            noise_sigma_um: f.ls.rmse(),
+        };
+        let mut params = vec![];
+        match t.period_nm {
+            Some(p) => {
+                params.push(Estimate::new("period_nm", p, f64::NAN));
+                params.push(Estimate::new(
+                    "amplitude_nm",
+                    t.amplitude,
+                    t.amplitude_sigma,
+                ));
+                params.push(Estimate::new("phase_rad", t.phase_rad, f64::NAN));
+            }
+            None => params.push(Estimate::new(
+                "alpha_ppm_per_c",
+                t.amplitude,
+                t.amplitude_sigma,
+            )),
+        }
+        params.push(Estimate::new("z", t.z, f64::NAN));
+        effects.push(EffectReport {
+            name: t.effect,
+            channel: d.channels[ch].name.clone(),
+            description: cand.description(),
+            summary: format!(
+                "found by a targeted test of {}: {} ± {} (z = {:.1}; the family of {family} targeted test(s) on this channel holds a {} % false-alarm rate together; the same in both halves of the record)",
+                t.what,
+                units::sig3(t.amplitude),
+                units::sig3(t.amplitude_sigma),
+                t.z,
+                targeted::FAMILY_FALSE_ALARM * 100.0
+            ),
+            deploy: cand.deploy(),
+            blob: cand.blob_terms(&blob_context(d, ch), &fitted),
+            params,
+            rms_before_nm: cur_cv.rms_um * 1e3,
+            rms_after_nm: cv_new.rms_um * 1e3,
+            evidence: format!(
+                "targeted test: p = {:.2e} against {:.2e} for each of {family} test(s); held-out RMS {} → {}",
+                t.p_value,
+                targeted::FAMILY_FALSE_ALARM / family.max(1) as f64,
+                units::length_um(cur_cv.rms_um),
+                units::length_um(cv_new.rms_um)
+            ),
+        });
+        accepted.push(t.effect);
+        effect_cols.push((m, m + t.columns.len(), 0));
+        model.cols.extend(t.columns.iter().cloned());
+        cur_fit = f;
+        cur_cv = cv_new;
+    }
     let final_floor = locate::noise(d, ch, &cur_fit.residuals);
     let mut unexplained = locate::locate(d, ch, &cur_cv.residuals, final_floor);
     // the clearest places first, at most eight per channel
@@ -789,6 +871,7 @@ fn explain_channel_once(
         located,
         events: found_events,
         not_in_library,
+        targeted,
         effects,
         unexplained,
         trials: trials_all,

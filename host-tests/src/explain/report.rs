@@ -93,6 +93,8 @@ pub struct ChannelReport {
     /// Structure a flexible alternative carries that no listed form explains (see
     /// [`super::misspec`]); also listed first among `unexplained`.
     pub not_in_library: Vec<super::misspec::Misfit>,
+    /// Targeted tests for small effects (see [`super::targeted`]), significant or not.
+    pub targeted: Vec<super::targeted::TargetedTest>,
     /// Named effects, in the order they joined the model.
     pub effects: Vec<EffectReport>,
     /// Structure that remains unexplained.
@@ -622,6 +624,40 @@ impl Report {
                         b.play.len()
                     );
                 }
+            }
+            if !c.targeted.is_empty() {
+                let parts: Vec<String> = c
+                    .targeted
+                    .iter()
+                    .map(|t| {
+                        format!(
+                            "{}: {} ± {}{}, z {:.1}{}",
+                            t.what,
+                            sig3(t.amplitude),
+                            sig3(t.amplitude_sigma),
+                            if t.period_nm.is_some() {
+                                " nm"
+                            } else {
+                                " ppm/°C"
+                            },
+                            t.z,
+                            if t.significant {
+                                " — significant"
+                            } else if !t.halves_agree {
+                                " (the halves disagree)"
+                            } else {
+                                ""
+                            }
+                        )
+                    })
+                    .collect();
+                let _ = writeln!(
+                    s,
+                    "  targeted tests ({} % false alarms over all {} together): {}",
+                    super::targeted::FAMILY_FALSE_ALARM * 100.0,
+                    c.targeted.len(),
+                    parts.join("; ")
+                );
             }
             if let Some(last) = c.trials.last() {
                 let rejected: Vec<String> = last

@@ -192,7 +192,7 @@ mod tests {
 
     #[test]
     fn the_default_period_is_the_devices_default_setting() {
-        let ms = nanocal_compensator::settings::Settings::default().sample_period_ms;
+        let ms = nanocal_interface::settings::Settings::default().sample_period_ms;
         assert_eq!(DEVICE_FOLD_PERIOD_S, f64::from(ms) / 1000.0);
     }
 

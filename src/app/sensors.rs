@@ -24,7 +24,7 @@ use nanocal_compensator::inputs;
 use nanocal_compensator::lps22hb;
 use nanocal_compensator::proxy::Gate;
 use nanocal_compensator::sensor::{Driver, Outcome, SensorFault, MAX_TXN};
-use nanocal_compensator::settings::{AuxSource, Settings};
+use nanocal_interface::settings::{AuxSource, Settings};
 use nanocal_model::{LagBank, MAX_AUX};
 
 /// Sampling period of the fast inputs, ms.

@@ -20,7 +20,7 @@ use crate::device::Client;
 use crate::plan::{Plan, Step};
 use bench::{ReferenceReader, WallClock};
 use gcs::GcsLink;
-use nanocal_compensator::settings::{AuxSource, Settings};
+use nanocal_interface::settings::{AuxSource, Settings};
 use recorder::{Layout, Recorder};
 use reference::{ClockMap, ClockMode};
 use run::{CampaignError, Links, Progress, Reopen, Runner};

@@ -256,7 +256,11 @@ fn geometric_order_case(seed: u64) -> (Columns, Expect) {
 fn axis_coupling_case(seed: u64) -> (Columns, Expect) {
     let mut r = rng(seed);
     let nm_per_um = sign(&mut r) * draw(&mut r, 0.2, 1.0);
-    let (from_axis, to_axis) = if seed % 2 == 0 { (0, 1) } else { (1, 0) };
+    let (from_axis, to_axis) = if seed.is_multiple_of(2) {
+        (0, 1)
+    } else {
+        (1, 0)
+    };
     let cols = grid_2dof(
         vec![EffectSpec::AxisCoupling(axis_coupling::Params {
             from_axis,

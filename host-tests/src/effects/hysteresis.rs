@@ -142,7 +142,7 @@ pub fn reversals(x: &[f64]) -> usize {
     let lo = x.iter().cloned().fold(f64::INFINITY, f64::min);
     let hi = x.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
     let band = 0.1 * (hi - lo);
-    if !(band > 0.0) {
+    if band.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return 0;
     }
     let (mut count, mut dir) = (0usize, 0i8);
@@ -242,6 +242,15 @@ fn alternative_grids(amplitude: f64) -> Vec<Vec<f64>> {
         .collect()
 }
 
+/// The best bank so far: its fit, the auxiliary drive's name (None for the command), the
+/// drive's own static columns and the search basis with them.
+type BestDrive = (
+    BankFit,
+    Option<String>,
+    Vec<Vec<f64>>,
+    crate::explain::search::Basis,
+);
+
 impl super::Candidate for Candidate {
     fn name(&self) -> &'static str {
         NAME
@@ -256,17 +265,12 @@ impl super::Candidate for Candidate {
         !drives(d, ch).is_empty()
     }
     fn propose(&self, s: &Search) -> Result<Option<Proposal>, ExplainError> {
-        let mut best: Option<(
-            BankFit,
-            Option<String>,
-            Vec<Vec<f64>>,
-            crate::explain::search::Basis,
-        )> = None;
+        let mut best: Option<BestDrive> = None;
         for (drive, x) in drives(s.d, s.ch) {
             let lo = x.iter().cloned().fold(f64::INFINITY, f64::min);
             let hi = x.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
             let amplitude = 0.5 * (hi - lo);
-            if !(amplitude > 0.0) {
+            if amplitude.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
                 continue;
             }
             // an auxiliary drive brings its own static response (the baseline's polynomial is

@@ -387,17 +387,6 @@ pub trait Candidate: Sync {
     fn propose(&self, s: &Search) -> Result<Option<Proposal>, ExplainError>;
     /// The physical parameters from the fitted coefficients.
     fn params(&self, d: &Data, ch: usize, f: &Fitted) -> Vec<Estimate>;
-    /// The parameter whose uncertainty is also taken from a block jackknife (see
-    /// [`crate::explain::uncertainty`]), if any.
-    fn main_param(&self) -> Option<&'static str> {
-        None
-    }
-    /// The proposal with its nonlinear parameters searched again on `s` (the record without a
-    /// block of time), the rest of its structure kept; the default keeps everything (an
-    /// extension linear in its coefficients).
-    fn repropose(&self, _s: &Search, p: &Proposal) -> Result<Option<Proposal>, ExplainError> {
-        Ok(Some(p.clone()))
-    }
     /// A sentence on the fitted effect for a person (the sense of a loop, which sensor lags
     /// how), or empty.
     fn summary(&self, _d: &Data, _ch: usize, _f: &Fitted) -> String {

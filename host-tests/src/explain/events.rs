@@ -267,7 +267,7 @@ pub fn find_step(
             fits.push((k, rss, c[2], se[2]));
         }
     }
-    let best_fit = fits.iter().min_by(|a, b| a.1.total_cmp(&b.1))?.clone();
+    let best_fit = fits.iter().min_by(|a, b| a.1.total_cmp(&b.1)).copied()?;
     let s2 = floor.sample_um.max(1e-12).powi(2);
     let near: Vec<usize> = fits
         .iter()

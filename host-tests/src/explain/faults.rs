@@ -219,7 +219,7 @@ fn gap_llr(signals: &[Vec<f64>], i: usize, m: usize) -> f64 {
             continue;
         }
         let sm = (dm.iter().map(|v| v * v).sum::<f64>() / dm.len() as f64).sqrt();
-        if !(sm > 5.0 * s1) {
+        if sm.partial_cmp(&(5.0 * s1)) != Some(std::cmp::Ordering::Greater) {
             continue;
         }
         let d = x[i] - x[i - 1];

@@ -667,7 +667,12 @@ fn explain_channel_once(
             // the named form's own standing on the same footing
             let named = without(&model.cols[a..b]);
             let named_cv = fit::cross_validate(&named.with(&[]), y, &design, &rows)?;
-            if !(alt_cv.rms_um <= named_cv.rms_um * misspec::AS_GOOD) {
+            if !matches!(
+                alt_cv
+                    .rms_um
+                    .partial_cmp(&(named_cv.rms_um * misspec::AS_GOOD)),
+                Some(std::cmp::Ordering::Less | std::cmp::Ordering::Equal)
+            ) {
                 continue;
             }
             let rest = Model {

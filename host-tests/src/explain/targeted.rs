@@ -58,7 +58,7 @@ pub struct TargetedTest {
 
 /// The normal deviate z with two-sided tail probability `p` (bisection on erfc).
 pub fn z_of_two_sided_p(p: f64) -> f64 {
-    if !(p > 0.0) {
+    if p.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return 40.0;
     }
     if p >= 1.0 {
@@ -94,7 +94,7 @@ fn solve_small(a: &[Vec<f64>], b: &[f64]) -> Option<(Vec<f64>, Vec<Vec<f64>>)> {
         }
         2 => {
             let det = a[0][0] * a[1][1] - a[0][1] * a[1][0];
-            if !(det.abs() > 0.0) {
+            if det.abs().partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
                 return None;
             }
             let inv = vec![

@@ -1,11 +1,19 @@
 //! Candidate design: a readable spec of which terms may enter the model, mapped 1:1 onto the
 //! shared model's [`Term`]s.
 //!
-//! Regressors are computed by the model crate itself: a skeleton [`Model`] carries the scalings
-//! (from the training envelope), [`Model::scale`] turns raw inputs into [`ScaledInputs`], and
-//! [`Term::value`] evaluates each candidate. A fitted coefficient is therefore exactly the
-//! coefficient stored in the blob, and the fitted intercept is the offset λ — nothing is written
-//! twice.
+//! Candidates are the papers' own regressors, in raw units: the powers of the measured
+//! position itself (`x`, `x²`, `x³`: paper 000 Eq. 8, 11–13; and for more axes the monomials of
+//! the positions as they are), the temperatures, their products with the position. Regressors
+//! are computed by the model crate itself: a skeleton [`Model`] with identity scalings turns raw
+//! inputs into [`ScaledInputs`] ([`Model::scale`]) and [`Term::value`] evaluates each candidate
+//! ([`DesignFrame::raw_inputs`]). Selection (stepwise) therefore decides on `x²`, not on the
+//! square of a centred variable: dropping `u²` with `u = (x − c)/h` is not dropping `x²`, and
+//! the selected set would not be the paper's. (Scaling or centring a candidate *column*, with
+//! the intercept in the model, changes no selection; stepwise and least squares do that
+//! internally.) The fitted raw coefficients are then converted exactly — the binomial expansion
+//! of [`nanocal_model::ModelBuilder::add_raw_term`] — into the blob's centred and scaled basis
+//! (the skeleton with the training envelope's scalings, [`DesignFrame::builder`]), where the
+//! firmware's f32 evaluation keeps its precision.
 //!
 //! Spec syntax (tokens separated by spaces or commas):
 //!
@@ -23,6 +31,7 @@
 //! | `static` | shorthand for the published static model: `poly=3 temps` |
 //! | `adaptive` | shorthand for the published adaptive model: `poly=3` (offset re-measured by KMZ) |
 //! | `eq22` | shorthand for paper 000's 2-DoF model, Eq. 22 with n1 = n2 = 3: `poly=3 other_poly=3 temps` — `q_x = Σ a_ix x^i + Σ b_ix y^i + Σ c_ix t_i + λ_x`, no x·y products |
+//! | `paper001` | paper 001's split, §VII.A "78 parameters (45 geometric and 33 thermal)": per motor 15 geometric monomials and 11 thermal terms (every temperature and the own coordinate × temperature `o`), the shapes of [`nanocal_model::reference::delta_robot_78`] (the paper gives only the counts) |
 
 use nanocal_model::{
     Factor, Input, LagBank, Model, ModelBuilder, ModelError, ScaledInputs, SlowInputs, Term,
@@ -35,7 +44,7 @@ use crate::dwell::Dwells;
 #[derive(Debug, thiserror::Error)]
 pub enum DesignError {
     /// The spec text could not be read.
-    #[error("design spec: expected one of poly=N, poly_<axis>=N, other_poly=N, cross=N, temps, temp_x_pos, aux, direction, lag=TAU_S, static, adaptive, eq22; found `{0}`")]
+    #[error("design spec: expected one of poly=N, poly_<axis>=N, other_poly=N, cross=N, temps, temp_x_pos, aux, direction, lag=TAU_S, static, adaptive, eq22, paper001; found `{0}`")]
     BadToken(String),
     /// An axis named in the spec is not in the data.
     #[error("design spec names axis `{0}`, but the data has axes: {1}")]
@@ -79,6 +88,8 @@ pub struct DesignSpec {
     pub direction: bool,
     /// Lagged temperature terms: every temperature through a first-order lag with this τ, s.
     pub lag_tau_s: Option<f64>,
+    /// Paper 001's split: per motor its 15 geometric and 11 thermal terms (token `paper001`).
+    pub paper001_split: bool,
 }
 
 impl DesignSpec {
@@ -127,6 +138,9 @@ impl DesignSpec {
                     s.temps = true;
                 }
                 "adaptive" => s.poly_order = s.poly_order.max(3),
+                "paper001" => {
+                    s.paper001_split = true;
+                }
                 "eq22" => {
                     s.poly_order = s.poly_order.max(3);
                     s.other_order = s.other_order.max(3);
@@ -193,6 +207,8 @@ pub struct DesignFrame {
     /// Aux columns (model Aux index = position here).
     pub aux: Vec<String>,
     skeleton: Model,
+    /// The same inputs with identity scalings: its [`Model::scale`] gives the raw values.
+    raw: Model,
 }
 
 fn range(v: &[f64]) -> (f64, f64) {
@@ -222,7 +238,8 @@ impl DesignFrame {
                 max: MAX_AXES,
             });
         }
-        let use_temps = spec.temps || spec.temp_x_position || spec.lag_tau_s.is_some();
+        let use_temps =
+            spec.temps || spec.temp_x_position || spec.lag_tau_s.is_some() || spec.paper001_split;
         let temps: Vec<String> = if use_temps {
             d.channels
                 .iter()
@@ -288,17 +305,22 @@ impl DesignFrame {
             let (lo, hi) = range(d.channel(name).expect("listed"));
             b = b.trained_range(Input::Aux(i as u8), lo, hi);
         }
+        let mut raw =
+            ModelBuilder::new(d.axes.len(), temps.len(), aux.len()).map_err(DesignError::Model)?;
         if let Some(tau) = spec.lag_tau_s {
             for i in 0..temps.len() {
                 b.lag(i as u8, tau).map_err(DesignError::Model)?;
+                raw.lag(i as u8, tau).map_err(DesignError::Model)?;
             }
         }
         let skeleton = b.build().map_err(DesignError::Model)?;
+        let raw = raw.build().map_err(DesignError::Model)?;
         Ok(DesignFrame {
             axes: d.axes.clone(),
             temps,
             aux,
             skeleton,
+            raw,
         })
     }
 
@@ -366,7 +388,10 @@ impl DesignFrame {
             });
         }
         let add_monomial = |out: &mut Vec<Candidate>, powers: [u8; MAX_AXES]| {
-            if !out.iter().any(|c| c.term.powers == powers) {
+            let same = |c: &Candidate| {
+                c.term.powers == powers && c.term.factor == Factor::None && c.term.direction == 0
+            };
+            if !out.iter().any(same) {
                 out.push(Candidate {
                     term: term(powers, Factor::None, 0),
                     name: mono_name(&powers),
@@ -429,6 +454,29 @@ impl DesignFrame {
                 });
             }
         }
+        if spec.paper001_split {
+            use nanocal_model::reference::{delta_robot_78_geometric, delta_robot_78_interaction};
+            for powers in delta_robot_78_geometric(output) {
+                add_monomial(&mut out, powers);
+            }
+            let mut push_unique = |term: Term, name: String| {
+                if !out.iter().any(|c| c.term.same_shape(&term)) {
+                    out.push(Candidate { term, name });
+                }
+            };
+            for (i, name) in self.temps.iter().enumerate() {
+                push_unique(term([0; MAX_AXES], Factor::Temp(i as u8), 0), name.clone());
+            }
+            let (powers, factor) = delta_robot_78_interaction(output);
+            if let Factor::Temp(t) = factor {
+                if let Some(name) = self.temps.get(t as usize) {
+                    push_unique(
+                        term(powers, factor, 0),
+                        format!("{}*{name}", mono_name(&powers)),
+                    );
+                }
+            }
+        }
         out
     }
 
@@ -459,8 +507,18 @@ impl DesignFrame {
     }
 
     /// Scaled inputs of every dwell, at the measured (calibrated) positions, by the model's
-    /// own scaling.
+    /// own scaling (what the blob's terms evaluate on).
     pub fn scaled_inputs(&self, d: &Dwells) -> Vec<ScaledInputs> {
+        self.inputs_by(&self.skeleton, d)
+    }
+
+    /// Raw inputs of every dwell (positions in µm, temperatures in °C, …), in the form
+    /// [`Term::value`] reads: the regressors of the candidates as the papers write them.
+    pub fn raw_inputs(&self, d: &Dwells) -> Vec<ScaledInputs> {
+        self.inputs_by(&self.raw, d)
+    }
+
+    fn inputs_by(&self, model: &Model, d: &Dwells) -> Vec<ScaledInputs> {
         let slow = self.slow_inputs(d);
         (0..d.len())
             .map(|i| {
@@ -470,7 +528,7 @@ impl DesignFrame {
                     x[a] = d.meas_um[a][i];
                     dir[a] = d.dir[a][i];
                 }
-                self.skeleton.scale(&x, &dir, &slow[i])
+                model.scale(&x, &dir, &slow[i])
             })
             .collect()
     }

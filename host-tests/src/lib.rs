@@ -12,6 +12,7 @@ pub mod effects;
 pub mod explain;
 pub mod fit;
 pub mod iso9283;
+pub mod kmz;
 pub mod linalg;
 pub mod plan;
 pub mod plot;

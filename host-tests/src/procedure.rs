@@ -63,7 +63,10 @@ impl ProcedureData {
             .iter()
             .map(|s| match s.phase {
                 Phase::Test { test, kind: k } if k == kind => Role::Visit(test),
-                Phase::Kmz { test } if kind_of(test) == Some(kind) => Role::Kmz(test),
+                Phase::Kmz { test, visit } if kind_of(test) == Some(kind) => Role::Kmz {
+                    test,
+                    counted: visit,
+                },
                 _ => Role::Skip,
             })
             .collect()

@@ -150,6 +150,18 @@ pub fn analyse(
         let f = data
             .validate(kind, model, kmz, fold_period_s)
             .map_err(|e| err(e.to_string()))?;
+        // a KMZ that is the first visit of its test is a reading in bypass, not a compensated
+        // move: paper 000 counts it with its drift cancelled by the λ_KMZ it gives (Eq. 17–18),
+        // which is the evaluation of the file-based validation — the campaign's table takes it
+        let mut asked = asked.clone();
+        for v in f.visits.iter().filter(|v| v.kmz_reference && !v.extra) {
+            let d = &mut asked.data.dwells;
+            if let Some(i) = d.t_start_s.iter().position(|&t| t == v.t_move_s) {
+                for a in 0..axes {
+                    d.cmd_um[a][i] = d.meas_um[a][i] - v.error_um[a];
+                }
+            }
+        }
         let mut c = validate_roles(
             None,
             &asked.data,

@@ -409,6 +409,7 @@ pub fn run(
                     stage: Stage::Steps,
                     model_ids: None,
                     kmz_um: None,
+                    kmz_first: None,
                     kmz_updates: 0,
                     device_resets: 0,
                     interruptions: Vec::new(),

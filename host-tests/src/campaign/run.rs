@@ -404,7 +404,10 @@ pub struct Profile {
 fn describe(phase: Phase, plan: &Plan) -> String {
     match phase {
         Phase::Training => "training".into(),
-        Phase::Kmz { test } => format!("KMZ before test {}/{}", test + 1, plan.tests()),
+        Phase::Kmz { test, visit: true } => {
+            format!("KMZ, first visit of test {}/{}", test + 1, plan.tests())
+        }
+        Phase::Kmz { test, .. } => format!("KMZ before test {}/{}", test + 1, plan.tests()),
         Phase::Test { test, kind } => {
             format!("test {}/{} ({})", test + 1, plan.tests(), kind.name())
         }
@@ -619,20 +622,40 @@ impl<'a> Runner<'a> {
         )
     }
 
-    /// Step `k` is over (its window collected): a KMZ step sends its measurement.
+    /// Step `k` is over (its window collected): a KMZ step computes λ_KMZ from its reading
+    /// (paper 000 §3.4: the difference of two readings at the KMZ pose,
+    /// [`crate::kmz::KmzDrift`]) and sends it to the compensator.
     fn finish(&mut self, k: usize) -> Result<(), CampaignError> {
         if let Phase::Kmz { .. } = self.steps[k].phase {
             let x = self.window_mean().ok_or_else(|| CampaignError::NotReady {
                 step: k,
                 what: "no reference sample in the KMZ step's averaging window".into(),
             })?;
+            let models = self.models.as_ref().ok_or_else(|| {
+                CampaignError::Fit("a KMZ step before the models were fitted".into())
+            })?;
             let mut q = [0.0; MAX_AXES];
             let mut xm = [0.0; MAX_AXES];
+            let mut dir = [0i8; MAX_AXES];
             let n = x.len();
             q[..n].copy_from_slice(&self.cmd_um[..n]);
             xm[..n].copy_from_slice(&x);
-            let kmz = self.device(move |c| c.set_kmz(q, xm))?;
-            self.state.kmz_um = Some(kmz[..x.len()].to_vec());
+            dir[..n].copy_from_slice(&self.steps[k].approach[..n]);
+            let mut model = models.adaptive_with(self.state.kmz_um.as_deref());
+            let mut drift = crate::kmz::KmzDrift::new(self.state.kmz_first);
+            let slow = nanocal_model::SlowInputs::default();
+            let kmz = drift.measure(
+                &mut model,
+                &q,
+                &xm,
+                &dir,
+                &slow,
+                &nanocal_model::HysteresisState::new(),
+            );
+            let (rq, rx) = crate::kmz::set_kmz_request(&model, &kmz, &xm, &slow);
+            let held = self.device(move |c| c.set_kmz(rq, rx))?;
+            self.state.kmz_first = drift.first();
+            self.state.kmz_um = Some(held[..n].to_vec());
             self.state.kmz_updates += 1;
         }
         Ok(())

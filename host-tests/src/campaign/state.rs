@@ -82,6 +82,10 @@ pub struct State {
     pub model_ids: Option<(u32, u32)>,
     /// λ_KMZ per axis last measured and sent to the compensator, µm.
     pub kmz_um: Option<Vec<f64>>,
+    /// The first KMZ re-measurement, which later ones are differences to
+    /// ([`crate::kmz::KmzDrift`]).
+    #[serde(default)]
+    pub kmz_first: Option<crate::kmz::KmzReading>,
     /// KMZ re-measurements so far.
     pub kmz_updates: usize,
     /// Device resets seen.
@@ -173,6 +177,7 @@ mod tests {
             stage: Stage::Steps,
             model_ids: Some((1, 2)),
             kmz_um: Some(vec![0.125]),
+            kmz_first: None,
             kmz_updates: 1,
             device_resets: 0,
             interruptions: vec![Interruption {

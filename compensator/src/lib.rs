@@ -9,6 +9,7 @@
 //! - [`proxy`]: the GCS proxy (targets corrected, position replies mapped back, refusals);
 //! - [`sensor`] and [`fault`]: temperature amplifiers at register level and the fault policy;
 //! - [`inputs`], [`settings`]: what the board supplies and how it is configured;
+//! - [`slow_average`]: the slow path's clock: readings averaged over the fold period;
 //! - [`mgmt`], [`upload`]: the management protocol and chunked upload;
 //! - [`store`], [`l4flash`]: the persistent store on the L4's flash (and its simulation);
 //! - [`identity`], [`clock`], [`led`], [`wire`]: reset cause and UID, clock rules, the status
@@ -38,6 +39,7 @@ pub mod mgmt;
 pub mod proxy;
 pub mod sensor;
 pub mod settings;
+pub mod slow_average;
 pub mod store;
 pub mod upload;
 pub mod wire;

@@ -36,8 +36,10 @@ use core::fmt;
 /// [`Status::slow_outside`] widened from u16 to u32 (a model has up to 23 inputs with envelope
 /// bits). 3: 16 temperatures in STATUS ([`STATUS_SENSORS`]), settings layout 2 (16
 /// chip-selects). 4: [`Status::move_fold`] in the word that was the unused `slot_seq` (0), with
-/// [`flags::MOVE_FOLD`]; the layout is unchanged.
-pub const PROTOCOL: u16 = 4;
+/// [`flags::MOVE_FOLD`]; the layout is unchanged. 5: settings layout 3 (the fold period), and
+/// [`Status::temps_c`]/[`Status::aux`] are the last fold's inputs (the readings averaged over the
+/// fold period); the layout is unchanged.
+pub const PROTOCOL: u16 = 5;
 /// Frame sync bytes.
 pub const SYNC: [u8; 2] = [0xA7, 0x5C];
 /// Largest payload.
@@ -424,7 +426,8 @@ pub struct Status {
     /// it; the field was an unused 0 before). A host that reads `move_fold == folds` knows the
     /// temperatures in this report are the ones its last move was corrected with.
     pub move_fold: u32,
-    /// Temperatures in use, °C (NaN when unusable).
+    /// Temperatures in use — the last fold's inputs, the readings averaged over the fold period
+    /// — °C (NaN when unusable or not folded yet).
     pub temps_c: [f32; STATUS_SENSORS],
     /// Per-sensor status bits ([`crate::fault::Channel::status_bits`]).
     pub sensor_bits: [u8; STATUS_SENSORS],

@@ -34,8 +34,8 @@
 //! | `paper001` | paper 001's split, §VII.A "78 parameters (45 geometric and 33 thermal)": per motor 15 geometric monomials and 11 thermal terms (every temperature and the own coordinate × temperature `o`), the shapes of [`nanocal_model::reference::delta_robot_78`] (the paper gives only the counts) |
 
 use nanocal_model::{
-    Factor, Input, LagBank, Model, ModelBuilder, ModelError, ScaledInputs, SlowInputs, Term,
-    MAX_AUX, MAX_AXES, MAX_TEMPS,
+    Factor, HysteresisState, Input, LagBank, Model, ModelBuilder, ModelError, ScaledInputs,
+    SlowInputs, Term, MAX_AUX, MAX_AXES, MAX_TEMPS,
 };
 
 use crate::dwell::Dwells;
@@ -67,6 +67,93 @@ pub enum DesignError {
     Model(ModelError),
 }
 
+/// A factor of an [`ExtensionTerm`]: a lag filter or play operator counts from the
+/// extension's own first one.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ExtensionFactor {
+    /// No factor.
+    None,
+    /// Temperature input `n`.
+    Temp(u8),
+    /// Aux input `n`.
+    Aux(u8),
+    /// The extension's lag filter `k`.
+    Lagged(u8),
+    /// The extension's play operator `k`.
+    Play(u8),
+}
+
+/// A term shape of an [`Extension`]; the fit sets its coefficient.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ExtensionTerm {
+    /// Output axis.
+    pub output: u8,
+    /// Powers of the positions.
+    pub powers: [u8; MAX_AXES],
+    /// Factor.
+    pub factor: ExtensionFactor,
+    /// 0, or 1 + the axis whose sign of approach multiplies the term.
+    pub direction: u8,
+}
+
+/// Candidate terms beyond the spec's tokens: an effect `explain` found, in the form the blob
+/// carries it ([`crate::effects::BlobTerms`]): lag filters, play operators, and term shapes
+/// (paper 001 §II step 5: back to step 1 with more sources of inaccuracy in the model).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Extension {
+    /// What it models, for people (the effect and its channel).
+    pub name: String,
+    /// Lag filters: (temperature input, τ in s).
+    pub lags: Vec<(u8, f64)>,
+    /// Play operators: (axis, threshold in µm), grouped by axis, thresholds ascending.
+    pub plays: Vec<(u8, f64)>,
+    /// Term shapes.
+    pub terms: Vec<ExtensionTerm>,
+}
+
+impl Extension {
+    /// The extension that carries what explain found (`blob`, its deployable form).
+    pub fn from_blob_terms(name: &str, blob: &crate::effects::BlobTerms) -> Self {
+        let terms = blob
+            .terms
+            .iter()
+            .map(|t| ExtensionTerm {
+                output: t.output,
+                powers: t.powers,
+                factor: match t.factor {
+                    Factor::None => ExtensionFactor::None,
+                    Factor::Temp(n) => ExtensionFactor::Temp(n),
+                    Factor::Aux(n) => ExtensionFactor::Aux(n),
+                    Factor::Lagged(k) => ExtensionFactor::Lagged(k),
+                    Factor::Play(k) => ExtensionFactor::Play(k),
+                },
+                direction: t.direction,
+            })
+            .collect();
+        Extension {
+            name: name.to_string(),
+            lags: blob.lags.clone(),
+            plays: blob.plays.clone(),
+            terms,
+        }
+    }
+
+    fn uses_temps(&self) -> bool {
+        !self.lags.is_empty()
+            || self
+                .terms
+                .iter()
+                .any(|t| matches!(t.factor, ExtensionFactor::Temp(_)))
+    }
+
+    fn uses_aux(&self) -> bool {
+        self.terms
+            .iter()
+            .any(|t| matches!(t.factor, ExtensionFactor::Aux(_)))
+    }
+}
+
 /// Which candidate terms a fit may use (see the module doc for the text form).
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct DesignSpec {
@@ -90,6 +177,8 @@ pub struct DesignSpec {
     pub lag_tau_s: Option<f64>,
     /// Paper 001's split: per motor its 15 geometric and 11 thermal terms (token `paper001`).
     pub paper001_split: bool,
+    /// Effects found by `explain`, added as they deploy in the blob (no text form).
+    pub extensions: Vec<Extension>,
 }
 
 impl DesignSpec {
@@ -206,6 +295,8 @@ pub struct DesignFrame {
     pub temps: Vec<String>,
     /// Aux columns (model Aux index = position here).
     pub aux: Vec<String>,
+    /// Per extension of the spec, its first lag filter and first play operator in the model.
+    extension_bases: Vec<(u8, u8)>,
     skeleton: Model,
     /// The same inputs with identity scalings: its [`Model::scale`] gives the raw values.
     raw: Model,
@@ -238,8 +329,11 @@ impl DesignFrame {
                 max: MAX_AXES,
             });
         }
-        let use_temps =
-            spec.temps || spec.temp_x_position || spec.lag_tau_s.is_some() || spec.paper001_split;
+        let use_temps = spec.temps
+            || spec.temp_x_position
+            || spec.lag_tau_s.is_some()
+            || spec.paper001_split
+            || spec.extensions.iter().any(Extension::uses_temps);
         let temps: Vec<String> = if use_temps {
             d.channels
                 .iter()
@@ -249,7 +343,7 @@ impl DesignFrame {
         } else {
             Vec::new()
         };
-        let aux: Vec<String> = if spec.aux {
+        let aux: Vec<String> = if spec.aux || spec.extensions.iter().any(Extension::uses_aux) {
             d.channels
                 .iter()
                 .map(|c| c.0.clone())
@@ -313,12 +407,40 @@ impl DesignFrame {
                 raw.lag(i as u8, tau).map_err(DesignError::Model)?;
             }
         }
+        let mut extension_bases = Vec::new();
+        let mut lags = if spec.lag_tau_s.is_some() {
+            temps.len() as u8
+        } else {
+            0
+        };
+        let mut plays = 0u8;
+        for e in &spec.extensions {
+            extension_bases.push((lags, plays));
+            for &(sensor, tau) in &e.lags {
+                if usize::from(sensor) >= temps.len() {
+                    return Err(DesignError::Data(format!(
+                        "{}: a lag filter on temperature {sensor}, the data has {}",
+                        e.name,
+                        temps.len()
+                    )));
+                }
+                b.lag(sensor, tau).map_err(DesignError::Model)?;
+                raw.lag(sensor, tau).map_err(DesignError::Model)?;
+                lags += 1;
+            }
+            for &(axis, r) in &e.plays {
+                b.play(axis, r).map_err(DesignError::Model)?;
+                raw.play(axis, r).map_err(DesignError::Model)?;
+                plays += 1;
+            }
+        }
         let skeleton = b.build().map_err(DesignError::Model)?;
         let raw = raw.build().map_err(DesignError::Model)?;
         Ok(DesignFrame {
             axes: d.axes.clone(),
             temps,
             aux,
+            extension_bases,
             skeleton,
             raw,
         })
@@ -348,6 +470,10 @@ impl DesignFrame {
         for spec in m.lags() {
             b.lag(spec.sensor, spec.tau_s)
                 .expect("skeleton's lags are valid");
+        }
+        for spec in m.play_operators() {
+            b.play(spec.axis, spec.threshold_um)
+                .expect("skeleton's play operators are valid");
         }
         b
     }
@@ -439,7 +565,13 @@ impl DesignFrame {
             }
         }
         if let Some(tau) = spec.lag_tau_s {
-            for (k, lag) in self.skeleton.lags().iter().enumerate() {
+            for (k, lag) in self
+                .skeleton
+                .lags()
+                .iter()
+                .enumerate()
+                .take(self.temps.len())
+            {
                 out.push(Candidate {
                     term: term([0; MAX_AXES], Factor::Lagged(k as u8), 0),
                     name: format!("lag({}, {tau} s)", self.temps[lag.sensor as usize]),
@@ -451,6 +583,50 @@ impl DesignFrame {
                 out.push(Candidate {
                     term: term([0; MAX_AXES], Factor::Aux(i as u8), 0),
                     name: name.clone(),
+                });
+            }
+        }
+        for (e, &(lag0, play0)) in spec.extensions.iter().zip(&self.extension_bases) {
+            for t in e.terms.iter().filter(|t| usize::from(t.output) == output) {
+                let (factor, what) = match t.factor {
+                    ExtensionFactor::None => (Factor::None, String::new()),
+                    ExtensionFactor::Temp(n) => (
+                        Factor::Temp(n),
+                        self.temps.get(usize::from(n)).cloned().unwrap_or_default(),
+                    ),
+                    ExtensionFactor::Aux(n) => (
+                        Factor::Aux(n),
+                        self.aux.get(usize::from(n)).cloned().unwrap_or_default(),
+                    ),
+                    ExtensionFactor::Lagged(k) => {
+                        let (sensor, tau) = e.lags[usize::from(k)];
+                        let name = &self.temps[usize::from(sensor)];
+                        (Factor::Lagged(lag0 + k), format!("lag({name}, {tau:.0} s)"))
+                    }
+                    ExtensionFactor::Play(k) => {
+                        let (axis, r) = e.plays[usize::from(k)];
+                        let name = &self.axes[usize::from(axis)];
+                        (Factor::Play(play0 + k), format!("play({name}, {r:.4} µm)"))
+                    }
+                };
+                let shape = term(t.powers, factor, t.direction);
+                if out.iter().any(|c| c.term.same_shape(&shape)) {
+                    continue;
+                }
+                let mut parts: Vec<String> = Vec::new();
+                let mono = mono_name(&t.powers);
+                if !mono.is_empty() {
+                    parts.push(mono);
+                }
+                if !what.is_empty() {
+                    parts.push(what);
+                }
+                if t.direction > 0 {
+                    parts.push(format!("sign_{}", self.axes[usize::from(t.direction - 1)]));
+                }
+                out.push(Candidate {
+                    term: shape,
+                    name: parts.join("*"),
                 });
             }
         }
@@ -518,8 +694,11 @@ impl DesignFrame {
         self.inputs_by(&self.raw, d)
     }
 
+    /// Inputs of every dwell by `model`'s scalings; its play operators (if any) run over the
+    /// dwells in time order, fed by the calibrated (measured) positions.
     fn inputs_by(&self, model: &Model, d: &Dwells) -> Vec<ScaledInputs> {
         let slow = self.slow_inputs(d);
+        let mut hyst = HysteresisState::<f64>::new();
         (0..d.len())
             .map(|i| {
                 let mut x = [0.0; MAX_AXES];
@@ -528,7 +707,7 @@ impl DesignFrame {
                     x[a] = d.meas_um[a][i];
                     dir[a] = d.dir[a][i];
                 }
-                model.scale(&x, &dir, &slow[i])
+                model.scale_with_state(&x, &dir, &slow[i], &mut hyst)
             })
             .collect()
     }

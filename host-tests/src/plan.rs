@@ -498,7 +498,8 @@ mod tests {
         // the first adaptive test's first visit is the KMZ
         assert_eq!(kinds.len(), 9 * 2 * 14 - 1);
         assert_eq!(kinds[0].1, TestKind::NoModel);
-        assert_eq!(kinds[27].1, TestKind::Adaptive);
+        assert_eq!(kinds[27].1, TestKind::NoModel);
+        assert_eq!(kinds[28].1, TestKind::Adaptive);
         let kmz_steps = |s: &[Step]| -> Vec<Step> {
             s.iter()
                 .filter(|x| matches!(x.phase, Phase::Kmz { .. }))

@@ -2,8 +2,8 @@
 //!
 //! Each dwell of the validation recording is a visit of the commanded pose `cmd`. Without a
 //! model the stage goes to `meas`, so the error is `meas − cmd`. With a model the device folds
-//! its sensor readings at its own cadence ([`crate::device_path`]: fold period, lag filters,
-//! f32 readings) and maps targets through the f32 fast path; the user target for which the
+//! its sensor readings at its own cadence ([`crate::device_path`]: readings averaged over the
+//! fold period, lag filters, f32 readings) and maps targets through the f32 fast path; the user target for which the
 //! device would have sent `cmd` is `x̂ = fold.inverse(cmd)` with the fold in force when the
 //! move was sent (the start of the dwell), and the stage, having received `cmd`, went to
 //! `meas`: the compensated error is `meas − x̂`. This is exact, not a linearisation:
@@ -35,7 +35,7 @@
 use nanocal_compensator::proxy::{Corrector, FoldCorrector};
 use nanocal_model::{FastInputs, HysteresisState, Model, MAX_AXES};
 
-use crate::device_path::{DeviceSlowPath, SensorStream, DEVICE_FOLD_PERIOD_S};
+use crate::device_path::{DeviceSlowPath, SensorStream, SlowPeriods};
 use crate::dwell::{dwell_average, DwellError, DwellOptions, Dwells};
 use crate::iso9283::{
     distribution, per_pose_approach, space_robustness_um, time_robustness_um_per_h,
@@ -116,8 +116,8 @@ impl Compensation {
 /// How visits are evaluated and grouped.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ValidationOptions {
-    /// The device's fold period, s ([`DEVICE_FOLD_PERIOD_S`] for the STM32 board).
-    pub fold_period_s: f64,
+    /// The device's sample and fold periods ([`SlowPeriods::DEVICE`]: the board's defaults).
+    pub slow: SlowPeriods,
     /// Cycles per test when tests are found from the recording (paper 000: 15).
     pub cycles_per_test: usize,
     /// `Time` of Eq. 21, h; `None`: from the start of the first test to the end of the last.
@@ -127,7 +127,7 @@ pub struct ValidationOptions {
 impl Default for ValidationOptions {
     fn default() -> Self {
         ValidationOptions {
-            fold_period_s: DEVICE_FOLD_PERIOD_S,
+            slow: SlowPeriods::DEVICE,
             cycles_per_test: 15,
             time_h: None,
         }
@@ -355,7 +355,7 @@ pub fn validate_roles(
     }
     let stream = &data.sensors;
     let lags = model.as_ref().map_or(Vec::new(), |m| m.lags().to_vec());
-    let mut device = DeviceSlowPath::new(&lags, stream, opts.fold_period_s);
+    let mut device = DeviceSlowPath::new(&lags, stream, opts.slow);
     let temps: Vec<&[f64]> = d
         .channels
         .iter()

@@ -183,7 +183,7 @@ fn lagged_temperature_term_is_selected_and_deployed() {
     let model = blob::decode(&encode_blob(&rep.model)).unwrap();
     // the device ticks on the dwells' 60 s grid, its lag filter seeing what the fit saw
     let opts = ValidationOptions {
-        fold_period_s: 60.0,
+        slow: 60.0.into(),
         ..Default::default()
     };
     let v = validate(

@@ -222,7 +222,7 @@ fn lag_filters_of_the_model_are_run_over_the_dwells() {
     });
     // the device ticks on the dwells' own 60 s grid: its lag filters see what the model saw
     let opts = ValidationOptions {
-        fold_period_s: 60.0,
+        slow: 60.0.into(),
         ..Default::default()
     };
     let r = validate(Some(&model), &d, &Compensation::Static, &opts).unwrap();

@@ -4,7 +4,7 @@
 //! model of Eq. 22.
 
 use nanocal::design::DesignSpec;
-use nanocal::device_path::DEVICE_FOLD_PERIOD_S;
+use nanocal::device_path::SlowPeriods;
 use nanocal::fit::{adaptive_from_static, fit_dwells, FitOptions, Selection};
 use nanocal::plan::{Phase, Plan, TestKind};
 use nanocal::procedure::ProcedureData;
@@ -30,7 +30,7 @@ fn the_twin_repeats_to_about_35_nm_by_iso_9283() {
     for seed in 1..=3 {
         let d = data(&paper000_1dof_controlled_twin(seed), &plan);
         let r = d
-            .validate(TestKind::NoModel, None, None, DEVICE_FOLD_PERIOD_S)
+            .validate(TestKind::NoModel, None, None, SlowPeriods::DEVICE)
             .unwrap();
         assert_eq!(r.tests.len(), 1);
         let t = &r.tests[0];
@@ -89,7 +89,7 @@ fn the_1dof_procedure_runs_as_planned() {
             .count()
     );
     let kmz = plan.validation.kmz.as_ref();
-    let p = DEVICE_FOLD_PERIOD_S;
+    let p = SlowPeriods::DEVICE;
     let none = d.validate(TestKind::NoModel, None, kmz, p).unwrap();
     let adap = d.validate(TestKind::Adaptive, Some(&ad), kmz, p).unwrap();
     let stat = d
@@ -170,14 +170,14 @@ fn the_2dof_procedure_with_eq22() {
         .iter()
         .all(|t| t.powers.iter().filter(|&&p| p > 0).count() <= 1));
     let none = d
-        .validate(TestKind::NoModel, None, None, DEVICE_FOLD_PERIOD_S)
+        .validate(TestKind::NoModel, None, None, SlowPeriods::DEVICE)
         .unwrap();
     let stat = d
         .validate(
             TestKind::Static,
             Some(&fit.model),
             None,
-            DEVICE_FOLD_PERIOD_S,
+            SlowPeriods::DEVICE,
         )
         .unwrap();
     assert_eq!(none.tests.len(), 2);

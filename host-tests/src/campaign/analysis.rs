@@ -6,6 +6,7 @@
 //! is not reached (paper 001 §II, step 5: back to step 1 with a richer model).
 
 use super::run::{CampaignError, Models};
+use crate::device_path::SlowPeriods;
 use crate::plan::{Phase, Plan, Step, TestKind};
 use crate::procedure::ProcedureData;
 use crate::recording::Recording;
@@ -25,6 +26,41 @@ pub struct Analysis {
     pub explain: Option<String>,
     /// What to add to the model, from `explain` (empty when it found nothing).
     pub advice: Vec<String>,
+    /// Per model compensation, the jitter of the commands the stage received
+    /// ([`command_jitter_nm`]), nm.
+    pub jitter_nm: Vec<(TestKind, f64)>,
+}
+
+/// Jitter of the commands the stage received in the `kind` tests: the change of the command
+/// between two consecutive visits of the same pose with the same approach (a turning point held
+/// for a second step: 480 µm forward, 0 µm backward in paper 000's cycle), its RMS over √2 —
+/// the scatter of a single command, nm. The two moves are one step (≈ 21 s) apart: the room
+/// barely changes between them, the readings the device folds do — by their noise, through the
+/// model's thermal terms. NaN without such a pair.
+pub fn command_jitter_nm(data: &ProcedureData, kind: TestKind) -> f64 {
+    let d = &data.data.dwells;
+    let axes = d.axes.len();
+    let of_kind =
+        |i: usize| matches!(data.steps[i].phase, Phase::Test { kind: k, .. } if k == kind);
+    let (mut ss, mut n) = (0.0, 0usize);
+    for i in 1..data.steps.len() {
+        let (a, b) = (&data.steps[i - 1], &data.steps[i]);
+        if !(of_kind(i - 1) && of_kind(i)) || a.target_um != b.target_um || a.approach != b.approach
+        {
+            continue;
+        }
+        for ax in 0..axes {
+            let c = d.cmd_um[ax][i] - d.cmd_um[ax][i - 1];
+            if c.is_finite() {
+                ss += c * c;
+                n += 1;
+            }
+        }
+    }
+    if n == 0 {
+        return f64::NAN;
+    }
+    (ss / n as f64 / 2.0).sqrt() * 1e3
 }
 
 fn kinds(plan: &Plan) -> Vec<TestKind> {
@@ -83,19 +119,21 @@ pub fn difference_nm(a: &ValidationReport, b: &ValidationReport) -> f64 {
     d
 }
 
-/// The period at which the file-based validation replays the device's folds. A campaign's rows
-/// carry, for each step, the inputs of the fold that corrected its move (the status after the
-/// move names that fold), held over the step: read at every row, they are that fold whatever
-/// the device's sample period. Ticking at the device's period instead starts from the first
-/// row, and a tick seconds before a step's first row replays the previous step's fold (measured
-/// 9.5 nm with a 5 s period). A model with lag filters needs the device's own ticks: the
-/// readings between its folds are not in the recording, so it keeps `fold_period_s`.
-fn replay_period_s(rec: &Recording, models: &Models, fold_period_s: f64) -> f64 {
+/// How the file-based validation replays the device's folds. A campaign's rows carry, for each
+/// step, the inputs of the fold that corrected its move (the status after the move names that
+/// fold: the readings averaged over its fold period), held over the step: read at every row,
+/// one reading a fold, they are that fold whatever the device's periods. Ticking at the
+/// device's fold period instead starts from the first row, and a tick seconds before a step's
+/// first row replays the previous step's fold (measured 9.5 nm with a 5 s period). A model with
+/// lag filters needs the device's own folds (its filters run once a fold): the recorded
+/// averages, one a fold period.
+fn replay_periods(rec: &Recording, models: &Models, device: SlowPeriods) -> SlowPeriods {
+    let fold_period_s = device.fold_s;
     if !models.static_model.lags().is_empty() || !models.adaptive.lags().is_empty() {
-        return fold_period_s;
+        return fold_period_s.into();
     }
     let Some(t) = rec.time_s() else {
-        return fold_period_s;
+        return fold_period_s.into();
     };
     let mut dt: Vec<f64> = t
         .windows(2)
@@ -103,27 +141,27 @@ fn replay_period_s(rec: &Recording, models: &Models, fold_period_s: f64) -> f64 
         .filter(|d| *d > 0.0)
         .collect();
     if dt.is_empty() {
-        return fold_period_s;
+        return fold_period_s.into();
     }
     dt.sort_by(f64::total_cmp);
     // the rows' interval; never longer than the device's period
-    dt[dt.len() / 2].min(fold_period_s)
+    dt[dt.len() / 2].min(fold_period_s).into()
 }
 
-/// Validate the campaign in `dir` (its recording, plan and models); `fold_period_s` is the
-/// compensator's sample period during the campaign.
+/// Validate the campaign in `dir` (its recording, plan and models); `periods` are the
+/// compensator's sample and fold periods during the campaign.
 pub fn analyse(
     dir: &Path,
     plan: &Plan,
     steps: &[Step],
-    fold_period_s: f64,
+    periods: SlowPeriods,
     run_explain: bool,
 ) -> Result<Analysis, CampaignError> {
     let err = |e: String| CampaignError::Fit(e);
     let rec = Recording::read_path(dir.join(super::RECORDING)).map_err(|e| err(e.to_string()))?;
     let data = ProcedureData::new(&rec, steps, 0.0).map_err(|e| err(e.to_string()))?;
     let models = Models::load(dir)?;
-    let fold_period_s = replay_period_s(&rec, &models, fold_period_s);
+    let replay = replay_periods(&rec, &models, periods);
     let axes = plan.training.axes();
     let kmz = plan.validation.kmz.as_ref();
     // what the stage received is in the recording; the campaign knows what it asked for
@@ -134,7 +172,7 @@ pub fn analyse(
         }
     }
     let opts = ValidationOptions {
-        fold_period_s,
+        slow: replay,
         cycles_per_test: 1,
         time_h: Some(data.validation_h()),
     };
@@ -148,7 +186,7 @@ pub fn analyse(
             TestKind::Adaptive => Some(&models.adaptive),
         };
         let f = data
-            .validate(kind, model, kmz, fold_period_s)
+            .validate(kind, model, kmz, replay)
             .map_err(|e| err(e.to_string()))?;
         // a KMZ that is the first visit of its test is a reading in bypass, not a compensated
         // move: paper 000 counts it with its drift cancelled by the λ_KMZ it gives (Eq. 17–18),
@@ -175,6 +213,11 @@ pub fn analyse(
         campaign.push(c);
         file.push(f);
     }
+    let jitter_nm = kinds(plan)
+        .into_iter()
+        .filter(|k| *k != TestKind::NoModel)
+        .map(|k| (k, command_jitter_nm(&data, k)))
+        .collect();
     let (explain, advice) = if run_explain {
         explain_validation(&data, steps).map_err(err)?
     } else {
@@ -186,6 +229,7 @@ pub fn analyse(
         max_difference_nm,
         explain,
         advice,
+        jitter_nm,
     })
 }
 

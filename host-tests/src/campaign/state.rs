@@ -9,6 +9,11 @@ use std::path::{Path, PathBuf};
 
 /// State format version.
 pub const VERSION: u32 = 1;
+/// The fold period of a state that does not record one (the firmware's default).
+fn default_fold_period_ms() -> u16 {
+    nanocal_compensator::settings::DEFAULT_FOLD_PERIOD_MS
+}
+
 /// File name of the state in the campaign's folder.
 pub const FILE: &str = "campaign.json";
 
@@ -68,8 +73,11 @@ pub struct State {
     pub bench: BenchSpec,
     /// The recording's columns.
     pub layout: Layout,
-    /// The compensator's sample (fold) period, ms.
+    /// The compensator's sample period, ms.
     pub sample_period_ms: u16,
+    /// The compensator's fold period, ms (readings averaged over it).
+    #[serde(default = "default_fold_period_ms")]
+    pub fold_period_ms: u16,
     /// Where the stage is left when the campaign stops early, µm per axis.
     pub safe_pose_um: Vec<f64>,
     /// First step not yet completed.
@@ -171,6 +179,7 @@ mod tests {
                 aux: vec![],
             },
             sample_period_ms: 1000,
+            fold_period_ms: 5000,
             safe_pose_um: vec![0.0],
             next_step: 17,
             recording_bytes: 12345,

@@ -53,9 +53,13 @@ pub struct CampaignArgs {
     /// Continue the campaign in `--out`.
     #[arg(long)]
     pub resume: bool,
-    /// Set the compensator's sample (fold) period, ms (the virtual bench: 1000 by default).
+    /// Set the compensator's sensor sample period, ms (the virtual bench: 1000 by default).
     #[arg(long)]
     pub sample_period_ms: Option<u16>,
+    /// Set the compensator's fold period, ms (1000..=10000; the readings of a period are
+    /// averaged; the virtual bench: 5000 by default).
+    #[arg(long)]
+    pub fold_period_ms: Option<u16>,
     /// Where to leave the stage when stopping early, µm per axis (default: the plan's first pose).
     #[arg(long, value_delimiter = ',')]
     pub safe_pose_um: Option<Vec<f64>>,
@@ -161,6 +165,7 @@ pub fn run(args: CampaignArgs) -> anyhow::Result<()> {
         out: args.out.clone(),
         bench,
         sample_period_ms: args.sample_period_ms,
+        fold_period_ms: args.fold_period_ms,
         safe_pose_um: args.safe_pose_um.clone(),
         sensor_names: args.sensor_names.clone(),
         design,
@@ -231,6 +236,19 @@ fn print_outcome(o: &campaign::Outcome, out: &std::path::Path) {
             .fold(f64::NAN, f64::max);
         println!("largest test accuracy with a model: {} nm", nm(worst));
     }
+    if !a.jitter_nm.is_empty() {
+        let j: Vec<String> = a
+            .jitter_nm
+            .iter()
+            .map(|(k, v)| format!("{} {v:.1} nm", k.name()))
+            .collect();
+        println!(
+            "command jitter (scatter of a pose's command between its visits, fold period {} ms, sample period {} ms): {}",
+            o.state.fold_period_ms,
+            o.state.sample_period_ms,
+            j.join(", ")
+        );
+    }
     if !a.advice.is_empty() {
         println!("\nexplain on the validation steps — what the model leaves out (paper 001 §II step 5: add it and train again):");
         for l in &a.advice {
@@ -282,5 +300,8 @@ fn json(o: &campaign::Outcome) -> serde_json::Value {
         "qemu_cpu_s": o.qemu_cpu_s,
         "bus_transactions": o.bus_transactions,
         "advice": o.analysis.advice,
+        "fold_period_ms": o.state.fold_period_ms,
+        "sample_period_ms": o.state.sample_period_ms,
+        "command_jitter_nm": o.analysis.jitter_nm.iter().map(|(k, v)| (k.name(), *v)).collect::<std::collections::BTreeMap<_, _>>(),
     })
 }

@@ -10,7 +10,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::design::DesignSpec;
-use crate::device_path::DEVICE_FOLD_PERIOD_S;
+use crate::device_path::{SlowPeriods, DEVICE_FOLD_PERIOD_S, DEVICE_SAMPLE_PERIOD_S};
 use crate::dwell::Dwells;
 use crate::fit::{adaptive_from_static, encode_blob, fit_dwells, FitOptions, FitReport, Selection};
 use crate::iso9283::{per_pose_approach, TestStats};
@@ -43,9 +43,13 @@ pub struct DemoArgs {
     /// Interval between KMZ re-measurements at 0 µm, s (paper 000: 3.75 h).
     #[arg(long, default_value_t = 3.75 * 3600.0)]
     pub kmz_interval_s: f64,
-    /// The device's fold period, s (STM32 board: 0.25; paper 001: 5–10 s would do).
+    /// The device's fold period, s: its readings are averaged over a period and the model
+    /// folded once a period (the device's default, 5 s; paper 001 §VI: "each 5-10 seconds").
     #[arg(long, default_value_t = DEVICE_FOLD_PERIOD_S)]
     pub fold_period_s: f64,
+    /// The device's sensor sample period, s (the device's default, 0.25 s).
+    #[arg(long, default_value_t = DEVICE_SAMPLE_PERIOD_S)]
+    pub sample_period_s: f64,
     /// Print each procedure's plan as JSON and exit.
     #[arg(long)]
     pub print_plans: bool,
@@ -80,6 +84,16 @@ fn write_csv(path: &Path, c: &Columns) -> anyhow::Result<Recording> {
 fn write_json(path: &Path, v: &impl serde::Serialize) -> anyhow::Result<()> {
     std::fs::write(path, serde_json::to_string_pretty(v)?)
         .with_context(|| format!("writing {}", path.display()))
+}
+
+impl DemoArgs {
+    /// The device's slow-path periods as given.
+    fn periods(&self) -> SlowPeriods {
+        SlowPeriods {
+            sample_s: self.sample_period_s,
+            fold_s: self.fold_period_s,
+        }
+    }
 }
 
 /// Runs `nanocal demo`.
@@ -128,9 +142,9 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     bar.set_message("1-DoF: validating 93 tests as the device would");
     let kmz = one.validation.kmz.as_ref();
     let v1 = [
-        data1.validate(TestKind::NoModel, None, kmz, args.fold_period_s)?,
-        data1.validate(TestKind::Adaptive, Some(&ad), kmz, args.fold_period_s)?,
-        data1.validate(TestKind::Static, Some(&st.model), kmz, args.fold_period_s)?,
+        data1.validate(TestKind::NoModel, None, kmz, args.periods())?,
+        data1.validate(TestKind::Adaptive, Some(&ad), kmz, args.periods())?,
+        data1.validate(TestKind::Static, Some(&st.model), kmz, args.periods())?,
     ];
     bar.inc(1);
     bar.set_message("1-DoF: plots");
@@ -155,13 +169,8 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let fit2 = fit(&train2, DesignSpec::published_2dof(), 0x0003_0003)?;
     std::fs::write(dir2.join("eq22.blob"), encode_blob(&fit2.model))?;
     let v2 = [
-        data2.validate(TestKind::NoModel, None, None, args.fold_period_s)?,
-        data2.validate(
-            TestKind::Static,
-            Some(&fit2.model),
-            None,
-            args.fold_period_s,
-        )?,
+        data2.validate(TestKind::NoModel, None, None, args.periods())?,
+        data2.validate(TestKind::Static, Some(&fit2.model), None, args.periods())?,
     ];
     bar.inc(1);
     let files2 = write_report(&dir2, &[&v2[0], &v2[1]])?;
@@ -306,7 +315,7 @@ fn stable_test(seed: u64) -> anyhow::Result<TestStats> {
         true,
     );
     let data = ProcedureData::new(&run.recording.to_recording()?, &run.steps, 0.0)?;
-    let r = data.validate(TestKind::NoModel, None, None, DEVICE_FOLD_PERIOD_S)?;
+    let r = data.validate(TestKind::NoModel, None, None, SlowPeriods::DEVICE)?;
     r.tests
         .into_iter()
         .next()
@@ -509,7 +518,7 @@ fn robot(args: &DemoArgs, dir: &Path) -> anyhow::Result<String> {
         }
     };
     std::fs::write(dir.join("robot.blob"), encode_blob(&fit.model))?;
-    let p = args.fold_period_s;
+    let p = args.periods();
     let none = data.validate(TestKind::NoModel, None, None, p)?;
     let stat = data.validate(TestKind::Static, Some(&fit.model), None, p)?;
     let terms = fit.model.terms();

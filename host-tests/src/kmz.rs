@@ -103,8 +103,8 @@ pub fn set_kmz_request(
     slow: &SlowInputs,
 ) -> ([f64; MAX_AXES], [f64; MAX_AXES]) {
     let mut m = model.clone();
-    for a in 0..m.axes() {
-        m.set_kmz_offset_um(a, kmz_um[a]);
+    for (a, k) in kmz_um.iter().enumerate().take(m.axes()) {
+        m.set_kmz_offset_um(a, *k);
     }
     let q = m.eval_f64(x_meas_um, &[0; MAX_AXES], slow);
     (q, *x_meas_um)

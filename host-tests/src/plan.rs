@@ -358,6 +358,38 @@ impl Plan {
             .is_some_and(|k| v.test.cycle_um.first() == Some(&k.reference_um))
     }
 
+    /// The schedule ([`Plan::schedule`]) followed by `blocks` validation blocks of the
+    /// validate-and-return loop (paper 001 §II step 5), each `tests` tests of the plan's test
+    /// procedure with the static model (refitted for the block), one after the other; test
+    /// indices continue the plan's.
+    pub fn schedule_with_blocks(&self, blocks: usize, tests: usize) -> Vec<Step> {
+        let mut steps = self.schedule();
+        let mut t = steps.last().map_or(0.0, Step::t_end_s);
+        let v = &self.validation.test;
+        for n in 0..blocks * tests {
+            let phase = Phase::Test {
+                test: self.tests() + n,
+                kind: TestKind::Static,
+            };
+            for _ in 0..v.cycles {
+                for pose in &v.cycle_um {
+                    steps.push(Step {
+                        t_start_s: t,
+                        rise_s: v.rise_s,
+                        hold_s: v.hold_s,
+                        average_last_s: v.average_last_s,
+                        target_um: pose.clone(),
+                        approach: Vec::new(),
+                        phase,
+                    });
+                    t += v.step_s();
+                }
+            }
+        }
+        label_approach(&mut steps);
+        steps
+    }
+
     /// Unrolls the plan into timed steps: training, the pause, then the validation tests in
     /// order; at the start of each adaptive test whose KMZ interval has passed (and of the
     /// first), the KMZ step — the test's first visit when its cycle starts at the reference

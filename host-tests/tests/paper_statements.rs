@@ -71,10 +71,11 @@ fn item1_every_visit_has_the_direction_of_the_motion_that_reached_it() {
     // in validation, 0 µm is only ever reached backward and 480 µm only forward: each is one
     // pose of a test, visited twice a cycle
     for s in steps.iter().filter(|s| s.phase != Phase::Training) {
-        match s.target_um[0] {
-            x if x == 0.0 => assert_eq!(s.approach, vec![-1]),
-            x if x == 480.0 => assert_eq!(s.approach, vec![1]),
-            _ => {}
+        let x = s.target_um[0];
+        if x == 0.0 {
+            assert_eq!(s.approach, vec![-1]);
+        } else if x == 480.0 {
+            assert_eq!(s.approach, vec![1]);
         }
     }
 }

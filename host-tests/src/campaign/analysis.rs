@@ -11,6 +11,7 @@ use crate::plan::{Phase, Plan, Step, TestKind};
 use crate::procedure::ProcedureData;
 use crate::recording::Recording;
 use crate::validate::{validate_roles, Compensation, ValidationOptions, ValidationReport};
+use nanocal_model::Model;
 use std::path::Path;
 
 /// The campaign's results.
@@ -127,9 +128,9 @@ pub fn difference_nm(a: &ValidationReport, b: &ValidationReport) -> f64 {
 /// first row replays the previous step's fold (measured 9.5 nm with a 5 s period). A model with
 /// lag filters needs the device's own folds (its filters run once a fold): the recorded
 /// averages, one a fold period.
-fn replay_periods(rec: &Recording, models: &Models, device: SlowPeriods) -> SlowPeriods {
+fn replay_periods(rec: &Recording, models: &[&Model], device: SlowPeriods) -> SlowPeriods {
     let fold_period_s = device.fold_s;
-    if !models.static_model.lags().is_empty() || !models.adaptive.lags().is_empty() {
+    if models.iter().any(|m| !m.lags().is_empty()) {
         return fold_period_s.into();
     }
     let Some(t) = rec.time_s() else {
@@ -148,7 +149,76 @@ fn replay_periods(rec: &Recording, models: &Models, device: SlowPeriods) -> Slow
     dt[dt.len() / 2].min(fold_period_s).into()
 }
 
-/// Validate the campaign in `dir` (its recording, plan and models); `periods` are the
+/// The rows of `rec` from plan time `t0_s` on (a model uploaded then primes its lag filters on
+/// the readings from then, as the device does).
+pub fn recording_from(rec: &Recording, t0_s: f64) -> Result<Recording, CampaignError> {
+    let t = rec.time_s().unwrap_or(&[]);
+    let first = t.partition_point(|&v| v < t0_s);
+    let cols = rec
+        .names()
+        .iter()
+        .map(|n| {
+            let c = rec.column(n).unwrap_or(&[]);
+            (n.clone(), c[first.min(c.len())..].to_vec())
+        })
+        .collect();
+    Recording::from_columns(cols).map_err(|e| CampaignError::Fit(e.to_string()))
+}
+
+/// The `kind` tests of `data` twice: from what the stage received (each visit's error is the
+/// reference minus the target the campaign asked the compensator for) and by the file-based
+/// validation with `model` (which only knows the commands and replays the device's folds with
+/// `replay`).
+pub fn two_tables(
+    data: &ProcedureData,
+    plan: &Plan,
+    kind: TestKind,
+    model: Option<&Model>,
+    replay: SlowPeriods,
+) -> Result<(ValidationReport, ValidationReport), CampaignError> {
+    let err = |e: String| CampaignError::Fit(e);
+    let axes = plan.training.axes();
+    let kmz = plan.validation.kmz.as_ref();
+    let f = data
+        .validate(kind, model, kmz, replay)
+        .map_err(|e| err(e.to_string()))?;
+    // what the stage received is in the recording; the campaign knows what it asked for
+    let mut asked = data.clone();
+    for (i, s) in data.steps.iter().enumerate() {
+        for a in 0..axes {
+            asked.data.dwells.cmd_um[a][i] = s.target_um[a];
+        }
+    }
+    // a KMZ that is the first visit of its test is a reading in bypass, not a compensated
+    // move: paper 000 counts it with its drift cancelled by the λ_KMZ it gives (Eq. 17–18),
+    // which is the evaluation of the file-based validation — the campaign's table takes it
+    for v in f.visits.iter().filter(|v| v.kmz_reference && !v.extra) {
+        let d = &mut asked.data.dwells;
+        if let Some(i) = d.t_start_s.iter().position(|&t| t == v.t_move_s) {
+            for a in 0..axes {
+                d.cmd_um[a][i] = d.meas_um[a][i] - v.error_um[a];
+            }
+        }
+    }
+    let opts = ValidationOptions {
+        slow: replay,
+        cycles_per_test: 1,
+        time_h: Some(data.validation_h()),
+    };
+    let mut c = validate_roles(
+        None,
+        &asked.data,
+        &Compensation::None,
+        &asked.roles(kind),
+        &opts,
+    )
+    .map_err(|e| err(e.to_string()))?;
+    c.compensation = compensation(kind, plan, axes);
+    Ok((c, f))
+}
+
+/// Validate the plan's part of the campaign in `dir` (its recording, the plan's steps `steps`
+/// and the plan's models — before any loop refitted the static one); `periods` are the
 /// compensator's sample and fold periods during the campaign.
 pub fn analyse(
     dir: &Path,
@@ -160,22 +230,8 @@ pub fn analyse(
     let err = |e: String| CampaignError::Fit(e);
     let rec = Recording::read_path(dir.join(super::RECORDING)).map_err(|e| err(e.to_string()))?;
     let data = ProcedureData::new(&rec, steps, 0.0).map_err(|e| err(e.to_string()))?;
-    let models = Models::load(dir)?;
-    let replay = replay_periods(&rec, &models, periods);
-    let axes = plan.training.axes();
-    let kmz = plan.validation.kmz.as_ref();
-    // what the stage received is in the recording; the campaign knows what it asked for
-    let mut asked = data.clone();
-    for (i, s) in steps.iter().enumerate() {
-        for a in 0..axes {
-            asked.data.dwells.cmd_um[a][i] = s.target_um[a];
-        }
-    }
-    let opts = ValidationOptions {
-        slow: replay,
-        cycles_per_test: 1,
-        time_h: Some(data.validation_h()),
-    };
+    let models = Models::load_plan(dir)?;
+    let replay = replay_periods(&rec, &[&models.static_model, &models.adaptive], periods);
     let mut campaign = Vec::new();
     let mut file = Vec::new();
     let mut max_difference_nm: f64 = 0.0;
@@ -185,30 +241,7 @@ pub fn analyse(
             TestKind::Static => Some(&models.static_model),
             TestKind::Adaptive => Some(&models.adaptive),
         };
-        let f = data
-            .validate(kind, model, kmz, replay)
-            .map_err(|e| err(e.to_string()))?;
-        // a KMZ that is the first visit of its test is a reading in bypass, not a compensated
-        // move: paper 000 counts it with its drift cancelled by the λ_KMZ it gives (Eq. 17–18),
-        // which is the evaluation of the file-based validation — the campaign's table takes it
-        let mut asked = asked.clone();
-        for v in f.visits.iter().filter(|v| v.kmz_reference && !v.extra) {
-            let d = &mut asked.data.dwells;
-            if let Some(i) = d.t_start_s.iter().position(|&t| t == v.t_move_s) {
-                for a in 0..axes {
-                    d.cmd_um[a][i] = d.meas_um[a][i] - v.error_um[a];
-                }
-            }
-        }
-        let mut c = validate_roles(
-            None,
-            &asked.data,
-            &Compensation::None,
-            &asked.roles(kind),
-            &opts,
-        )
-        .map_err(|e| err(e.to_string()))?;
-        c.compensation = compensation(kind, plan, axes);
+        let (c, f) = two_tables(&data, plan, kind, model, replay)?;
         max_difference_nm = max_difference_nm.max(difference_nm(&c, &f));
         campaign.push(c);
         file.push(f);
@@ -219,7 +252,11 @@ pub fn analyse(
         .map(|k| (k, command_jitter_nm(&data, k)))
         .collect();
     let (explain, advice) = if run_explain {
-        explain_validation(&data, steps).map_err(err)?
+        let report = explain_report(&data).map_err(err)?;
+        (
+            report.as_ref().map(|r| r.to_text()),
+            report.as_ref().map_or(Vec::new(), advice_lines),
+        )
     } else {
         (None, Vec::new())
     };
@@ -233,24 +270,10 @@ pub fn analyse(
     })
 }
 
-/// `explain` on the validation steps (one row per step: the averaged window, the command the
-/// stage received, the compensator's temperatures).
-fn explain_validation(
-    data: &ProcedureData,
-    steps: &[Step],
-) -> Result<(Option<String>, Vec<String>), String> {
-    let validation = data
-        .data
-        .dwells
-        .filter(|i| steps[i].phase != Phase::Training);
-    if validation.len() < 50 {
-        return Ok((None, Vec::new()));
-    }
-    let rec = validation.to_recording();
-    let d = crate::explain::Data::from_recording(&rec, None).map_err(|e| e.to_string())?;
-    let report = crate::explain::explain(&d, &crate::explain::Settings::default())
-        .map_err(|e| e.to_string())?;
-    let advice = report
+/// One line per effect explain named: what, where, how the compensator runs it, and the
+/// held-out evidence.
+pub fn advice_lines(report: &crate::explain::Report) -> Vec<String> {
+    report
         .effects()
         .map(|e| {
             format!(
@@ -258,6 +281,22 @@ fn explain_validation(
                 e.name, e.channel, e.description, e.deploy, e.rms_before_nm, e.rms_after_nm
             )
         })
-        .collect();
-    Ok((Some(report.to_text()), advice))
+        .collect()
+}
+
+/// `explain` on the validation steps of `data` (one row per step: the averaged window, the
+/// command the stage received, the compensator's temperatures); `None` with fewer than 50.
+pub fn explain_report(data: &ProcedureData) -> Result<Option<crate::explain::Report>, String> {
+    let validation = data
+        .data
+        .dwells
+        .filter(|i| data.steps[i].phase != Phase::Training);
+    if validation.len() < 50 {
+        return Ok(None);
+    }
+    let rec = validation.to_recording();
+    let d = crate::explain::Data::from_recording(&rec, None).map_err(|e| e.to_string())?;
+    crate::explain::explain(&d, &crate::explain::Settings::default())
+        .map(Some)
+        .map_err(|e| e.to_string())
 }

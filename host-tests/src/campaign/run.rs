@@ -194,6 +194,17 @@ impl Models {
         })
     }
 
+    /// The plan's models: the static model before any loop of the validate-and-return loop
+    /// refitted it (`static-0.blob`, written when the first loop starts), and the adaptive one.
+    pub fn load_plan(dir: &Path) -> Result<Models, CampaignError> {
+        let mut m = Models::load(dir)?;
+        if let Ok(b) = std::fs::read(dir.join(static_blob(0))) {
+            m.static_model = nanocal_model::blob::decode(&b)
+                .map_err(|e| CampaignError::Fit(format!("{}: {e}", static_blob(0))))?;
+        }
+        Ok(m)
+    }
+
     /// The adaptive model with `kmz_um` as its λ_KMZ (what the compensator must hold).
     pub fn adaptive_with(&self, kmz_um: Option<&[f64]>) -> Model {
         let Some(k) = kmz_um else {
@@ -205,6 +216,11 @@ impl Models {
         }
         m
     }
+}
+
+/// File name of the static model of loop `l` of the validate-and-return loop (0: the plan's).
+pub fn static_blob(l: usize) -> String {
+    format!("static-{l}.blob")
 }
 
 /// Fits the static model (stepwise among `spec`'s candidates, as paper 000 §3.3 trains) and
@@ -420,6 +436,7 @@ impl<'a> Runner<'a> {
     pub fn new(
         dir: &Path,
         plan: &'a Plan,
+        steps: Vec<Step>,
         state: State,
         links: Links,
         axes: Vec<String>,
@@ -427,7 +444,6 @@ impl<'a> Runner<'a> {
         recorder: Recorder,
         stop: Arc<AtomicBool>,
     ) -> Result<Self, CampaignError> {
-        let steps = plan.schedule();
         let models = if state.model_ids.is_some() {
             Some(Models::load(dir)?)
         } else {
@@ -499,9 +515,17 @@ impl<'a> Runner<'a> {
         self.links.driver.now_s()
     }
 
-    fn save(&mut self) -> Result<(), CampaignError> {
+    /// Write the state now.
+    pub fn save(&mut self) -> Result<(), CampaignError> {
         self.state.save(&self.dir)?;
         self.saved_at = std::time::Instant::now();
+        Ok(())
+    }
+
+    /// Read the models from the campaign's folder again (a loop of the validate-and-return
+    /// loop refitted the static one).
+    pub fn reload_models(&mut self) -> Result<(), CampaignError> {
+        self.models = Some(Models::load(&self.dir)?);
         Ok(())
     }
 

@@ -12,6 +12,7 @@
 //! fault: it is reported by the model's fold.
 
 use crate::sensor::SensorFault;
+use nanocal_interface::status::{ChannelBits, ChannelStatus};
 
 /// Most channels the policy tracks (the model's temperature inputs).
 pub const MAX_CHANNELS: usize = nanocal_model::MAX_TEMPS;
@@ -161,15 +162,17 @@ impl Channel {
         )
     }
 
-    /// Status bits: bit0 holding, bit1 failed, bit2 never read; bits 4..7 last fault code.
-    pub fn status_bits(&self) -> u8 {
-        let s = match self.state {
-            ChannelState::Ok => 0,
-            ChannelState::Holding { .. } => 1,
-            ChannelState::Failed { .. } => 2,
-            ChannelState::Unknown => 4,
-        };
-        s | (self.last_fault.map(|f| f.code()).unwrap_or(0) << 4)
+    /// The channel's state and last fault as the status report carries them.
+    pub fn status_bits(&self) -> ChannelBits {
+        ChannelBits {
+            state: match self.state {
+                ChannelState::Ok => ChannelStatus::Ok,
+                ChannelState::Holding { .. } => ChannelStatus::Holding,
+                ChannelState::Failed { .. } => ChannelStatus::Failed,
+                ChannelState::Unknown => ChannelStatus::NotRead,
+            },
+            last_fault: self.last_fault,
+        }
     }
 }
 

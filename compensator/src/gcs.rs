@@ -20,8 +20,7 @@ use core::fmt;
 /// would have to rewrite or refuse is refused; any other longer line is streamed through.
 pub const MAX_LINE: usize = 256;
 
-/// Longest GCS axis identifier (bytes).
-pub const MAX_AXIS_ID: usize = 8;
+pub use nanocal_interface::settings::{AxisId, MAP_AXES, MAX_AXIS_ID};
 
 /// Millionths per unit: positions are held as `i64` micros (value × 10⁶).
 pub const MICROS_PER_UNIT: i64 = 1_000_000;
@@ -762,32 +761,6 @@ pub fn same_axis(a: &[u8], b: &[u8]) -> bool {
     a.eq_ignore_ascii_case(b)
 }
 
-/// A GCS axis identifier (up to [`MAX_AXIS_ID`] bytes).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct AxisId {
-    bytes: [u8; MAX_AXIS_ID],
-    len: u8,
-}
-
-impl AxisId {
-    /// An identifier from bytes; `None` when empty or too long.
-    pub fn new(id: &[u8]) -> Option<Self> {
-        if id.is_empty() || id.len() > MAX_AXIS_ID {
-            return None;
-        }
-        let mut bytes = [0; MAX_AXIS_ID];
-        bytes[..id.len()].copy_from_slice(id);
-        Some(Self {
-            bytes,
-            len: id.len() as u8,
-        })
-    }
-    /// The identifier's bytes.
-    pub fn as_bytes(&self) -> &[u8] {
-        &self.bytes[..self.len as usize]
-    }
-}
-
 /// Which GCS axis identifiers are the model's axes 0, 1, 2.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct AxisMap {
@@ -795,23 +768,13 @@ pub struct AxisMap {
     n: usize,
 }
 
-/// Axes an [`AxisMap`] can hold (the model's maximum).
-pub const MAP_AXES: usize = 3;
-
 impl Default for AxisMap {
     /// `1`, `2`, `3` — PI's default axis names on most controllers.
     fn default() -> Self {
-        let mut ids = [AxisId {
-            bytes: [0; MAX_AXIS_ID],
-            len: 0,
-        }; MAP_AXES];
-        for (i, id) in ids.iter_mut().enumerate() {
-            *id = AxisId {
-                bytes: [b'1' + i as u8, 0, 0, 0, 0, 0, 0, 0],
-                len: 1,
-            };
+        Self {
+            ids: core::array::from_fn(|i| AxisId::single(b'1' + i as u8)),
+            n: MAP_AXES,
         }
-        Self { ids, n: MAP_AXES }
     }
 }
 
@@ -831,7 +794,7 @@ impl AxisMap {
             let c = c.to_ascii_uppercase();
             return self.ids[..self.n]
                 .iter()
-                .position(|a| a.len == 1 && a.bytes[0].to_ascii_uppercase() == c);
+                .position(|a| matches!(a.as_bytes(), [b] if b.to_ascii_uppercase() == c));
         }
         self.ids[..self.n]
             .iter()

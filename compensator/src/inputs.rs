@@ -3,7 +3,7 @@
 //! silent default for a missing input.
 //!
 //! Temperatures come from the amplifiers configured per chip-select
-//! ([`crate::settings::Settings::sensors`]); auxiliary inputs from the board's own sources (the
+//! ([`Settings::sensors`]); auxiliary inputs from the board's own sources (the
 //! LPS22HB barometer, an ADC force channel). The model says what each aux input is (blob v2:
 //! [`AuxKind`], and whether it is fast); the settings say where a force sensor is wired and how
 //! it is scaled, and where an input of kind [`AuxKind::Other`] (or of a version 1 blob, which
@@ -11,8 +11,11 @@
 
 use crate::proxy::FoldCorrector;
 use crate::sensor::SensorFault;
-use crate::settings::{AuxSource, Settings};
 use core::fmt;
+#[cfg(doc)]
+use nanocal_interface::mgmt::Refusal;
+use nanocal_interface::mgmt::{InputCode, InputWhy};
+use nanocal_interface::settings::{AuxSource, Settings};
 #[cfg(doc)]
 use nanocal_model::MAX_PLAY;
 use nanocal_model::{AuxKind, FastInputs, Model, MAX_AUX};
@@ -105,33 +108,21 @@ impl fmt::Display for InputError {
 }
 
 impl InputError {
-    /// Compact code for the management protocol: kind in the high nibble, index in the low.
-    pub fn code(&self) -> u8 {
-        match *self {
-            InputError::NoTemperatureSensor { index } => 0x10 | (index & 0x0F),
-            InputError::NoAuxSource { index } => 0x20 | (index & 0x0F),
-            InputError::NoBarometer { index } => 0x30 | (index & 0x0F),
-            InputError::NoAdcChannel { index, .. } => 0x40 | (index & 0x0F),
-            InputError::NotFast { index } => 0x50 | (index & 0x0F),
-            InputError::NoChipSelect { index } => 0x60 | (index & 0x0F),
+    /// The code the management reply carries after [`Refusal::Input`]: the input and why.
+    pub fn code(&self) -> InputCode {
+        let (why, index) = match *self {
+            InputError::NoTemperatureSensor { index } => (InputWhy::NoTemperatureSensor, index),
+            InputError::NoAuxSource { index } => (InputWhy::NoAuxSource, index),
+            InputError::NoBarometer { index } => (InputWhy::NoBarometer, index),
+            InputError::NoAdcChannel { index, .. } => (InputWhy::NoAdcChannel, index),
+            InputError::NotFast { index } => (InputWhy::NotFast, index),
+            InputError::NoChipSelect { index } => (InputWhy::NoChipSelect, index),
+        };
+        InputCode {
+            why,
+            index: index & 0x0F,
         }
     }
-}
-
-/// What a management-protocol input code ([`InputError::code`]) says, for a host to print: the
-/// input it names and why it cannot be supplied. `None` for a code no [`InputError`] gives.
-pub fn describe_code(code: u8) -> Option<(&'static str, u8)> {
-    let index = code & 0x0F;
-    let what = match code >> 4 {
-        1 => "temperature input with no amplifier configured on its chip-select",
-        2 => "aux input with no source (configure a force channel, or map it with --aux)",
-        3 => "air-pressure input, and the board's barometer does not answer",
-        4 => "force input on an ADC channel the board lacks",
-        5 => "per-command (fast) aux input whose source is not an ADC channel",
-        6 => "temperature input on a chip-select the board does not wire",
-        _ => return None,
-    };
-    Some((what, index))
 }
 
 /// The source of aux input `index` of `model`. The one place that decides it: air pressure is

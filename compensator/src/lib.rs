@@ -8,13 +8,14 @@
 //! - [`command`]: what each GCS command does to the stage (corrected, refused, forgets targets);
 //! - [`proxy`]: the GCS proxy (targets corrected, position replies mapped back, refusals);
 //! - [`sensor`] and [`fault`]: temperature amplifiers at register level and the fault policy;
-//! - [`inputs`], [`settings`]: what the board supplies and how it is configured;
+//! - [`inputs`]: which model inputs the board supplies;
 //! - [`slow_average`]: the slow path's clock: readings averaged over the fold period;
-//! - [`mgmt`], [`upload`]: the management protocol and chunked upload;
+//! - [`upload`]: the chunked upload's state machine;
 //! - [`store`], [`l4flash`]: the persistent store on the L4's flash (and its simulation);
-//! - [`identity`], [`clock`], [`led`], [`wire`]: reset cause and UID, clock rules, the status
-//!   LED, the QEMU board's bus stand-in;
-//! - [`bench_link`]: the QEMU board's link to its virtual bench (host-driven clock, bus mailbox).
+//! - [`clock`], [`lps22hb`]: clock rules, the barometer.
+//!
+//! What the device and the host must agree on — management frames, status, settings layout,
+//! GCS error codes, the QEMU board's bus and bench page — is `nanocal-interface`'s.
 //!
 //! No heap, no `unsafe`, no panics on external input.
 #![no_std]
@@ -25,28 +26,15 @@
 #[cfg(any(test, feature = "std"))]
 extern crate std;
 
-pub mod bench_link;
 pub mod clock;
 pub mod command;
 pub mod fault;
 pub mod gcs;
-pub mod identity;
 pub mod inputs;
 pub mod l4flash;
-pub mod led;
 pub mod lps22hb;
-pub mod mgmt;
 pub mod proxy;
 pub mod sensor;
-pub mod settings;
 pub mod slow_average;
 pub mod store;
 pub mod upload;
-pub mod wire;
-
-/// CRC-32/ISO-HDLC (reflected, polynomial 0x04C11DB7, init and xorout !0: zlib's CRC, the one
-/// the blob and the management frames carry), from the `crc` crate.
-pub fn crc32(bytes: &[u8]) -> u32 {
-    const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
-    CRC.checksum(bytes)
-}

@@ -7,7 +7,7 @@
 //! a type K reading on a MAX31856) times the model's thermal coefficients (a few µm/°C) on every
 //! command — tens of nm of jitter through any unlagged thermal term. Averaging the readings of a
 //! fold period divides that by √(readings); the fold period (1–10 s,
-//! [`crate::settings::Settings::fold_period_ms`]) stays far below the thermal time constants.
+//! `nanocal_interface::settings::Settings::fold_period_ms`) stays far below the thermal time constants.
 //!
 //! The rule, which the firmware's sensor task (`src/app/sensors.rs`) and the host's replay of it
 //! (`nanocal::device_path::DeviceSlowPath`) both run through this type:
@@ -22,10 +22,7 @@
 
 use nanocal_model::{SlowInputs, MAX_AUX, MAX_TEMPS};
 
-/// Shortest fold period the settings accept, ms.
-pub const MIN_FOLD_PERIOD_MS: u16 = 1_000;
-/// Longest fold period the settings accept, ms (paper 001 §VI: "each 5-10 seconds").
-pub const MAX_FOLD_PERIOD_MS: u16 = 10_000;
+pub use nanocal_interface::settings::{MAX_FOLD_PERIOD_MS, MIN_FOLD_PERIOD_MS};
 
 /// Channels of a fold: the temperatures, then the aux inputs.
 const CHANNELS: usize = MAX_TEMPS + MAX_AUX;

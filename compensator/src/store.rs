@@ -45,7 +45,7 @@ pub mod key {
     pub const MODEL: u8 = 1;
     /// λ_KMZ of the model: model id u32, λ_KMZ f64 × 3.
     pub const KMZ: u8 = 2;
-    /// Settings ([`crate::settings`]).
+    /// Settings (the layout of `nanocal_interface::settings`).
     pub const SETTINGS: u8 = 3;
 }
 

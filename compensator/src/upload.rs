@@ -7,6 +7,7 @@
 //! all of that is returned; any failure leaves the model in service untouched.
 
 use core::fmt;
+use nanocal_interface::mgmt::Refusal;
 use nanocal_model::blob::{self, BlobError};
 use nanocal_model::Model;
 
@@ -90,18 +91,18 @@ impl fmt::Display for UploadError {
 }
 
 impl UploadError {
-    /// Stable code for the management protocol (0 is reserved for success).
-    pub fn code(&self) -> u8 {
+    /// The management protocol's result code for it.
+    pub fn code(&self) -> Refusal {
         match self {
-            UploadError::NotStarted => 1,
-            UploadError::VersionMismatch { .. } => 2,
-            UploadError::BadLength { .. } => 3,
-            UploadError::OutOfOrder { .. } => 4,
-            UploadError::Overrun => 5,
-            UploadError::ChunkMismatch => 6,
-            UploadError::Incomplete { .. } => 7,
-            UploadError::CrcMismatch { .. } => 8,
-            UploadError::Blob(_) => 9,
+            UploadError::NotStarted => Refusal::UploadNotStarted,
+            UploadError::VersionMismatch { .. } => Refusal::UploadVersion,
+            UploadError::BadLength { .. } => Refusal::UploadLength,
+            UploadError::OutOfOrder { .. } => Refusal::UploadOutOfOrder,
+            UploadError::Overrun => Refusal::UploadOverrun,
+            UploadError::ChunkMismatch => Refusal::UploadChunkMismatch,
+            UploadError::Incomplete { .. } => Refusal::UploadIncomplete,
+            UploadError::CrcMismatch { .. } => Refusal::UploadCrc,
+            UploadError::Blob(_) => Refusal::UploadBlob,
         }
     }
 }
@@ -211,7 +212,7 @@ impl Upload {
             });
         }
         let bytes = &buf[..self.total as usize];
-        let computed = crate::crc32(bytes);
+        let computed = nanocal_interface::crc32(bytes);
         if computed != self.crc {
             return Err(UploadError::CrcMismatch {
                 expected: self.crc,

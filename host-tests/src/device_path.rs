@@ -256,7 +256,7 @@ mod tests {
 
     #[test]
     fn the_default_periods_are_the_devices_default_settings() {
-        let s = nanocal_compensator::settings::Settings::default();
+        let s = nanocal_interface::settings::Settings::default();
         assert_eq!(
             DEVICE_SAMPLE_PERIOD_S,
             f64::from(s.sample_period_ms) / 1000.0

@@ -199,17 +199,17 @@ impl Recording {
             return Err(RecordingError::Empty);
         }
         let mut names: Vec<String> = Vec::new();
+        // a set beside the list: a header of many columns is checked in linear time
+        let mut seen = std::collections::HashSet::new();
         for (i, field) in header.split(|&b| b == b',').enumerate() {
-            let name = String::from_utf8_lossy(trim(field)).into_owned();
-            let name = name.trim_matches('"').to_string();
-            if name.is_empty() || names.contains(&name) {
+            let name = column_name(field).map_err(|problem| RecordingError::BadHeader {
+                column: i + 1,
+                problem,
+            })?;
+            if !seen.insert(name.clone()) {
                 return Err(RecordingError::BadHeader {
                     column: i + 1,
-                    problem: if name.is_empty() {
-                        "expected a column name, found nothing".into()
-                    } else {
-                        format!("column name `{name}` is repeated")
-                    },
+                    problem: format!("column name `{name}` is repeated"),
                 });
             }
             names.push(name);
@@ -362,10 +362,15 @@ fn parse_body_parallel(
     names: &[String],
     header_line: usize,
 ) -> Result<Vec<Vec<f64>>, RecordingError> {
+    // the size first: asking for the parallelism reads the cgroup's files (tens of µs, more
+    // than a small file's whole parse)
+    if body.len() < (1 << 20) {
+        return parse_body(body, names, header_line);
+    }
     let threads = std::thread::available_parallelism()
         .map_or(1, |t| t.get())
         .min(8);
-    if threads < 2 || body.len() < (1 << 20) {
+    if threads < 2 {
         return parse_body(body, names, header_line);
     }
     // chunk boundaries just after a newline
@@ -599,8 +604,14 @@ fn scan_number(b: &[u8], mut i: usize) -> Option<(f64, usize)> {
     while i < n && (b[i] == b' ' || b[i] == b'\t') {
         i += 1;
     }
-    if i < n && !matches!(b[i], b',' | b'\n' | b'\r') {
-        return None;
+    // a CR is a delimiter only where it ends the line (CR LF, or CR at the end of the input);
+    // anywhere else the field is the slow path's to refuse with its text
+    if i < n {
+        match b[i] {
+            b',' | b'\n' => {}
+            b'\r' if i + 1 == n || b[i + 1] == b'\n' => {}
+            _ => return None,
+        }
     }
     if mant >= (1u64 << 53) || !(-22..=22).contains(&exp10) {
         let v = exact_decimal(mant, exp10)?;
@@ -613,6 +624,30 @@ fn scan_number(b: &[u8], mut i: usize) -> Option<(f64, usize)> {
         m / POW10[(-exp10) as usize]
     };
     Some((if neg { -v } else { v }, i))
+}
+
+/// A header field as a column name: spaces and tabs around it and one pair of double quotes
+/// removed. A name keeps no quote and no control character, so what the writer writes reads
+/// back as the same name.
+fn column_name(field: &[u8]) -> Result<String, String> {
+    let mut f = trim(field);
+    if let [b'"', inner @ .., b'"'] = f {
+        f = trim(inner);
+    }
+    let name = String::from_utf8_lossy(f).into_owned();
+    if name.is_empty() {
+        return Err("expected a column name, found nothing".into());
+    }
+    // a byte-order mark too: the reader takes one off the start of the file
+    if name
+        .chars()
+        .any(|c| c == '"' || c == '\u{feff}' || c.is_control())
+    {
+        return Err(format!(
+            "column name {name:?} has a double quote, a byte-order mark or a control character"
+        ));
+    }
+    Ok(name)
 }
 
 #[inline]

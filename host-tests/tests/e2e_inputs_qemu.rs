@@ -13,30 +13,28 @@ mod device_models;
 mod fw_sim;
 
 use device_models::{force_model, hysteresis_model, slow, TEMP_C, WALK_UM};
-use fw_sim::{next_move, stage_value, wait_until, Qemu, SensorSim, StageSim};
-use nanocal_compensator::mgmt::flags;
-use nanocal_compensator::settings::AuxSource;
+use fw_sim::{
+    next_move, pass_board_time, stage_value, wait_until, BenchClock, Qemu, SensorSim, StageSim,
+    HANG,
+};
+use nanocal_interface::settings::AuxSource;
+use nanocal_interface::status::Flags;
 use nanocal_model::{blob, HysteresisState, Model, MAX_AXES};
-use std::time::Duration;
 
 /// The device's f32 fast path (δ in f32, command x + δ in integer micros) against the f64
 /// reference along a hysteresis walk on a 480 µm stroke: 0.1 nm, the bound issue 11 sets for
 /// the fast path (the f32 rounding of δ and of the operators' outputs is ~ 0.03 nm here).
 const WALK_TOLERANCE_UM: f64 = 1e-4;
 
-fn upload(c: &mut nanocal::device::Client, model: &Model) {
+fn upload(c: &mut nanocal::device::Client, clk: &BenchClock, model: &Model) {
     let mut b = vec![0u8; blob::MAX_BLOB_LEN];
     let n = blob::encode(model, &mut b).unwrap();
     c.upload(&b[..n]).expect("model accepted");
-    wait_until(
-        "sensors read and model folded",
-        Duration::from_secs(20),
-        || {
-            let s = c.status().ok()?;
-            (s.flags & flags::MODEL != 0 && s.flags & flags::SENSOR_BLOCK == 0 && s.folds >= 2)
-                .then_some(())
-        },
-    );
+    wait_until("sensors read and model folded", clk, 20.0, || {
+        let s = c.status().ok()?;
+        (s.flags.contains(Flags::MODEL) && !s.flags.contains(Flags::SENSOR_BLOCK) && s.folds >= 2)
+            .then_some(())
+    });
 }
 
 #[test]
@@ -44,13 +42,14 @@ fn e2e_hysteresis_walk_matches_the_f64_reference() {
     let Some(mut q) = Qemu::start_or_skip("e2e_hysteresis_walk_matches_the_f64_reference") else {
         return;
     };
+    let clk = q.clock();
     let stage = StageSim::start(q.connect(1), 1);
     let _sensors = SensorSim::start(q.link(), &[TEMP_C]);
     let mut host = q.gcs_host();
     let mut c = q.client();
     let model = hysteresis_model();
     assert_eq!(model.play_operators().len(), 3);
-    upload(&mut c, &model);
+    upload(&mut c, &clk, &model);
 
     let walk = WALK_UM;
     let mut reference = HysteresisState::<f64>::new();
@@ -101,6 +100,7 @@ fn e2e_fast_force_input_is_used_per_command_and_its_loss_refuses_moves() {
     let Some(mut q) = Qemu::start_or_skip("e2e_fast_force_input_is_used_per_command") else {
         return;
     };
+    let clk = q.clock();
     let stage = StageSim::start(q.connect(1), 1);
     let sensors = SensorSim::start(q.link(), &[TEMP_C]);
     let mut host = q.gcs_host();
@@ -116,14 +116,14 @@ fn e2e_fast_force_input_is_used_per_command_and_its_loss_refuses_moves() {
     };
     c.set_config(&settings).unwrap();
     let model = force_model();
-    upload(&mut c, &model);
+    upload(&mut c, &clk, &model);
 
     // the force as the firmware computes it from a code (f32), and the f64 reference with it
     let force_n = |code: u16| OFFSET_N + SCALE_N_PER_COUNT * f32::from(code);
     let set_code = |code: Option<u16>| {
         sensors.buses().adc[0] = code;
-        // several sampling periods (10 ms) of the firmware's fast sampler
-        std::thread::sleep(Duration::from_millis(300));
+        // several sampling periods (10 ms) of the firmware's fast sampler, in the board's time
+        pass_board_time(&clk, 0.1);
     };
     let check = |x: f64, code: u16, got: f64| {
         let mut s = slow();
@@ -161,51 +161,38 @@ fn e2e_fast_force_input_is_used_per_command_and_its_loss_refuses_moves() {
 
     // the force sensor stops answering: once the last good sample is older than the freshness
     // limit (5 sampling periods + one 300 ms bus timeout, `src/app/sensors.rs`), a move is
-    // refused with a sensor fault and nothing moves. The emulated clock runs behind the host's
-    // under load: a move still taken meanwhile is one more corrected with the last good force.
+    // refused with a sensor fault and nothing moves. A second of the board's time is well past
+    // it (the board's, not the wall's: the emulated clock runs behind under load).
     set_code(None);
-    let mut refused = false;
-    for _ in 0..20 {
-        std::thread::sleep(Duration::from_millis(500));
-        host.send("MOV 1 60");
-        match host.ask("ERR?").as_str() {
-            "9002" => {
-                refused = true;
-                break;
-            }
-            "0" => {
-                let seen = stage.drain();
-                assert!(seen[0].starts_with("MOV"), "{seen:?}");
-                check(60.0, 848, stage_value(&seen[0], "1"));
-            }
-            e => panic!("MOV 1 60 without a force sample: error {e}"),
-        }
-    }
-    assert!(refused, "moves never refused without the force input");
+    pass_board_time(&clk, 1.0);
+    host.send("MOV 1 60");
+    assert_eq!(
+        host.ask("ERR?"),
+        "9002",
+        "MOV 1 60 a second after the force input's last sample"
+    );
     host.send("VEL 1 5");
     assert_eq!(
-        stage.next_line(Duration::from_secs(10)),
+        stage.next_line(HANG),
         "VEL 1 5",
         "MOV 1 60 was not forwarded"
     );
     // back: moves go out again, with the force of now
     set_code(Some(2548));
-    wait_until("inputs usable again", Duration::from_secs(20), || {
+    wait_until("inputs usable again", &clk, 20.0, || {
         let s = c.status().ok()?;
-        (s.flags & flags::SENSOR_BLOCK == 0).then_some(())
+        (!s.flags.contains(Flags::SENSOR_BLOCK)).then_some(())
     });
     let mut errors = Vec::new();
-    let taken = (0..20).any(|_| {
-        std::thread::sleep(Duration::from_millis(500));
+    wait_until("moves taken again", &clk, 10.0, || {
         host.send("MOV 1 60");
         let e = host.ask("ERR?");
         errors.push(e.clone());
-        e == "0"
+        (e == "0").then_some(())
     });
     assert!(
-        taken,
-        "moves never taken again: errors {errors:?}, {:?}",
-        c.status()
+        errors[..errors.len() - 1].iter().all(|e| e == "9002"),
+        "refused only for the sensor: {errors:?}"
     );
     let seen = stage.drain();
     assert!(seen[0].starts_with("MOV"), "{seen:?}");

@@ -11,13 +11,13 @@
 
 mod fw_sim;
 
-use fw_sim::{stage_value, wait_until, Qemu, SensorSim, StageSim};
+use fw_sim::{stage_value, wait_until, Qemu, SensorSim, StageSim, HANG};
 use nanocal::device::DeviceError;
 use nanocal::published::published_1dof;
-use nanocal_compensator::mgmt::flags;
 use nanocal_compensator::sensor::max31856;
+use nanocal_interface::mgmt::Refusal;
+use nanocal_interface::status::{ChannelStatus, Flags, SensorFault};
 use nanocal_model::{blob, SlowInputs, MAX_AXES};
-use std::time::Duration;
 
 /// Temperatures the simulated sensors report (exact in MAX31856 LSBs), inside 21–23 °C.
 const TEMPS_C: [f32; 4] = [22.0, 22.125, 21.875, 22.25];
@@ -35,6 +35,7 @@ fn e2e_compensator_under_qemu() {
     let Some(mut q) = Qemu::start_or_skip("e2e_compensator_under_qemu") else {
         return;
     };
+    let clk = q.clock();
     let stage = StageSim::start(q.connect(1), 1);
     let sensors = SensorSim::start(q.link(), &TEMPS_C);
     let mut host = q.gcs_host();
@@ -43,9 +44,12 @@ fn e2e_compensator_under_qemu() {
     let mut c = q.client();
     let (proto, format, _) = c.hello().expect("hello");
     assert_eq!(format, blob::FORMAT_VERSION);
-    assert_eq!(proto, nanocal_compensator::mgmt::PROTOCOL);
+    assert_eq!(proto, nanocal_interface::mgmt::PROTOCOL);
     let s = c.status().unwrap();
-    assert_eq!(s.flags & flags::MODEL, 0, "no model before the upload");
+    assert!(
+        !s.flags.contains(Flags::MODEL),
+        "no model before the upload"
+    );
     drop(c);
 
     // without a model, moves are refused (and nothing reaches the controller)
@@ -72,25 +76,22 @@ fn e2e_compensator_under_qemu() {
     assert!(String::from_utf8_lossy(&out.stdout).contains("in service"));
 
     let mut c = q.client();
-    let s = wait_until(
-        "sensors read and model folded",
-        Duration::from_secs(20),
-        || {
-            let s = c.status().ok()?;
-            let ok = s.flags & flags::MODEL != 0
-                && s.flags & flags::SENSOR_BLOCK == 0
-                && s.sensor_bits[..4].iter().all(|&b| b & 0x0F == 0)
-                && s.folds >= 2;
-            ok.then_some(s)
-        },
-    );
+    let s = wait_until("sensors read and model folded", &clk, 20.0, || {
+        let s = c.status().ok()?;
+        let ok = s.flags.contains(Flags::MODEL)
+            && !s.flags.contains(Flags::SENSOR_BLOCK)
+            && s.sensor_bits[..4]
+                .iter()
+                .all(|b| b.state == ChannelStatus::Ok)
+            && s.folds >= 2;
+        ok.then_some(s)
+    });
     assert_eq!(s.model_id, model.id());
     for (i, t) in TEMPS_C.iter().enumerate() {
         assert_eq!(s.temps_c[i], *t);
     }
-    assert_ne!(
-        s.flags & flags::MOVE_FOLD,
-        0,
+    assert!(
+        s.flags.contains(Flags::MOVE_FOLD),
         "the status reports move_fold"
     );
     assert_eq!(
@@ -110,9 +111,9 @@ fn e2e_compensator_under_qemu() {
     };
     host.send("MOV 1 100");
     // the first move waits for the controller's GCS syntax version and position unit
-    assert_eq!(stage.next_line(Duration::from_secs(10)), "CSV?");
-    assert_eq!(stage.next_line(Duration::from_secs(10)), "PUN? 1");
-    let fwd = stage.next_line(Duration::from_secs(10));
+    assert_eq!(stage.next_line(HANG), "CSV?");
+    assert_eq!(stage.next_line(HANG), "PUN? 1");
+    let fwd = stage.next_line(HANG);
     check(stage_value(&fwd, "1"), 100.0, dir0);
 
     // the status names the fold that corrected the move; it stays while later folds run, and
@@ -125,13 +126,13 @@ fn e2e_compensator_under_qemu() {
         s.folds,
         s1.folds
     );
-    let s2 = wait_until("two more folds", Duration::from_secs(20), || {
+    let s2 = wait_until("two more folds", &clk, 20.0, || {
         let x = c.status().ok()?;
         (x.folds >= s1.folds + 2).then_some(x)
     });
     assert_eq!(s2.move_fold, s1.move_fold, "no move since: the same fold");
     host.send("MOV 1 100");
-    let _ = stage.next_line(Duration::from_secs(10));
+    let _ = stage.next_line(HANG);
     let s3 = c.status().unwrap();
     assert!(
         s2.folds <= s3.move_fold && s3.move_fold <= s3.folds,
@@ -143,7 +144,7 @@ fn e2e_compensator_under_qemu() {
 
     // MVR becomes an absolute MOV
     host.send("MVR 1 12.5");
-    let fwd = stage.next_line(Duration::from_secs(10));
+    let fwd = stage.next_line(HANG);
     check(stage_value(&fwd, "1"), 112.5, [1, 0, 0]);
 
     // POS? maps back to calibrated coordinates
@@ -164,7 +165,7 @@ fn e2e_compensator_under_qemu() {
     for k in 0..40 {
         let x = ((k * 7919) % 4800) as f64 / 10.0 + 0.0123;
         host.send(&format!("MOV 1 {x:.4}"));
-        let fwd = stage.next_line(Duration::from_secs(10));
+        let fwd = stage.next_line(HANG);
         let dir = if x > prev { 1 } else { -1 };
         check(stage_value(&fwd, "1"), x, [dir, 0, 0]);
         prev = x;
@@ -178,10 +179,10 @@ fn e2e_compensator_under_qemu() {
 
     // other commands pass untouched; single-character commands too
     host.send("VEL 1 10");
-    assert_eq!(stage.next_line(Duration::from_secs(10)), "VEL 1 10");
+    assert_eq!(stage.next_line(HANG), "VEL 1 10");
     host.send_raw(&[0x05]);
-    assert_eq!(stage.next_line(Duration::from_secs(10)), "#5");
-    assert_eq!(host.read_line(Duration::from_secs(10)), "0");
+    assert_eq!(stage.next_line(HANG), "#5");
+    assert_eq!(host.read_line(HANG), "0");
     assert!(host.ask("*IDN?").contains("E-727"));
     assert_eq!(stage.drain(), ["*IDN?"]);
 
@@ -190,7 +191,7 @@ fn e2e_compensator_under_qemu() {
     assert_eq!(host.ask("ERR?"), "9001");
     host.send("SVO 1 1");
     assert_eq!(
-        stage.next_line(Duration::from_secs(10)),
+        stage.next_line(HANG),
         "SVO 1 1",
         "MOV 500 was not forwarded"
     );
@@ -207,7 +208,16 @@ fn e2e_compensator_under_qemu() {
             true,
         )
         .unwrap_err();
-    assert!(matches!(e, DeviceError::Refused { code: 9, .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError::Refused {
+                refusal: Refusal::UploadBlob,
+                ..
+            }
+        ),
+        "{e}"
+    );
     let e = c
         .upload_raw(
             &b[..n / 2],
@@ -217,7 +227,16 @@ fn e2e_compensator_under_qemu() {
             true,
         )
         .unwrap_err();
-    assert!(matches!(e, DeviceError::Refused { code: 7, .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError::Refused {
+                refusal: Refusal::UploadIncomplete,
+                ..
+            }
+        ),
+        "{e}"
+    );
     let e = c
         .upload_raw(
             &b[..n],
@@ -227,13 +246,22 @@ fn e2e_compensator_under_qemu() {
             true,
         )
         .unwrap_err();
-    assert!(matches!(e, DeviceError::Refused { code: 8, .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DeviceError::Refused {
+                refusal: Refusal::UploadCrc,
+                ..
+            }
+        ),
+        "{e}"
+    );
     let s = c.status().unwrap();
     assert_eq!(s.model_id, model.id());
     assert_eq!(s.uploads_rejected, 3);
     assert_eq!(s.uploads_ok, 1);
     host.send("MOV 1 200");
-    let fwd = stage.next_line(Duration::from_secs(10));
+    let fwd = stage.next_line(HANG);
     check(
         stage_value(&fwd, "1"),
         200.0,
@@ -242,38 +270,42 @@ fn e2e_compensator_under_qemu() {
 
     // a sensor fault: held for the hold time, then shown in status and blocking moves
     sensors.set_status(1, max31856::SR_OPEN);
-    let s = wait_until(
-        "sensor fault to block moves",
-        Duration::from_secs(30),
-        || {
-            let s = c.status().ok()?;
-            (s.flags & flags::SENSOR_BLOCK != 0).then_some(s)
-        },
+    let s = wait_until("sensor fault to block moves", &clk, 30.0, || {
+        let s = c.status().ok()?;
+        (s.flags.contains(Flags::SENSOR_BLOCK)).then_some(s)
+    });
+    assert_eq!(
+        s.sensor_bits[1].state,
+        ChannelStatus::Failed,
+        "sensor 1 failed"
     );
-    assert_eq!(s.sensor_bits[1] & 0x0F, 2, "sensor 1 failed");
-    assert_eq!(s.sensor_bits[1] >> 4, 1, "open thermocouple");
+    assert_eq!(
+        s.sensor_bits[1].last_fault,
+        Some(SensorFault::Open),
+        "open thermocouple"
+    );
     host.send("MOV 1 250");
     assert_eq!(host.ask("ERR?"), "9002");
     host.send("SVO 1 1");
     assert_eq!(
-        stage.next_line(Duration::from_secs(10)),
+        stage.next_line(HANG),
         "SVO 1 1",
         "blocked MOV not forwarded"
     );
     // recovery
     sensors.set_status(1, 0);
-    wait_until("sensor recovery", Duration::from_secs(30), || {
+    wait_until("sensor recovery", &clk, 30.0, || {
         let s = c.status().ok()?;
-        (s.flags & flags::SENSOR_BLOCK == 0).then_some(())
+        (!s.flags.contains(Flags::SENSOR_BLOCK)).then_some(())
     });
     host.send("MOV 1 250");
-    let fwd = stage.next_line(Duration::from_secs(10));
+    let fwd = stage.next_line(HANG);
     check(stage_value(&fwd, "1"), 250.0, [1, 0, 0]);
 
     // bypass forwards untouched
     c.bypass(true).unwrap();
     host.send("MOV 1 42");
-    assert_eq!(stage.next_line(Duration::from_secs(10)), "MOV 1 42");
+    assert_eq!(stage.next_line(HANG), "MOV 1 42");
     c.bypass(false).unwrap();
 
     // KMZ from a reference: the model now maps the measured position to the command sent
@@ -286,7 +318,7 @@ fn e2e_compensator_under_qemu() {
     // and it is in service: the same target now gets a command shifted by Δλ_KMZ
     let shifted = model.eval_f64(&[250.0, 0.0, 0.0], &[0; MAX_AXES], &slow())[0] + kmz[0];
     host.send("MOV 1 250");
-    let got = stage_value(&stage.next_line(Duration::from_secs(10)), "1");
+    let got = stage_value(&stage.next_line(HANG), "1");
     assert!(
         (got - shifted).abs() <= 1e-4,
         "after KMZ: {got} vs {shifted}"
@@ -311,18 +343,22 @@ fn e2e_compensator_under_qemu() {
 
     // a reset: the model and its λ_KMZ come back from flash, the reset cause says why
     let mut c = q.client();
+    let boots = q.link().boots();
     c.reset().unwrap();
     drop(c);
-    std::thread::sleep(Duration::from_millis(500));
+    // the board answers first, then resets: ask the new boot, not the old one
+    wait_until("the reset", &clk, 10.0, || {
+        (q.link().boots() > boots).then_some(())
+    });
     let mut c = q.client();
     let h = c.identify().unwrap();
     assert_eq!(
         h.reset_cause,
-        nanocal_compensator::identity::ResetCause::Software
+        nanocal_interface::identity::ResetCause::Software
     );
-    let s = wait_until("model reloaded", Duration::from_secs(20), || {
+    let s = wait_until("model reloaded", &clk, 20.0, || {
         let s = c.status().ok()?;
-        (s.flags & flags::MODEL != 0).then_some(s)
+        (s.flags.contains(Flags::MODEL)).then_some(s)
     });
     assert_eq!(s.model_id, model.id());
     assert_eq!(s.kmz_um[0], kmz[0], "λ_KMZ stored with the model");
@@ -335,6 +371,7 @@ fn e2e_coupled_2dof_under_qemu() {
     let Some(mut q) = Qemu::start_or_skip("e2e_coupled_2dof_under_qemu") else {
         return;
     };
+    let clk = q.clock();
     let stage = StageSim::start(q.connect(1), 2);
     let _sensors = SensorSim::start(q.link(), &TEMPS_C);
     let mut host = q.gcs_host();
@@ -343,9 +380,9 @@ fn e2e_coupled_2dof_under_qemu() {
     let mut b = vec![0u8; blob::MAX_BLOB_LEN];
     let n = blob::encode(&model, &mut b).unwrap();
     c.upload(&b[..n]).unwrap();
-    wait_until("sensors ready", Duration::from_secs(20), || {
+    wait_until("sensors ready", &clk, 20.0, || {
         let s = c.status().ok()?;
-        (s.flags & flags::SENSOR_BLOCK == 0 && s.folds >= 2).then_some(())
+        (!s.flags.contains(Flags::SENSOR_BLOCK) && s.folds >= 2).then_some(())
     });
 
     // a single-axis MOV before any full target: the coupled axis' target is read from the
@@ -360,7 +397,7 @@ fn e2e_coupled_2dof_under_qemu() {
     );
 
     host.send("MOV 1 40 2 70");
-    let fwd = stage.next_line(Duration::from_secs(10));
+    let fwd = stage.next_line(HANG);
     let want = model.eval_f64(&[40.0, 70.0, 0.0], &[0; MAX_AXES], &slow());
     for (a, axis) in ["1", "2"].iter().enumerate() {
         let got = stage_value(&fwd, axis);
@@ -372,7 +409,7 @@ fn e2e_coupled_2dof_under_qemu() {
     }
     // moving x alone re-commands y too (coupling)
     host.send("MOV 1 50");
-    let fwd = stage.next_line(Duration::from_secs(10));
+    let fwd = stage.next_line(HANG);
     let want = model.eval_f64(&[50.0, 70.0, 0.0], &[1, 0, 0], &slow());
     for (a, axis) in ["1", "2"].iter().enumerate() {
         let got = stage_value(&fwd, axis);

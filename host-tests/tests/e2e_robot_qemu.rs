@@ -15,11 +15,10 @@ use nanocal::procedure::ProcedureData;
 use nanocal::stepwise::StepwiseOptions;
 use nanocal::twin::delta::{DeltaConfig, DeltaTwin};
 use nanocal::twin::execute::run_plan;
-use nanocal_compensator::mgmt::flags;
 use nanocal_compensator::sensor::Chip;
+use nanocal_interface::status::Flags;
 use nanocal_model::reference::{delta_robot_78, ROBOT_HALF_STROKE_UM, ROBOT_TEMPS};
 use nanocal_model::{blob, Model, SlowInputs, MAX_AXES};
-use std::time::Duration;
 
 #[test]
 fn e2e_robot_model_under_qemu() {
@@ -110,6 +109,7 @@ fn run_under_qemu(
         slow.temps_c[i] = f64::from(*t);
     }
     let mut q = Qemu::start_or_skip(test)?;
+    let clk = q.clock();
     let stage = StageSim::start(q.connect(1), 3);
     let _sensors = SensorSim::start(q.link(), temps);
     let mut host = q.gcs_host();
@@ -123,9 +123,9 @@ fn run_under_qemu(
     let mut b = vec![0u8; blob::MAX_BLOB_LEN];
     let n = blob::encode(model, &mut b).unwrap();
     c.upload(&b[..n]).expect("the robot model is accepted");
-    wait_until("sensors ready", Duration::from_secs(30), || {
+    wait_until("sensors ready", &clk, 30.0, || {
         let s = c.status().ok()?;
-        (s.flags & flags::MODEL != 0 && s.flags & flags::SENSOR_BLOCK == 0 && s.folds >= 2)
+        (s.flags.contains(Flags::MODEL) && !s.flags.contains(Flags::SENSOR_BLOCK) && s.folds >= 2)
             .then_some(())
     });
     let mut worst_nm = 0.0f64;

@@ -4,9 +4,13 @@
 
 use nanocal::published::published_1dof;
 use nanocal_compensator::fault::{ChannelState, Faults, Policy};
-use nanocal_compensator::mgmt::{self, Decoder, FrameError, Reader, Status, Writer};
 use nanocal_compensator::sensor::SensorFault;
 use nanocal_compensator::upload::{Upload, UploadError};
+use nanocal_interface::identity::ResetCause;
+use nanocal_interface::led::LedState;
+use nanocal_interface::mgmt::{self, Decoder, FrameError, Kind, Reader, Refusal, Writer};
+use nanocal_interface::status::{ChannelBits, ChannelStatus, Flags, Status};
+use nanocal_interface::GcsErrorCode;
 use nanocal_model::blob;
 use nanocal_model::Model;
 use proptest::prelude::*;
@@ -48,9 +52,9 @@ fn fault_policy_holds_then_blocks_then_recovers() {
 fn frames_round_trip_and_resynchronise() {
     let mut wire = vec![0x00, 0xA7, 0x13]; // garbage, including a false sync start
     let mut buf = [0u8; mgmt::MAX_FRAME];
-    let n = mgmt::encode(mgmt::kind::STATUS, 7, b"", &mut buf).unwrap();
+    let n = mgmt::encode(Kind::Status.code(), 7, b"", &mut buf).unwrap();
     wire.extend_from_slice(&buf[..n]);
-    let n = mgmt::encode(mgmt::kind::UPLOAD_CHUNK, 8, &[1, 2, 3, 4, 5], &mut buf).unwrap();
+    let n = mgmt::encode(Kind::UploadChunk.code(), 8, &[1, 2, 3, 4, 5], &mut buf).unwrap();
     let mut bad = buf[..n].to_vec();
     bad[7] ^= 0xFF;
     wire.extend_from_slice(&bad);
@@ -70,22 +74,22 @@ fn frames_round_trip_and_resynchronise() {
     assert_eq!(
         got,
         vec![
-            Ok((mgmt::kind::STATUS, 7, vec![])),
+            Ok((Kind::Status.code(), 7, vec![])),
             Err(FrameError::BadCrc),
-            Ok((mgmt::kind::UPLOAD_CHUNK, 8, vec![1, 2, 3, 4, 5])),
+            Ok((Kind::UploadChunk.code(), 8, vec![1, 2, 3, 4, 5])),
         ]
     );
 }
 
 #[test]
 fn status_round_trips() {
+    let bits = |b: u8| ChannelBits::from_code(b).unwrap();
     let s = Status {
-        flags: 5,
+        flags: Flags::MODEL | Flags::SENSOR_BLOCK,
         model_id: 0x1234,
-        slot: 1,
         move_fold: 9,
         temps_c: core::array::from_fn(|i| 20.0 + i as f32 * 0.25),
-        sensor_bits: [0, 1, 2, 0, 0, 0, 0, 4, 0, 0, 0, 0, 0, 0, 0, 0x14],
+        sensor_bits: [0, 1, 2, 0, 0, 0, 0, 4, 0, 0, 0, 0, 0, 0, 0, 0x14].map(bits),
         sensors: 4,
         slow_outside: 0x10,
         kmz_um: [0.1, -0.2, 0.0],
@@ -96,18 +100,19 @@ fn status_round_trips() {
         uploads_ok: 5,
         uploads_rejected: 6,
         folds: 7,
-        pending_error: 9001,
-        last_upload_error: 8,
+        pending_error: Some(GcsErrorCode::OutsideEnvelope),
+        last_upload_error: Some(Refusal::UploadCrc),
         uptime_ms: 12345,
         uid: *b"0123456789AB",
-        reset_cause: 4,
-        led: 3,
+        reset_cause: ResetCause::Watchdog,
+        led: LedState::NoModel,
         fold_age_ms: 250,
         flash_ecc_errors: 2,
         sensor_reconfigs: 1,
         aux: [1013.25, f32::NAN, 0.0, -1.0],
-        aux_bits: [0, 4, 0, 0],
+        aux_bits: [0, 4, 0, 0].map(bits),
     };
+    assert_eq!(s.sensor_bits[15].state, ChannelStatus::NotRead);
     let mut buf = [0u8; 320];
     let mut w = Writer::new(&mut buf);
     s.encode(&mut w).unwrap();
@@ -255,8 +260,10 @@ fn every_upload_error_code_has_a_meaning() {
         },
         UploadError::Blob(BlobError::BadMagic),
     ];
+    // each error its own result code, 1..=9 as the protocol has them (0 is success)
+    let codes: Vec<u8> = errors.iter().map(|e| e.code().code()).collect();
+    assert_eq!(codes, (1..=9).collect::<Vec<u8>>());
     for e in errors {
-        assert_ne!(mgmt::result_meaning(e.code()), "unknown code", "{e}");
-        assert_ne!(e.code(), mgmt::RESULT_OK);
+        assert_eq!(Refusal::from_code(e.code().code()), Some(e.code()), "{e}");
     }
 }

@@ -7,14 +7,15 @@ use nanocal::virtual_bench::chips::I2cChip;
 use nanocal::virtual_bench::chips::{Lps22hb, Max31856, Max31865, SpiChip};
 use nanocal_compensator::clock::{self, ClockStep};
 use nanocal_compensator::fault::{ChannelState, Faults, Policy};
-use nanocal_compensator::identity::{self, ResetCause};
 use nanocal_compensator::inputs::{self, Board, InputError};
-use nanocal_compensator::led::LedState;
 use nanocal_compensator::lps22hb;
 use nanocal_compensator::sensor::{
     Chip, Driver, Mains, Outcome, SensorFault, TcType, Wires, MAX_TXN,
 };
-use nanocal_compensator::settings::{AuxSource, Settings, StageUnit};
+use nanocal_interface::identity::{self, ResetCause};
+use nanocal_interface::led::LedState;
+use nanocal_interface::mgmt::{InputCode, InputWhy};
+use nanocal_interface::settings::{AuxSource, Settings, StageUnit};
 
 /// One SPI transaction with the chip (None: nothing on the chip-select, MISO pulled up).
 fn spi(chip: Option<&mut (dyn SpiChip + '_)>, buf: &mut [u8], now_s: f64) {
@@ -313,11 +314,9 @@ fn reset_cause_from_rcc_csr_and_serial_from_uid() {
         ResetCause::Software
     );
     for c in 0..8 {
-        assert_eq!(
-            ResetCause::from_code(ResetCause::from_code(c).code()).code(),
-            ResetCause::from_code(c).code()
-        );
+        assert_eq!(ResetCause::from_code(c).map(ResetCause::code), Some(c));
     }
+    assert_eq!(ResetCause::from_code(8), None);
     // defect: every board enumerated with serial "0001"
     let (mut a, mut b) = ([0u8; 24], [0u8; 24]);
     identity::usb_serial(&[0x12, 0x34, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0x01], &mut a);
@@ -361,14 +360,6 @@ fn settings_round_trip_and_reject_what_they_must() {
         Settings::decode(&bad.encode()).is_err(),
         "period out of range"
     );
-    // CRC-32 from the crc crate equals the blob's CRC-32 (the golden bytes stay)
-    for data in [&b""[..], b"123456789", &b[..]] {
-        assert_eq!(
-            nanocal_compensator::crc32(data),
-            nanocal_model::blob::crc32(data)
-        );
-    }
-    assert_eq!(nanocal_compensator::crc32(b"123456789"), 0xCBF4_3926);
 }
 
 /// Layout 3 adds the fold period (u16 LE at 240, CRC at 242): golden bytes of its fields, a
@@ -376,7 +367,7 @@ fn settings_round_trip_and_reject_what_they_must() {
 /// stored by the firmware before — decoding with the default fold period (5 s).
 #[test]
 fn settings_layout_3_carries_the_fold_period() {
-    use nanocal_compensator::settings::{DEFAULT_FOLD_PERIOD_MS, LEN};
+    use nanocal_interface::settings::{DEFAULT_FOLD_PERIOD_MS, LEN};
     let mut s = Settings {
         fold_period_ms: 7_250,
         ..Default::default()
@@ -389,7 +380,7 @@ fn settings_layout_3_carries_the_fold_period() {
     );
     assert_eq!(&v3[..5], b"NCST\x03");
     assert_eq!(&v3[240..242], &[0x52, 0x1C], "7250 ms, little endian");
-    let crc = nanocal_compensator::crc32(&v3[..242]);
+    let crc = nanocal_interface::crc32(&v3[..242]);
     assert_eq!(&v3[242..], &crc.to_le_bytes());
     assert_eq!(Settings::decode(&v3), Ok(s));
     for bad in [999, 10_001, 0] {
@@ -399,7 +390,7 @@ fn settings_layout_3_carries_the_fold_period() {
     // layout 2: the same bytes up to 240, then the CRC
     let mut v2 = v3[..240].to_vec();
     v2[4] = 2;
-    let crc = nanocal_compensator::crc32(&v2);
+    let crc = nanocal_interface::crc32(&v2);
     v2.extend_from_slice(&crc.to_le_bytes());
     let old = Settings::decode(&v2).unwrap();
     assert_eq!(old.fold_period_ms, DEFAULT_FOLD_PERIOD_MS);
@@ -423,7 +414,7 @@ fn settings_of_layout_1_still_decode() {
         sample_period_ms: 500,
         ..Default::default()
     };
-    s.sensors = [None; nanocal_compensator::settings::SENSORS];
+    s.sensors = [None; nanocal_interface::settings::SENSORS];
     s.sensors[7] = Some(Chip::Max31856 { tc: TcType::J });
     s.stage_unit = StageUnit::Nm;
     s.axis_names[2] = nanocal_compensator::gcs::AxisId::new(b"Z").unwrap();
@@ -442,7 +433,7 @@ fn settings_of_layout_1_still_decode() {
     assert_eq!(v1.len(), 93);
     v1.extend_from_slice(&v2[169 + 4..240]); // axis names and aux sources, as layout 2 has them
     assert_eq!(v1.len(), 160);
-    let crc = nanocal_compensator::crc32(&v1);
+    let crc = nanocal_interface::crc32(&v1);
     v1.extend_from_slice(&crc.to_le_bytes());
     assert_eq!(Settings::decode(&v1), Ok(s));
     // a layout-1 record cut to a layout-2 length, or with an unknown version, is refused
@@ -469,17 +460,16 @@ fn a_model_needing_more_chip_selects_than_wired_is_refused() {
     };
     let e = inputs::check(&model, &s, &stm32).unwrap_err();
     assert_eq!(e, InputError::NoChipSelect { index: 4 });
-    assert_eq!(e.code(), 0x64);
+    assert_eq!(e.code().code(), 0x64);
     assert!(e.to_string().contains("no chip-select 4"), "{e}");
     // what a host prints for the code the device sends
+    let code = InputCode::from_code(0x64).unwrap();
+    assert_eq!(code.why, InputWhy::NoChipSelect);
     assert_eq!(
-        inputs::describe_code(e.code()),
-        Some((
-            "temperature input on a chip-select the board does not wire",
-            4
-        ))
+        code.to_string(),
+        "input 4, temperature input on a chip-select the board does not wire"
     );
-    assert_eq!(inputs::describe_code(0x05), None);
+    assert_eq!(InputCode::from_code(0x05), None);
     let sixteen = Board {
         chip_selects: 16,
         ..stm32

@@ -10,8 +10,8 @@
 use embassy_futures::block_on;
 use nanocal::published::{coupled_2dof, published_1dof};
 use nanocal_compensator::l4flash::{L4Nor, L4Sim, PAGE};
-use nanocal_compensator::settings::Settings;
 use nanocal_compensator::store::Store;
+use nanocal_interface::settings::Settings;
 use nanocal_model::blob;
 
 /// KMZ updates in the update under test: enough to fill pages and make the store erase.
@@ -42,7 +42,7 @@ fn boot(sim: &mut L4Sim<SIZE>) -> (Option<Vec<u8>>, Option<[f64; 3]>, Option<Set
         let id = blob::decode(m).unwrap().id();
         block_on(st.load_kmz(id)).expect("kmz readable")
     });
-    let mut s = [0u8; nanocal_compensator::settings::LEN];
+    let mut s = [0u8; nanocal_interface::settings::LEN];
     let settings = block_on(st.load_settings(&mut s))
         .expect("settings readable")
         .map(|n| Settings::decode(&s[..n]).expect("stored settings decode"));

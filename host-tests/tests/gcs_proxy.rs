@@ -12,7 +12,9 @@ use nanocal::published::{coupled_2dof, published_1dof};
 use nanocal::virtual_bench::{Config, Event};
 use nanocal_compensator::command::{self, Action};
 use nanocal_compensator::gcs::{self, LineBuf};
-use nanocal_compensator::proxy::{codes, FoldCorrector, Gate, Output, Proxy, REPLY_TIMEOUT_MS};
+use nanocal_compensator::proxy::{
+    FoldCorrector, Gate, GcsErrorCode, Output, Proxy, REPLY_TIMEOUT_MS,
+};
 use nanocal_model::{Model, MAX_AXES};
 use proptest::prelude::*;
 use proxy_rig::{everything, slow, text, value, Rig};
@@ -185,7 +187,7 @@ fn every_move_form_is_corrected_like_the_f64_reference() {
         let want = f64_command(&m, [x, 0.0, 0.0])[0];
         assert!((got.1 - want).abs() <= 1e-4, "{line}: {} vs {want}", got.1);
         assert_ne!(got.2, "GOH", "{line}: a model axis never goes home raw");
-        assert_eq!(r.proxy.pending_error(), 0, "{line}");
+        assert_eq!(r.proxy.pending_error(), None, "{line}");
     }
     // the axis the model does not cover keeps the host's own value, in the same line
     let rx = r.received();
@@ -275,7 +277,7 @@ fn commands_that_move_uncorrected_are_refused_while_compensating() {
         r.line(line);
         assert_eq!(
             r.line("ERR?"),
-            format!("{}\n", codes::REFUSED_WHILE_COMPENSATING),
+            format!("{}\n", GcsErrorCode::RefusedWhileCompensating.code()),
             "{line}"
         );
     }
@@ -334,7 +336,8 @@ fn targets_are_forgotten_after_stops_and_re_seeded_from_the_controller() {
     }
 }
 
-/// The f64 inverse of the 1-DoF model by bisection (independent of the proxy's chord method).
+/// The f64 inverse of the 1-DoF model by bisection (independent of the model's Newton inverse,
+/// which the proxy calls).
 fn invert_f64(m: &Model, q: f64) -> f64 {
     let f = |x: f64| f64_command(m, [x, 0.0, 0.0])[0];
     let (mut lo, mut hi) = (-100.0, 600.0);
@@ -436,7 +439,7 @@ fn a_reply_longer_than_any_buffer_is_relayed_whole() {
         sent.extend_from_slice(out.to_stage.as_bytes());
     }
     assert!(sent.is_empty());
-    assert_eq!(proxy.pending_error(), codes::LINE_TOO_LONG);
+    assert_eq!(proxy.pending_error(), Some(GcsErrorCode::LineTooLong));
 }
 
 #[test]
@@ -477,7 +480,10 @@ fn a_controller_in_millimetres_refuses_moves_with_a_clear_error() {
     r.line("MOV 1 100");
     assert_eq!(r.received(), ["CSV?", "PUN? 1"]);
     assert!(r.events().is_empty(), "nothing moved");
-    assert_eq!(r.line("ERR?"), format!("{}\n", codes::UNIT_MISMATCH));
+    assert_eq!(
+        r.line("ERR?"),
+        format!("{}\n", GcsErrorCode::UnitMismatch.code())
+    );
     assert!(r.proxy.unit_mismatch());
     // switched to µm on the controller: the proxy reads the unit again
     r.line("CCL 1 advanced");
@@ -497,7 +503,7 @@ fn a_gcs_3_controller_is_refused_not_mangled() {
     assert_eq!(r.line("CSV?"), "3.0\n");
     assert!(r.proxy.gcs3());
     r.line("MOV 1 100");
-    assert_eq!(r.line("ERR?"), format!("{}\n", codes::GCS3));
+    assert_eq!(r.line("ERR?"), format!("{}\n", GcsErrorCode::Gcs3.code()));
     assert!(r.events().is_empty());
     // replies pass untouched
     assert_eq!(r.line("POS? 1"), "1=250.0000000\n");
@@ -508,22 +514,34 @@ fn refusals_without_model_with_a_failed_sensor_and_outside_the_travel() {
     let m = published_1dof().unwrap();
     let mut r = Rig::new(everything(1), None, &TEMPS);
     r.line("MOV 1 10");
-    assert_eq!(r.line("ERR?"), format!("{}\n", codes::NO_MODEL));
+    assert_eq!(
+        r.line("ERR?"),
+        format!("{}\n", GcsErrorCode::NoModel.code())
+    );
     r.line("STE 1 1");
-    assert_eq!(r.line("ERR?"), format!("{}\n", codes::NO_MODEL));
+    assert_eq!(
+        r.line("ERR?"),
+        format!("{}\n", GcsErrorCode::NoModel.code())
+    );
     let mut r = Rig::new(everything(1), Some(&m), &TEMPS);
     r.proxy.gate = Gate::SensorFault;
     r.line("MOV 1 10");
-    assert_eq!(r.line("ERR?"), format!("{}\n", codes::SENSOR_FAULT));
+    assert_eq!(
+        r.line("ERR?"),
+        format!("{}\n", GcsErrorCode::SensorFault.code())
+    );
     r.proxy.gate = Gate::Open;
     r.comp.as_mut().unwrap().travel_um[0] = (0.0, 100.0);
     r.line("MOV 1 300");
-    assert_eq!(r.line("ERR?"), format!("{}\n", codes::POS_OUT_OF_LIMITS));
+    assert_eq!(
+        r.line("ERR?"),
+        format!("{}\n", GcsErrorCode::PosOutOfLimits.code())
+    );
     for (line, code) in [
-        ("MOV 1 x", codes::PARAM_SYNTAX),
-        ("MOV 1", codes::PARAM_SYNTAX),
-        ("MOV", codes::PARAM_SYNTAX),
-        ("MOV 1 10 1 20", codes::INVALID_AXIS),
+        ("MOV 1 x", GcsErrorCode::ParamSyntax.code()),
+        ("MOV 1", GcsErrorCode::ParamSyntax.code()),
+        ("MOV", GcsErrorCode::ParamSyntax.code()),
+        ("MOV 1 10 1 20", GcsErrorCode::InvalidAxis.code()),
     ] {
         r.line(line);
         assert_eq!(r.line("ERR?"), format!("{code}\n"), "{line}");

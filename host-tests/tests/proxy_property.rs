@@ -188,7 +188,8 @@ fn command(model: &Model, x: &[f64; MAX_AXES]) -> [f64; MAX_AXES] {
 }
 
 /// Calibrated targets for controller targets `q` (model axes `0..n`): Newton's method in f64
-/// with a finite-difference Jacobian — independent of the proxy's f32 chord method.
+/// with a finite-difference Jacobian — independent of the model's f32 Newton inverse the proxy
+/// calls.
 fn inverse(model: &Model, q: &[f64; MAX_AXES], n: usize) -> [f64; MAX_AXES] {
     let mut x = *q;
     for _ in 0..50 {

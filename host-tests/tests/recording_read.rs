@@ -115,3 +115,57 @@ fn whitespace_and_exotic_numbers() {
         Err(RecordingError::TooManyValues { line: 2, .. })
     ));
 }
+
+#[test]
+fn a_cr_inside_a_line_is_refused_naming_line_and_column() {
+    // found by the recording_csv fuzz target (fuzz/seeds/recording_csv/crash-cr-inside-a-line):
+    // the number scanner took a CR as the field's end even when no LF followed, and the row
+    // parser then met ':' where it expected a delimiter — a panic ("unreachable") instead of
+    // an error
+    let csv = b"t,cmd_x,meas_x\r\n0.000,2,-123.059139\r:\r\n0.005,2,3\r\n";
+    match Recording::parse(csv) {
+        Err(RecordingError::NotNumeric {
+            line, column, name, ..
+        }) => assert_eq!((line, column, name.as_str()), (2, 3, "meas_x")),
+        other => panic!("{other:?}"),
+    }
+    // a CR that ends the line (CR LF, or the input's last byte) is still a line end
+    let rec = Recording::parse(b"t,x\r\n0,1\r\n2,3\r").unwrap();
+    assert_eq!(rec.column("x").unwrap(), &[1.0, 3.0]);
+}
+
+#[test]
+fn a_quoted_column_name_loses_its_spaces_so_it_round_trips() {
+    // found by the recording_csv fuzz target (fuzz/seeds/recording_csv/crash-quoted-name-spaces):
+    // `"    f` kept its spaces inside the quote, the writer wrote them unquoted and the reader
+    // trimmed them: the column's name changed in a write/read round trip
+    let rec = Recording::parse(b"t,\" temp_a \"\n0,22\n").unwrap();
+    assert_eq!(rec.names(), ["t", "temp_a"]);
+    assert_eq!(rec.temp_columns(), vec!["temp_a"]);
+    let mut out = Vec::new();
+    rec.write(&mut out).unwrap();
+    assert_eq!(Recording::parse(&out).unwrap(), rec);
+    // and a name that would not read back as itself is refused, naming its column
+    // (fuzz/seeds/recording_csv/crash-name-quote-control)
+    for header in [
+        &b"t,\"  \"  \x0cf\n0,1\n"[..],
+        b"t,a\"b\n0,1\n",
+        b"t,\"\"\n0,1\n",
+    ] {
+        match Recording::parse(header) {
+            Err(RecordingError::BadHeader { column: 2, .. }) => {}
+            other => panic!("{:?}: {other:?}", String::from_utf8_lossy(header)),
+        }
+    }
+}
+
+#[test]
+fn a_byte_order_mark_as_a_column_name_is_refused() {
+    // found by the recording_csv fuzz target (fuzz/seeds/recording_csv/crash-bom-name): a second
+    // byte-order mark as a name, which the writer then put at the start of the file, where the
+    // reader takes it off: the written recording did not read back (`Empty`)
+    match Recording::parse(b"\xEF\xBB\xBF \xEF\xBB\xBF \n") {
+        Err(RecordingError::BadHeader { column: 1, .. }) => {}
+        other => panic!("{other:?}"),
+    }
+}

@@ -205,6 +205,9 @@ impl From<ModelError> for BlobError {
 }
 
 /// CRC-32/IEEE as zlib computes it (reflected, polynomial 0xEDB88320, init and xorout !0).
+/// The project's one CRC-32: the management frames and the settings carry it too
+/// (`nanocal_interface::crc32` is this function). Bitwise, no table: 1 KiB of flash saved for
+/// ≈ 62 guest instructions a byte (BENCHMARKS.md).
 pub fn crc32(bytes: &[u8]) -> u32 {
     crc32_update(0, bytes)
 }

@@ -538,6 +538,10 @@ impl Fold {
     /// caller that sends the command only if it passes its checks, or that evaluates trial
     /// points (an inverse): it advances the state with [`Fold::step`] for the commands it sends.
     /// `evaluate` then `step` leave the same commands and state as `correct`.
+    ///
+    /// Always inlined: the device calls it per command (the MOV line) and once per mapped
+    /// reply; called out of line, every MOV line pays the call (+17 guest instructions).
+    #[inline(always)]
     pub fn evaluate(
         &self,
         x_um: &[f32; MAX_AXES],

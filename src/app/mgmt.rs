@@ -7,11 +7,13 @@ use core::sync::atomic::Ordering;
 use embedded_io_async::{Read, Write};
 use embedded_storage_async::nor_flash::NorFlash;
 use nanocal_compensator::inputs;
-use nanocal_compensator::mgmt::{self, flags, kind, Decoder, Reader, Status, Writer};
 use nanocal_compensator::proxy::Gate;
-use nanocal_compensator::settings::{self, Settings};
 use nanocal_compensator::store::Store;
 use nanocal_compensator::upload::Upload;
+use nanocal_interface::mgmt::InputCode;
+use nanocal_interface::mgmt::{self, Decoder, Hello, Kind, Refusal, Reply, Request, Writer};
+use nanocal_interface::settings::{self, Settings};
+use nanocal_interface::status::{Flags, Status, STATUS_AUX, STATUS_SENSORS};
 use nanocal_model::{blob, MAX_AXES};
 
 /// Firmware version reported in HELLO.
@@ -75,8 +77,8 @@ fn stage_blob(sh: &Shared, bytes: &[u8]) -> Option<u32> {
 
 /// Why a finished upload is not staged.
 enum Refused {
-    Upload(u8),
-    Input(u8),
+    Upload(Refusal),
+    Input(InputCode),
 }
 
 /// Verify and decode a finished upload (in `buf`), check that the board supplies its inputs
@@ -136,14 +138,19 @@ pub async fn management<R: Read, W: Write, F: NorFlash>(
                 Some(Ok(())) => {
                     let f = dec.frame();
                     let (k, seq) = (f.kind, f.seq);
-                    let reply = &mut frame[mgmt::PAYLOAD_AT..][..mgmt::MAX_PAYLOAD];
-                    let len = handle(k, f.payload, reply, &mut upload, store, sh).await;
-                    if let Ok(m) = mgmt::seal(k | kind::REPLY, seq, len, &mut frame) {
+                    let reply = handle(k, f.payload, &mut upload, store, sh).await;
+                    let resets = matches!(reply, Reply::Reset);
+                    let mut w = Writer::new(&mut frame[mgmt::PAYLOAD_AT..][..mgmt::MAX_PAYLOAD]);
+                    // every reply fits the payload (the golden-byte tests encode each)
+                    let _ = reply.encode(&mut w);
+                    let len = w.len();
+                    drop(reply);
+                    if let Ok(m) = mgmt::seal(k | mgmt::REPLY, seq, len, &mut frame) {
                         let _ = tx.write_all(&frame[..m]).await;
                         let _ = tx.flush().await;
                     }
                     load = sh.model.lock(|m| m.borrow().pending);
-                    if k == kind::RESET {
+                    if resets {
                         embassy_time::Timer::after_millis(50).await;
                         reset();
                     }
@@ -155,63 +162,44 @@ pub async fn management<R: Read, W: Write, F: NorFlash>(
     }
 }
 
+/// Answer one request (kind byte `k`, `payload`).
 async fn handle<F: NorFlash>(
     k: u8,
     payload: &[u8],
-    reply: &mut [u8],
     upload: &mut Upload,
     store: &mut Store<F>,
     sh: &Shared,
-) -> usize {
-    let mut w = Writer::new(reply);
-    let mut r = Reader::new(payload);
-    if matches!(k, kind::SET_KMZ | kind::CONFIG_SET) && upload.is_active() {
+) -> Reply {
+    if matches!(Kind::from_code(k), Some(Kind::SetKmz | Kind::ConfigSet)) && upload.is_active() {
         // the store's scratch holds the upload: writing anything else overwrites it
         upload.abort();
         warn!("upload aborted by a store write");
     }
-    let code = match k {
-        kind::HELLO => {
-            let _ = w.u8(mgmt::RESULT_OK);
-            let _ = w.u16(mgmt::PROTOCOL);
-            let _ = w.u16(blob::FORMAT_VERSION);
-            let _ = w.u16(mgmt::MAX_CHUNK as u16);
-            let _ = w.u8(VERSION.len() as u8);
-            let _ = w.bytes(VERSION.as_bytes());
-            let _ = w.bytes(&sh.identity.uid);
-            let _ = w.u8(sh.identity.reset_cause.code());
-            return w.len();
-        }
-        kind::STATUS => {
-            let s = status(sh, upload);
-            let _ = w.u8(mgmt::RESULT_OK);
-            let _ = s.encode(&mut w);
-            return w.len();
-        }
-        kind::UPLOAD_BEGIN => match (r.u32(), r.u32(), r.u16()) {
-            (Ok(len), Ok(crc), Ok(ver)) => {
-                match upload.begin(len, crc, ver, store.buffer().len()) {
-                    Ok(()) => mgmt::RESULT_OK,
-                    Err(e) => reject(sh, e.code()),
-                }
-            }
-            _ => mgmt::RESULT_BAD_REQUEST,
+    let request = match Request::decode(k, payload) {
+        Ok(r) => r,
+        Err(e) => return Reply::refused(e.refusal()),
+    };
+    match request {
+        Request::Hello => Reply::Hello(hello(sh)),
+        Request::Status => Reply::Status(status(sh, upload)),
+        Request::UploadBegin {
+            total_len,
+            crc32,
+            format_version,
+        } => match upload.begin(total_len, crc32, format_version, store.buffer().len()) {
+            Ok(()) => Reply::UploadBegin,
+            Err(e) => reject(sh, e.code()),
         },
-        kind::UPLOAD_CHUNK => match r.u32() {
-            Ok(offset) => match upload.chunk(store.buffer(), offset, r.rest()) {
-                Ok(received) => {
-                    let _ = w.u8(mgmt::RESULT_OK);
-                    let _ = w.u32(received);
-                    return w.len();
-                }
+        Request::UploadChunk { offset, bytes } => {
+            match upload.chunk(store.buffer(), offset, bytes) {
+                Ok(received) => Reply::UploadChunk { received },
                 Err(e) => {
                     upload.abort();
                     reject(sh, e.code())
                 }
-            },
-            Err(_) => mgmt::RESULT_BAD_REQUEST,
-        },
-        kind::UPLOAD_COMMIT => match stage_upload(sh, upload, store.buffer()) {
+            }
+        }
+        Request::UploadCommit => match stage_upload(sh, upload, store.buffer()) {
             Ok((id, kmz)) => {
                 // the model, then its own λ_KMZ (an older KMZ item for the same id must not
                 // come back at the next boot); the model is encoded again from its decoded
@@ -220,100 +208,89 @@ async fn handle<F: NorFlash>(
                     Ok(()) => store.save_kmz(id, &kmz).await.is_ok(),
                     Err(_) => false,
                 };
-                if stored {
-                    sh.release();
-                    sh.model.lock(|m| {
-                        let mut m = m.borrow_mut();
-                        m.uploads_ok = m.uploads_ok.wrapping_add(1);
-                    });
-                    info!("model {=u32} stored and installed", id);
-                    let _ = w.u8(mgmt::RESULT_OK);
-                    let _ = w.u32(id);
-                    let _ = w.u8(0);
-                    let _ = w.u32(sh.model.lock(|m| m.borrow().uploads_ok));
-                    return w.len();
+                if !stored {
+                    // still pending: the management loop puts what the store holds back in
+                    // service
+                    return reject(sh, Refusal::Storage);
                 }
-                // still pending: the management loop puts what the store holds back in service
-                reject(sh, mgmt::RESULT_STORAGE)
+                sh.release();
+                let uploads_accepted = sh.model.lock(|m| {
+                    let mut m = m.borrow_mut();
+                    m.uploads_ok = m.uploads_ok.wrapping_add(1);
+                    m.uploads_ok
+                });
+                info!("model {=u32} stored and installed", id);
+                Reply::UploadCommit {
+                    model_id: id,
+                    uploads_accepted,
+                }
             }
             Err(Refused::Upload(code)) => reject(sh, code),
-            Err(Refused::Input(code)) => {
+            Err(Refused::Input(input)) => {
                 warn!(
                     "upload refused: model input not supplied (code {=u8})",
-                    code
+                    input.code()
                 );
-                let _ = w.u8(reject(sh, mgmt::RESULT_INPUT));
-                let _ = w.u8(code);
-                return w.len();
+                let _ = reject(sh, Refusal::Input);
+                Reply::Refused {
+                    refusal: Refusal::Input,
+                    input: Some(input),
+                }
             }
         },
-        kind::UPLOAD_ABORT => {
+        Request::UploadAbort => {
             upload.abort();
-            mgmt::RESULT_OK
+            Reply::UploadAbort
         }
-        kind::SET_KMZ => {
-            let mut q = [0.0; MAX_AXES];
-            let mut x = [0.0; MAX_AXES];
-            let mut ok = true;
-            for v in q.iter_mut().chain(x.iter_mut()) {
-                match r.f64() {
-                    Ok(f) if f.is_finite() => *v = f,
-                    _ => ok = false,
+        Request::SetKmz {
+            q_cmd_um,
+            x_meas_um,
+        } => match apply_kmz(sh, &q_cmd_um, &x_meas_um) {
+            Some((kmz_um, id)) => {
+                let stored = store.save_kmz(id, &kmz_um).await.is_ok();
+                if !stored {
+                    warn!("KMZ change not stored");
                 }
+                Reply::SetKmz { kmz_um, stored }
             }
-            if !ok {
-                mgmt::RESULT_BAD_REQUEST
-            } else {
-                match apply_kmz(sh, &q, &x) {
-                    Some((k, id)) => {
-                        let persisted = store.save_kmz(id, &k).await.is_ok();
-                        if !persisted {
-                            warn!("KMZ change not stored");
-                        }
-                        let _ = w.u8(mgmt::RESULT_OK);
-                        for v in k {
-                            let _ = w.f64(v);
-                        }
-                        let _ = w.u8(u8::from(persisted));
-                        return w.len();
-                    }
-                    None => mgmt::RESULT_NO_MODEL,
-                }
-            }
-        }
-        kind::BYPASS => match r.u8() {
-            Ok(on) => {
-                sh.core.lock(|c| c.borrow_mut().proxy.bypass = on != 0);
-                mgmt::RESULT_OK
-            }
-            Err(_) => mgmt::RESULT_BAD_REQUEST,
+            None => Reply::refused(Refusal::NoModel),
         },
-        kind::CONFIG_GET => {
-            let s = sh.settings.lock(|s| *s.borrow());
-            let _ = w.u8(mgmt::RESULT_OK);
-            let _ = w.bytes(&s.encode());
-            return w.len();
+        Request::Bypass { on } => {
+            sh.core.lock(|c| c.borrow_mut().proxy.bypass = on);
+            Reply::Bypass
         }
-        kind::CONFIG_SET => match Settings::decode(payload) {
-            Ok(s) => match store.save_settings(&s.encode()).await {
-                Ok(()) => {
-                    apply_settings(sh, s);
-                    mgmt::RESULT_OK
-                }
-                Err(_) => mgmt::RESULT_STORAGE,
-            },
-            Err(_) => mgmt::RESULT_SETTINGS,
+        Request::ConfigGet => Reply::ConfigGet(sh.settings.lock(|s| *s.borrow())),
+        Request::ConfigSet(s) => match store.save_settings(&s.encode()).await {
+            Ok(()) => {
+                apply_settings(sh, s);
+                Reply::ConfigSet
+            }
+            Err(_) => Reply::refused(Refusal::Storage),
         },
-        kind::RESET => mgmt::RESULT_OK,
+        Request::Reset => Reply::Reset,
         #[cfg(feature = "qemu")]
-        kind::DEBUG_HANG => loop {
+        Request::DebugHang => loop {
             // a hung firmware, for the watchdog test: only the watchdog gets out of here
             core::hint::spin_loop();
         },
-        _ => mgmt::RESULT_UNKNOWN_KIND,
-    };
-    let _ = w.u8(code);
-    w.len()
+        #[cfg(not(feature = "qemu"))]
+        Request::DebugHang => Reply::refused(Refusal::UnknownKind),
+    }
+}
+
+/// What HELLO tells.
+fn hello(sh: &Shared) -> Hello {
+    let mut firmware = nanocal_interface::heapless::String::new();
+    // the package version is a few bytes, far below HELLO's 255
+    let _ = firmware.push_str(VERSION);
+    Hello {
+        protocol: mgmt::PROTOCOL,
+        blob_format: blob::FORMAT_VERSION,
+        max_chunk: mgmt::MAX_CHUNK as u16,
+        firmware,
+        uid: sh.identity.uid,
+        reset_cause: sh.identity.reset_cause,
+    }
 }
 
 /// Re-measure λ_KMZ of the model in service at a reference pose (command `q` sent, `x`
@@ -359,46 +336,40 @@ fn apply_settings(sh: &Shared, s: Settings) {
     sh.settings_changed.signal(());
 }
 
-fn reject(sh: &Shared, code: u8) -> u8 {
+/// Count a rejected upload; the refusal.
+fn reject(sh: &Shared, code: Refusal) -> Reply {
     sh.model.lock(|m| {
         let mut m = m.borrow_mut();
         m.uploads_rejected = m.uploads_rejected.wrapping_add(1);
-        m.last_upload_error = code;
+        m.last_upload_error = Some(code);
     });
-    warn!("upload rejected: code {=u8}", code);
-    code
+    warn!("upload rejected: code {=u8}", code.code());
+    Reply::refused(code)
 }
 
 fn status(sh: &Shared, upload: &Upload) -> Status {
     let now = now_ms();
     let mut s = Status {
         uptime_ms: now,
-        slot: 0xFF,
         uid: sh.identity.uid,
-        reset_cause: sh.identity.reset_cause.code(),
-        led: led_state(sh).code(),
+        reset_cause: sh.identity.reset_cause,
+        led: led_state(sh),
         flash_ecc_errors: sh.flash_ecc_errors.load(Ordering::Relaxed),
         ..Default::default()
     };
     sh.model.lock(|m| {
         let m = m.borrow();
         if let Some(model) = &m.model {
-            s.flags |= flags::MODEL;
+            s.flags |= Flags::MODEL;
             s.model_id = model.id();
             for a in 0..model.axes().min(3) {
                 s.kmz_um[a] = model.kmz_offset_um(a);
             }
             if !m.inputs_ready {
-                s.flags |= flags::WARMING_UP;
+                s.flags |= Flags::WARMING_UP;
             }
         }
-        for (i, ch) in m
-            .faults
-            .channels
-            .iter()
-            .enumerate()
-            .take(mgmt::STATUS_SENSORS)
-        {
+        for (i, ch) in m.faults.channels.iter().enumerate().take(STATUS_SENSORS) {
             // the fold's input (the average of the fold period), for a usable channel
             s.temps_c[i] = match ch.value_c() {
                 Some(_) => m.slow.temps_c[i] as f32,
@@ -406,13 +377,7 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
             };
             s.sensor_bits[i] = ch.status_bits();
         }
-        for (i, ch) in m
-            .aux_faults
-            .channels
-            .iter()
-            .enumerate()
-            .take(mgmt::STATUS_AUX)
-        {
+        for (i, ch) in m.aux_faults.channels.iter().enumerate().take(STATUS_AUX) {
             s.aux[i] = match ch.value_c() {
                 Some(_) => m.slow.aux[i] as f32,
                 None => f32::NAN,
@@ -421,7 +386,7 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
         }
         s.slow_outside = m.slow_outside;
         if m.slow_outside != 0 {
-            s.flags |= flags::EXTRAPOLATING;
+            s.flags |= Flags::EXTRAPOLATING;
         }
         s.folds = m.folds;
         s.uploads_ok = m.uploads_ok;
@@ -439,22 +404,22 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
     let limit = super::supervisor::stale_limit_ms(sh);
     sh.core.lock(|c| {
         let c = c.borrow();
-        s.flags |= flags::MOVE_FOLD;
+        s.flags |= Flags::MOVE_FOLD;
         s.move_fold = c.move_fold;
         if c.proxy.bypass {
-            s.flags |= flags::BYPASS;
+            s.flags |= Flags::BYPASS;
         }
         if c.proxy.gate == Gate::SensorFault {
-            s.flags |= flags::SENSOR_BLOCK;
+            s.flags |= Flags::SENSOR_BLOCK;
         }
         if c.comp.is_some() {
             s.fold_age_ms = now.wrapping_sub(c.folded_at_ms);
             if s.fold_age_ms > limit {
-                s.flags |= flags::FOLD_STALE;
+                s.flags |= Flags::FOLD_STALE;
             }
         }
         if c.proxy.unit_mismatch() {
-            s.flags |= flags::UNIT_MISMATCH;
+            s.flags |= Flags::UNIT_MISMATCH;
         }
         let k = c.proxy.counters;
         s.host_lines = k.host_lines;
@@ -464,10 +429,10 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
         s.pending_error = c.proxy.pending_error();
     });
     if sh.host_connected.load(Ordering::Relaxed) {
-        s.flags |= flags::HOST_CONNECTED;
+        s.flags |= Flags::HOST_CONNECTED;
     }
     if upload.is_active() {
-        s.flags |= flags::UPLOADING;
+        s.flags |= Flags::UPLOADING;
     }
     s
 }

@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! host link ─▶ line assembler ─▶ Proxy (GCS parse, Fold::correct, format) ─▶ to_stage ─▶ stage link
-//! host link ◀─ to_host ◀─ Proxy (Fold::inverse for POS?/MOV?) ◀─ line assembler ◀─ stage link
+//! host link ◀─ to_host ◀─ Proxy (Fold::inverse_from for POS?/MOV?) ◀─ line assembler ◀─ stage link
 //! sensors ─▶ drivers ─▶ fault policy ─▶ lag filters ─▶ Model::fold ─▶ Core.comp, Core.proxy.gate
 //! management ─▶ upload / store / KMZ / bypass / settings / status
 //! supervisor ─▶ fold freshness, status LED, watchdog
@@ -30,10 +30,11 @@ use embassy_sync::pipe::Pipe;
 use embassy_sync::signal::Signal;
 use nanocal_compensator::fault::{Faults, Policy, MAX_CHANNELS};
 use nanocal_compensator::gcs::AxisMap;
-use nanocal_compensator::identity::ResetCause;
 use nanocal_compensator::inputs::{self, FastSamples};
 use nanocal_compensator::proxy::{FoldCorrector, Gate, Proxy};
-use nanocal_compensator::settings::Settings;
+use nanocal_interface::identity::ResetCause;
+use nanocal_interface::mgmt::Refusal;
+use nanocal_interface::settings::Settings;
 use nanocal_model::{Model, SlowInputs, MAX_AUX};
 
 /// Reads at least one byte into `buf`. An error or end of input (host unplugged, a UART
@@ -127,7 +128,7 @@ pub struct ModelState {
     /// Uploads rejected.
     pub uploads_rejected: u32,
     /// Result code of the last rejected upload.
-    pub last_upload_error: u8,
+    pub last_upload_error: Option<Refusal>,
     /// Sensor chips found without their configuration and reconfigured.
     pub sensor_reconfigs: u32,
     /// Every input the model uses has a valid reading (lag filters primed).
@@ -209,7 +210,7 @@ impl Shared {
                 folds: 0,
                 uploads_ok: 0,
                 uploads_rejected: 0,
-                last_upload_error: 0,
+                last_upload_error: None,
                 sensor_reconfigs: 0,
                 inputs_ready: false,
                 pending: false,

@@ -26,8 +26,8 @@ use nanocal_compensator::inputs;
 use nanocal_compensator::lps22hb;
 use nanocal_compensator::proxy::Gate;
 use nanocal_compensator::sensor::{Driver, Outcome, SensorFault, MAX_TXN};
-use nanocal_compensator::settings::{AuxSource, Settings};
 use nanocal_compensator::slow_average::SlowAverage;
+use nanocal_interface::settings::{AuxSource, Settings};
 use nanocal_model::{LagBank, MAX_AUX};
 
 /// Sampling period of the fast inputs, ms.

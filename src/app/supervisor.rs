@@ -5,8 +5,8 @@
 use super::{now_ms, Shared};
 use core::sync::atomic::Ordering;
 use embassy_time::Timer;
-use nanocal_compensator::led::LedState;
 use nanocal_compensator::proxy::Gate;
+use nanocal_interface::led::LedState;
 
 /// What the supervisor drives on a board.
 pub trait Board {

@@ -130,7 +130,7 @@ fn start(spawner: Spawner) {
 
 /// The rest of the start-up needs the store (async): settings, then every task.
 #[embassy_executor::task]
-async fn boot_task(spawner: Spawner, cause: nanocal_compensator::identity::ResetCause) {
+async fn boot_task(spawner: Spawner, cause: nanocal_interface::identity::ResetCause) {
     // SAFETY: called once, here.
     let flash = unsafe { board::flash(cause) };
     let store = STORE.init(Store::new(L4Nor::new(TimedFlash(flash))));

@@ -27,10 +27,10 @@ use embassy_time::{Duration, Timer};
 use embassy_usb::class::cdc_acm::{BufferedReceiver, CdcAcmClass, ControlChanged, Sender, State};
 use embassy_usb::UsbDevice;
 use nanocal_compensator::clock;
-use nanocal_compensator::identity::{self, ResetCause};
 use nanocal_compensator::l4flash::{FlashError, L4Nor, RawFlash, DWORD, PAGE};
 use nanocal_compensator::store::Store;
 use nanocal_fw::app::{self, Identity, InputBus, Shared};
+use nanocal_interface::identity::{self, ResetCause};
 use static_cell::StaticCell;
 
 bind_interrupts!(struct Irqs {

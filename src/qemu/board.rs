@@ -10,8 +10,8 @@
 use core::mem::MaybeUninit;
 use core::ptr::{addr_of_mut, read_volatile, write_volatile};
 use core::sync::atomic::{AtomicU32, Ordering};
-use nanocal_compensator::identity::ResetCause;
 use nanocal_compensator::l4flash::{FlashError, L4Sim, RawFlash, DWORD, ERASE_PAGE_US};
+use nanocal_interface::identity::ResetCause;
 
 const WDOG: usize = 0x4000_8000;
 /// CMSDK APB timer 0 (ARM DDI 0479 §4.3: CTRL 00h, VALUE 04h, RELOAD 08h), used only to wake

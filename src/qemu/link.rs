@@ -1,9 +1,9 @@
 //! The board's side of its link to the virtual bench: the page shared with the host
-//! (`nanocal_compensator::bench_link` has the layout and the why) and the doorbell on serial4.
+//! (`nanocal_interface::bench_link` has the layout and the why) and the doorbell on serial4.
 
 use core::ptr::{read_volatile, write_volatile};
 use core::sync::atomic::{fence, Ordering};
-use nanocal_compensator::bench_link as bl;
+use nanocal_interface::bench_link as bl;
 
 fn at<T>(off: usize) -> *mut T {
     (bl::GUEST_ADDR + off) as *mut T

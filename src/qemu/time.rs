@@ -6,7 +6,7 @@
 //! comes from the bench, which holds the horizon while it sends it), or to the horizon itself, and
 //! then waits (WFI) for the bench to move it. So a day of the firmware's timers — sensor samples,
 //! fold ages, lag filters, timeouts — runs in as much wall time as its work takes, and time never
-//! passes while the bench computes. See `nanocal_compensator::bench_link` for the page and the
+//! passes while the bench computes. See `nanocal_interface::bench_link` for the page and the
 //! doorbells; without the page (QEMU started by hand) SysTick sets the horizon at 1×.
 //!
 //! The watchdog keeps its meaning on the bench's time: [`set_watchdog_deadline`] is a deadline in
@@ -21,7 +21,7 @@ use cortex_m::peripheral::SYST;
 use critical_section::Mutex;
 use embassy_time_driver::Driver;
 use embassy_time_queue_utils::Queue;
-use nanocal_compensator::bench_link as bl;
+use nanocal_interface::bench_link as bl;
 
 struct BenchClock {
     /// Uptime, ticks.

@@ -27,10 +27,11 @@ pub struct Corrected {
 /// The contract the proxy relies on (keep it when the model grows):
 /// - [`correct`](Corrector::correct) is a pure function of its arguments and the corrector's
 ///   state: it evaluates the command for a target from the hysteresis state as it stands,
-///   without advancing it. The proxy calls it for every target it may forward *and* for trial
-///   points: the inverse of a position reply iterates on it (see `proxy::inverse`) and
-///   differentiates it by finite differences, with the state *frozen* where the last command
-///   left it (a query does not move the stage).
+///   without advancing it. The proxy calls it for every target it may forward.
+/// - [`inverse`](Corrector::inverse) maps a reported position back, with the state *frozen*
+///   where the last command left it (a query does not move the stage), and gives δ at the
+///   answer: the proxy forms the calibrated position as `q − δ` in integer micros, which keeps
+///   the resolution an f32 position lacks on a long stroke.
 /// - [`sent`](Corrector::sent) advances the hysteresis state for targets whose command went
 ///   out. The proxy calls it in exactly one place: where it records the targets it sent, at the
 ///   end of `ProxyState::rewrite_move` in `proxy/moves.rs`.
@@ -49,6 +50,17 @@ pub trait Corrector {
         dir: &[i8; MAP_AXES],
         state: &HysteresisState,
     ) -> Corrected;
+    /// The calibrated targets whose commands are `q_um` (model axes `0..axes()`), approached
+    /// in direction `dir`, the play operators frozen in `state`, starting at `start_um` (the
+    /// last targets) when known, else at `q_um`; and δ there. `None` when the model cannot be
+    /// inverted there (it folds back or is flat, or a value is not finite).
+    fn inverse(
+        &self,
+        q_um: &[f32; MAP_AXES],
+        dir: &[i8; MAP_AXES],
+        state: &HysteresisState,
+        start_um: Option<&[f32; MAP_AXES]>,
+    ) -> Option<([f32; MAP_AXES], [f32; MAP_AXES])>;
     /// The command for targets `x_um` went out: advance `state` (the play operators follow).
     fn sent(&self, x_um: &[f32; MAP_AXES], state: &mut HysteresisState);
     /// Stage travel of a model axis in command space (min, max), µm.
@@ -107,6 +119,22 @@ impl Corrector for FoldCorrector {
             fast_outside: c.fast_outside_envelope & !missing != 0,
             fast_missing: missing != 0,
         }
+    }
+    /// The model's own inverse, [`Fold::inverse_from`] (the one the host's validation uses
+    /// too), then δ evaluated once at the answer.
+    fn inverse(
+        &self,
+        q_um: &[f32; MAP_AXES],
+        dir: &[i8; MAP_AXES],
+        state: &HysteresisState,
+        start_um: Option<&[f32; MAP_AXES]>,
+    ) -> Option<([f32; MAP_AXES], [f32; MAP_AXES])> {
+        let x = self
+            .fold
+            .inverse_from(q_um, dir, &self.fast, state, start_um.unwrap_or(q_um))
+            .ok()?;
+        let c = self.fold.evaluate(&x, dir, &self.fast, state);
+        Some((x, c.delta_um))
     }
     fn sent(&self, x_um: &[f32; MAP_AXES], state: &mut HysteresisState) {
         self.fold.step(x_um, state);

@@ -15,7 +15,8 @@
 //!
 //! Controller → host: replies to `POS?`, `#3` and `MOV?` are mapped back to calibrated
 //! coordinates (a `MOV?` value equal to the command sent maps back to its target exactly; other
-//! values through a chord iteration warm-started at the target, see `inverse`); every other
+//! values through the model's own inverse, `Fold::inverse_from`, started at the target, see
+//! [`Corrector::inverse`]); every other
 //! reply is relayed byte for byte, whatever its length. Several queries may be in flight: each
 //! reply is matched to its query in order (`queue`).
 //!
@@ -27,15 +28,14 @@
 //! The controller: before correcting the first move the proxy reads the controller's GCS syntax
 //! version (`CSV?`, unless the host asked already) and the position unit of the model axes
 //! (`PUN?`). The model is in µm: another unit, or no answer, refuses moves (code
-//! [`codes::UNIT_MISMATCH`]); a GCS 3.0 controller (version > 2, PIPython's own test) is not
-//! supported: moves are refused ([`codes::GCS3`]) and replies relayed untouched.
+//! [`GcsErrorCode::UnitMismatch`]); a GCS 3.0 controller (version > 2, PIPython's own test) is not
+//! supported: moves are refused ([`GcsErrorCode::Gcs3`]) and replies relayed untouched.
 //!
 //! Time enters only as an argument (`now_ms`), for the one timeout the proxy has: queries the
 //! controller does not answer within [`REPLY_TIMEOUT_MS`] (an unknown command only sets the
 //! controller's error) are dropped from the queue so later replies keep their attribution.
 
 mod corrector;
-mod inverse;
 mod moves;
 mod queue;
 mod replies;
@@ -46,7 +46,7 @@ pub use queue::MAX_IN_FLIGHT;
 use crate::command::{self, Action, Affects, Refusal};
 use crate::gcs::{self, AxisId, AxisMap, LineBuf, Split, MAP_AXES, MAX_LINE};
 use core::fmt;
-use inverse::Jacobian;
+pub use nanocal_interface::GcsErrorCode;
 use nanocal_model::HysteresisState;
 use queue::{Expect, Info, Queue};
 use replies::ReplyRx;
@@ -62,38 +62,6 @@ pub const HOST_OUT: usize = 1280;
 /// controller) is taken as unanswered. PI controllers answer within milliseconds; PIPython
 /// waits seconds before it gives up on a reply.
 pub const REPLY_TIMEOUT_MS: u32 = 2_000;
-
-/// GCS error codes the compensator raises itself (answered on the host's next `ERR?`).
-pub mod codes {
-    /// PI: illegal parameter / syntax (unparsable number, missing value).
-    pub const PARAM_SYNTAX: i32 = 1;
-    /// PI: position out of limits — the corrected command is outside the stage travel.
-    pub const POS_OUT_OF_LIMITS: i32 = 7;
-    /// PI: invalid axis identifier (duplicate axis).
-    pub const INVALID_AXIS: i32 = 15;
-    /// Compensator: the target lies outside the model's training envelope.
-    pub const OUTSIDE_ENVELOPE: i32 = 9001;
-    /// Compensator: a temperature sensor the model needs has failed; moves are refused.
-    pub const SENSOR_FAULT: i32 = 9002;
-    /// Compensator: no valid model is loaded (and compensation is not bypassed).
-    pub const NO_MODEL: i32 = 9003;
-    /// Compensator: a target the move needs is unknown and the controller did not tell it
-    /// (`MOV?` unanswered).
-    pub const TARGET_UNKNOWN: i32 = 9004;
-    /// Compensator: the line is longer than its buffer (and would have to be rewritten).
-    pub const LINE_TOO_LONG: i32 = 9005;
-    /// Compensator: more queries in flight than the proxy can match to their replies.
-    pub const TOO_MANY_QUERIES: i32 = 9006;
-    /// Compensator: the controller's position unit (`PUN?`) of a model axis is not µm, or the
-    /// controller did not tell it; moves are refused.
-    pub const UNIT_MISMATCH: i32 = 9007;
-    /// Compensator: the command would move an axis to a target the model never saw, or change
-    /// what the controller's positions mean; refused while compensating (see `src/README.md`).
-    pub const REFUSED_WHILE_COMPENSATING: i32 = 9008;
-    /// Compensator: the controller speaks GCS 3.0 (`CSV?` > 2), which the proxy does not
-    /// rewrite; moves are refused.
-    pub const GCS3: i32 = 9009;
-}
 
 /// Bytes the proxy produced, for each link. Cleared by every call that fills it.
 #[derive(Default)]
@@ -274,13 +242,12 @@ pub struct ProxyState {
     /// the proxy's targets only if that line's move goes out.
     reseed: Targets,
     dir: [i8; MAP_AXES],
-    /// Last error the compensator raised, for the next `ERR?` (0 = none).
-    pending_error: i32,
+    /// Last error the compensator raised, for the next `ERR?`.
+    pending_error: Option<GcsErrorCode>,
     ctrl: ControllerInfo,
     queue: Queue,
     rx: ReplyRx,
     held: Option<Held>,
-    jacobian: Option<Jacobian>,
     /// The model's play operators as the commands sent left them (hysteresis memory): advanced
     /// only when a corrected target goes out, reset whenever the stage may have moved along a
     /// path the proxy did not see (see [`ProxyState::reset_hysteresis`]).
@@ -327,12 +294,11 @@ impl Proxy {
                 targets: Targets::default(),
                 reseed: Targets::default(),
                 dir: [0; MAP_AXES],
-                pending_error: 0,
+                pending_error: None,
                 ctrl: ControllerInfo::new(),
                 queue: Queue::new(),
                 rx: ReplyRx::new(),
                 held: None,
-                jacobian: None,
                 hyst: HysteresisState::new(),
                 now_ms: 0,
                 last_rx_ms: 0,
@@ -488,9 +454,9 @@ impl Proxy {
             }
         } else {
             st.refuse(if passes {
-                codes::TOO_MANY_QUERIES
+                GcsErrorCode::TooManyQueries
             } else {
-                codes::LINE_TOO_LONG
+                GcsErrorCode::LineTooLong
             });
             if !complete {
                 self.long = LongLine::Discard;
@@ -571,8 +537,8 @@ impl ProxyState {
         &self.hyst
     }
 
-    /// The error waiting for the host's next `ERR?` (0 = none).
-    pub fn pending_error(&self) -> i32 {
+    /// The error waiting for the host's next `ERR?`.
+    pub fn pending_error(&self) -> Option<GcsErrorCode> {
         self.pending_error
     }
 
@@ -621,15 +587,15 @@ impl ProxyState {
         }
     }
 
-    fn refuse(&mut self, code: i32) {
-        self.pending_error = code;
+    fn refuse(&mut self, code: GcsErrorCode) {
+        self.pending_error = Some(code);
         self.counters.refused = self.counters.refused.wrapping_add(1);
     }
 
     /// Forward a line (LF appended).
     fn forward(&mut self, line: &[u8], out: &mut Output) {
         if out.to_stage.extend(line).is_err() || out.to_stage.push(b'\n').is_err() {
-            self.refuse(codes::LINE_TOO_LONG);
+            self.refuse(GcsErrorCode::LineTooLong);
         }
     }
 
@@ -648,7 +614,7 @@ impl ProxyState {
             return;
         }
         let action = command::action_of_key(s.key);
-        if action == Action::ErrorQuery && self.pending_error != 0 {
+        if action == Action::ErrorQuery && self.pending_error.is_some() {
             self.answer_error(s.prefix, out);
             return;
         }
@@ -660,7 +626,7 @@ impl ProxyState {
             if self.expect_reply(s.command) {
                 self.forward(line, out);
             } else {
-                self.refuse(codes::TOO_MANY_QUERIES);
+                self.refuse(GcsErrorCode::TooManyQueries);
             }
             return;
         }
@@ -687,9 +653,9 @@ impl ProxyState {
                 if refusal == Refusal::ModelAxes && !self.names_model_axis(&s, c) {
                     self.forward(line, out);
                 } else if c.is_none() {
-                    self.refuse(codes::NO_MODEL);
+                    self.refuse(GcsErrorCode::NoModel);
                 } else {
-                    self.refuse(codes::REFUSED_WHILE_COMPENSATING);
+                    self.refuse(GcsErrorCode::RefusedWhileCompensating);
                 }
             }
             Action::SetUnit => {
@@ -759,7 +725,7 @@ impl ProxyState {
     /// Forward a command; for a query, expect its reply as `e`.
     fn query(&mut self, e: Expect, command: &[u8], line: &[u8], out: &mut Output) {
         if command::is_query(command) && !self.expect(e) {
-            self.refuse(codes::TOO_MANY_QUERIES);
+            self.refuse(GcsErrorCode::TooManyQueries);
             return;
         }
         self.forward(line, out);
@@ -767,8 +733,10 @@ impl ProxyState {
 
     /// The proxy's own answer to `ERR?`, after every reply still due.
     fn answer_error(&mut self, prefix: &[u8], out: &mut Output) {
-        let a = queue::Answer::new(prefix, self.pending_error);
-        self.pending_error = 0;
+        let Some(code) = self.pending_error.take() else {
+            return;
+        };
+        let a = queue::Answer::new(prefix, code);
         // in turn after the replies still due; at once when none is (or none fits the queue)
         let now = self.queue.is_empty() && !self.rx.active();
         if now || !self.queue.push(Expect::Answer(a)) {
@@ -843,7 +811,6 @@ impl ProxyState {
             Some(a) if a < MAP_AXES => self.targets.known &= !(1 << a),
             _ => self.targets.known = 0,
         }
-        self.jacobian = None;
         self.hyst.reset();
     }
 
@@ -856,13 +823,13 @@ impl ProxyState {
         out: &mut Output,
     ) {
         let Some(c) = c else {
-            self.refuse(codes::NO_MODEL);
+            self.refuse(GcsErrorCode::NoModel);
             return;
         };
         let n = c.axes().min(MAP_AXES);
         let mut held = Held::new();
         if held.extend(line).is_err() {
-            self.refuse(codes::LINE_TOO_LONG);
+            self.refuse(GcsErrorCode::LineTooLong);
             return;
         }
         out.to_stage.clear();
@@ -886,7 +853,7 @@ impl ProxyState {
         if ok {
             self.held = Some(held);
         } else {
-            self.refuse(codes::TOO_MANY_QUERIES);
+            self.refuse(GcsErrorCode::TooManyQueries);
         }
     }
 

@@ -4,7 +4,7 @@
 //! targets are integers (micros) in plain arrays with a bit mask of the known ones, arguments
 //! are read in one pass, and the forwarded line is printed straight into the output buffer.
 
-use super::{codes, Corrector, Gate, Output, ProxyState, Targets, Units, Version};
+use super::{Corrector, Gate, GcsErrorCode, Output, ProxyState, Targets, Units, Version};
 use crate::command::MoveKind;
 use crate::gcs::{self, GcsError, Split, MAP_AXES};
 
@@ -21,8 +21,8 @@ pub(crate) struct Needs {
 
 /// Why a move was not forwarded now.
 pub(crate) enum Stop {
-    /// Refused with this GCS error code.
-    Refuse(i32),
+    /// Refused with this GCS error.
+    Refuse(GcsErrorCode),
     /// Waits for the controller's answer to the proxy's own queries.
     Hold(Needs),
 }
@@ -38,12 +38,12 @@ impl ProxyState {
         out: &mut Output,
         fresh: bool,
     ) -> Result<(), Stop> {
-        let c = c.ok_or(Stop::Refuse(codes::NO_MODEL))?;
+        let c = c.ok_or(Stop::Refuse(GcsErrorCode::NoModel))?;
         if self.ctrl.version == Version::Gcs3 {
-            return Err(Stop::Refuse(codes::GCS3));
+            return Err(Stop::Refuse(GcsErrorCode::Gcs3));
         }
         if self.gate != Gate::Open {
-            return Err(Stop::Refuse(codes::SENSOR_FAULT));
+            return Err(Stop::Refuse(GcsErrorCode::SensorFault));
         }
         let n = c.axes().min(MAP_AXES);
         let all = (1u8 << n) - 1;
@@ -65,18 +65,17 @@ impl ProxyState {
             let v = if kind == MoveKind::Home {
                 0
             } else {
-                let text = toks.next().ok_or(Stop::Refuse(codes::PARAM_SYNTAX))?;
+                let text = toks.next().ok_or(Stop::Refuse(GcsErrorCode::ParamSyntax))?;
                 match gcs::parse_micros_short(text) {
                     Some(v) => v,
-                    None => {
-                        gcs::parse_micros(text).map_err(|_| Stop::Refuse(codes::PARAM_SYNTAX))?
-                    }
+                    None => gcs::parse_micros(text)
+                        .map_err(|_| Stop::Refuse(GcsErrorCode::ParamSyntax))?,
                 }
             };
             match self.map.index(id).filter(|&a| a < n) {
                 Some(a) => {
                     if named >> a & 1 != 0 {
-                        return Err(Stop::Refuse(codes::INVALID_AXIS));
+                        return Err(Stop::Refuse(GcsErrorCode::InvalidAxis));
                     }
                     named |= 1 << a;
                     if kind != MoveKind::Relative {
@@ -92,7 +91,7 @@ impl ProxyState {
         }
         let home_all = kind == MoveKind::Home && !any;
         if !any && !home_all {
-            return Err(Stop::Refuse(codes::PARAM_SYNTAX));
+            return Err(Stop::Refuse(GcsErrorCode::ParamSyntax));
         }
         if home_all {
             named = all;
@@ -109,7 +108,9 @@ impl ProxyState {
 
         let units_ok = match self.ctrl.units {
             Units::Micrometre(k) => k == n,
-            Units::Mismatch | Units::Unanswered => return Err(Stop::Refuse(codes::UNIT_MISMATCH)),
+            Units::Mismatch | Units::Unanswered => {
+                return Err(Stop::Refuse(GcsErrorCode::UnitMismatch))
+            }
             Units::Unknown => false,
         };
         let needs = Needs {
@@ -121,9 +122,9 @@ impl ProxyState {
             return Err(if fresh {
                 Stop::Hold(needs)
             } else if needs.units {
-                Stop::Refuse(codes::UNIT_MISMATCH)
+                Stop::Refuse(GcsErrorCode::UnitMismatch)
             } else {
-                Stop::Refuse(codes::TARGET_UNKNOWN)
+                Stop::Refuse(GcsErrorCode::TargetUnknown)
             });
         }
 
@@ -143,10 +144,10 @@ impl ProxyState {
         }
         let r = c.correct(&xf, &dir, &self.hyst);
         if r.fast_missing {
-            return Err(Stop::Refuse(codes::SENSOR_FAULT));
+            return Err(Stop::Refuse(GcsErrorCode::SensorFault));
         }
         if r.outside_envelope & all != 0 || r.fast_outside {
-            return Err(Stop::Refuse(codes::OUTSIDE_ENVELOPE));
+            return Err(Stop::Refuse(GcsErrorCode::OutsideEnvelope));
         }
         // the command is the exact target plus δ, in micros; inside the stage travel
         let mut q = x;
@@ -154,11 +155,11 @@ impl ProxyState {
             let (lo, hi) = c.travel_um(a);
             let qa = r.q_um[a];
             if !(qa >= lo && qa <= hi) {
-                return Err(Stop::Refuse(codes::POS_OUT_OF_LIMITS));
+                return Err(Stop::Refuse(GcsErrorCode::PosOutOfLimits));
             }
             // |x| ≤ 10¹⁸ (parse_micros), |d| < 2⁶² (f32_to_micros): no overflow
-            let d =
-                gcs::f32_to_micros(r.delta_um[a]).ok_or(Stop::Refuse(codes::POS_OUT_OF_LIMITS))?;
+            let d = gcs::f32_to_micros(r.delta_um[a])
+                .ok_or(Stop::Refuse(GcsErrorCode::PosOutOfLimits))?;
             q[a] = x[a] + d;
         }
 
@@ -168,7 +169,7 @@ impl ProxyState {
         } else if written.is_ok() {
             written = out.to_stage.push(b'\n');
         }
-        written.map_err(|_| Stop::Refuse(codes::LINE_TOO_LONG))?;
+        written.map_err(|_| Stop::Refuse(GcsErrorCode::LineTooLong))?;
         // the one place a corrected target goes out: its targets and commands are recorded
         // (every model axis; the slots of other axes are never read), and the hysteresis
         // memory follows it

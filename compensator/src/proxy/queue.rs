@@ -7,6 +7,7 @@
 //! reads every answer in the order it asked.
 
 use crate::gcs::LineBuf;
+use nanocal_interface::GcsErrorCode;
 
 /// Queries the proxy keeps track of at once.
 pub const MAX_IN_FLIGHT: usize = 16;
@@ -34,13 +35,13 @@ pub(crate) struct Answer {
     /// The reply prefix (sender and target swapped), `len` bytes of it.
     prefix: [u8; 11],
     len: u8,
-    code: i32,
+    code: GcsErrorCode,
 }
 
 impl Answer {
     /// The answer to an `ERR?` sent with address prefix `prefix` (see
     /// [`crate::gcs::reply_prefix`]; a prefix longer than any address pair is dropped).
-    pub(crate) fn new(prefix: &[u8], code: i32) -> Self {
+    pub(crate) fn new(prefix: &[u8], code: GcsErrorCode) -> Self {
         let mut p = LineBuf::<16>::new();
         crate::gcs::reply_prefix(prefix, &mut p);
         let mut a = Self {
@@ -58,7 +59,7 @@ impl Answer {
     pub(crate) fn write(&self, out: &mut LineBuf<{ super::HOST_OUT }>) -> bool {
         out.room() >= 24
             && out.extend(&self.prefix[..usize::from(self.len)]).is_ok()
-            && out.push_int(i64::from(self.code)).is_ok()
+            && out.push_int(i64::from(self.code.code())).is_ok()
             && out.push(b'\n').is_ok()
     }
 }

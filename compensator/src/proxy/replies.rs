@@ -8,7 +8,6 @@
 //! and a line too long to be a position passes unmapped. The proxy's own queries are read and
 //! not relayed.
 
-use super::inverse::invert;
 use super::queue::{Expect, Info};
 use super::{Corrector, Output, ProxyState, Targets, Units, Version, MAX_CONTROLLER_AXES};
 use crate::gcs::{self, AxisId, LineBuf, MAP_AXES};
@@ -356,7 +355,7 @@ impl ProxyState {
             }
             x0
         });
-        let (_, delta) = invert(c, &q, &self.dir, &self.hyst, x0, &mut self.jacobian)?;
+        let (_, delta) = c.inverse(&q, &self.dir, &self.hyst, x0.as_ref())?;
         // x = q − δ(x) in micros: exact reply, f32 δ (an f32 position would round by up to
         // 0.24 nm at 5 mm)
         let mut x = [None; MAP_AXES];
@@ -481,8 +480,7 @@ impl ProxyState {
                 None => return,
             }
         }
-        let mut none = None;
-        let Some((_, delta)) = invert(c, &qf, &self.dir, &self.hyst, None, &mut none) else {
+        let Some((_, delta)) = c.inverse(&qf, &self.dir, &self.hyst, None) else {
             self.counters.inverse_failures = self.counters.inverse_failures.wrapping_add(1);
             return;
         };

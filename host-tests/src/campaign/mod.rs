@@ -21,7 +21,7 @@ use crate::device::Client;
 use crate::plan::{Plan, Step};
 use bench::{ReferenceReader, WallClock};
 use gcs::GcsLink;
-use nanocal_compensator::settings::{AuxSource, Settings};
+use nanocal_interface::settings::{AuxSource, Settings};
 use recorder::{Layout, Recorder};
 use reference::{ClockMap, ClockMode};
 use run::{CampaignError, Links, Progress, Reopen, Runner};
@@ -41,7 +41,7 @@ pub const PLAN: &str = "plan.json";
 pub const VIRTUAL_SAMPLE_PERIOD_MS: u16 = 1000;
 /// The compensator's fold period on the virtual bench unless told otherwise, ms: the device's
 /// default (paper 001 §VI: "each 5-10 seconds"), five readings averaged.
-pub const VIRTUAL_FOLD_PERIOD_MS: u16 = nanocal_compensator::settings::DEFAULT_FOLD_PERIOD_MS;
+pub const VIRTUAL_FOLD_PERIOD_MS: u16 = nanocal_interface::settings::DEFAULT_FOLD_PERIOD_MS;
 /// Plan time between the end of the set-up and the first step on a real bench, s.
 const REAL_LEAD_S: f64 = 5.0;
 

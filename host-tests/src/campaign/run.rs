@@ -23,7 +23,8 @@ use super::state::{Interruption, Stage, State, StateError};
 use crate::device::{Client, DeviceError};
 use crate::fit::{adaptive_from_static, encode_blob};
 use crate::plan::{Phase, Plan, Step, TestKind};
-use nanocal_compensator::mgmt::{flags, Status};
+use nanocal_interface::status::{ChannelStatus, Flags, Status};
+use nanocal_interface::GcsErrorCode;
 use nanocal_model::{Model, ModelBuilder, MAX_AXES};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -116,23 +117,19 @@ pub enum CampaignError {
     },
 }
 
-/// What a GCS error code of the compensator or the controller means.
+/// What a GCS error code answered to the campaign's `ERR?` means: the codes the compensator
+/// raises itself (9001–9009, and PI's 1, 7 and 15) from the one table both the firmware and the
+/// host use ([`GcsErrorCode`]), the other PI codes a campaign meets from PI's own list.
 pub fn gcs_meaning(code: i32) -> &'static str {
+    if let Some(e) = GcsErrorCode::from_code(code) {
+        return e.meaning();
+    }
     match code {
         0 => "no error",
-        1 => "parameter syntax error",
         2 => "unknown command",
         5 => "servo off or axis not referenced",
-        7 => "position out of limits: the corrected command is outside the stage's travel",
         10 => "stopped by command",
-        15 => "invalid axis",
-        9001 => "the target is outside the model's training envelope",
-        9002 => "a sensor the model needs has failed, or the fold is stale",
-        9003 => "no model in service (none loaded, or the sensors are warming up)",
-        9004 => "the target of a coupled axis is unknown",
-        9005 => "line too long",
-        9006 => "the model's unit does not match the controller's",
-        _ => "see the compensator's and the controller's manuals",
+        _ => "an error of the controller: see its manual's error codes",
     }
 }
 
@@ -330,7 +327,7 @@ impl std::io::Write for GonePort {
 
 /// `s` shows `want` loaded, with its λ_KMZ.
 fn serves(s: &Status, want: &Model) -> bool {
-    s.flags & flags::MODEL != 0
+    s.flags.contains(Flags::MODEL)
         && s.model_id == want.id()
         && (0..want.axes()).all(|a| (s.kmz_um[a] - want.kmz_offset_um(a)).abs() < 1e-9)
 }
@@ -723,15 +720,19 @@ impl<'a> Runner<'a> {
             .enumerate()
             .map(|(i, n)| (format!("aux input {n}"), s.aux_bits[i], s.aux[i]));
         for (what, bits, v) in temps.chain(aux) {
-            match bits & 0x0F {
-                2 => {
+            match bits.state {
+                ChannelStatus::Failed => {
                     return Err(CampaignError::SensorFault {
                         step: k,
                         t_s,
-                        what: format!("{what} failed ({})", fault_name(bits >> 4)),
+                        what: format!(
+                            "{what} failed ({})",
+                            bits.last_fault
+                                .map_or_else(|| "no valid reading".into(), |f| f.to_string())
+                        ),
                     })
                 }
-                4 => ready = false,
+                ChannelStatus::NotRead => ready = false,
                 _ if !v.is_finite() => ready = false,
                 _ => {}
             }
@@ -780,7 +781,7 @@ impl<'a> Runner<'a> {
     /// `s` shows the compensator in `mode`, ready for moves: bypass as the mode says, and the
     /// model it needs in service with the λ_KMZ last measured and every input read.
     fn set_up_for(&self, s: &Status, mode: Mode) -> bool {
-        if (s.flags & flags::BYPASS != 0) != mode.bypass {
+        if s.flags.contains(Flags::BYPASS) != mode.bypass {
             return false;
         }
         let Some(kind) = mode.model else {
@@ -789,11 +790,11 @@ impl<'a> Runner<'a> {
         let Ok(want) = self.wanted_model(kind) else {
             return false;
         };
-        s.flags & flags::WARMING_UP == 0 && serves(s, &want)
+        !s.flags.contains(Flags::WARMING_UP) && serves(s, &want)
     }
 
     /// The move of a step with one status read instead of two, when the compensator reports
-    /// which fold corrected its last move ([`flags::MOVE_FOLD`], firmware since 2026-11): send
+    /// which fold corrected its last move ([`Flags::MOVE_FOLD`], firmware since 2026-11): send
     /// the move and its `ERR?`, then read the status; it is the step's if the device is still
     /// set up for `mode` (no reset), every input has a reading, and the move met the fold the
     /// status shows (`move_fold == folds`; in bypass no fold touches the move). `None`: any of
@@ -809,7 +810,7 @@ impl<'a> Runner<'a> {
         let Some(prev) = self.status else {
             return Ok(None);
         };
-        if prev.flags & flags::MOVE_FOLD == 0 || !self.set_up_for(&prev, mode) {
+        if !prev.flags.contains(Flags::MOVE_FOLD) || !self.set_up_for(&prev, mode) {
             return Ok(None);
         }
         let resets = self.state.device_resets;
@@ -839,7 +840,7 @@ impl<'a> Runner<'a> {
             }
             // the first fold of a new model waits for every input's reading
             let until = self.t_now() + 2.0 * f64::from(self.state.sample_period_ms) / 1000.0 + 5.0;
-            while s.flags & flags::WARMING_UP != 0 {
+            while s.flags.contains(Flags::WARMING_UP) {
                 if self.t_now() > until {
                     return Err(CampaignError::NotReady {
                         step: k,
@@ -853,7 +854,7 @@ impl<'a> Runner<'a> {
                 s = self.read_status(k)?;
             }
         }
-        if (s.flags & flags::BYPASS != 0) != mode.bypass {
+        if s.flags.contains(Flags::BYPASS) != mode.bypass {
             let on = mode.bypass;
             self.device(move |c| c.bypass(on))?;
             s = self.read_status(k)?;
@@ -1087,7 +1088,7 @@ impl<'a> Runner<'a> {
             self.aux = s.aux[..self.state.layout.aux.len()].to_vec();
             if code != 0 {
                 let t_s = self.t_now();
-                if code == 9002 {
+                if code == GcsErrorCode::SensorFault.code() {
                     return Err(CampaignError::SensorFault {
                         step: k,
                         t_s,
@@ -1146,23 +1147,6 @@ impl<'a> Runner<'a> {
         self.save()?;
         Ok(())
     }
-}
-
-fn fault_name(code: u8) -> String {
-    use nanocal_compensator::sensor::SensorFault as F;
-    [
-        F::Open,
-        F::ShortOrOvervoltage,
-        F::ColdJunctionRange,
-        F::ThermocoupleRange,
-        F::Threshold,
-        F::NoResponse,
-        F::Implausible,
-        F::ConfigLost,
-    ]
-    .iter()
-    .find(|f| f.code() == code)
-    .map_or_else(|| "no valid reading".to_string(), |f| f.to_string())
 }
 
 /// Run `f` on `link` as one exchange of the bench (on the virtual bench: with the board's clock

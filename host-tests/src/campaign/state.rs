@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 pub const VERSION: u32 = 2;
 /// The fold period of a state that does not record one (the firmware's default).
 fn default_fold_period_ms() -> u16 {
-    nanocal_compensator::settings::DEFAULT_FOLD_PERIOD_MS
+    nanocal_interface::settings::DEFAULT_FOLD_PERIOD_MS
 }
 
 /// File name of the state in the campaign's folder.

@@ -6,7 +6,7 @@ use anyhow::{bail, Context};
 use clap::Subcommand;
 use nanocal_compensator::gcs::AxisId;
 use nanocal_compensator::sensor::{Chip, Mains, TcType, Wires};
-use nanocal_compensator::settings::{AuxSource, Settings, StageUnit};
+use nanocal_interface::settings::{AuxSource, Settings, StageUnit};
 use std::path::PathBuf;
 
 /// Device subcommands.
@@ -111,7 +111,7 @@ pub fn parse_sensor(arg: &str) -> anyhow::Result<(usize, Option<Chip>)> {
         .parse()
         .with_context(|| format!("--sensor {arg}: chip-select"))?;
     anyhow::ensure!(
-        cs < nanocal_compensator::settings::SENSORS,
+        cs < nanocal_interface::settings::SENSORS,
         "--sensor {arg}: chip-select 0..=7"
     );
     let p: Vec<&str> = spec.split(':').collect();

@@ -1,11 +1,12 @@
 //! The device client: talks to the inline compensator's management channel (a second USB
 //! CDC-ACM interface, e.g. `/dev/ttyACM1`, or a TCP socket for the QEMU board) and its GCS
-//! stream. The protocol itself (frames, status layout) lives in `nanocal_compensator::mgmt`, shared
-//! with the firmware.
+//! stream. The protocol itself (frames, typed requests and replies, status layout, result
+//! codes) is `nanocal_interface`'s, shared with the firmware.
 
-use nanocal_compensator::identity::ResetCause;
-use nanocal_compensator::mgmt::{self, kind, Decoder, Reader, Status};
-use nanocal_compensator::settings::Settings;
+pub use nanocal_interface::mgmt::Hello;
+use nanocal_interface::mgmt::{self, Decoder, InputCode, Kind, Refusal, Reply, Request};
+use nanocal_interface::settings::Settings;
+use nanocal_interface::status::{ChannelStatus, Flags, Status};
 use nanocal_model::{blob, MAX_AXES};
 use std::io::{self, Read, Write};
 use std::net::TcpStream;
@@ -24,30 +25,25 @@ pub enum DeviceError {
         source: io::Error,
     },
     /// The device did not answer in time.
-    #[error("no reply from the device within {0:?} (request kind {1:#04x})")]
-    Timeout(Duration, u8),
+    #[error("no reply from the device within {0:?} (request: {1})")]
+    Timeout(Duration, Kind),
     /// The device refused the request.
-    #[error("device refused request kind {kind:#04x}: code {code} ({meaning}){detail}")]
+    #[error("device refused request ({kind}): code {} ({refusal}){}", refusal.code(), input.map(|i| format!(": {i}")).unwrap_or_default())]
     Refused {
         /// Request kind.
-        kind: u8,
-        /// Result code.
-        code: u8,
-        /// What the code means.
-        meaning: &'static str,
-        /// What the reply adds, as text (empty, or ": …"): for an upload refused for an input,
-        /// which input and why.
-        detail: String,
+        kind: Kind,
+        /// Why.
+        refusal: Refusal,
+        /// For an upload refused for an input: which input and why.
+        input: Option<InputCode>,
     },
-    /// The reply was malformed.
-    #[error("malformed reply to request kind {0:#04x}: {1}")]
-    Protocol(u8, String),
+    /// The reply was malformed, or not the one the request asks for.
+    #[error("malformed reply to request ({0}): {1}")]
+    Protocol(Kind, String),
     /// The blob is not valid (checked on the host before sending).
     #[error("blob rejected before upload: {0}")]
     Blob(String),
 }
-
-pub use nanocal_compensator::mgmt::result_meaning;
 
 /// A byte stream to the device.
 pub trait Port: Read + Write + Send {}
@@ -93,27 +89,10 @@ pub struct Client {
     pub timeout: Duration,
 }
 
-/// What HELLO tells.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Hello {
-    /// Management protocol version.
-    pub protocol: u16,
-    /// Blob format version the firmware reads.
-    pub blob_format: u16,
-    /// Largest upload chunk.
-    pub max_chunk: u16,
-    /// Firmware version.
-    pub firmware: String,
-    /// Chip unique ID.
-    pub uid: [u8; 12],
-    /// Why the device last reset.
-    pub reset_cause: ResetCause,
-}
-
 /// The chip UID as the USB serial number shows it (24 hex digits).
 pub fn uid_hex(uid: &[u8; 12]) -> String {
     let mut b = [0u8; 24];
-    nanocal_compensator::identity::usb_serial(uid, &mut b);
+    nanocal_interface::identity::usb_serial(uid, &mut b);
     String::from_utf8_lossy(&b).into_owned()
 }
 
@@ -122,10 +101,8 @@ pub fn uid_hex(uid: &[u8; 12]) -> String {
 pub struct Committed {
     /// Model id now in service.
     pub model_id: u32,
-    /// Flash slot written.
-    pub slot: u8,
-    /// Commit sequence number.
-    pub seq: u32,
+    /// Uploads the device accepted since it started.
+    pub uploads_accepted: u32,
 }
 
 impl Client {
@@ -157,12 +134,14 @@ impl Client {
         }
     }
 
-    /// Send one request; returns the reply's data (after a successful result code).
-    pub fn request(&mut self, k: u8, payload: &[u8]) -> Result<Vec<u8>, DeviceError> {
+    /// Send one request; its reply, or the device's refusal as [`DeviceError::Refused`].
+    pub fn request(&mut self, req: &Request<'_>) -> Result<Reply, DeviceError> {
+        let k = req.kind();
         self.seq = self.seq.wrapping_add(1);
         let seq = self.seq;
         let mut frame = [0u8; mgmt::MAX_FRAME];
-        let n = mgmt::encode(k, seq, payload, &mut frame)
+        let n = req
+            .frame(seq, &mut frame)
             .map_err(|e| DeviceError::Protocol(k, e.to_string()))?;
         self.port.write_all(&frame[..n]).map_err(|e| self.io(e))?;
         self.port.flush().map_err(|e| self.io(e))?;
@@ -195,34 +174,32 @@ impl Client {
             for &b in &buf[..got] {
                 if let Some(Ok(())) = self.dec.feed(b) {
                     let f = self.dec.frame();
-                    if f.kind != (k | kind::REPLY) || f.seq != seq {
+                    if f.kind != k.reply_code() || f.seq != seq {
                         continue; // a stale reply
                     }
-                    let (&code, data) = f
-                        .payload
-                        .split_first()
-                        .ok_or_else(|| DeviceError::Protocol(k, "empty reply".into()))?;
-                    if code != mgmt::RESULT_OK {
-                        let detail = match (code, data.first()) {
-                            (mgmt::RESULT_INPUT, Some(&input)) => {
-                                match nanocal_compensator::inputs::describe_code(input) {
-                                    Some((what, index)) => format!(": input {index}, {what}"),
-                                    None => format!(": input code {input:#04x}"),
-                                }
-                            }
-                            _ => String::new(),
-                        };
-                        return Err(DeviceError::Refused {
+                    return match Reply::decode(k, f.payload) {
+                        Ok(Reply::Refused { refusal, input }) => Err(DeviceError::Refused {
                             kind: k,
-                            code,
-                            meaning: result_meaning(code),
-                            detail,
-                        });
-                    }
-                    return Ok(data.to_vec());
+                            refusal,
+                            input,
+                        }),
+                        Ok(reply) => Ok(reply),
+                        Err(e) => Err(DeviceError::Protocol(k, e.to_string())),
+                    };
                 }
             }
         }
+    }
+
+    /// The reply to `req`, which must be `want`'s.
+    fn expect<T>(
+        &mut self,
+        req: &Request<'_>,
+        want: impl FnOnce(Reply) -> Option<T>,
+    ) -> Result<T, DeviceError> {
+        let reply = self.request(req)?;
+        let text = format!("{reply:?}");
+        want(reply).ok_or_else(|| DeviceError::Protocol(req.kind(), format!("unexpected {text}")))
     }
 
     /// Protocol version, blob format version and largest chunk of the firmware.
@@ -233,52 +210,40 @@ impl Client {
 
     /// Everything HELLO tells: versions, firmware, chip UID, reset cause.
     pub fn identify(&mut self) -> Result<Hello, DeviceError> {
-        let d = self.request(kind::HELLO, &[])?;
-        let mut r = Reader::new(&d);
-        let p = |e: mgmt::FrameError| DeviceError::Protocol(kind::HELLO, e.to_string());
-        let (protocol, blob_format, max_chunk) = (
-            r.u16().map_err(p)?,
-            r.u16().map_err(p)?,
-            r.u16().map_err(p)?,
-        );
-        let n = r.u8().map_err(p)?;
-        let firmware = String::from_utf8_lossy(r.bytes(usize::from(n)).map_err(p)?).into_owned();
-        let mut uid = [0u8; 12];
-        uid.copy_from_slice(r.bytes(12).map_err(p)?);
-        let reset_cause = ResetCause::from_code(r.u8().map_err(p)?);
-        Ok(Hello {
-            protocol,
-            blob_format,
-            max_chunk,
-            firmware,
-            uid,
-            reset_cause,
+        self.expect(&Request::Hello, |r| match r {
+            Reply::Hello(h) => Some(h),
+            _ => None,
         })
     }
 
     /// The device's settings.
     pub fn config(&mut self) -> Result<Settings, DeviceError> {
-        let d = self.request(kind::CONFIG_GET, &[])?;
-        Settings::decode(&d).map_err(|e| DeviceError::Protocol(kind::CONFIG_GET, e.to_string()))
+        self.expect(&Request::ConfigGet, |r| match r {
+            Reply::ConfigGet(s) => Some(s),
+            _ => None,
+        })
     }
 
     /// Store and apply settings (checked on the host first, and again by the device).
     pub fn set_config(&mut self, s: &Settings) -> Result<(), DeviceError> {
         s.validate()
-            .map_err(|e| DeviceError::Protocol(kind::CONFIG_SET, e.to_string()))?;
-        self.request(kind::CONFIG_SET, &s.encode()).map(|_| ())
+            .map_err(|e| DeviceError::Protocol(Kind::ConfigSet, e.to_string()))?;
+        self.expect(&Request::ConfigSet(*s), |r| {
+            matches!(r, Reply::ConfigSet).then_some(())
+        })
     }
 
     /// Reset the device (it answers first).
     pub fn reset(&mut self) -> Result<(), DeviceError> {
-        self.request(kind::RESET, &[]).map(|_| ())
+        self.expect(&Request::Reset, |r| matches!(r, Reply::Reset).then_some(()))
     }
 
     /// The device's status.
     pub fn status(&mut self) -> Result<Status, DeviceError> {
-        let d = self.request(kind::STATUS, &[])?;
-        Status::decode(&mut Reader::new(&d))
-            .map_err(|e| DeviceError::Protocol(kind::STATUS, e.to_string()))
+        self.expect(&Request::Status, |r| match r {
+            Reply::Status(s) => Some(s),
+            _ => None,
+        })
     }
 
     /// Upload raw bytes as they are (no host-side check): the firmware verifies everything.
@@ -291,28 +256,34 @@ impl Client {
         format_version: u16,
         commit: bool,
     ) -> Result<Option<Committed>, DeviceError> {
-        let mut p = Vec::with_capacity(10);
-        p.extend_from_slice(&announced_len.to_le_bytes());
-        p.extend_from_slice(&crc.to_le_bytes());
-        p.extend_from_slice(&format_version.to_le_bytes());
-        self.request(kind::UPLOAD_BEGIN, &p)?;
+        let begin = Request::UploadBegin {
+            total_len: announced_len,
+            crc32: crc,
+            format_version,
+        };
+        self.expect(&begin, |r| matches!(r, Reply::UploadBegin).then_some(()))?;
         for (i, chunk) in bytes.chunks(mgmt::MAX_CHUNK).enumerate() {
-            let mut p = Vec::with_capacity(4 + chunk.len());
-            p.extend_from_slice(&((i * mgmt::MAX_CHUNK) as u32).to_le_bytes());
-            p.extend_from_slice(chunk);
-            self.request(kind::UPLOAD_CHUNK, &p)?;
+            let req = Request::UploadChunk {
+                offset: (i * mgmt::MAX_CHUNK) as u32,
+                bytes: chunk,
+            };
+            self.expect(&req, |r| {
+                matches!(r, Reply::UploadChunk { .. }).then_some(())
+            })?;
         }
         if !commit {
             return Ok(None);
         }
-        let d = self.request(kind::UPLOAD_COMMIT, &[])?;
-        let mut r = Reader::new(&d);
-        let p = |e: mgmt::FrameError| DeviceError::Protocol(kind::UPLOAD_COMMIT, e.to_string());
-        Ok(Some(Committed {
-            model_id: r.u32().map_err(p)?,
-            slot: r.u8().map_err(p)?,
-            seq: r.u32().map_err(p)?,
-        }))
+        self.expect(&Request::UploadCommit, |r| match r {
+            Reply::UploadCommit {
+                model_id,
+                uploads_accepted,
+            } => Some(Some(Committed {
+                model_id,
+                uploads_accepted,
+            })),
+            _ => None,
+        })
     }
 
     /// Upload a blob: decoded on the host first (so a bad file never reaches the device), then
@@ -323,77 +294,67 @@ impl Client {
         let c = self.upload_raw(
             blob_bytes,
             blob_bytes.len() as u32,
-            blob::crc32(blob_bytes),
+            nanocal_interface::crc32(blob_bytes),
             version,
             true,
         )?;
-        c.ok_or_else(|| DeviceError::Protocol(kind::UPLOAD_COMMIT, "no commit reply".into()))
+        c.ok_or_else(|| DeviceError::Protocol(Kind::UploadCommit, "no commit reply".into()))
     }
 
     /// Set λ_KMZ so that the model maps the measured reference `x_meas_um` to the command
-    /// `q_cmd_um` that was sent; the device stores the changed model in its other flash slot.
-    /// Returns the new λ_KMZ per axis.
+    /// `q_cmd_um` that was sent; the device stores it with its model. Returns the new λ_KMZ
+    /// per axis.
     pub fn set_kmz(
         &mut self,
         q_cmd_um: [f64; MAX_AXES],
         x_meas_um: [f64; MAX_AXES],
     ) -> Result<[f64; MAX_AXES], DeviceError> {
-        let mut p = Vec::with_capacity(48);
-        for v in q_cmd_um.iter().chain(x_meas_um.iter()) {
-            p.extend_from_slice(&v.to_le_bytes());
-        }
-        let d = self.request(kind::SET_KMZ, &p)?;
-        let mut r = Reader::new(&d);
-        let mut k = [0.0; MAX_AXES];
-        for v in k.iter_mut() {
-            *v = r
-                .f64()
-                .map_err(|e| DeviceError::Protocol(kind::SET_KMZ, e.to_string()))?;
-        }
-        Ok(k)
+        let req = Request::SetKmz {
+            q_cmd_um,
+            x_meas_um,
+        };
+        self.expect(&req, |r| match r {
+            Reply::SetKmz { kmz_um, .. } => Some(kmz_um),
+            _ => None,
+        })
     }
 
     /// Bypass (`true`) or enable (`false`) compensation.
     pub fn bypass(&mut self, on: bool) -> Result<(), DeviceError> {
-        self.request(kind::BYPASS, &[u8::from(on)]).map(|_| ())
+        self.expect(&Request::Bypass { on }, |r| {
+            matches!(r, Reply::Bypass).then_some(())
+        })
     }
 }
 
 /// A human-readable status report.
 pub fn format_status(s: &Status) -> String {
-    use mgmt::flags;
     let mut o = String::new();
-    let flag = |f: u16| if s.flags & f != 0 { "yes" } else { "no" };
+    let flag = |f: Flags| if s.flags.contains(f) { "yes" } else { "no" };
     o += &format!(
         "chip UID: {}  last reset: {}\n",
         uid_hex(&s.uid),
-        ResetCause::from_code(s.reset_cause)
+        s.reset_cause
     );
     o += &format!(
         "status LED: {}  host port open: {}\n",
-        match s.led {
-            1 => "compensating (on)",
-            2 => "bypass (slow blink)",
-            3 => "no model (short flash)",
-            4 => "fault (fast blink)",
-            _ => "?",
-        },
-        flag(flags::HOST_CONNECTED)
+        s.led,
+        flag(Flags::HOST_CONNECTED)
     );
     o += &format!(
         "model: {}\n",
-        if s.flags & flags::MODEL != 0 {
+        if s.flags.contains(Flags::MODEL) {
             format!("{:#010x}", s.model_id)
         } else {
             "none".into()
         }
     );
-    o += &format!("compensation bypassed: {}\n", flag(flags::BYPASS));
+    o += &format!("compensation bypassed: {}\n", flag(Flags::BYPASS));
     o += &format!(
         "sensors warming up (no first reading yet): {}  fold age {} ms{}\n",
-        flag(flags::WARMING_UP),
+        flag(Flags::WARMING_UP),
         s.fold_age_ms,
-        if s.flags & flags::FOLD_STALE != 0 {
+        if s.flags.contains(Flags::FOLD_STALE) {
             " (STALE: moves refused)"
         } else {
             ""
@@ -401,43 +362,39 @@ pub fn format_status(s: &Status) -> String {
     );
     o += &format!(
         "moves blocked by a sensor fault: {}\n",
-        flag(flags::SENSOR_BLOCK)
+        flag(Flags::SENSOR_BLOCK)
     );
     o += &format!(
         "moves refused, controller unit is not the model's µm: {}\n",
-        flag(flags::UNIT_MISMATCH)
+        flag(Flags::UNIT_MISMATCH)
     );
     o += &format!(
         "extrapolating (slow inputs outside the training envelope): {} (bits {:#06x})\n",
-        flag(flags::EXTRAPOLATING),
+        flag(Flags::EXTRAPOLATING),
         s.slow_outside
     );
     for i in 0..usize::from(s.sensors).min(s.temps_c.len()) {
         let bits = s.sensor_bits[i];
-        let state = match bits & 0x0F {
-            0 => "ok",
-            1 => "holding last good value",
-            2 => "FAILED",
-            _ => "not read yet",
-        };
         o += &format!(
-            "sensor {i}: {:>9.4} °C  {state}{}\n",
+            "sensor {i}: {:>9.4} °C  {}{}\n",
             s.temps_c[i],
-            if bits >> 4 != 0 {
-                format!(
-                    " (last fault: {})",
-                    nanocal_compensator::sensor::SensorFault::from_code(bits >> 4)
-                        .map(|f| f.to_string())
-                        .unwrap_or_else(|| format!("code {}", bits >> 4))
-                )
-            } else {
-                String::new()
-            }
+            bits.state,
+            bits.last_fault
+                .map(|f| format!(" (last fault: {f})"))
+                .unwrap_or_default()
         );
     }
     for i in 0..s.aux.len() {
-        if s.aux_bits[i] & 0x0F != 4 || !s.aux[i].is_nan() {
-            o += &format!("aux {i}: {:>9.4}  bits {:#04x}\n", s.aux[i], s.aux_bits[i]);
+        let bits = s.aux_bits[i];
+        if bits.state != ChannelStatus::NotRead || !s.aux[i].is_nan() {
+            o += &format!(
+                "aux {i}: {:>9.4}  {}{}\n",
+                s.aux[i],
+                bits.state,
+                bits.last_fault
+                    .map(|f| format!(" (last fault: {f})"))
+                    .unwrap_or_default()
+            );
         }
     }
     o += &format!(
@@ -453,15 +410,18 @@ pub fn format_status(s: &Status) -> String {
         s.host_lines, s.moves, s.refused, s.mapped_replies, s.folds
     );
     o += &format!(
-        "uploads ok {}  rejected {} (last code {}: {})\n",
+        "uploads ok {}  rejected {}{}\n",
         s.uploads_ok,
         s.uploads_rejected,
-        s.last_upload_error,
-        result_meaning(s.last_upload_error)
+        s.last_upload_error
+            .map(|r| format!(" (last: code {}, {r})", r.code()))
+            .unwrap_or_default()
     );
     o += &format!(
         "pending GCS error {}  uptime {:.1} s\n",
-        s.pending_error,
+        s.pending_error
+            .map(|e| format!("{} ({e})", e.code()))
+            .unwrap_or_else(|| "none".into()),
         f64::from(s.uptime_ms) / 1000.0
     );
     o
@@ -469,8 +429,7 @@ pub fn format_status(s: &Status) -> String {
 
 /// A human-readable settings report.
 pub fn format_settings(s: &Settings) -> String {
-    use nanocal_compensator::sensor::{Chip, Mains};
-    use nanocal_compensator::settings::AuxSource;
+    use nanocal_interface::settings::{AuxSource, Chip, Mains};
     let mut o = String::new();
     o += &format!(
         "stage baud: {} (8N1; applied at the next reset)\n",

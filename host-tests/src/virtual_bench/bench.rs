@@ -15,7 +15,7 @@ use super::twin_stage::TwinStage;
 use crate::campaign::bench::{BenchDriver, BenchError};
 use crate::device::Port;
 use crate::twin::{Trajectory, Twin};
-use nanocal_compensator::wire;
+use nanocal_interface::bus::BusOp;
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -230,7 +230,7 @@ impl VirtualBench {
         link.attach_bus(Box::new(move |op, target, out, n_in, now_s| {
             let mut b = b.lock().unwrap();
             if let Some((cs, from_s)) = open_tc {
-                if op == wire::SPI && usize::from(target) == cs && now_s - offset_s >= from_s {
+                if op == BusOp::Spi && usize::from(target) == cs && now_s - offset_s >= from_s {
                     if let Some(Some(chip)) = b.spi.get_mut(cs) {
                         if let Some(tc) = chip.any_mut().downcast_mut::<Max31856>() {
                             tc.open = true;
@@ -238,7 +238,7 @@ impl VirtualBench {
                     }
                 }
             }
-            if op == wire::I2C {
+            if op == BusOp::I2c {
                 let p = st.lock().unwrap().pressure_hpa(now_s - offset_s);
                 if let Some(chip) = b.i2c.get_mut(&super::chips::lps22hb::ADDRESS) {
                     if let Some(baro) = chip_as_lps(chip.as_mut()) {

@@ -1,4 +1,4 @@
-//! The bench's side of the QEMU board's link (`nanocal_compensator::bench_link` has the layout
+//! The bench's side of the QEMU board's link (`nanocal_interface::bench_link` has the layout
 //! and the why): the page shared with the board through a host file that backs the board's
 //! PSRAM, the doorbells on serial4, the board's clock, and the bus mailbox.
 //!
@@ -10,7 +10,8 @@
 //!   that instant has run, and no board time passes while the caller works (sends a command,
 //!   reads a status). This is what makes a simulated day deterministic and fast.
 
-use nanocal_compensator::bench_link as bl;
+use nanocal_interface::bench_link as bl;
+use nanocal_interface::bus::{BusOp, BusReply, BusRequest, BusStatus};
 use std::io::{Read, Write};
 use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
@@ -143,7 +144,8 @@ impl Drop for Page {
 
 /// Serves one bus transaction: `(op, target, bytes out, bytes in, board time s)` → `(status,
 /// bytes in)`, or `None` when nothing answers.
-pub type BusHandler = Box<dyn FnMut(u8, u8, &[u8], usize, f64) -> Option<(u8, Vec<u8>)> + Send>;
+pub type BusHandler =
+    Box<dyn FnMut(BusOp, u8, &[u8], usize, f64) -> Option<(BusStatus, Vec<u8>)> + Send>;
 
 /// Something that must have taken in everything the board sent before the clock moves on (the
 /// stage controller's reader: it stamps each command with the board's clock).
@@ -355,14 +357,8 @@ impl BenchLink {
         if self.page.u32(bl::BUS_REP_SEQ) == seq {
             return; // already served
         }
-        let h = self
-            .page
-            .bytes(bl::BUS_REQ, nanocal_compensator::wire::HEADER);
-        let (op, target, n_out, n_in) = (h[1], h[2], usize::from(h[3]), usize::from(h[4]));
-        let n_out = n_out.min(nanocal_compensator::wire::MAX_DATA);
-        let out = self
-            .page
-            .bytes(bl::BUS_REQ + nanocal_compensator::wire::HEADER, n_out);
+        let frame = self.page.bytes(bl::BUS_REQ, bl::FRAME_LEN);
+        let request = BusRequest::decode(&frame);
         let now = self.now_s();
         // the board waits for its reply without its clock moving: give a bench that is still
         // being set up a moment to attach its chips
@@ -374,19 +370,34 @@ impl BenchLink {
                 .unwrap()
                 .0;
         }
-        let answer = bus.as_mut().and_then(|f| f(op, target, &out, n_in, now));
-        drop(bus);
-        let rep = match answer {
-            Some((status, data)) => {
-                let mut rep = vec![nanocal_compensator::wire::REP, op, target, status];
-                rep.push(data.len() as u8);
-                rep.extend_from_slice(&data);
-                rep
-            }
-            None => vec![nanocal_compensator::wire::REP, op, target, bl::NO_ANSWER, 0],
+        // a request the board cannot have sent (its ops are typed) is answered like a dead bus,
+        // with an op it did not ask for: the board takes that as a bus error
+        let (op, target) = request.map_or((BusOp::Spi, 0xFF), |r| (r.op, r.target));
+        let answer = match request {
+            Ok(r) => bus
+                .as_mut()
+                .and_then(|f| f(r.op, r.target, r.data_out, r.n_in, now)),
+            Err(_) => None,
         };
-        self.page
-            .set_bytes(bl::BUS_REP, &rep[..rep.len().min(bl::FRAME_LEN)]);
+        drop(bus);
+        let (status, data) = answer.unwrap_or((BusStatus::NoAnswer, Vec::new()));
+        let mut rep = [0u8; bl::FRAME_LEN];
+        let reply = BusReply {
+            op,
+            target,
+            status,
+            data_in: &data,
+        };
+        let n = reply.encode(&mut rep).unwrap_or_else(|_| {
+            BusReply {
+                status: BusStatus::NoAnswer,
+                data_in: &[],
+                ..reply
+            }
+            .encode(&mut rep)
+            .unwrap_or(0)
+        });
+        self.page.set_bytes(bl::BUS_REP, &rep[..n]);
         fence(Ordering::SeqCst);
         self.page.set_u32(bl::BUS_REP_SEQ, seq);
         self.transactions.fetch_add(1, Ordering::Relaxed);

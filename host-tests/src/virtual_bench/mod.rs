@@ -16,5 +16,5 @@ pub use controller::{
     SystemClock,
 };
 pub use link::{BenchClock, BenchLink};
-pub use qemu::{bench_elf, have_qemu, qemu_elf, repo_root, Elf, GcsHost, Qemu};
+pub use qemu::{bench_elf, have_qemu, qemu_elf, repo_root, Elf, GcsHost, Qemu, HANG};
 pub use sensors::{Buses, SensorSim};

@@ -148,6 +148,11 @@ fn free_port() -> u16 {
         .expect("a free local port")
 }
 
+/// Wall time after which the test rig's waits for the board (a reply, a management answer)
+/// give up: only a hung board or QEMU gets there, never a slow or loaded machine. The
+/// behaviours' own bounds are in the board's time.
+pub const HANG: Duration = Duration::from_secs(120);
+
 /// Serial ports of the QEMU board: 0 host (GCS), 1 stage, 2 unused (the bus stand-in moved to
 /// the bench's page), 3 management, 4 the host link's line state (USB DTR stand-in) and the
 /// bench's doorbells.
@@ -339,14 +344,15 @@ impl Qemu {
             &self.log,
         );
         s.set_read_timeout(Some(Duration::from_millis(50))).ok();
-        let mut c = Client::new(Box::new(s), &self.mgmt_spec(), Duration::from_secs(10));
-        // QEMU may still be handing over from a previous client: retry the first request
-        let deadline = Instant::now() + Duration::from_secs(20);
+        let mut c = Client::new(Box::new(s), &self.mgmt_spec(), HANG);
+        // QEMU may still be handing over from a previous client, the board may be resetting:
+        // retry the first request
+        let deadline = Instant::now() + HANG;
         c.timeout = Duration::from_secs(2);
         while c.hello().is_err() {
             assert!(Instant::now() < deadline, "management port never answered");
         }
-        c.timeout = Duration::from_secs(10);
+        c.timeout = HANG;
         c
     }
 }
@@ -450,7 +456,7 @@ impl GcsHost {
         self.send(line);
         let mut out = String::new();
         loop {
-            let l = self.read_line(Duration::from_secs(10));
+            let l = self.read_line(HANG);
             let more = l.ends_with(' ');
             out += l.trim_end();
             if !more {

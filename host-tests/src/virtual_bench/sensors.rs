@@ -1,12 +1,12 @@
 //! The QEMU board's peripheral-bus stand-in, host side: serves byte-exact SPI, I2C and ADC
-//! transactions ([`nanocal_compensator::wire`], through the mailbox of the board's link,
+//! transactions ([`nanocal_interface::bus`], through the mailbox of the board's link,
 //! [`super::link`]) from register-level chip simulations ([`super::chips`]), at the board's clock.
 //! A chip-select without a chip answers FFh (the board's MISO pull-up); an I2C address without a
 //! chip is not acknowledged; the whole bus can be made to stop answering.
 
 use super::chips::{I2cChip, Lps22hb, Max31856, Max31865, SpiChip};
 use super::link::BenchLink;
-use nanocal_compensator::wire;
+use nanocal_interface::bus::{BusOp, BusStatus};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, MutexGuard};
 
@@ -37,20 +37,20 @@ impl Buses {
     /// Serve one transaction; `None` when there is no answer.
     pub fn serve(
         &mut self,
-        op: u8,
+        op: BusOp,
         target: u8,
         out: &[u8],
         n_in: usize,
         now_s: f64,
-    ) -> Option<(u8, Vec<u8>)> {
+    ) -> Option<(BusStatus, Vec<u8>)> {
         if self.dead {
             return None;
         }
-        if let Some(c) = self.served.get_mut(usize::from(op)) {
+        if let Some(c) = self.served.get_mut(usize::from(op.code())) {
             *c += 1;
         }
         match op {
-            wire::SPI => {
+            BusOp::Spi => {
                 let mut rx = vec![0xFF; out.len()];
                 if let Some(Some(chip)) = self.spi.get_mut(usize::from(target)) {
                     chip.select(now_s);
@@ -59,10 +59,10 @@ impl Buses {
                     }
                     chip.deselect(now_s);
                 }
-                Some((wire::OK, rx))
+                Some((BusStatus::Ok, rx))
             }
-            wire::I2C => match self.i2c.get_mut(&target) {
-                None => Some((wire::NACK, vec![])),
+            BusOp::I2c => match self.i2c.get_mut(&target) {
+                None => Some((BusStatus::Nack, vec![])),
                 Some(chip) => {
                     if !out.is_empty() {
                         chip.write(out, now_s);
@@ -71,12 +71,12 @@ impl Buses {
                     if n_in > 0 {
                         chip.read(&mut rx, now_s);
                     }
-                    Some((wire::OK, rx))
+                    Some((BusStatus::Ok, rx))
                 }
             },
-            wire::ADC => {
+            BusOp::Adc => {
                 let code = self.adc.get(usize::from(target)).copied().flatten()?;
-                Some((wire::OK, code.to_le_bytes().to_vec()))
+                Some((BusStatus::Ok, code.to_le_bytes().to_vec()))
             }
             _ => None,
         }

@@ -6,16 +6,40 @@
 pub use nanocal::virtual_bench::*;
 use std::time::{Duration, Instant};
 
-/// Poll `f` every 50 ms until it gives a value; fails the test after `timeout`.
-pub fn wait_until<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<T>) -> T {
-    let deadline = Instant::now() + timeout;
+/// Poll `f` every 20 ms until it gives a value. Fails the test when `board_s` seconds of the
+/// board's clock have passed since the call — the behaviour's bound, in the time the firmware
+/// lives in (free-running, it follows the wall clock only as fast as QEMU gets the CPU) — or
+/// when the wall time reaches [`HANG`].
+pub fn wait_until<T>(
+    what: &str,
+    clock: &BenchClock,
+    board_s: f64,
+    mut f: impl FnMut() -> Option<T>,
+) -> T {
+    let until_s = clock.now_s() + board_s;
+    let hang = Instant::now() + HANG;
     loop {
+        // the board's time first: a value that arrives after the bound still fails
+        let late = clock.now_s() > until_s;
         if let Some(v) = f() {
             return v;
         }
-        assert!(Instant::now() < deadline, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(50));
+        assert!(!late, "{what}: not within {board_s} s of the board's time");
+        assert!(
+            Instant::now() < hang,
+            "{what}: nothing after {HANG:?} of wall time (hung?)"
+        );
+        std::thread::sleep(Duration::from_millis(20));
     }
+}
+
+/// Let at least `s` seconds of the board's time pass (wall time is no measure of it: the board
+/// runs behind the wall clock when the machine is loaded).
+pub fn pass_board_time(clock: &BenchClock, s: f64) {
+    let until_s = clock.now_s() + s;
+    wait_until("board time to pass", clock, s + 3600.0, || {
+        (clock.now_s() >= until_s).then_some(())
+    });
 }
 
 /// The value of `axis` in a forwarded `MOV` line.
@@ -32,7 +56,7 @@ pub fn stage_value(line: &str, axis: &str) -> f64 {
 /// The next `MOV` the controller receives (the first move's `CSV?`/`PUN?` queries skipped).
 pub fn next_move(stage: &StageSim) -> String {
     loop {
-        let line = stage.next_line(Duration::from_secs(10));
+        let line = stage.next_line(HANG);
         if line.starts_with("MOV") {
             return line;
         }

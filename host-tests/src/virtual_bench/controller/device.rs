@@ -712,11 +712,16 @@ impl Controller {
             "STE" | "IMP" | "SVA" | "SVR" | "SMO" | "OMA" | "OMR" | "JOG" | "ATZ" => {
                 // the axes named (every other token for {axis value} pairs)
                 let step = if m == "ATZ" { 1 } else { 2 };
-                let axes: Vec<usize> = args
+                let axes: Vec<Option<usize>> = args
                     .iter()
                     .step_by(step)
-                    .filter_map(|id| self.axis_index(id))
+                    .map(|id| self.axis_index(id))
                     .collect();
+                // an axis it does not have: error 15, and nothing moves (recording it as a
+                // motion of every axis made `SVA HLT` look like one to the proxy's fuzz target)
+                let Some(axes) = axes.into_iter().collect::<Option<Vec<usize>>>() else {
+                    return Err(15);
+                };
                 let axes = if args.is_empty() {
                     (0..n).collect()
                 } else {

@@ -1,0 +1,150 @@
+//! The QEMU board's link to its virtual bench: one page of memory shared with the host (the
+//! board's PSRAM, backed by a host file) that carries the board's clock and its peripheral-bus
+//! stand-in, and the doorbell bytes on serial4 that say something changed in it.
+//!
+//! **Why.** The firmware's lag filters, sample periods, timeouts and fold ages run on its own
+//! clock. On the virtual bench the emulated board's time must advance with the digital twin's
+//! simulated time — days in minutes — and every sample the firmware takes must see the twin's
+//! temperature at that simulated instant. So the host drives the board's clock: it publishes a
+//! *horizon*, and the board runs its timers up to it — jumping from one timer to the next, since
+//! nothing happens in between — then waits, idle, until the host moves the horizon. Time never
+//! passes while the host is busy, and a bus transaction takes no simulated time (the chip models
+//! are stamped with the board's clock). The STM32 board has none of this: it runs at 1×.
+//!
+//! ```text
+//! offset size  written by  field
+//! 0x000  u32   host        MAGIC ("NCLK"): the page is present
+//! 0x004  u32   host        VERSION
+//! 0x008  u64   host        HORIZON: the board may advance its clock up to here (bench ticks)
+//! 0x010  u64   board       NOW: the board's clock (bench ticks)
+//! 0x018  u64   board       NEXT_ALARM: the board's next timer (bench ticks; u64::MAX: none)
+//! 0x020  u32   board       WAITING: 1 while the board is idle at the horizon
+//! 0x024  u32   board       BOOTS: incremented at every boot (the host sees resets)
+//! 0x028  u64   board       BOOT_AT: bench time of the last boot (the board's uptime = NOW − BOOT_AT)
+//! 0x030  u32×5 board       TX_BYTES[n]: bytes the board has written to serial n since power-on
+//! 0x048  u32   host        WATCHING: 1 while the host polls this page (no doorbells needed)
+//! 0x050  u32×5 board       RX_BYTES[n]: bytes the board has read from serial n since power-on
+//! 0x080  u32   board       BUS_REQ_SEQ: incremented when a request is posted (after its bytes)
+//! 0x084  37 B  board       BUS_REQ: the request frame (`crate::bus` layout, A5 … )
+//! 0x0C0  u32   host        BUS_REP_SEQ: set to BUS_REQ_SEQ when the reply is posted (after its bytes)
+//! 0x0C4  37 B  host        BUS_REP: the reply frame (`crate::bus` layout, 5A …)
+//! ```
+//! All fields little-endian. Bench ticks count [`TICK_HZ`] from the start of the bench (QEMU's
+//! start), across resets of the board; the board's own `Instant` is its uptime.
+//!
+//! Doorbells (serial4, besides the host-link line state `C0h | DTR`):
+//! - board → host [`RING_WAITING`]: the board is idle at the horizon (once per instant);
+//!   [`RING_BUS`]: a bus request is posted. Neither is sent while WATCHING is set: the host
+//!   polls the page then, and clears WATCHING and looks once more before it stops polling.
+//! - host → board [`RING_HORIZON`]: the horizon moved (the board wakes and reads it).
+//!
+//! A bus reply carries status [`BusStatus::Ok`], [`BusStatus::Nack`], or
+//! [`BusStatus::NoAnswer`]: the addressed device did not answer at all — the board then waits
+//! for its own timeout, in simulated time, exactly as a real board waits on a dead bus.
+//!
+//! Without the page (QEMU started by hand without the memory backend) the board's clock follows
+//! its SysTick (1×) and the bus answers nothing.
+
+#[cfg(doc)]
+use crate::bus::BusStatus;
+
+/// Bench clock ticks per second (the boards' embassy tick rate, 1 MHz on both).
+pub const TICK_HZ: u64 = 1_000_000;
+/// Guest address of the page on `mps2-an386` (PSRAM, QEMU's machine RAM).
+pub const GUEST_ADDR: usize = 0x2100_0000;
+/// Size of the page, bytes.
+pub const PAGE_LEN: usize = 0x100;
+/// Magic value at [`MAGIC`].
+pub const MAGIC_VALUE: u32 = 0x4B4C_434E; // "NCLK"
+/// Layout version at [`VERSION`].
+pub const VERSION_VALUE: u32 = 1;
+
+/// Offset of the magic.
+pub const MAGIC: usize = 0x000;
+/// Offset of the layout version.
+pub const VERSION: usize = 0x004;
+/// Offset of the horizon.
+pub const HORIZON: usize = 0x008;
+/// Offset of the board's clock.
+pub const NOW: usize = 0x010;
+/// Offset of the board's next alarm.
+pub const NEXT_ALARM: usize = 0x018;
+/// Offset of the waiting flag.
+pub const WAITING: usize = 0x020;
+/// Offset of the boot counter.
+pub const BOOTS: usize = 0x024;
+/// Offset of the bench time of the last boot.
+pub const BOOT_AT: usize = 0x028;
+/// Offset of the per-serial transmit byte counters.
+pub const TX_BYTES: usize = 0x030;
+/// Serial ports with a transmit counter.
+pub const SERIALS: usize = 5;
+/// Offset of the host's "polling the page" flag.
+pub const WATCHING: usize = 0x048;
+/// Offset of the per-serial receive byte counters (the bench knows its input was taken in).
+pub const RX_BYTES: usize = 0x050;
+/// Offset of the bus request sequence number.
+pub const BUS_REQ_SEQ: usize = 0x080;
+/// Offset of the bus request frame.
+pub const BUS_REQ: usize = 0x084;
+/// Offset of the bus reply sequence number.
+pub const BUS_REP_SEQ: usize = 0x0C0;
+/// Offset of the bus reply frame.
+pub const BUS_REP: usize = 0x0C4;
+/// Longest frame in the mailbox (header + data).
+pub const FRAME_LEN: usize = crate::bus::FRAME_LEN;
+
+/// Doorbell board → host: idle at the horizon.
+pub const RING_WAITING: u8 = 0xE1;
+/// Doorbell board → host: a bus request is posted.
+pub const RING_BUS: u8 = 0xE2;
+/// Doorbell host → board: the horizon moved.
+pub const RING_HORIZON: u8 = 0xD1;
+/// Seconds of bench time of `ticks`.
+pub fn ticks_to_s(ticks: u64) -> f64 {
+    ticks as f64 / TICK_HZ as f64
+}
+
+/// Bench ticks of `s` seconds, rounded to the nearest tick (negative: 0).
+pub fn s_to_ticks(s: f64) -> u64 {
+    if s.is_finite() && s > 0.0 {
+        libm::round(s * TICK_HZ as f64) as u64
+    } else {
+        0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fields_do_not_overlap_and_fit_the_page() {
+        let fields = [
+            (MAGIC, 4),
+            (VERSION, 4),
+            (HORIZON, 8),
+            (NOW, 8),
+            (NEXT_ALARM, 8),
+            (WAITING, 4),
+            (BOOTS, 4),
+            (BOOT_AT, 8),
+            (TX_BYTES, 4 * SERIALS),
+            (WATCHING, 4),
+            (RX_BYTES, 4 * SERIALS),
+            (BUS_REQ_SEQ, 4),
+            (BUS_REQ, FRAME_LEN),
+            (BUS_REP_SEQ, 4),
+            (BUS_REP, FRAME_LEN),
+        ];
+        for (i, &(a, n)) in fields.iter().enumerate() {
+            assert!(a + n <= PAGE_LEN);
+            assert_eq!(a % 4, 0, "aligned");
+            for &(b, m) in &fields[i + 1..] {
+                assert!(a + n <= b || b + m <= a, "{a:#x} overlaps {b:#x}");
+            }
+        }
+        assert_eq!(s_to_ticks(1.5), 1_500_000);
+        assert_eq!(ticks_to_s(250_000), 0.25);
+    }
+}

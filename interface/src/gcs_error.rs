@@ -1,0 +1,66 @@
+//! The GCS error codes the compensator answers itself, on the host's next `ERR?`, when it
+//! refuses a line (nothing is forwarded to the controller).
+//!
+//! Three are PI's own codes with PI's meaning (GCS 2.0, the controller manuals' error table), so
+//! a host that knows PI's codes understands them; 9001–9009 are the compensator's own, above
+//! PI's range. The firmware's proxy raises exactly these, and the host's messages (`nanocal
+//! campaign`, `nanocal device status`) come from the same table.
+//!
+//! | code | meaning |
+//! |---:|---|
+//! | 1 | parameter syntax (unparsable number, missing value) |
+//! | 7 | the corrected command is outside the stage travel (PI: position out of limits) |
+//! | 15 | a model axis named twice (PI: invalid axis identifier) |
+//! | 9001 | target outside the model's training envelope |
+//! | 9002 | a sensor or input the model needs has failed, or the fold is stale |
+//! | 9003 | no model in service (none loaded, or sensors warming up) |
+//! | 9004 | a target the move needs is unknown and the controller did not tell it |
+//! | 9005 | a line longer than the proxy's buffer that would have to be rewritten |
+//! | 9006 | more queries in flight than the proxy can pair with replies |
+//! | 9007 | the controller's position unit is not µm, or it did not tell it |
+//! | 9008 | refused while compensating |
+//! | 9009 | the controller speaks GCS 3.0 |
+
+code_enum! {
+    /// A GCS error the compensator raises (see the module's table).
+    pub enum GcsErrorCode: i32 {
+        /// PI's code 1: illegal parameter / syntax — an unparsable number or a missing value.
+        ParamSyntax = 1 => "parameter syntax: unparsable number or missing value",
+        /// PI's code 7: position out of limits — the corrected command is outside the stage
+        /// travel.
+        PosOutOfLimits = 7 => "position out of limits: the corrected command is outside the stage travel",
+        /// PI's code 15: invalid axis identifier — a model axis named twice in one line.
+        InvalidAxis = 15 => "invalid axis identifier: a model axis named twice",
+        /// The target lies outside the model's training envelope.
+        OutsideEnvelope = 9001 => "target outside the model's training envelope",
+        /// A sensor or input the model needs has failed, or the fold is stale (sensor task
+        /// stalled): moves are refused.
+        SensorFault = 9002 => "a sensor or input the model needs has failed, or the fold is stale",
+        /// No model is in service (none loaded and not bypassed, or the sensors are still
+        /// warming up after an upload or boot).
+        NoModel = 9003 => "no model in service (none loaded, or the sensors are warming up)",
+        /// A target the move needs is unknown and the controller did not tell it (`MOV?`
+        /// unanswered).
+        TargetUnknown = 9004 => "a target the move needs is unknown and the controller did not tell it (MOV? unanswered)",
+        /// The line is longer than the proxy's buffer and would have to be rewritten.
+        LineTooLong = 9005 => "line longer than the compensator's buffer that would have to be rewritten",
+        /// More queries in flight than the proxy can pair with their replies.
+        TooManyQueries = 9006 => "too many queries in flight (more than the compensator pairs with replies)",
+        /// The controller's position unit (`PUN?`) of a model axis is not the model's µm, or
+        /// the controller did not tell it: moves are refused.
+        UnitMismatch = 9007 => "the controller's position unit is not the model's µm, or PUN? went unanswered",
+        /// The command would move an axis to a target the model never saw, or change what the
+        /// controller's positions mean: refused while compensating.
+        RefusedWhileCompensating = 9008 => "refused while compensating: the command would move a calibrated axis uncorrected or redefine its positions",
+        /// The controller speaks GCS 3.0 (`CSV?` above 2), which the proxy does not rewrite:
+        /// moves are refused.
+        Gcs3 = 9009 => "the controller speaks GCS 3.0, which the compensator does not support",
+    }
+}
+
+impl GcsErrorCode {
+    /// True for the compensator's own codes (9001 and up), false for PI's.
+    pub const fn is_compensators(self) -> bool {
+        self.code() >= 9000
+    }
+}

@@ -1,0 +1,478 @@
+//! The device's status report (the `STATUS` reply's data), with its flags, the per-channel
+//! sensor bits and the sensor fault codes.
+//!
+//! ```text
+//! offset size            field
+//!      0 u16             flags (Flags)
+//!      2 u32             model_id (0: no model)
+//!      6 u8              reserved, 0xFF (was: flash slot)
+//!      7 u32             move_fold
+//!     11 f32 × 16        temps_c (NaN: unusable)
+//!     75 u8 × 16         sensor_bits (ChannelBits: state in bits 0..3, last fault in 4..7)
+//!     91 u8              sensors configured
+//!     92 u32             slow_outside (model input bits, nanocal_model::EnvelopeFlags)
+//!     96 f64 × 3         kmz_um
+//!    120 u32 × 7         host_lines, moves, refused, mapped_replies, uploads_ok,
+//!                        uploads_rejected, folds
+//!    148 i32             pending_error (GcsErrorCode code, 0: none)
+//!    152 u8              last_upload_error (Refusal code, 0: none)
+//!    153 u32             uptime_ms
+//!    157 u8 × 12         uid
+//!    169 u8              reset_cause (ResetCause code)
+//!    170 u8              led (LedState code)
+//!    171 u32             fold_age_ms
+//!    175 u32             flash_ecc_errors
+//!    179 u32             sensor_reconfigs
+//!    183 f32 × 4         aux (NaN: unusable)
+//!    199 u8 × 4          aux_bits (ChannelBits)
+//!    203                 end (Status::LEN)
+//! ```
+//! All little-endian. Adding a field: the struct, [`Status::encode`], [`Status::decode`],
+//! [`Status::LEN`], this diagram, the golden bytes in the tests, and a bump of
+//! [`crate::mgmt::PROTOCOL`] — all in this file but the last.
+
+use crate::gcs_error::GcsErrorCode;
+use crate::identity::{ResetCause, UID_LEN};
+use crate::led::LedState;
+use crate::mgmt::{PayloadError, Reader, Refusal, Writer};
+use core::fmt;
+use core::ops::{BitOr, BitOrAssign};
+
+/// Sensors in a status report (every temperature a model can read).
+pub const STATUS_SENSORS: usize = nanocal_model::MAX_TEMPS;
+/// Auxiliary inputs in a status report.
+pub const STATUS_AUX: usize = nanocal_model::MAX_AUX;
+
+code_enum! {
+    /// A sensor fault as the chip reports it (or as its registers show it); its code is the
+    /// high nibble of [`ChannelBits`].
+    pub enum SensorFault: u8 {
+        /// Thermocouple input open (MAX31856 OPEN bit) or RTD input open (MAX31865
+        /// REFIN-/RTDIN-).
+        Open = 1 => "sensor input open",
+        /// Input shorted to GND or VCC: over/under-voltage (MAX31856 OVUV, MAX31865 bit 2).
+        ShortOrOvervoltage = 2 => "sensor input shorted to GND/VCC (over/under-voltage)",
+        /// Cold-junction temperature outside the thermocouple type's range (MAX31856 CJ Range).
+        ColdJunctionRange = 3 => "cold-junction temperature out of range",
+        /// Thermocouple temperature outside the type's range (MAX31856 TC Range).
+        ThermocoupleRange = 4 => "thermocouple temperature out of range",
+        /// Reading above the high or below the low threshold (MAX31856
+        /// CJHIGH/CJLOW/TCHIGH/TCLOW, MAX31865 D7/D6).
+        Threshold = 5 => "reading beyond the chip's fault threshold",
+        /// The bus did not answer: timeout, SPI error, or the all-ones (absent chip, MISO
+        /// pull-up) or all-zeros register dump.
+        NoResponse = 6 => "sensor did not answer on the bus (absent or unpowered)",
+        /// The decoded value is outside the plausible range configured for the channel.
+        Implausible = 7 => "reading outside the plausible range",
+        /// The chip's configuration registers differ from what was written (brown-out or
+        /// hot-plug reset it): it is configured again.
+        ConfigLost = 8 => "chip lost its configuration (reconfigured)",
+    }
+}
+
+code_enum! {
+    /// A sensor or aux channel's state under the fault policy (low nibble of [`ChannelBits`]).
+    pub enum ChannelStatus: u8 {
+        /// A good reading is in use.
+        Ok = 0 => "ok",
+        /// Faulted: the last good value is held (moves still allowed).
+        Holding = 1 => "holding last good value",
+        /// Faulted for longer than the hold time: moves refused until it recovers.
+        Failed = 2 => "FAILED",
+        /// Never read successfully yet.
+        NotRead = 4 => "not read yet",
+    }
+}
+
+/// One channel's byte in the status: its state and the last fault it saw (kept after
+/// recovery).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ChannelBits {
+    /// State under the fault policy.
+    pub state: ChannelStatus,
+    /// The last fault seen, if any.
+    pub last_fault: Option<SensorFault>,
+}
+
+impl Default for ChannelBits {
+    fn default() -> Self {
+        ChannelBits {
+            state: ChannelStatus::Ok,
+            last_fault: None,
+        }
+    }
+}
+
+impl ChannelBits {
+    /// The byte: state in bits 0..3, the last fault's code in bits 4..7 (0: none).
+    pub const fn code(self) -> u8 {
+        let fault = match self.last_fault {
+            Some(f) => f.code(),
+            None => 0,
+        };
+        self.state.code() | fault << 4
+    }
+
+    /// The bits of a byte; `None` when the state or the fault code is unknown.
+    pub const fn from_code(b: u8) -> Option<Self> {
+        let Some(state) = ChannelStatus::from_code(b & 0x0F) else {
+            return None;
+        };
+        let last_fault = match b >> 4 {
+            0 => None,
+            c => match SensorFault::from_code(c) {
+                Some(f) => Some(f),
+                None => return None,
+            },
+        };
+        Some(ChannelBits { state, last_fault })
+    }
+}
+
+/// Status flags (bit set = condition present). Unknown bits are kept as they came.
+#[derive(Clone, Copy, PartialEq, Eq, Default, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Flags(u16);
+
+impl Flags {
+    /// A model is loaded.
+    pub const MODEL: Flags = Flags(1 << 0);
+    /// Compensation is bypassed.
+    pub const BYPASS: Flags = Flags(1 << 1);
+    /// Moves are refused because a sensor failed.
+    pub const SENSOR_BLOCK: Flags = Flags(1 << 2);
+    /// A temperature/aux input is outside the training envelope (extrapolation).
+    pub const EXTRAPOLATING: Flags = Flags(1 << 3);
+    /// An upload is in progress.
+    pub const UPLOADING: Flags = Flags(1 << 4);
+    /// Moves are refused: the controller's position unit (`PUN?`) is not the model's µm, or
+    /// the controller did not tell it ([`GcsErrorCode::UnitMismatch`] on the host's `ERR?`).
+    pub const UNIT_MISMATCH: Flags = Flags(1 << 5);
+    /// The thermal fold is older than the sensor hold time (sensor task stalled): moves refused.
+    pub const FOLD_STALE: Flags = Flags(1 << 8);
+    /// A host has the GCS port open (USB DTR set).
+    pub const HOST_CONNECTED: Flags = Flags(1 << 9);
+    /// Sensors are warming up: a sensor the model uses has no valid reading yet.
+    pub const WARMING_UP: Flags = Flags(1 << 10);
+    /// [`Status::move_fold`] is reported (always set by firmware that knows the field).
+    pub const MOVE_FOLD: Flags = Flags(1 << 11);
+
+    /// Every flag with its name, in bit order (the table `Debug` prints from).
+    pub const ALL: &'static [(Flags, &'static str)] = &[
+        (Flags::MODEL, "MODEL"),
+        (Flags::BYPASS, "BYPASS"),
+        (Flags::SENSOR_BLOCK, "SENSOR_BLOCK"),
+        (Flags::EXTRAPOLATING, "EXTRAPOLATING"),
+        (Flags::UPLOADING, "UPLOADING"),
+        (Flags::UNIT_MISMATCH, "UNIT_MISMATCH"),
+        (Flags::FOLD_STALE, "FOLD_STALE"),
+        (Flags::HOST_CONNECTED, "HOST_CONNECTED"),
+        (Flags::WARMING_UP, "WARMING_UP"),
+        (Flags::MOVE_FOLD, "MOVE_FOLD"),
+    ];
+
+    /// No flag set.
+    pub const fn empty() -> Self {
+        Flags(0)
+    }
+    /// The bits on the wire.
+    pub const fn bits(self) -> u16 {
+        self.0
+    }
+    /// Flags from wire bits, unknown bits kept.
+    pub const fn from_bits_retain(bits: u16) -> Self {
+        Flags(bits)
+    }
+    /// True when every flag of `other` is set.
+    pub const fn contains(self, other: Flags) -> bool {
+        self.0 & other.0 == other.0
+    }
+    /// True when any flag of `other` is set.
+    pub const fn intersects(self, other: Flags) -> bool {
+        self.0 & other.0 != 0
+    }
+    /// Set the flags of `other`.
+    pub fn insert(&mut self, other: Flags) {
+        self.0 |= other.0;
+    }
+    /// Set or clear the flags of `other`.
+    pub fn set(&mut self, other: Flags, on: bool) {
+        if on {
+            self.0 |= other.0;
+        } else {
+            self.0 &= !other.0;
+        }
+    }
+}
+
+impl BitOr for Flags {
+    type Output = Flags;
+    fn bitor(self, rhs: Flags) -> Flags {
+        Flags(self.0 | rhs.0)
+    }
+}
+
+impl BitOrAssign for Flags {
+    fn bitor_assign(&mut self, rhs: Flags) {
+        self.0 |= rhs.0;
+    }
+}
+
+impl fmt::Debug for Flags {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "Flags(")?;
+        let mut rest = self.0;
+        let mut first = true;
+        for (flag, name) in Flags::ALL {
+            if self.contains(*flag) {
+                write!(f, "{}{name}", if first { "" } else { " | " })?;
+                first = false;
+                rest &= !flag.0;
+            }
+        }
+        if rest != 0 {
+            write!(f, "{}{rest:#06x}", if first { "" } else { " | " })?;
+        }
+        write!(f, ")")
+    }
+}
+
+/// The device's status report.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Status {
+    /// Flags.
+    pub flags: Flags,
+    /// Model id (0 without a model).
+    pub model_id: u32,
+    /// The fold (the value [`Status::folds`] had) that corrected the last move forwarded to the
+    /// controller; 0: no move since start-up. With [`Flags::MOVE_FOLD`] (firmware that reports
+    /// it; the field was an unused 0 before). A host that reads `move_fold == folds` knows the
+    /// temperatures in this report are the ones its last move was corrected with.
+    pub move_fold: u32,
+    /// Temperatures in use — the last fold's inputs, the readings averaged over the fold period
+    /// (protocol 5) — °C (NaN when unusable or not folded yet).
+    pub temps_c: [f32; STATUS_SENSORS],
+    /// Per-sensor state and last fault.
+    pub sensor_bits: [ChannelBits; STATUS_SENSORS],
+    /// Sensors configured (chip-selects up to the last one with an amplifier).
+    pub sensors: u8,
+    /// Slow inputs outside the training envelope at the last fold (model input bits,
+    /// [`nanocal_model::EnvelopeFlags`]: 3 axes, 16 temperatures, 4 aux need a u32).
+    pub slow_outside: u32,
+    /// λ_KMZ per axis, µm.
+    pub kmz_um: [f64; 3],
+    /// Host lines seen.
+    pub host_lines: u32,
+    /// Moves corrected and forwarded.
+    pub moves: u32,
+    /// Moves refused.
+    pub refused: u32,
+    /// Replies mapped through the inverse.
+    pub mapped_replies: u32,
+    /// Uploads accepted.
+    pub uploads_ok: u32,
+    /// Uploads rejected.
+    pub uploads_rejected: u32,
+    /// Folds computed (slow path runs).
+    pub folds: u32,
+    /// Error waiting for the host's next `ERR?`.
+    pub pending_error: Option<GcsErrorCode>,
+    /// Why the last rejected upload was rejected.
+    pub last_upload_error: Option<Refusal>,
+    /// Uptime, ms.
+    pub uptime_ms: u32,
+    /// Chip unique ID (96 bits).
+    pub uid: [u8; UID_LEN],
+    /// Why the device last reset.
+    pub reset_cause: ResetCause,
+    /// What the status LED shows.
+    pub led: LedState,
+    /// Age of the thermal fold in use, ms.
+    pub fold_age_ms: u32,
+    /// Flash double words that failed ECC on read since start-up.
+    pub flash_ecc_errors: u32,
+    /// Times a sensor was found without its configuration and reconfigured.
+    pub sensor_reconfigs: u32,
+    /// Auxiliary inputs in use — the last fold's inputs, as [`Status::temps_c`] — in their units
+    /// (NaN when unusable).
+    pub aux: [f32; STATUS_AUX],
+    /// Per-aux state and last fault (as [`Status::sensor_bits`]).
+    pub aux_bits: [ChannelBits; STATUS_AUX],
+}
+
+impl Default for Status {
+    fn default() -> Self {
+        Status {
+            flags: Flags::empty(),
+            model_id: 0,
+            move_fold: 0,
+            temps_c: [0.0; STATUS_SENSORS],
+            sensor_bits: [ChannelBits::default(); STATUS_SENSORS],
+            sensors: 0,
+            slow_outside: 0,
+            kmz_um: [0.0; 3],
+            host_lines: 0,
+            moves: 0,
+            refused: 0,
+            mapped_replies: 0,
+            uploads_ok: 0,
+            uploads_rejected: 0,
+            folds: 0,
+            pending_error: None,
+            last_upload_error: None,
+            uptime_ms: 0,
+            uid: [0; UID_LEN],
+            reset_cause: ResetCause::Unknown,
+            led: LedState::NoModel,
+            fold_age_ms: 0,
+            flash_ecc_errors: 0,
+            sensor_reconfigs: 0,
+            aux: [0.0; STATUS_AUX],
+            aux_bits: [ChannelBits::default(); STATUS_AUX],
+        }
+    }
+}
+
+/// The reserved byte at offset 6 (the flash slot of an older store).
+const RESERVED: u8 = 0xFF;
+
+impl Status {
+    /// Encoded length.
+    pub const LEN: usize = 2
+        + 4
+        + 1
+        + 4
+        + 4 * STATUS_SENSORS
+        + STATUS_SENSORS
+        + 1
+        + 4
+        + 8 * 3
+        + 7 * 4
+        + 4
+        + 1
+        + 4
+        + UID_LEN
+        + 1
+        + 1
+        + 4 * 3
+        + 5 * STATUS_AUX;
+
+    /// Encode (the layout in the module docs).
+    pub fn encode(&self, w: &mut Writer<'_>) -> Result<(), PayloadError> {
+        w.u16(self.flags.bits())?;
+        w.u32(self.model_id)?;
+        w.u8(RESERVED)?;
+        w.u32(self.move_fold)?;
+        for t in self.temps_c {
+            w.f32(t)?;
+        }
+        for b in self.sensor_bits {
+            w.u8(b.code())?;
+        }
+        w.u8(self.sensors)?;
+        w.u32(self.slow_outside)?;
+        for k in self.kmz_um {
+            w.f64(k)?;
+        }
+        for c in [
+            self.host_lines,
+            self.moves,
+            self.refused,
+            self.mapped_replies,
+            self.uploads_ok,
+            self.uploads_rejected,
+            self.folds,
+        ] {
+            w.u32(c)?;
+        }
+        w.i32(self.pending_error.map_or(0, GcsErrorCode::code))?;
+        w.u8(self.last_upload_error.map_or(0, Refusal::code))?;
+        w.u32(self.uptime_ms)?;
+        w.bytes(&self.uid)?;
+        w.u8(self.reset_cause.code())?;
+        w.u8(self.led.code())?;
+        w.u32(self.fold_age_ms)?;
+        w.u32(self.flash_ecc_errors)?;
+        w.u32(self.sensor_reconfigs)?;
+        for a in self.aux {
+            w.f32(a)?;
+        }
+        for b in self.aux_bits {
+            w.u8(b.code())?;
+        }
+        Ok(())
+    }
+
+    /// Decode (the layout in the module docs); a code no enum has is an error naming the field.
+    pub fn decode(r: &mut Reader<'_>) -> Result<Self, PayloadError> {
+        let mut s = Status {
+            flags: Flags::from_bits_retain(r.u16()?),
+            model_id: r.u32()?,
+            ..Default::default()
+        };
+        r.u8()?; // reserved
+        s.move_fold = r.u32()?;
+        for t in s.temps_c.iter_mut() {
+            *t = r.f32()?;
+        }
+        for b in s.sensor_bits.iter_mut() {
+            *b = channel_bits(r.u8()?, "sensor_bits")?;
+        }
+        s.sensors = r.u8()?;
+        s.slow_outside = r.u32()?;
+        for k in s.kmz_um.iter_mut() {
+            *k = r.f64()?;
+        }
+        s.host_lines = r.u32()?;
+        s.moves = r.u32()?;
+        s.refused = r.u32()?;
+        s.mapped_replies = r.u32()?;
+        s.uploads_ok = r.u32()?;
+        s.uploads_rejected = r.u32()?;
+        s.folds = r.u32()?;
+        s.pending_error = match r.i32()? {
+            0 => None,
+            c => Some(GcsErrorCode::from_code(c).ok_or(PayloadError::Value {
+                field: "pending_error",
+                value: c as u32,
+            })?),
+        };
+        s.last_upload_error = match r.u8()? {
+            0 => None,
+            c => Some(Refusal::from_code(c).ok_or(PayloadError::Value {
+                field: "last_upload_error",
+                value: c.into(),
+            })?),
+        };
+        s.uptime_ms = r.u32()?;
+        s.uid.copy_from_slice(r.bytes(UID_LEN)?);
+        let c = r.u8()?;
+        s.reset_cause = ResetCause::from_code(c).ok_or(PayloadError::Value {
+            field: "reset_cause",
+            value: c.into(),
+        })?;
+        let c = r.u8()?;
+        s.led = LedState::from_code(c).ok_or(PayloadError::Value {
+            field: "led",
+            value: c.into(),
+        })?;
+        s.fold_age_ms = r.u32()?;
+        s.flash_ecc_errors = r.u32()?;
+        s.sensor_reconfigs = r.u32()?;
+        for a in s.aux.iter_mut() {
+            *a = r.f32()?;
+        }
+        for b in s.aux_bits.iter_mut() {
+            *b = channel_bits(r.u8()?, "aux_bits")?;
+        }
+        Ok(s)
+    }
+}
+
+fn channel_bits(b: u8, field: &'static str) -> Result<ChannelBits, PayloadError> {
+    ChannelBits::from_code(b).ok_or(PayloadError::Value {
+        field,
+        value: b.into(),
+    })
+}

@@ -380,11 +380,22 @@ fn table1(f: &FitReport) -> String {
     for (i, t) in f.frame.temps.iter().enumerate().take(4) {
         rows.push((format!("b{} ({t})", i + 1), coeff(t), B_UM_PER_C[i]));
     }
+    let b_sum: Option<f64> = rows[3..]
+        .iter()
+        .map(|(_, got, _)| got.map(|(c, kept)| if kept { c } else { 0.0 }))
+        .sum();
     rows.push(("λ (µm)".into(), Some((ax.offset_um, true)), LAMBDA_UM));
+    let paper_b_sum: f64 = B_UM_PER_C.iter().sum();
     for (name, got, paper) in rows {
         s += &format!("     {name:<18} {}   Table 1: {paper:>+12.4e}\n", cell(got));
     }
-    s += "     (the twin's thermal coefficients are Table 1's b negated, so b should come back near them; a and λ\n      describe the twin's own geometry and the interferometer's zero)\n";
+    if let Some(b_sum) = b_sum {
+        s += &format!(
+            "     {:<18} {b_sum:>+12.4e}   Table 1: {paper_b_sum:>+12.4e}\n",
+            "Σ b (µm/°C)"
+        );
+    }
+    s += "     (the four temperatures follow the room together, so the data fix the b's sum far better than each b;\n      the twin adds an unsensed table at 0.3 µm/°C with a 3 h lag; a and λ describe the twin's own geometry\n      and the interferometer's zero, not the paper's stage)\n";
     s
 }
 
@@ -664,8 +675,8 @@ fn easier_or_harder() -> String {
         "  flexure hinges, parasitic rotations and gradients inside its parts are not simulated;",
         "- harder: the stages carry physics the published models cannot see — the structure lags its sensors by",
         "  20 min, the stroke changes 50 ppm/°C (a KMZ at 0 µm cannot measure it), a part of the loop has no",
-        "  sensor — and the device folds single readings of type K thermocouples through a MAX31856 (≈ 16 mK noise",
-        "  each), not the 5 s averages the fit was trained on;",
+        "  sensor — and the device reads type K thermocouples through a MAX31856 (≈ 16 mK noise a reading); it",
+        "  averages them over its fold period (5 s, 20 readings) as paper 001 §VI does;",
         "- different: the 2 s rise is modelled as a step (the twin's stage has no transient); the validation is",
         "  evaluated open loop — the target for which the device sends the recorded command — instead of",
         "  driving the stage through the model (equivalent to f32 rounding, see tests/validate_device.rs).",

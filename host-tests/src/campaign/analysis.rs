@@ -10,7 +10,7 @@ use crate::device_path::SlowPeriods;
 use crate::plan::{Phase, Plan, Step, TestKind};
 use crate::procedure::ProcedureData;
 use crate::recording::Recording;
-use crate::validate::{validate_roles, Compensation, ValidationOptions, ValidationReport};
+use crate::validate::{validate_roles, Compensation, Role, ValidationOptions, ValidationReport};
 use nanocal_model::Model;
 use std::path::Path;
 
@@ -191,12 +191,17 @@ pub fn two_tables(
     }
     // a KMZ that is the first visit of its test is a reading in bypass, not a compensated
     // move: paper 000 counts it with its drift cancelled by the λ_KMZ it gives (Eq. 17–18),
-    // which is the evaluation of the file-based validation — the campaign's table takes it
+    // which is the evaluation of the file-based validation — the campaign's table takes it,
+    // as a visit of its test (without a model a KMZ role is no visit at all)
+    let mut roles = asked.roles(kind);
     for v in f.visits.iter().filter(|v| v.kmz_reference && !v.extra) {
         let d = &mut asked.data.dwells;
         if let Some(i) = d.t_start_s.iter().position(|&t| t == v.t_move_s) {
             for a in 0..axes {
                 d.cmd_um[a][i] = d.meas_um[a][i] - v.error_um[a];
+            }
+            if let Some(r) = roles.get_mut(i) {
+                *r = Role::Visit(v.test);
             }
         }
     }
@@ -205,14 +210,8 @@ pub fn two_tables(
         cycles_per_test: 1,
         time_h: Some(data.validation_h()),
     };
-    let mut c = validate_roles(
-        None,
-        &asked.data,
-        &Compensation::None,
-        &asked.roles(kind),
-        &opts,
-    )
-    .map_err(|e| err(e.to_string()))?;
+    let mut c = validate_roles(None, &asked.data, &Compensation::None, &roles, &opts)
+        .map_err(|e| err(e.to_string()))?;
     c.compensation = compensation(kind, plan, axes);
     Ok((c, f))
 }

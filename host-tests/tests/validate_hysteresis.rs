@@ -63,7 +63,8 @@ fn data(walk: &[(f64, i8, f64)]) -> ValidationData {
     ValidationData {
         dwells,
         sensors,
-        poses_um: None,
+        // the poses asked for (the commands are the device's corrections of them)
+        poses_um: Some(vec![walk.iter().map(|w| w.0).collect()]),
     }
 }
 

@@ -16,6 +16,9 @@ use crate::dwell::{dwell_average, DwellError, DwellOptions, Dwells};
 use crate::linalg::{lstsq, LinalgError};
 use crate::recording::Recording;
 use crate::stepwise::{stepwise, StepwiseError, StepwiseOptions, StepwiseResult};
+use crate::uncertainty::{
+    time_blocks, variance_inflation, HeldOut, PredictionBand, UncertaintyError, Vif,
+};
 
 /// Errors of a fit.
 #[derive(Debug, thiserror::Error)]
@@ -35,6 +38,9 @@ pub enum FitError {
     /// The model crate rejected the fitted model.
     #[error("model: {0:?}")]
     Model(ModelError),
+    /// The held-out blocks could not be made.
+    #[error(transparent)]
+    Uncertainty(UncertaintyError),
     /// Too few dwells for the number of candidates.
     #[error("expected more dwells than candidate terms + 1 for axis {axis}: {dwells} dwells, {candidates} candidates")]
     TooFewDwells {
@@ -102,6 +108,16 @@ pub struct AxisFit {
     pub r_squared: f64,
     /// The stepwise run, when stepwise selection was used.
     pub stepwise: Option<StepwiseResult>,
+    /// Residual sum of squares on the training dwells, µm².
+    pub ss_resid_um2: f64,
+    /// The prediction interval of the command (= of the correction, the target being known)
+    /// over the model's own terms of this axis, in the model's term order
+    /// ([`band_regressors`]); an error when it is undefined (no residual degrees of freedom,
+    /// rank-deficient design).
+    pub band: Result<PredictionBand, UncertaintyError>,
+    /// Half-width of the 95 % prediction interval at the training dwells — the training
+    /// envelope as measured: (smallest, median, largest), µm (NaN without a band).
+    pub pi95_training_um: (f64, f64, f64),
 }
 
 /// A fitted model and how it was obtained.
@@ -115,6 +131,8 @@ pub struct FitReport {
     pub axes: Vec<AxisFit>,
     /// Number of training dwells.
     pub dwells: usize,
+    /// Variance inflation of every temperature channel the design uses, against the others.
+    pub temp_vif: Vec<Vif>,
 }
 
 /// Fits a model on a raw recording (dwell averaging first).
@@ -159,6 +177,9 @@ pub fn fit_dwells(d: &Dwells, opts: &FitOptions) -> Result<FitReport, FitError> 
                     r_squared: 1.0 - ls.rss / ss_tot,
                     candidates,
                     stepwise: None,
+                    ss_resid_um2: ls.rss,
+                    band: Err(UncertaintyError::RankDeficient(0)),
+                    pi95_training_um: (f64::NAN, f64::NAN, f64::NAN),
                 }
             }
             Selection::Stepwise(sopts) => {
@@ -182,7 +203,10 @@ pub fn fit_dwells(d: &Dwells, opts: &FitOptions) -> Result<FitReport, FitError> 
                     rmse_um: res.rmse,
                     r_squared: res.r_squared,
                     candidates,
+                    ss_resid_um2: res.ss_resid,
                     stepwise: Some(res),
+                    band: Err(UncertaintyError::RankDeficient(0)),
+                    pi95_training_um: (f64::NAN, f64::NAN, f64::NAN),
                 }
             }
         };
@@ -202,11 +226,37 @@ pub fn fit_dwells(d: &Dwells, opts: &FitOptions) -> Result<FitReport, FitError> 
         axes.push(fit);
     }
     let model = builder.build().map_err(FitError::Model)?;
+    for (a, fit) in axes.iter_mut().enumerate() {
+        let rows: Vec<Vec<f64>> = inputs
+            .iter()
+            .map(|s| band_regressors(&model, a, s))
+            .collect();
+        let p = rows.first().map_or(0, |r| r.len());
+        let cols: Vec<Vec<f64>> = (0..p)
+            .map(|j| rows.iter().map(|r| r[j]).collect())
+            .collect();
+        let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
+        fit.band = PredictionBand::new(&refs, fit.ss_resid_um2);
+        if let Ok(band) = &fit.band {
+            let mut hw: Vec<f64> = rows
+                .iter()
+                .filter_map(|r| band.half_width(r, 0.95).ok())
+                .filter(|h| h.is_finite())
+                .collect();
+            hw.sort_by(f64::total_cmp);
+            if !hw.is_empty() {
+                fit.pi95_training_um = (hw[0], hw[hw.len() / 2], hw[hw.len() - 1]);
+            }
+        }
+    }
+    let temp_cols: Vec<&[f64]> = frame.temps.iter().filter_map(|n| d.channel(n)).collect();
+    let temp_vif = variance_inflation(&frame.temps, &temp_cols);
     Ok(FitReport {
         model,
         frame,
         axes,
         dwells: d.len(),
+        temp_vif,
     })
 }
 
@@ -240,6 +290,62 @@ pub fn parameter_count(fit: &FitReport) -> ParameterCount {
         }
     }
     n
+}
+
+/// The regressors of output axis `axis` at `inputs`: the model's own terms of that axis, in the
+/// model's order (the columns of [`AxisFit::band`]).
+pub fn band_regressors(
+    model: &Model,
+    axis: usize,
+    inputs: &nanocal_model::ScaledInputs,
+) -> Vec<f64> {
+    model
+        .terms()
+        .iter()
+        .filter(|t| t.output as usize == axis)
+        .map(|t| t.value(inputs))
+        .collect()
+}
+
+/// Held-out accuracy per output axis, by `blocks` contiguous blocks of dwells in time order
+/// ([`crate::uncertainty`] says why not random rows): each block is predicted by the whole
+/// procedure — design, selection, fit — run on the other blocks; the error is the recorded
+/// command minus the predicted one, µm. A block at either end of the recording is an
+/// extrapolation in time (and often in temperature): that is the honest case.
+pub fn held_out_accuracy(
+    d: &Dwells,
+    opts: &FitOptions,
+    blocks: usize,
+) -> Result<Vec<HeldOut>, FitError> {
+    let ranges = time_blocks(d.len(), blocks).map_err(FitError::Uncertainty)?;
+    let axes = d.axes.len();
+    let mut errors: Vec<Vec<Vec<f64>>> = vec![Vec::new(); axes];
+    for &(start, end) in &ranges {
+        let train = d.filter(|i| i < start || i >= end);
+        let test = d.filter(|i| i >= start && i < end);
+        let rep = fit_dwells(&train, opts)?;
+        let slow = rep.frame.slow_inputs(&test);
+        let mut per_axis = vec![Vec::with_capacity(test.len()); axes];
+        for (i, slow_i) in slow.iter().enumerate() {
+            let mut x = [0.0; MAX_AXES];
+            let mut dir = [0i8; MAX_AXES];
+            for a in 0..axes {
+                x[a] = test.meas_um[a][i];
+                dir[a] = test.dir[a][i];
+            }
+            let q = rep.model.eval_f64(&x, &dir, slow_i);
+            for a in 0..axes {
+                per_axis[a].push(test.cmd_um[a][i] - q[a]);
+            }
+        }
+        for (a, e) in per_axis.into_iter().enumerate() {
+            errors[a].push(e);
+        }
+    }
+    Ok(errors
+        .iter()
+        .map(|e| HeldOut::from_block_errors(e))
+        .collect())
 }
 
 /// Writes a model as a blob file.

@@ -16,6 +16,10 @@ enum Command {
     Stepwise(nanocal::cli::stepwise::StepwiseArgs),
     /// Fit a calibration model to a training recording and write the model blob.
     Fit(nanocal::cli::fit::FitArgs),
+    /// Write a model's correction of one axis as a bidirectional error table (CSV).
+    ExportTable(nanocal::cli::export::ExportTableArgs),
+    /// Import a PI data-recorder file (GCSArray, `DRR?` reply) as a recording.
+    Import(nanocal::cli::import::ImportArgs),
     /// Validate a model on a recording: no model / static / adaptive KMZ, ISO 9283 metrics.
     Validate(nanocal::cli::validate::ValidateArgs),
     /// Validate and write the report plots (PNG + SVG).
@@ -63,6 +67,8 @@ fn main() -> anyhow::Result<()> {
         }
         Command::Stepwise(a) => nanocal::cli::stepwise::run(a),
         Command::Fit(a) => nanocal::cli::fit::run(a),
+        Command::Import(a) => nanocal::cli::import::run(a),
+        Command::ExportTable(a) => nanocal::cli::export::run(a),
         Command::Validate(a) => nanocal::cli::validate::run(a),
         Command::Report(a) => nanocal::cli::report::run(a),
         Command::Campaign(a) => nanocal::cli::campaign::run(a),

@@ -163,5 +163,161 @@ pub fn write_report(dir: &Path, reports: &[&ValidationReport]) -> Result<Vec<Pat
             series,
         },
     )?);
+    // 6. 2-DoF and more: each pose in x–y with its barycentre offset and repeatability circle
+    if reports.iter().any(|r| {
+        r.tests
+            .iter()
+            .any(|t| t.poses.iter().any(|p| p.target_um.len() >= 2))
+    }) {
+        files.extend(write_pose_figures(dir, reports)?);
+    }
+    Ok(files)
+}
+
+/// A 1-2-5 number at or below `v`.
+fn nice_floor(v: f64) -> f64 {
+    if !(v > 0.0 && v.is_finite()) {
+        return 1.0;
+    }
+    let e = 10f64.powf(v.log10().floor());
+    let m = v / e;
+    let f = if m >= 5.0 {
+        5.0
+    } else if m >= 2.0 {
+        2.0
+    } else {
+        1.0
+    };
+    f * e
+}
+
+/// ISO 9283 pose figures for a stage with two or more axes, one per compensation (first test,
+/// first two axes): every pose at its commanded x–y, an arrow to its barycentre with the offset
+/// (AP vector) scaled by a common factor, and around the barycentre the repeatability circle
+/// of radius RP on the same scale. The factor (a 1-2-5 number, in the title and legend) is
+/// chosen per compensation so that its largest offset + circle fills about half the pose
+/// spacing — a compensated stage's nanometres and an uncompensated one's micrometres both show;
+/// the plot range is padded to the canvas's aspect (≈ 1.8 : 1) so the circles stay round.
+pub fn write_pose_figures(
+    dir: &Path,
+    reports: &[&ValidationReport],
+) -> Result<Vec<PathBuf>, PlotError> {
+    let firsts: Vec<(&ValidationReport, &crate::iso9283::TestStats)> = reports
+        .iter()
+        .filter_map(|r| r.tests.first().map(|t| (*r, t)))
+        .collect();
+    let poses = || {
+        firsts
+            .iter()
+            .flat_map(|(_, t)| t.poses.iter())
+            .filter(|p| p.target_um.len() >= 2 && p.mean_error_um.len() >= 2)
+    };
+    // spacing of the poses and the largest offset + circle decide the scale
+    let targets: Vec<(f64, f64)> = poses().map(|p| (p.target_um[0], p.target_um[1])).collect();
+    let mut spacing = f64::INFINITY;
+    for (i, a) in targets.iter().enumerate() {
+        for b in &targets[i + 1..] {
+            let d = ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt();
+            if d > 1e-9 {
+                spacing = spacing.min(d);
+            }
+        }
+    }
+    if !spacing.is_finite() {
+        spacing = 1.0;
+    }
+    let (xs, ys): (Vec<f64>, Vec<f64>) = targets.iter().copied().unzip();
+    let span = |v: &[f64]| {
+        let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        (lo, hi)
+    };
+    let ((xl, xh), (yl, yh)) = (span(&xs), span(&ys));
+    let pad = 0.6 * spacing;
+    let (mut x0, mut x1, mut y0, mut y1) = (xl - pad, xh + pad, yl - pad, yh + pad);
+    // equal scale on both axes: the plot area is about 1.8 times wider than high
+    let aspect = 1.8;
+    let (w, h) = (x1 - x0, y1 - y0);
+    if w < aspect * h {
+        let grow = 0.5 * (aspect * h - w);
+        x0 -= grow;
+        x1 += grow;
+    } else {
+        let grow = 0.5 * (w / aspect - h);
+        y0 -= grow;
+        y1 += grow;
+    }
+    let mut files = Vec::new();
+    for (r, t) in &firsts {
+        // this compensation's scale: its largest offset + circle fills 45 % of the spacing
+        let reach = t
+            .poses
+            .iter()
+            .filter(|p| p.mean_error_um.len() >= 2)
+            .map(|p| p.mean_error_um[0].hypot(p.mean_error_um[1]) + p.repeatability_um)
+            .filter(|v| v.is_finite())
+            .fold(0.0f64, f64::max);
+        let scale = nice_floor(0.45 * spacing / reach.max(1e-12));
+        let gap = (f64::NAN, f64::NAN);
+        let mut arrows = Vec::new();
+        let mut circles = Vec::new();
+        let mut centres = Vec::new();
+        for p in t.poses.iter().filter(|p| p.target_um.len() >= 2) {
+            let (cx, cy) = (p.target_um[0], p.target_um[1]);
+            centres.push((cx, cy));
+            let (dx, dy) = (scale * p.mean_error_um[0], scale * p.mean_error_um[1]);
+            let (tx, ty) = (cx + dx, cy + dy);
+            arrows.extend([(cx, cy), (tx, ty), gap]);
+            let len = dx.hypot(dy);
+            if len > 0.0 {
+                let head = 0.25 * len;
+                let (ux, uy) = (dx / len, dy / len);
+                for side in [1.0, -1.0] {
+                    let (c, s) = (0.94f64, 0.34 * side); // ±20°
+                    let (hx, hy) = (-(ux * c - uy * s), -(ux * s + uy * c));
+                    arrows.extend([(tx, ty), (tx + head * hx, ty + head * hy), gap]);
+                }
+            }
+            let rad = scale * p.repeatability_um;
+            if rad.is_finite() && rad > 0.0 {
+                for k in 0..=64 {
+                    let a = k as f64 / 64.0 * std::f64::consts::TAU;
+                    circles.push((tx + rad * a.cos(), ty + rad * a.sin()));
+                }
+                circles.push(gap);
+            }
+        }
+        // corners that fix the range (lone points between gaps draw nothing)
+        circles.extend([gap, (x0, y0), gap, (x1, y1), gap]);
+        let name = r.compensation.name();
+        let stem = format!("pose_xy_{}", name.replace(' ', "_"));
+        files.extend(write_chart(
+            &dir.join(stem),
+            &Chart {
+                title: format!(
+                    "{name}: poses in x–y, first test (ISO 9283 pose figure; offsets and circles ×{scale})"
+                ),
+                x_label: "x (µm)".into(),
+                y_label: "y (µm)".into(),
+                series: vec![
+                    Series {
+                        name: "commanded pose".into(),
+                        points: centres,
+                        style: Style::Points,
+                    },
+                    Series {
+                        name: format!("barycentre offset AP ×{scale}"),
+                        points: arrows,
+                        style: Style::Line,
+                    },
+                    Series {
+                        name: format!("repeatability circle RP ×{scale}"),
+                        points: circles,
+                        style: Style::Line,
+                    },
+                ],
+            },
+        )?);
+    }
     Ok(files)
 }

@@ -136,6 +136,9 @@ pub struct StepwiseResult {
     pub rmse: f64,
     /// Coefficient of determination `1 − SSresid/SStotal`.
     pub r_squared: f64,
+    /// Adjusted R² `1 − (SSresid/dfe) / (SStotal/(n − 1))` (MATLAB's `LinearModel`
+    /// `Rsquared.Adjusted`; `stepwisefit` itself reports the sums of squares it comes from).
+    pub r_squared_adjusted: f64,
     /// Overall F statistic of the final model.
     pub fstat: f64,
     /// p-value of the F statistic.
@@ -154,6 +157,19 @@ pub struct StepwiseResult {
     pub history: Vec<Step>,
     /// Rows used (without NaN).
     pub rows_used: usize,
+}
+
+impl StepwiseResult {
+    /// The final model's prediction at one row of candidate values (excluded columns ignored).
+    pub fn predict(&self, row: &[f64]) -> f64 {
+        self.intercept
+            + row
+                .iter()
+                .zip(self.b.iter().zip(&self.inmodel))
+                .filter(|(_, (_, &i))| i)
+                .map(|(x, (b, _))| x * b)
+                .sum::<f64>()
+    }
 }
 
 /// Stepwise regression of `y` on the candidate columns `x` (see the module doc).
@@ -279,6 +295,8 @@ fn run(
         let next = stepnext(&in_, &c.pval, &c.b, penter, premove, keep);
         if jstep >= maxiter || next.is_none() {
             let r_squared = 1.0 - c.ss_resid / c.ss_total;
+            let r_squared_adjusted =
+                1.0 - (c.ss_resid / c.dfe as f64) / (c.ss_total / (n as f64 - 1.0));
             let fstat = ((c.ss_total - c.ss_resid) / c.df0 as f64) / (c.rmse * c.rmse);
             let fpval = crate::stats::f_pvalue(fstat, c.df0 as f64, c.dfe as f64);
             return StepwiseResult {
@@ -290,6 +308,7 @@ fn run(
                 intercept: c.intercept,
                 rmse: c.rmse,
                 r_squared,
+                r_squared_adjusted,
                 fstat,
                 fpval,
                 dfe: c.dfe,

@@ -33,7 +33,7 @@
 //! (Eq. 20–21) in µm and µm/h ([`crate::iso9283`]).
 
 use nanocal_compensator::proxy::{Corrector, FoldCorrector};
-use nanocal_model::{FastInputs, HysteresisState, Model, MAX_AXES};
+use nanocal_model::{FastInputs, HysteresisState, Model, SlowInputs, MAX_AXES};
 
 use crate::device_path::{DeviceSlowPath, SensorStream, SlowPeriods};
 use crate::dwell::{dwell_average, DwellError, DwellOptions, Dwells};
@@ -196,6 +196,12 @@ pub struct Visit {
     pub outside_envelope: bool,
     /// Mean temperature of the visit over all `temp_*` channels, °C (NaN without any).
     pub mean_temp_c: f64,
+    /// Index of the dwell in the validation data.
+    pub dwell: usize,
+    /// Where the stage went (the measured position), per axis, µm.
+    pub reached_um: Vec<f64>,
+    /// The slow inputs the device had in force when the move was sent.
+    pub slow: SlowInputs,
 }
 
 impl Visit {
@@ -458,6 +464,9 @@ pub fn validate_roles(
             } else {
                 temps.iter().map(|c| c[i]).sum::<f64>() / temps.len() as f64
             },
+            dwell: i,
+            reached_um: x[..k].to_vec(),
+            slow,
         });
     }
     Ok(summarise(
@@ -635,4 +644,77 @@ pub fn comparison_table(reports: &[&ValidationReport]) -> String {
          tests; R_s in nm, R_t in nm/h (Eq. 20–21))"
     );
     s
+}
+
+/// How often the measured error fell inside the fit's prediction interval.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Coverage {
+    /// Nominal level of the interval (e.g. 0.95).
+    pub level: f64,
+    /// Counted visit-axes whose |error| was inside the interval.
+    pub inside: usize,
+    /// Counted visit-axes evaluated.
+    pub n: usize,
+    /// Median half-width of the interval at the visits, µm.
+    pub median_half_width_um: f64,
+}
+
+impl Coverage {
+    /// Measured coverage, 0…1 (NaN without visits).
+    pub fn fraction(&self) -> f64 {
+        self.inside as f64 / self.n as f64
+    }
+}
+
+/// Coverage of the prediction interval of `model`'s fit (`bands`: one per axis, over the
+/// model's own terms, from [`crate::fit::AxisFit::band`]) by the counted visits of `report`.
+///
+/// The band is of the command `q̂(x)` at the reached position `x`; the position error of a
+/// visit is `x − x̂` with `q̂(x̂) = q`, so `x − x̂ ≈ (q̂(x) − q) / q̂′(x)`: the interval in
+/// position is the command interval divided by the local slope `∂q̂_a/∂x_a` (central difference
+/// of the f64 model, ±0.01 µm).
+pub fn coverage(
+    report: &ValidationReport,
+    model: &Model,
+    bands: &[crate::uncertainty::PredictionBand],
+    level: f64,
+) -> Result<Coverage, crate::uncertainty::UncertaintyError> {
+    let mut inside = 0;
+    let mut n = 0;
+    let mut widths = Vec::new();
+    for v in report.visits.iter().filter(|v| v.counted()) {
+        let k = v.reached_um.len();
+        let mut x = [0.0; MAX_AXES];
+        let mut dir = [0i8; MAX_AXES];
+        x[..k].copy_from_slice(&v.reached_um[..k]);
+        dir[..k].copy_from_slice(&v.dir[..k]);
+        let scaled = model.scale(&x, &dir, &v.slow);
+        for (a, band) in bands.iter().enumerate().take(k) {
+            if !v.error_um[a].is_finite() {
+                continue;
+            }
+            let row = crate::fit::band_regressors(model, a, &scaled);
+            let h = band.half_width(&row, level)?;
+            let step = 0.01;
+            let (mut lo, mut hi) = (x, x);
+            lo[a] -= step;
+            hi[a] += step;
+            let slope = (model.eval_f64(&hi, &dir, &v.slow)[a]
+                - model.eval_f64(&lo, &dir, &v.slow)[a])
+                / (2.0 * step);
+            let h_pos = h / slope.abs();
+            widths.push(h_pos);
+            n += 1;
+            if v.error_um[a].abs() <= h_pos {
+                inside += 1;
+            }
+        }
+    }
+    widths.sort_by(f64::total_cmp);
+    Ok(Coverage {
+        level,
+        inside,
+        n,
+        median_half_width_um: widths.get(widths.len() / 2).copied().unwrap_or(f64::NAN),
+    })
 }

@@ -72,7 +72,9 @@ fn coupled_2dof_fit_and_n_d_validation() {
     // the report plots n-D errors as distances
     let dir = std::env::temp_dir().join(format!("nanocal-2dof-report-{}", std::process::id()));
     let files = nanocal::report::write_report(&dir, &[&none, &stat, &adap]).unwrap();
-    assert_eq!(files.len(), 10);
+    // 5 charts + one x–y pose figure per compensation (ISO 9283), each as PNG and SVG
+    assert_eq!(files.len(), 16);
+    assert!(files.iter().any(|f| f.ends_with("pose_xy_static.svg")));
     assert!(files.iter().all(|f| std::fs::metadata(f)
         .map(|m| m.len() > 1000)
         .unwrap_or(false)));

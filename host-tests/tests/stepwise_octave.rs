@@ -499,3 +499,74 @@ fn stepwise_matches_octave_oracle_on_degenerate_designs() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// MATLAB's documented example, `stepwisefit(ingredients, heat)` on the Hald cement data, against
+/// the Octave reference: every output of `stepwisefit` — b, se, pval, inmodel, the final
+/// statistics and the history (step, column, p, rmse, df0).
+#[test]
+fn hald_matches_octave_oracle_in_every_output() {
+    if !oracle_ready("hald_matches_octave_oracle_in_every_output") {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("nanocal-stepwise-hald-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let rec = Recording::read_path(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../data/hald-cement/hald.csv"
+    ))
+    .unwrap();
+    let x: Vec<Vec<f64>> = ["x1", "x2", "x3", "x4"]
+        .iter()
+        .map(|c| rec.column(c).unwrap().to_vec())
+        .collect();
+    let y = rec.column("heat").unwrap().to_vec();
+    let want = run_oracle(&dir, "hald", &x, &y, &[]);
+    let xr: Vec<&[f64]> = x.iter().map(|c| c.as_slice()).collect();
+    let got = stepwise(&xr, &y, &StepwiseOptions::default()).unwrap();
+    let near = |a: f64, b: f64, what: &str| {
+        assert!(close(a, b, 1e-10, 1e-300), "{what}: {a} vs Octave {b}");
+    };
+    for (k, name) in [(0, "b"), (1, "se"), (2, "pval"), (3, "tstat")] {
+        let w = nums(&want[name]);
+        let g = [&got.b, &got.se, &got.pval, &got.tstat][k];
+        for j in 0..4 {
+            near(g[j], w[j], &format!("{name}[{j}]"));
+        }
+    }
+    let inm: Vec<bool> = want["inmodel"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| b.as_bool().unwrap())
+        .collect();
+    assert_eq!(got.inmodel, inm);
+    near(
+        got.intercept,
+        want["intercept"].as_f64().unwrap(),
+        "intercept",
+    );
+    near(got.rmse, want["rmse"].as_f64().unwrap(), "rmse");
+    near(got.r_squared, want["r2"].as_f64().unwrap(), "R²");
+    near(got.fstat, want["fstat"].as_f64().unwrap(), "F");
+    near(got.fpval, want["model_pval"].as_f64().unwrap(), "p of F");
+    near(got.ss_total, want["SStotal"].as_f64().unwrap(), "SStotal");
+    near(got.ss_resid, want["SSresid"].as_f64().unwrap(), "SSresid");
+    assert_eq!(got.dfe as u64, want["dfe"].as_u64().unwrap());
+    assert_eq!(got.df0 as u64, want["df0"].as_u64().unwrap());
+    // adjusted R² from Octave's sums of squares
+    let n = got.rows_used as f64;
+    let adj = 1.0
+        - (want["SSresid"].as_f64().unwrap() / want["dfe"].as_f64().unwrap())
+            / (want["SStotal"].as_f64().unwrap() / (n - 1.0));
+    near(got.r_squared_adjusted, adj, "adjusted R²");
+    let hist = want["history"].as_array().unwrap();
+    assert_eq!(got.history.len(), hist.len());
+    for (s, h) in got.history.iter().zip(hist) {
+        let idx = h["idx"].as_u64().unwrap() as usize - 1;
+        assert_eq!(s.action, Action::Added(idx));
+        near(s.p, h["p"].as_f64().unwrap(), "history p");
+        near(s.rmse, h["rmse"].as_f64().unwrap(), "history rmse");
+        assert_eq!(s.df0 as u64, h["df0"].as_u64().unwrap());
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -46,6 +46,15 @@ pub struct FitArgs {
     /// Model identifier stored in the blob.
     #[arg(long, default_value_t = 0x0003_0001)]
     pub id: u32,
+    /// Held-out accuracy over this many contiguous blocks of dwells in time order (the whole
+    /// fit rerun without each block); 0: skip.
+    #[arg(long, default_value_t = 5)]
+    pub blocks: usize,
+    /// Write the fit report as JSON here: per axis MATLAB `stepwisefit`'s outputs (b, se, pval,
+    /// inmodel, stats, history), the prediction band (what `validate --fit-json` needs for
+    /// coverage), VIF, held-out accuracy.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
 }
 
 /// Runs `nanocal fit`.
@@ -81,6 +90,48 @@ pub fn run(args: FitArgs) -> anyhow::Result<()> {
         fit_dwells(&d, &opts).with_context(|| format!("fitting {}", args.recording.display()))?;
     bar.finish_and_clear();
     print!("{}", summary(&rep));
+    let held_out = if args.blocks > 0 {
+        let bar = crate::cli::validate::spinner(format!(
+            "held-out accuracy: refitting without each of {} blocks of time",
+            args.blocks
+        ));
+        let result = crate::fit::held_out_accuracy(&d, &opts, args.blocks);
+        bar.finish_and_clear();
+        match result {
+            Ok(h) => {
+                for (ax, h) in rep.frame.axes.iter().zip(&h) {
+                    println!(
+                        "held-out accuracy, axis {ax} ({} blocks of time, whole fit rerun without each): RMS {:.1} nm, max |error| {:.1} nm over {} dwells (per block RMS: {} nm)",
+                        h.blocks,
+                        h.rms * 1e3,
+                        h.max_abs * 1e3,
+                        h.n,
+                        h.block_rms
+                            .iter()
+                            .map(|v| format!("{:.1}", v * 1e3))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    );
+                }
+                Some(h)
+            }
+            Err(e) => {
+                // the fit itself stands: say why there is no held-out figure, keep going
+                println!(
+                    "held-out accuracy not computed ({} blocks): {e}",
+                    args.blocks
+                );
+                None
+            }
+        }
+    } else {
+        None
+    };
+    if let Some(path) = &args.json {
+        let json = report_json(&rep, held_out.as_deref());
+        std::fs::write(path, serde_json::to_string_pretty(&json)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
     let bytes = encode_blob(&rep.model);
     std::fs::write(&args.output, &bytes)
         .with_context(|| format!("writing {}", args.output.display()))?;
@@ -120,6 +171,21 @@ pub fn summary(rep: &FitReport) -> String {
                 );
             }
         }
+        match &ax.band {
+            Ok(_) => {
+                let (lo, med, hi) = ax.pi95_training_um;
+                let _ = writeln!(
+                    s,
+                    "  95 % prediction interval of the correction over the training envelope: ± {:.1} … {:.1} nm (median {:.1} nm)",
+                    lo * 1e3,
+                    hi * 1e3,
+                    med * 1e3
+                );
+            }
+            Err(e) => {
+                let _ = writeln!(s, "  no prediction interval: {e}");
+            }
+        }
         let left: Vec<&str> = ax
             .candidates
             .iter()
@@ -131,6 +197,7 @@ pub fn summary(rep: &FitReport) -> String {
             let _ = writeln!(s, "  not selected: {}", left.join(", "));
         }
     }
+    s += &crate::cli::trust::vif_text(&rep.temp_vif, "temperature");
     let m = &rep.model;
     for (a, name) in rep.frame.axes.iter().enumerate() {
         let (lo, hi) = m.envelope(nanocal_model::Input::Axis(a as u8));
@@ -149,4 +216,43 @@ pub fn summary(rep: &FitReport) -> String {
         let _ = writeln!(s, "envelope {name}: {lo:.3} … {hi:.3} (model Aux {n})");
     }
     s
+}
+
+/// The fit report as JSON (µm): per axis the terms, MATLAB `stepwisefit`'s outputs when
+/// stepwise selected them, the prediction band over the model's own terms, and the summaries.
+pub fn report_json(
+    rep: &FitReport,
+    held_out: Option<&[crate::uncertainty::HeldOut]>,
+) -> serde_json::Value {
+    use crate::cli::trust::{held_out_json, spread_json, vif_json};
+    let axes: Vec<serde_json::Value> = rep
+        .axes
+        .iter()
+        .enumerate()
+        .map(|(a, ax)| {
+            let names: Vec<String> = ax.candidates.iter().map(|c| c.name.clone()).collect();
+            serde_json::json!({
+                "axis": ax.axis,
+                "candidates": names,
+                "selected": ax.selected,
+                "coeff_um": ax.coeff_um,
+                "se_um": ax.se_um,
+                "offset_um": ax.offset_um,
+                "rmse_um": ax.rmse_um,
+                "r2": ax.r_squared,
+                "stepwisefit": ax.stepwise.as_ref().map(|r| crate::cli::stepwise::to_json(&names, &format!("cmd_{}", ax.axis), r)),
+                "prediction_band": ax.band.as_ref().ok(),
+                "prediction_band_error": ax.band.as_ref().err().map(|e| e.to_string()),
+                "prediction_interval_95_training_um": spread_json(ax.pi95_training_um),
+                "held_out_um": held_out.and_then(|h| h.get(a)).map(held_out_json),
+            })
+        })
+        .collect();
+    serde_json::json!({
+        "model_id": rep.model.id(),
+        "dwells": rep.dwells,
+        "axes": axes,
+        "temperature_vif": vif_json(&rep.temp_vif, "temperature"),
+        "band_terms": "the model's own terms of each axis, in the blob's order",
+    })
 }

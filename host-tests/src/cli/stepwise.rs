@@ -39,6 +39,10 @@ pub struct StepwiseArgs {
     /// Write the full result (b, se, pval, inmodel, history, ...) as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Held-out accuracy over this many contiguous blocks of rows in file order (rows are
+    /// assumed in time order: a block is "later data", not random rows); 0: skip.
+    #[arg(long, default_value_t = 5)]
+    pub blocks: usize,
 }
 
 /// Runs `nanocal stepwise`.
@@ -95,8 +99,11 @@ pub fn run(args: StepwiseArgs) -> anyhow::Result<()> {
     let res = stepwise(&x, y, &opts)?;
     bar.finish_and_clear();
     print!("{}", table(&names, &res, &opts));
+    let trust = Trust::of(&names, &x, y, &res, &opts, args.blocks)?;
+    print!("{}", trust.text(&args.response));
     if let Some(path) = &args.json {
-        let json = to_json(&names, &args.response, &res);
+        let mut json = to_json(&names, &args.response, &res);
+        json["trust"] = trust.json();
         std::fs::write(path, serde_json::to_string_pretty(&json)?)
             .with_context(|| format!("writing {}", path.display()))?;
     }
@@ -159,8 +166,16 @@ pub fn table(names: &[String], res: &StepwiseResult, opts: &StepwiseOptions) -> 
     }
     let _ = writeln!(
         s,
-        "intercept {:.6}  RMSE {:.6}  R² {:.6}  F {:.6} (p {:.4e})  dfe {}  n {}",
-        res.intercept, res.rmse, res.r_squared, res.fstat, res.fpval, res.dfe, res.rows_used
+        "intercept {:.6}  RMSE {:.6}  R² {:.6}  adjusted R² {:.6}  F {:.6} (p {:.4e})  df0 {}  dfe {}  n {}",
+        res.intercept,
+        res.rmse,
+        res.r_squared,
+        res.r_squared_adjusted,
+        res.fstat,
+        res.fpval,
+        res.df0,
+        res.dfe,
+        res.rows_used
     );
     s
 }
@@ -196,9 +211,149 @@ pub fn to_json(names: &[String], response: &str, res: &StepwiseResult) -> serde_
         "selected": names.iter().zip(&res.inmodel).filter(|(_, m)| **m).map(|(n, _)| n.clone()).collect::<Vec<_>>(),
         "selected_idx": (0..names.len()).filter(|&i| res.inmodel[i]).map(|i| i + 1).collect::<Vec<_>>(),
         "b": nums(&res.b), "se": nums(&res.se), "pval": nums(&res.pval), "tstat": nums(&res.tstat),
-        "intercept": num(res.intercept), "rmse": num(res.rmse), "r2": num(res.r_squared),
+        "intercept": num(res.intercept), "rmse": num(res.rmse), "r2": num(res.r_squared), "r2_adjusted": num(res.r_squared_adjusted),
         "fstat": num(res.fstat), "model_pval": num(res.fpval), "dfe": res.dfe, "df0": res.df0,
         "SStotal": num(res.ss_total), "SSresid": num(res.ss_resid),
         "nextstep": res.nextstep.map_or(0, |j| j + 1), "history": history,
     })
+}
+
+/// What the stepwise fit knows about itself: the 95 % prediction interval over the data, the
+/// variance inflation of the columns in the final model, held-out accuracy by blocks of rows.
+pub struct Trust {
+    /// Half-width of the 95 % prediction interval at the rows: (min, median, max).
+    pub pi95: (f64, f64, f64),
+    /// Why there is no interval, if there is none.
+    pub pi_error: Option<String>,
+    /// VIF of the final model's columns.
+    pub vif: Vec<crate::uncertainty::Vif>,
+    /// Held-out accuracy (stepwise rerun without each block), if asked.
+    pub held_out: Option<crate::uncertainty::HeldOut>,
+    /// Why there is no held-out accuracy although it was asked for (too few rows, …).
+    pub held_out_error: Option<String>,
+}
+
+impl Trust {
+    /// Computes it for the final model of `res`.
+    pub fn of(
+        names: &[String],
+        x: &[&[f64]],
+        y: &[f64],
+        res: &StepwiseResult,
+        opts: &StepwiseOptions,
+        blocks: usize,
+    ) -> anyhow::Result<Self> {
+        use crate::uncertainty::{time_blocks, variance_inflation, HeldOut, PredictionBand};
+        let sel: Vec<usize> = (0..names.len()).filter(|&j| res.inmodel[j]).collect();
+        // rows the fit used (no NaN in y or any candidate)
+        let used: Vec<usize> = (0..y.len())
+            .filter(|&i| !y[i].is_nan() && x.iter().all(|c| !c[i].is_nan()))
+            .collect();
+        let cols: Vec<Vec<f64>> = sel
+            .iter()
+            .map(|&j| used.iter().map(|&i| x[j][i]).collect())
+            .collect();
+        let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
+        let (pi95, pi_error) = match PredictionBand::new(&refs, res.ss_resid) {
+            Ok(band) => {
+                let hw = (0..used.len()).filter_map(|r| {
+                    let row: Vec<f64> = cols.iter().map(|c| c[r]).collect();
+                    band.half_width(&row, 0.95).ok()
+                });
+                (crate::cli::trust::spread(hw), None)
+            }
+            Err(e) => ((f64::NAN, f64::NAN, f64::NAN), Some(e.to_string())),
+        };
+        let sel_names: Vec<String> = sel.iter().map(|&j| names[j].clone()).collect();
+        let vif = variance_inflation(&sel_names, &refs);
+        let held_out = |blocks: usize| -> anyhow::Result<HeldOut> {
+            let ranges = time_blocks(used.len(), blocks)?;
+            let mut errors = Vec::new();
+            for &(start, end) in &ranges {
+                let train: Vec<Vec<f64>> = x
+                    .iter()
+                    .map(|c| {
+                        used.iter()
+                            .enumerate()
+                            .filter(|(k, _)| *k < start || *k >= end)
+                            .map(|(_, &i)| c[i])
+                            .collect()
+                    })
+                    .collect();
+                let ty: Vec<f64> = used
+                    .iter()
+                    .enumerate()
+                    .filter(|(k, _)| *k < start || *k >= end)
+                    .map(|(_, &i)| y[i])
+                    .collect();
+                let tr: Vec<&[f64]> = train.iter().map(|c| c.as_slice()).collect();
+                let fold = stepwise(&tr, &ty, opts)?;
+                errors.push(
+                    used[start..end]
+                        .iter()
+                        .map(|&i| {
+                            let row: Vec<f64> = x.iter().map(|c| c[i]).collect();
+                            y[i] - fold.predict(&row)
+                        })
+                        .collect::<Vec<f64>>(),
+                );
+            }
+            Ok(HeldOut::from_block_errors(&errors))
+        };
+        let (held_out, held_out_error) = match blocks {
+            0 => (None, None),
+            k => match held_out(k) {
+                Ok(h) => (Some(h), None),
+                Err(e) => (None, Some(format!("{e:#}"))),
+            },
+        };
+        Ok(Trust {
+            pi95,
+            pi_error,
+            vif,
+            held_out,
+            held_out_error,
+        })
+    }
+
+    /// The printed section.
+    pub fn text(&self, response: &str) -> String {
+        use std::fmt::Write;
+        let mut s = String::new();
+        match &self.pi_error {
+            None => {
+                let _ = writeln!(
+                    s,
+                    "95 % prediction interval of {response} at the data's rows: ± {:.6} … {:.6} (median {:.6})",
+                    self.pi95.0, self.pi95.2, self.pi95.1
+                );
+            }
+            Some(e) => {
+                let _ = writeln!(s, "no prediction interval: {e}");
+            }
+        }
+        s += &crate::cli::trust::vif_text(&self.vif, "column");
+        if let Some(e) = &self.held_out_error {
+            let _ = writeln!(s, "held-out accuracy not computed: {e}");
+        }
+        if let Some(h) = &self.held_out {
+            let _ = writeln!(
+                s,
+                "held-out accuracy ({} blocks of rows in file order, stepwise rerun without each): RMS {:.6}, max |error| {:.6} over {} rows",
+                h.blocks, h.rms, h.max_abs, h.n
+            );
+        }
+        s
+    }
+
+    /// As JSON.
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "prediction_interval_95_half_width": crate::cli::trust::spread_json(self.pi95),
+            "prediction_interval_error": self.pi_error,
+            "vif": crate::cli::trust::vif_json(&self.vif, "column"),
+            "held_out": self.held_out.as_ref().map(crate::cli::trust::held_out_json),
+            "held_out_error": self.held_out_error,
+        })
+    }
 }

@@ -33,6 +33,109 @@ pub struct ValidateArgs {
     /// test's per-pose Acc and Rep.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// The fit report of the model (`nanocal fit --json`): with it, the table and the JSON say
+    /// how often the static compensation's measured error fell inside the fit's 95 % prediction
+    /// interval (coverage).
+    #[arg(long)]
+    pub fit_json: Option<PathBuf>,
+    /// Write one self-contained HTML report here (table, uncertainty and coverage, explain's
+    /// findings, plots inline as SVG, provenance, the exact command; prints on A4).
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+}
+
+/// One line per fact of a fit report's uncertainty: per axis the prediction interval and the
+/// held-out accuracy, then the collinearity warnings.
+pub fn uncertainty_lines(fit: &serde_json::Value) -> Vec<String> {
+    let mut out = Vec::new();
+    for ax in fit["axes"].as_array().into_iter().flatten() {
+        let name = ax["axis"].as_str().unwrap_or("?");
+        let pi = &ax["prediction_interval_95_training_um"];
+        if let (Some(lo), Some(hi)) = (pi["min"].as_f64(), pi["max"].as_f64()) {
+            out.push(format!(
+                "axis {name}: 95 % prediction interval of the correction over the training envelope ± {:.1} … {:.1} nm; training RMS {:.1} nm",
+                lo * 1e3,
+                hi * 1e3,
+                ax["rmse_um"].as_f64().unwrap_or(f64::NAN) * 1e3
+            ));
+        }
+        let ho = &ax["held_out_um"];
+        if let Some(rms) = ho["rms"].as_f64() {
+            out.push(format!(
+                "axis {name}: held-out accuracy over {} blocks of time: RMS {:.1} nm, max |error| {:.1} nm",
+                ho["blocks"].as_u64().unwrap_or(0),
+                rms * 1e3,
+                ho["max_abs"].as_f64().unwrap_or(f64::NAN) * 1e3
+            ));
+        }
+    }
+    for w in fit["temperature_vif"]["warnings"]
+        .as_array()
+        .into_iter()
+        .flatten()
+    {
+        if let Some(w) = w.as_str() {
+            out.push(w.to_string());
+        }
+    }
+    out
+}
+
+/// The prediction bands of `model`, one per axis, from a fit report written by `nanocal fit
+/// --json`; an error naming the file when it does not belong to the model.
+pub fn read_bands(
+    path: &Path,
+    model: &Model,
+) -> anyhow::Result<Vec<crate::uncertainty::PredictionBand>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let v: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
+    let id = v["model_id"].as_u64();
+    if id != Some(u64::from(model.id())) {
+        anyhow::bail!(
+            "{}: fit report of model id {:?}, but the blob's id is {}",
+            path.display(),
+            id,
+            model.id()
+        );
+    }
+    let axes = v["axes"]
+        .as_array()
+        .with_context(|| format!("{}: no `axes` array (not a fit report)", path.display()))?;
+    if axes.len() != model.axes() {
+        anyhow::bail!(
+            "{}: {} axes, the model has {}",
+            path.display(),
+            axes.len(),
+            model.axes()
+        );
+    }
+    axes.iter()
+        .enumerate()
+        .map(|(a, ax)| {
+            if let Some(e) = ax["prediction_band_error"].as_str() {
+                anyhow::bail!("{}: axis {a} has no prediction band: {e}", path.display());
+            }
+            let band: crate::uncertainty::PredictionBand =
+                serde_json::from_value(ax["prediction_band"].clone()).with_context(|| {
+                    format!("{}: axis {a}: bad `prediction_band`", path.display())
+                })?;
+            let terms = model
+                .terms()
+                .iter()
+                .filter(|t| t.output as usize == a)
+                .count();
+            if band.regressors() != terms {
+                anyhow::bail!(
+                    "{}: axis {a}: the band has {} regressors, the model {terms} terms: not this model's fit",
+                    path.display(),
+                    band.regressors()
+                );
+            }
+            Ok(band)
+        })
+        .collect()
 }
 
 /// What `validate` and `report` both read, and how they validate.
@@ -267,6 +370,23 @@ pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
         "{}",
         comparison_table(&[&reports[0], &reports[1], &reports[2]])
     );
+    let mut fit_report = serde_json::Value::Null;
+    let coverage = match &args.fit_json {
+        Some(path) => {
+            let model = read_model(&args.inputs.model)?;
+            let bands = read_bands(path, &model)?;
+            fit_report = serde_json::from_str(&std::fs::read_to_string(path)?)?;
+            let c = crate::validate::coverage(&reports[1], &model, &bands, 0.95)?;
+            println!(
+                "coverage of the fit's 95 % prediction interval (static): {:.1} % of {} visit-axes inside (nominal 95 %; median half-width {:.1} nm)",
+                100.0 * c.fraction(),
+                c.n,
+                c.median_half_width_um * 1e3
+            );
+            Some(c)
+        }
+        None => None,
+    };
     if reports[1].outside_envelope > 0 {
         println!(
             "note: {} of {} visits had temperature/aux inputs outside the training envelope",
@@ -285,9 +405,92 @@ pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
         }
     }
     if let Some(path) = &args.json {
-        let json = serde_json::Value::Array(reports.iter().map(report_json).collect());
+        let mut all: Vec<serde_json::Value> = reports.iter().map(report_json).collect();
+        if let Some(c) = &coverage {
+            all[1]["prediction_interval_coverage"] = serde_json::json!({
+                "nominal": c.level, "measured": c.fraction(), "inside": c.inside,
+                "visit_axes": c.n, "median_half_width_um": c.median_half_width_um});
+        }
+        let json = serde_json::Value::Array(all);
         std::fs::write(path, serde_json::to_string_pretty(&json)?)
             .with_context(|| format!("writing {}", path.display()))?;
     }
+    if let Some(path) = &args.report {
+        let bar = spinner("report.html: plots and explain");
+        let html = html_report(&args, &data, &reports, coverage, &fit_report)?;
+        bar.finish_and_clear();
+        std::fs::write(path, html).with_context(|| format!("writing {}", path.display()))?;
+        println!("wrote {}", path.display());
+    }
     Ok(())
+}
+
+/// The self-contained HTML report of a validation ([`crate::html_report`]).
+fn html_report(
+    args: &ValidateArgs,
+    data: &crate::validate::ValidationData,
+    reports: &[ValidationReport; 3],
+    coverage: Option<crate::validate::Coverage>,
+    fit_report: &serde_json::Value,
+) -> anyhow::Result<String> {
+    use crate::html_report::{command_line, file_fingerprint, inline_plots, ReportContent};
+    let model = read_model(&args.inputs.model)?;
+    let explain = if data.dwells.len() >= 50 {
+        let rec = data.dwells.to_recording();
+        let d = crate::explain::Data::from_recording(&rec, None)
+            .map_err(|e| anyhow::anyhow!("explain: {e}"))?;
+        let r = crate::explain::explain(&d, &crate::explain::Settings::default())
+            .map_err(|e| anyhow::anyhow!("explain: {e}"))?;
+        let findings = r
+            .effects()
+            .map(|e| {
+                format!(
+                    "{} on {}: {} — {} (held-out RMS {:.0} → {:.0} nm)",
+                    e.name, e.channel, e.description, e.deploy, e.rms_before_nm, e.rms_after_nm
+                )
+            })
+            .collect();
+        Some((findings, r.to_text()))
+    } else {
+        None
+    };
+    let mut provenance = vec![
+        ("model".to_string(), file_fingerprint(&args.inputs.model)),
+        ("model id".to_string(), format!("0x{:08x}", model.id())),
+        (
+            "recording".to_string(),
+            file_fingerprint(&args.inputs.recording),
+        ),
+        (
+            "tool".to_string(),
+            format!("nanocal {}", env!("CARGO_PKG_VERSION")),
+        ),
+    ];
+    if let Some(p) = &args.fit_json {
+        provenance.push(("fit report".to_string(), file_fingerprint(p)));
+    }
+    if let Some(p) = &args.inputs.plan {
+        provenance.push(("plan".to_string(), file_fingerprint(p)));
+    }
+    let content = ReportContent {
+        title: format!(
+            "nanocal validation of {} on {}",
+            args.inputs
+                .model
+                .file_name()
+                .map_or(String::new(), |s| s.to_string_lossy().into_owned()),
+            args.inputs
+                .recording
+                .file_name()
+                .map_or(String::new(), |s| s.to_string_lossy().into_owned())
+        ),
+        command: command_line(),
+        provenance,
+        table: comparison_table(&[&reports[0], &reports[1], &reports[2]]),
+        coverage,
+        uncertainty: uncertainty_lines(fit_report),
+        explain,
+        plots: inline_plots(&[&reports[0], &reports[1], &reports[2]])?,
+    };
+    Ok(content.render())
 }

@@ -1,0 +1,449 @@
+//! What a fit knows about itself: the prediction interval of its output, the collinearity of
+//! its sensors, and its accuracy on data it did not see.
+//!
+//! - **Prediction interval** of a new observation at `x₀` (a row of regressors, intercept
+//!   included): `ŷ(x₀) ± t_{1−α/2, dfe} · s · sqrt(1 + x₀ᵀ(XᵀX)⁻¹x₀)` (e.g. Montgomery, Peck &
+//!   Vining, *Introduction to Linear Regression Analysis*, 5th ed., Eq. 3.52). `(XᵀX)⁻¹` is never
+//!   formed: with `X = Q R`, `x₀ᵀ(XᵀX)⁻¹x₀ = ‖R⁻ᵀx₀‖²`, one forward substitution through the
+//!   triangular factor of the design (columns centred and scaled first, so `R` is well
+//!   conditioned; the quadratic form is invariant under that change of basis).
+//! - **Variance inflation factor** of a column: `VIF_j = 1 / (1 − R_j²)`, `R_j²` of the column
+//!   regressed on the others (with intercept). A VIF above 10 is the usual sign that
+//!   multicollinearity is unduly influencing the estimates (Kutner, Nachtsheim, Neter & Li,
+//!   *Applied Linear Statistical Models*, 5th ed., §10.5; Montgomery, Peck & Vining §9.4.3).
+//! - **Held-out accuracy** by blocks of time ([`time_blocks`]): contiguous blocks, not random
+//!   rows, because thermal drift is autocorrelated — a randomly held-out dwell has neighbours a
+//!   few minutes away in the training set that share its temperature state, so random k-fold
+//!   measures interpolation between neighbours and flatters the model; a held-out block is the
+//!   closest the data offer to "a later day".
+
+#![allow(clippy::needless_range_loop)] // index loops read best in numerical kernels
+
+use crate::linalg::{compress, lstsq, Mat};
+use crate::stats::t_pvalue_two_sided;
+
+/// Errors of the uncertainty computations.
+#[derive(Debug, Clone, thiserror::Error, PartialEq)]
+#[non_exhaustive]
+pub enum UncertaintyError {
+    /// Columns of different lengths.
+    #[error("column {column} has {found} rows, expected {expected}")]
+    LengthMismatch {
+        /// 0-based column.
+        column: usize,
+        /// Rows expected.
+        expected: usize,
+        /// Rows found.
+        found: usize,
+    },
+    /// No residual degrees of freedom: the interval is undefined.
+    #[error(
+        "no residual degrees of freedom ({rows} rows, {params} parameters): no prediction interval"
+    )]
+    NoResidualDof {
+        /// Rows used.
+        rows: usize,
+        /// Parameters (intercept included).
+        params: usize,
+    },
+    /// The design is rank deficient: some column is a combination of the others.
+    #[error("the design is rank deficient (column {0} depends on the others)")]
+    RankDeficient(usize),
+    /// A point has the wrong number of regressors.
+    #[error("a point has {found} regressors, the design {expected}")]
+    BadPoint {
+        /// Regressors of the design.
+        expected: usize,
+        /// Given.
+        found: usize,
+    },
+    /// Too few rows for the number of blocks.
+    #[error("{rows} rows cannot make {blocks} blocks of time (need at least 2 rows per block)")]
+    TooFewRowsForBlocks {
+        /// Rows.
+        rows: usize,
+        /// Blocks asked for.
+        blocks: usize,
+    },
+}
+
+/// The `p`-quantile of Student's t with `df` degrees of freedom (`p` in (0.5, 1)), by bisection
+/// on the two-sided p-value [`t_pvalue_two_sided`] (monotone in `t`), to 1e-13 relative.
+pub fn t_quantile(p: f64, df: f64) -> f64 {
+    if !(p > 0.5 && p < 1.0) || df.is_nan() || df <= 0.0 {
+        return f64::NAN;
+    }
+    let tail = 2.0 * (1.0 - p);
+    let (mut lo, mut hi) = (0.0f64, 1.0f64);
+    while t_pvalue_two_sided(hi, df) > tail {
+        hi *= 2.0;
+        if hi > 1e12 {
+            return f64::INFINITY;
+        }
+    }
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if t_pvalue_two_sided(mid, df) > tail {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+        if hi - lo <= 1e-13 * hi {
+            break;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// The prediction interval of a linear least-squares fit with intercept (see the module doc).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PredictionBand {
+    /// Column means used to centre the regressors.
+    pub mean: Vec<f64>,
+    /// Column scales (standard deviation; 1 for a constant column).
+    pub scale: Vec<f64>,
+    /// Upper-triangular factor of `[1 (X − mean)/scale]`, `(p+1) × (p+1)`, row-major.
+    pub r: Vec<Vec<f64>>,
+    /// Residual standard deviation `s = sqrt(SSresid / dfe)`.
+    pub s: f64,
+    /// Residual degrees of freedom.
+    pub dfe: usize,
+}
+
+impl PredictionBand {
+    /// The band of the fit of some response on `columns` (the regressors in the model; the
+    /// intercept is implied) with residual sum of squares `ss_resid`. Rows with a NaN are left
+    /// out, as the fit did.
+    pub fn new(columns: &[&[f64]], ss_resid: f64) -> Result<Self, UncertaintyError> {
+        let n = columns.first().map_or(0, |c| c.len());
+        for (j, c) in columns.iter().enumerate() {
+            if c.len() != n {
+                return Err(UncertaintyError::LengthMismatch {
+                    column: j,
+                    expected: n,
+                    found: c.len(),
+                });
+            }
+        }
+        let ok: Vec<bool> = (0..n)
+            .map(|i| columns.iter().all(|c| !c[i].is_nan()))
+            .collect();
+        let rows = ok.iter().filter(|o| **o).count();
+        let p = columns.len();
+        if rows <= p + 1 {
+            return Err(UncertaintyError::NoResidualDof {
+                rows,
+                params: p + 1,
+            });
+        }
+        let mut mean = vec![0.0; p];
+        let mut scale = vec![1.0; p];
+        let mut scaled: Vec<Vec<f64>> = Vec::with_capacity(p);
+        for (j, c) in columns.iter().enumerate() {
+            let used = c.iter().zip(&ok).filter(|(_, o)| **o).map(|(v, _)| *v);
+            let m = used.clone().sum::<f64>() / rows as f64;
+            let var = used.map(|v| (v - m).powi(2)).sum::<f64>() / (rows - 1) as f64;
+            mean[j] = m;
+            scale[j] = if var > 0.0 { var.sqrt() } else { 1.0 };
+            scaled.push(c.iter().map(|v| (v - m) / scale[j]).collect());
+        }
+        let refs: Vec<&[f64]> = scaled.iter().map(|c| c.as_slice()).collect();
+        let comp = if p == 0 {
+            // intercept only: R = [sqrt(n)]
+            let mut r = Mat::zeros(1, 1);
+            r.set(0, 0, (rows as f64).sqrt());
+            r
+        } else {
+            compress(&refs, true, 1)
+                .map_err(|_| UncertaintyError::LengthMismatch {
+                    column: 0,
+                    expected: n,
+                    found: n,
+                })?
+                .r
+        };
+        let k = p + 1;
+        let r: Vec<Vec<f64>> = (0..k)
+            .map(|i| {
+                (0..k)
+                    .map(|j| if j >= i { comp.get(i, j) } else { 0.0 })
+                    .collect()
+            })
+            .collect();
+        // unit-variance columns: |R_ii| = sqrt(n − 1) · sqrt(1 − R²_i|previous), so a tiny ratio
+        // to sqrt(n) is a column that the previous ones (nearly) reproduce
+        for i in 0..k {
+            if r[i][i].abs() <= 1e-10 * (rows as f64).sqrt() {
+                return Err(UncertaintyError::RankDeficient(i.saturating_sub(1)));
+            }
+        }
+        let dfe = rows - k;
+        Ok(PredictionBand {
+            mean,
+            scale,
+            r,
+            s: (ss_resid / dfe as f64).sqrt(),
+            dfe,
+        })
+    }
+
+    /// Number of regressors (without the intercept).
+    pub fn regressors(&self) -> usize {
+        self.mean.len()
+    }
+
+    /// `x₀ᵀ(XᵀX)⁻¹x₀` (the leverage of a new point `x₀`, intercept implied), through `R`.
+    pub fn leverage(&self, x0: &[f64]) -> Result<f64, UncertaintyError> {
+        let p = self.regressors();
+        if x0.len() != p {
+            return Err(UncertaintyError::BadPoint {
+                expected: p,
+                found: x0.len(),
+            });
+        }
+        // z = R⁻ᵀ [1, (x0 − mean)/scale]: forward substitution with Rᵀ (lower triangular)
+        let k = p + 1;
+        let mut z = vec![0.0; k];
+        for i in 0..k {
+            let v = if i == 0 {
+                1.0
+            } else {
+                (x0[i - 1] - self.mean[i - 1]) / self.scale[i - 1]
+            };
+            let s: f64 = (0..i).map(|t| self.r[t][i] * z[t]).sum();
+            z[i] = (v - s) / self.r[i][i];
+        }
+        Ok(z.iter().map(|v| v * v).sum())
+    }
+
+    /// Half-width of the two-sided prediction interval at confidence `level` (e.g. 0.95) of a
+    /// new observation at `x₀`.
+    pub fn half_width(&self, x0: &[f64], level: f64) -> Result<f64, UncertaintyError> {
+        let h = self.leverage(x0)?;
+        let t = t_quantile(0.5 + level / 2.0, self.dfe as f64);
+        Ok(t * self.s * (1.0 + h).sqrt())
+    }
+}
+
+/// Collinearity of one column with the others.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Vif {
+    /// Column name.
+    pub name: String,
+    /// Variance inflation factor `1 / (1 − R²)` (∞ for an exact combination, NaN for a
+    /// constant column).
+    pub vif: f64,
+    /// The other column it correlates with most, and the correlation coefficient.
+    pub partner: Option<(String, f64)>,
+}
+
+/// The usual threshold above which a VIF signals harmful collinearity (Kutner et al. §10.5).
+pub const VIF_WARN: f64 = 10.0;
+
+/// VIF of every column against the others (with intercept). With one column there is nothing
+/// to be collinear with: VIF 1.
+pub fn variance_inflation(names: &[String], columns: &[&[f64]]) -> Vec<Vif> {
+    let p = columns.len();
+    (0..p)
+        .map(|j| {
+            let others: Vec<&[f64]> = (0..p).filter(|&i| i != j).map(|i| columns[i]).collect();
+            let y = columns[j];
+            let ok: Vec<f64> = y.iter().copied().filter(|v| !v.is_nan()).collect();
+            let m = ok.iter().sum::<f64>() / ok.len().max(1) as f64;
+            let ss_tot: f64 = ok.iter().map(|v| (v - m).powi(2)).sum();
+            let vif = if ss_tot == 0.0 {
+                f64::NAN
+            } else if others.is_empty() {
+                1.0
+            } else {
+                match lstsq(&others, y, true) {
+                    Ok(ls) if ls.rss > 1e-14 * ss_tot => ss_tot / ls.rss,
+                    Ok(_) => f64::INFINITY,
+                    Err(_) => f64::NAN,
+                }
+            };
+            let partner = (0..p)
+                .filter(|&i| i != j)
+                .map(|i| (i, correlation(columns[i], y)))
+                .filter(|(_, r)| r.is_finite())
+                .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+                .map(|(i, r)| (names[i].clone(), r));
+            Vif {
+                name: names[j].clone(),
+                vif,
+                partner,
+            }
+        })
+        .collect()
+}
+
+/// Pearson correlation over the rows where both are finite.
+pub fn correlation(a: &[f64], b: &[f64]) -> f64 {
+    let pairs: Vec<(f64, f64)> = a
+        .iter()
+        .zip(b)
+        .filter(|(x, y)| x.is_finite() && y.is_finite())
+        .map(|(x, y)| (*x, *y))
+        .collect();
+    let n = pairs.len() as f64;
+    let (ma, mb) = (
+        pairs.iter().map(|p| p.0).sum::<f64>() / n,
+        pairs.iter().map(|p| p.1).sum::<f64>() / n,
+    );
+    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+    for (x, y) in &pairs {
+        sab += (x - ma) * (y - mb);
+        saa += (x - ma).powi(2);
+        sbb += (y - mb).powi(2);
+    }
+    sab / (saa * sbb).sqrt()
+}
+
+/// Plain-words warnings for the columns whose VIF exceeds [`VIF_WARN`]; each pair once.
+pub fn collinearity_warnings(vifs: &[Vif], what: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut said: Vec<(String, String)> = Vec::new();
+    for v in vifs
+        .iter()
+        .filter(|v| v.vif > VIF_WARN || v.vif.is_infinite())
+    {
+        match &v.partner {
+            Some((other, r)) => {
+                let key = if v.name < *other {
+                    (v.name.clone(), other.clone())
+                } else {
+                    (other.clone(), v.name.clone())
+                };
+                if said.contains(&key) {
+                    continue;
+                }
+                said.push(key);
+                out.push(format!(
+                    "warning: {what}s {} and {other} carry the same information (correlation {r:.3}, \
+                     VIF {:.0} > {VIF_WARN}): the fit cannot tell their effects apart, so the \
+                     coefficients on them are unreliable and may swing between fits; keep one, or \
+                     record a period in which they move differently",
+                    v.name, v.vif
+                ));
+            }
+            None => out.push(format!(
+                "warning: {what} {} is almost a combination of the others (VIF {:.0} > {VIF_WARN})",
+                v.name, v.vif
+            )),
+        }
+    }
+    out
+}
+
+/// `k` contiguous blocks of `n` rows in time order, as `(start, end)` ranges of near-equal size.
+pub fn time_blocks(n: usize, k: usize) -> Result<Vec<(usize, usize)>, UncertaintyError> {
+    if k < 2 || n < 2 * k {
+        return Err(UncertaintyError::TooFewRowsForBlocks { rows: n, blocks: k });
+    }
+    Ok((0..k).map(|b| (b * n / k, (b + 1) * n / k)).collect())
+}
+
+/// Held-out accuracy: errors of predictions made by a model that did not see them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HeldOut {
+    /// Number of blocks.
+    pub blocks: usize,
+    /// Held-out predictions made.
+    pub n: usize,
+    /// RMS of the held-out errors.
+    pub rms: f64,
+    /// Largest |held-out error|.
+    pub max_abs: f64,
+    /// RMS per block, in time order.
+    pub block_rms: Vec<f64>,
+}
+
+impl HeldOut {
+    /// Summarises held-out errors given per block.
+    pub fn from_block_errors(errors: &[Vec<f64>]) -> Self {
+        let all: Vec<f64> = errors
+            .iter()
+            .flatten()
+            .copied()
+            .filter(|e| e.is_finite())
+            .collect();
+        let rms_of = |v: &[f64]| (v.iter().map(|e| e * e).sum::<f64>() / v.len() as f64).sqrt();
+        HeldOut {
+            blocks: errors.len(),
+            n: all.len(),
+            rms: rms_of(&all),
+            max_abs: all.iter().fold(0.0f64, |a, e| a.max(e.abs())),
+            block_rms: errors
+                .iter()
+                .map(|b| {
+                    let f: Vec<f64> = b.iter().copied().filter(|e| e.is_finite()).collect();
+                    rms_of(&f)
+                })
+                .collect(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn t_quantiles_match_tables() {
+        // Student t table (two-sided 95 %): df 1 → 12.706, 10 → 2.228, 30 → 2.042
+        assert!((t_quantile(0.975, 1.0) - 12.7062047).abs() < 1e-6);
+        assert!((t_quantile(0.975, 10.0) - 2.2281389).abs() < 1e-6);
+        assert!((t_quantile(0.975, 30.0) - 2.0422725).abs() < 1e-6);
+        assert!(t_quantile(0.4, 3.0).is_nan());
+    }
+
+    #[test]
+    fn simple_regression_band_matches_the_textbook_formula() {
+        // one regressor: x0ᵀ(XᵀX)⁻¹x0 = 1/n + (x0 − x̄)²/Sxx
+        let x: Vec<f64> = (0..12).map(|i| 3.0 + i as f64 * 0.7).collect();
+        let band = PredictionBand::new(&[&x], 4.0).unwrap();
+        let n = x.len() as f64;
+        let xm = x.iter().sum::<f64>() / n;
+        let sxx: f64 = x.iter().map(|v| (v - xm).powi(2)).sum();
+        for x0 in [3.0, 5.5, 20.0] {
+            let want = 1.0 / n + (x0 - xm).powi(2) / sxx;
+            let got = band.leverage(&[x0]).unwrap();
+            assert!(
+                (got - want).abs() < 1e-13 * want.max(1.0),
+                "{got} vs {want}"
+            );
+        }
+        assert_eq!(band.dfe, 10);
+        let hw = band.half_width(&[xm], 0.95).unwrap();
+        let want = t_quantile(0.975, 10.0) * (4.0f64 / 10.0).sqrt() * (1.0 + 1.0 / n).sqrt();
+        assert!((hw - want).abs() < 1e-12);
+    }
+
+    #[test]
+    fn vif_flags_two_columns_that_move_together() {
+        let a: Vec<f64> = (0..50).map(|i| (i as f64 * 0.3).sin()).collect();
+        let b: Vec<f64> = a
+            .iter()
+            .enumerate()
+            .map(|(i, v)| v + 0.01 * ((i * 7919) % 13) as f64 / 13.0)
+            .collect();
+        let c: Vec<f64> = (0..50).map(|i| (i as f64 * 1.7).cos()).collect();
+        let names: Vec<String> = ["temp_a", "temp_b", "temp_c"].map(String::from).to_vec();
+        let v = variance_inflation(&names, &[&a, &b, &c]);
+        assert!(v[0].vif > 100.0 && v[1].vif > 100.0, "{v:?}");
+        assert!(v[2].vif < 2.0, "{v:?}");
+        let w = collinearity_warnings(&v, "temperature");
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(
+            w[0].contains("temp_a and temp_b carry the same information"),
+            "{w:?}"
+        );
+    }
+
+    #[test]
+    fn blocks_are_contiguous_and_cover_every_row() {
+        let b = time_blocks(11, 3).unwrap();
+        assert_eq!(b, vec![(0, 3), (3, 7), (7, 11)]);
+        assert!(time_blocks(5, 3).is_err());
+    }
+}

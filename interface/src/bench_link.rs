@@ -32,7 +32,12 @@
 //! All fields little-endian. Bench ticks count [`TICK_HZ`] from the start of the bench (QEMU's
 //! start), across resets of the board; the board's own `Instant` is its uptime.
 //!
-//! Doorbells (serial4, besides the host-link line state `C0h | DTR`):
+//! Line states (serial4, host → board): [`LINE_HOST`] | bits for the GCS host link,
+//! [`LINE_MGMT`] | bits for the management port, bits as USB CDC SET_CONTROL_LINE_STATE's
+//! wValue ([`LINE_DTR`], bit 1 RTS), sent whenever the bench's client opens or closes the port
+//! (the USB ports' line state on the STM32 board).
+//!
+//! Doorbells (serial4, besides the line states):
 //! - board → host [`RING_WAITING`]: the board is idle at the horizon (once per instant);
 //!   [`RING_BUS`]: a bus request is posted. Neither is sent while WATCHING is set: the host
 //!   polls the page then, and clears WATCHING and looks once more before it stops polling.
@@ -100,6 +105,12 @@ pub const RING_WAITING: u8 = 0xE1;
 pub const RING_BUS: u8 = 0xE2;
 /// Doorbell host → board: the horizon moved.
 pub const RING_HORIZON: u8 = 0xD1;
+/// Line state host → board of the GCS host link: `LINE_HOST | bits` (low nibble).
+pub const LINE_HOST: u8 = 0xC0;
+/// Line state host → board of the management port: `LINE_MGMT | bits` (low nibble).
+pub const LINE_MGMT: u8 = 0xB0;
+/// Line-state bit: DTR (the port is open).
+pub const LINE_DTR: u8 = 0x01;
 /// Seconds of bench time of `ticks`.
 pub fn ticks_to_s(ticks: u64) -> f64 {
     ticks as f64 / TICK_HZ as f64

@@ -40,6 +40,7 @@ fn status() -> Status {
     Status {
         flags: Flags::MODEL | Flags::EXTRAPOLATING | Flags::HOST_CONNECTED | Flags::MOVE_FOLD,
         model_id: 0x0003_0001,
+        model_crc32: 0x89AB_CDEF,
         move_fold: 41,
         temps_c,
         sensor_bits,
@@ -104,10 +105,12 @@ fn deframe(bytes: &[u8]) -> (u8, u8, Vec<u8>) {
     let mut d = Decoder::new();
     let mut got = None;
     for &b in [0x00, 0xA7, 0x00].iter().chain(bytes) {
-        if let Some(r) = d.feed(b) {
+        let mut ev = d.feed(b, 0);
+        while let Some(r) = ev {
             r.unwrap();
             let f = d.frame();
             got = Some((f.kind, f.seq, f.payload.to_vec()));
+            ev = d.next(0);
         }
     }
     got.expect("a complete frame")
@@ -243,6 +246,7 @@ fn every_reply_frame() {
     reply_is(
         Reply::UploadCommit {
             model_id: 0x0003_0001,
+            model_crc32: 0x89AB_CDEF,
             uploads_accepted: 3,
         },
         0x12,

@@ -111,6 +111,8 @@ pub struct Identity {
 pub struct ModelState {
     /// The model in service.
     pub model: Option<Model>,
+    /// The CRC-32 its blob carries (the content hash the status reports; 0 without a model).
+    pub model_crc32: u32,
     /// Increases with every model change (the sensor task restarts its lag filters on change).
     pub generation: u32,
     /// Slow inputs of the last fold: the readings averaged over the fold period.
@@ -169,6 +171,9 @@ pub struct Shared {
     pub host_connected: AtomicBool,
     /// The host closed the GCS port: the host link drops what belongs to that connection.
     pub host_hangup: Signal<Cs, ()>,
+    /// The host closed the management port (its line state, where the board has it): a frame
+    /// still arriving is dropped at once.
+    pub mgmt_hangup: Signal<Cs, ()>,
     /// Bytes were queued for the stage controller: the stage link watches for its reply.
     pub stage_sent: Signal<Cs, ()>,
     /// Heartbeat of the sensor task (ms since boot of its last completed cycle).
@@ -197,6 +202,7 @@ impl Shared {
             })),
             model: Mutex::new(RefCell::new(ModelState {
                 model: None,
+                model_crc32: 0,
                 generation: 0,
                 // no input read yet: the status shows none until the first fold
                 slow: SlowInputs {
@@ -225,6 +231,7 @@ impl Shared {
             to_stage: Pipe::new(),
             host_connected: AtomicBool::new(true),
             host_hangup: Signal::new(),
+            mgmt_hangup: Signal::new(),
             stage_sent: Signal::new(),
             sensor_beat_ms: AtomicU32::new(0),
             flash_ecc_errors: AtomicU32::new(0),
@@ -236,10 +243,12 @@ impl Shared {
     /// store has it) and every input it uses has a valid reading: until the sensor task folds
     /// it, moves are refused and replies pass unmapped (never a fold at 0 °C temperatures that
     /// were never read).
-    pub fn stage(&self, model: Model) {
+    /// `crc32` is the CRC its blob carries (`nanocal_model::blob::stored_crc`).
+    pub fn stage(&self, model: Model, crc32: u32) {
         self.model.lock(|m| {
             let mut m = m.borrow_mut();
             m.model = Some(model);
+            m.model_crc32 = crc32;
             m.generation = m.generation.wrapping_add(1);
             m.inputs_ready = false;
             m.pending = true;
@@ -266,6 +275,7 @@ impl Shared {
         self.model.lock(|m| {
             let mut m = m.borrow_mut();
             m.model = None;
+            m.model_crc32 = 0;
             m.generation = m.generation.wrapping_add(1);
             m.inputs_ready = false;
             m.pending = false;
@@ -320,5 +330,13 @@ pub fn host_line_state(sh: &Shared, dtr: bool) {
     if was && !dtr {
         end_host_session(sh);
         sh.host_hangup.signal(());
+    }
+}
+
+/// Tell the application the management port's line state (DTR, as [`host_line_state`]): a
+/// fall drops a management frame still arriving (the next connection starts clean).
+pub fn mgmt_line_state(sh: &Shared, dtr: bool) {
+    if !dtr {
+        sh.mgmt_hangup.signal(());
     }
 }

@@ -297,11 +297,17 @@ async fn usb_task(mut dev: UsbDevice<'static, UsbDriver>) {
     dev.run().await
 }
 
-/// The GCS port's line state: a DTR fall ends the host session.
-#[embassy_executor::task]
-async fn line_state_task(ctl: ControlChanged<'static>, sh: &'static Shared) {
+/// A port's line state, told to the application by `tell` on every change: the GCS port's
+/// (a DTR fall ends the host session) and the management port's (a DTR fall drops a management
+/// frame still arriving).
+#[embassy_executor::task(pool_size = 2)]
+async fn line_state_task(
+    ctl: ControlChanged<'static>,
+    sh: &'static Shared,
+    tell: fn(&'static Shared, bool),
+) {
     loop {
-        app::host_line_state(sh, ctl.dtr());
+        tell(sh, ctl.dtr());
         ctl.control_changed().await;
     }
 }
@@ -477,7 +483,7 @@ async fn main(spawner: Spawner) {
     let mgmt = CdcAcmClass::new(&mut builder, MGMT_STATE.init(State::new()), USB_PACKET);
     let usb = builder.build();
     let (gcs_tx, gcs_rx, gcs_ctl) = gcs.split_with_control();
-    let (mgmt_tx, mgmt_rx) = mgmt.split();
+    let (mgmt_tx, mgmt_rx, mgmt_ctl) = mgmt.split_with_control();
 
     // Stage link at the configured baud rate.
     static UART_TX: StaticCell<[u8; 256]> = StaticCell::new();
@@ -544,7 +550,8 @@ async fn main(spawner: Spawner) {
     let mgmt_rx = mgmt_rx.into_buffered(MGMT_RX.init([0; 64]));
     spawner.spawn(supervisor_task(Stm32Board { led, wdg }, sh).expect("task pool"));
     spawner.spawn(usb_task(usb).expect("task pool"));
-    spawner.spawn(line_state_task(gcs_ctl, sh).expect("task pool"));
+    spawner.spawn(line_state_task(gcs_ctl, sh, app::host_line_state).expect("task pool"));
+    spawner.spawn(line_state_task(mgmt_ctl, sh, app::mgmt_line_state).expect("task pool"));
     spawner.spawn(management_task(mgmt_rx, UsbTx(mgmt_tx), store, sh).expect("task pool"));
     spawner.spawn(sensor_task(bus, sh).expect("task pool"));
     spawner.spawn(stage_link_task(stage_rx, stage_tx, sh).expect("task pool"));

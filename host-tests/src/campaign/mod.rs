@@ -454,6 +454,7 @@ pub fn run(
                     recording_bytes: 0,
                     stage: Stage::Steps,
                     model_ids: None,
+                    uploaded: None,
                     kmz_um: None,
                     kmz_first: None,
                     kmz_updates: 0,

@@ -19,7 +19,7 @@ use super::bench::{BenchDriver, BenchError, ReferenceReader};
 use super::gcs::{GcsError, GcsLink};
 use super::recorder::{Recorder, RecorderError, Row};
 use super::reference::ReferenceError;
-use super::state::{Interruption, Stage, State, StateError};
+use super::state::{Interruption, Stage, State, StateError, UploadedModel};
 use crate::device::{Client, DeviceError};
 use crate::fit::{adaptive_from_static, encode_blob};
 use crate::plan::{Phase, Plan, Step, TestKind};
@@ -325,10 +325,14 @@ impl std::io::Write for GonePort {
     }
 }
 
-/// `s` shows `want` loaded, with its λ_KMZ.
-fn serves(s: &Status, want: &Model) -> bool {
+/// `s` shows `want` loaded, with its λ_KMZ: the model the campaign uploaded last
+/// (`uploaded`, its id and blob CRC as the device confirmed them) is in service, and it is
+/// `want`. The id alone is not enough: a model of an earlier campaign (or an earlier fit) on
+/// the device has the same id and other coefficients; the blob's CRC tells them apart.
+fn serves(s: &Status, want: &Model, uploaded: Option<UploadedModel>) -> bool {
     s.flags.contains(Flags::MODEL)
         && s.model_id == want.id()
+        && uploaded.is_some_and(|u| u.model_id == s.model_id && u.model_crc32 == s.model_crc32)
         && (0..want.axes()).all(|a| (s.kmz_um[a] - want.kmz_offset_um(a)).abs() < 1e-9)
 }
 
@@ -790,7 +794,7 @@ impl<'a> Runner<'a> {
         let Ok(want) = self.wanted_model(kind) else {
             return false;
         };
-        !s.flags.contains(Flags::WARMING_UP) && serves(s, &want)
+        !s.flags.contains(Flags::WARMING_UP) && serves(s, &want, self.state.uploaded)
     }
 
     /// The move of a step with one status read instead of two, when the compensator reports
@@ -833,9 +837,14 @@ impl<'a> Runner<'a> {
         };
         if let Some(kind) = mode.model {
             let want = self.wanted_model(kind)?;
-            if !serves(&s, &want) {
+            if !serves(&s, &want, self.state.uploaded) {
                 let blob = encode_blob(&want);
-                self.device(move |c| c.upload(&blob).map(|_| ()))?;
+                // the device confirms the blob's CRC (`Client::upload`)
+                let c = self.device(move |c| c.upload(&blob))?;
+                self.state.uploaded = Some(UploadedModel {
+                    model_id: c.model_id,
+                    model_crc32: c.model_crc32,
+                });
                 s = self.read_status(k)?;
             }
             // the first fold of a new model waits for every input's reading

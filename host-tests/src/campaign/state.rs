@@ -90,6 +90,10 @@ pub struct State {
     pub stage: Stage,
     /// Model ids once fitted: (static, adaptive).
     pub model_ids: Option<(u32, u32)>,
+    /// The model this campaign uploaded last, as the device confirmed it: in service while
+    /// the device's status shows its id and blob CRC (a state file without it: none).
+    #[serde(default)]
+    pub uploaded: Option<UploadedModel>,
     /// λ_KMZ per axis last measured and sent to the compensator, µm.
     pub kmz_um: Option<Vec<f64>>,
     /// The first KMZ re-measurement, which later ones are differences to
@@ -191,6 +195,16 @@ pub enum LoopStop {
     MaxLoops,
 }
 
+/// A model the campaign uploaded: its id and the CRC-32 its blob carries (the content hash
+/// the device reports with the id).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct UploadedModel {
+    /// The model's id.
+    pub model_id: u32,
+    /// The CRC-32 its blob carries.
+    pub model_crc32: u32,
+}
+
 /// Errors of the state file.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -274,6 +288,10 @@ mod tests {
             recording_bytes: 12345,
             stage: Stage::Steps,
             model_ids: Some((1, 2)),
+            uploaded: Some(UploadedModel {
+                model_id: 2,
+                model_crc32: 0x89AB_CDEF,
+            }),
             kmz_um: Some(vec![0.125]),
             kmz_first: None,
             kmz_updates: 1,

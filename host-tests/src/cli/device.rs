@@ -247,7 +247,10 @@ pub fn run(cmd: DeviceCommand) -> anyhow::Result<()> {
                 std::fs::read(&blob).with_context(|| format!("reading {}", blob.display()))?;
             let mut c = Client::open(&port)?;
             let r = c.upload(&bytes)?;
-            println!("model {:#010x} stored and in service", r.model_id);
+            println!(
+                "model {:#010x} (blob CRC {:#010x}) stored and in service",
+                r.model_id, r.model_crc32
+            );
         }
         DeviceCommand::Status { port } => {
             let mut c = Client::open(&port)?;

@@ -4,6 +4,7 @@
 
 use super::link::{BenchClock, BenchLink, Page, RAM_FILE_LEN};
 use crate::device::Client;
+use nanocal_interface::bench_link;
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::os::unix::net::UnixStream;
@@ -259,7 +260,16 @@ impl Qemu {
     /// The host opens (`true`) or closes (`false`) the GCS port: the line state a USB host
     /// sends with CDC SET_CONTROL_LINE_STATE (DTR, bit 0), carried to the board on serial4.
     pub fn set_dtr(&mut self, on: bool) {
-        self.link.send_line_state(0xC0 | u8::from(on));
+        let dtr = if on { bench_link::LINE_DTR } else { 0 };
+        self.link.send_line_state(bench_link::LINE_HOST | dtr);
+    }
+
+    /// The management client opens (`true`) or closes (`false`) the management port: its line
+    /// state (DTR), as [`Self::set_dtr`]'s for the GCS port. The board drops a management frame
+    /// still arriving when the port closes.
+    pub fn set_mgmt_dtr(&mut self, on: bool) {
+        let dtr = if on { bench_link::LINE_DTR } else { 0 };
+        self.link.send_line_state(bench_link::LINE_MGMT | dtr);
     }
 
     /// Process id of QEMU.
@@ -333,6 +343,17 @@ impl Qemu {
     /// Management port spec for the CLI (`unix:PATH`).
     pub fn mgmt_spec(&self) -> String {
         format!("unix:{}", self.log.with_extension("d").join("s3").display())
+    }
+
+    /// A raw connection to the management port (serial3), for tests that send bytes no client
+    /// would (a frame cut off); one connection at a time, as [`Self::client`]'s.
+    pub fn mgmt_stream(&mut self) -> UnixStream {
+        dial_unix(
+            &mut self.child,
+            &self.log.with_extension("d").join("s3"),
+            3,
+            &self.log,
+        )
     }
 
     /// A management client (serial3); one at a time.

@@ -53,6 +53,9 @@ pub enum Reply {
     UploadCommit {
         /// Id of the model now in service.
         model_id: u32,
+        /// The CRC-32 its blob carries, as the device stored it (the content hash the status
+        /// reports: [`crate::status::Status::model_crc32`]).
+        model_crc32: u32,
         /// Uploads accepted since start-up.
         uploads_accepted: u32,
     },
@@ -117,10 +120,11 @@ impl Reply {
             Reply::UploadChunk { received } => w.u32(*received),
             Reply::UploadCommit {
                 model_id,
+                model_crc32,
                 uploads_accepted,
             } => {
                 w.u32(*model_id)?;
-                w.u8(0)?; // reserved (was: the flash slot)
+                w.u32(*model_crc32)?;
                 w.u32(*uploads_accepted)
             }
             Reply::SetKmz { kmz_um, stored } => {
@@ -186,14 +190,11 @@ impl Reply {
             Kind::Status => Reply::Status(Status::decode(&mut r)?),
             Kind::UploadBegin => Reply::UploadBegin,
             Kind::UploadChunk => Reply::UploadChunk { received: r.u32()? },
-            Kind::UploadCommit => {
-                let model_id = r.u32()?;
-                r.u8()?; // reserved
-                Reply::UploadCommit {
-                    model_id,
-                    uploads_accepted: r.u32()?,
-                }
-            }
+            Kind::UploadCommit => Reply::UploadCommit {
+                model_id: r.u32()?,
+                model_crc32: r.u32()?,
+                uploads_accepted: r.u32()?,
+            },
             Kind::UploadAbort => Reply::UploadAbort,
             Kind::SetKmz => {
                 let mut kmz_um = [0.0; MAX_AXES];

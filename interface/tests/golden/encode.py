@@ -22,7 +22,8 @@ def settings(baud, sensors, mains, period, unit, axes, aux, fold_ms=5000, versio
     return b + struct.pack('<I', zlib.crc32(b))
 
 def status():
-    b = struct.pack('<H', 0x0A09) + struct.pack('<I', 0x00030001) + bytes([0xFF]) + struct.pack('<I', 41)
+    # protocol 5: model_crc32 at offset 6 (protocol 4 had one reserved byte 0xFF there)
+    b = struct.pack('<H', 0x0A09) + struct.pack('<I', 0x00030001) + struct.pack('<I', 0x89ABCDEF) + struct.pack('<I', 41)
     temps = [20.5, 21.25, -1.5, 0.0] + [0.0] * 12
     b += struct.pack('<16f', *temps)
     b += bytes([0x00, 0x11, 0x62, 0x04] + [0] * 12)
@@ -32,7 +33,7 @@ def status():
     b += struct.pack('<i', 9008) + bytes([8]) + struct.pack('<I', 123456)
     b += b'0123456789AB' + bytes([4, 1]) + struct.pack('<3I', 250, 0, 3)
     b += struct.pack('<4f', 1013.25, 0.0, 0.0, 0.0) + bytes([0, 4, 4, 4])
-    assert len(b) == 203, len(b)
+    assert len(b) == 206, len(b)
     return b
 
 def rust(name, b, doc):
@@ -54,7 +55,7 @@ assert len(custom_settings_v2) == 244
 
 hello = struct.pack('<HHH', 5, 2, 256) + bytes([5]) + b'0.1.0' + bytes(range(12)) + bytes([1])
 items = [
-    ("STATUS_BYTES", status(), "The status of `status()` alone (203 bytes)."),
+    ("STATUS_BYTES", status(), "The status of `status()` alone (206 bytes)."),
     ("SETTINGS_DEFAULT", default_settings, "`Settings::default()` (246 bytes, layout 3)."),
     ("SETTINGS_CUSTOM", custom_settings, "The settings of `custom_settings()` (fold period 8 s)."),
     ("SETTINGS_CUSTOM_V2", custom_settings_v2, "`custom_settings()` as a layout 2 record (no fold period, 244 bytes)."),
@@ -74,7 +75,7 @@ items = [
     ("REP_STATUS", frame(0x82, 2, bytes([0]) + status()), "STATUS reply with `status()`."),
     ("REP_UPLOAD_BEGIN", frame(0x90, 3, bytes([0])), "UPLOAD_BEGIN reply: ok."),
     ("REP_UPLOAD_CHUNK", frame(0x91, 4, bytes([0]) + struct.pack('<I', 260)), "UPLOAD_CHUNK reply: 260 bytes received."),
-    ("REP_UPLOAD_COMMIT", frame(0x92, 5, bytes([0]) + struct.pack('<IBI', 0x00030001, 0, 3)), "UPLOAD_COMMIT reply: model 00030001h, 3 uploads accepted."),
+    ("REP_UPLOAD_COMMIT", frame(0x92, 5, bytes([0]) + struct.pack('<III', 0x00030001, 0x89ABCDEF, 3)), "UPLOAD_COMMIT reply: model 00030001h, blob CRC 89ABCDEFh, 3 uploads accepted."),
     ("REP_UPLOAD_ABORT", frame(0x93, 6, bytes([0])), "UPLOAD_ABORT reply: ok."),
     ("REP_SET_KMZ", frame(0xA0, 7, bytes([0]) + struct.pack('<3dB', 0.125, 0.0, 0.0, 1)), "SET_KMZ reply: λ_KMZ (0.125, 0, 0), stored."),
     ("REP_BYPASS", frame(0xA1, 8, bytes([0])), "BYPASS reply: ok."),

@@ -261,7 +261,8 @@ pub struct Status {
     /// it; the field was an unused 0 before). A host that reads `move_fold == folds` knows the
     /// temperatures in this report are the ones its last move was corrected with.
     pub move_fold: u32,
-    /// Temperatures in use, °C (NaN when unusable).
+    /// Temperatures in use — the last fold's inputs, the readings averaged over the fold period
+    /// (protocol 5) — °C (NaN when unusable or not folded yet).
     pub temps_c: [f32; STATUS_SENSORS],
     /// Per-sensor state and last fault.
     pub sensor_bits: [ChannelBits; STATUS_SENSORS],
@@ -304,7 +305,8 @@ pub struct Status {
     pub flash_ecc_errors: u32,
     /// Times a sensor was found without its configuration and reconfigured.
     pub sensor_reconfigs: u32,
-    /// Auxiliary inputs in use, in their units (NaN when unusable).
+    /// Auxiliary inputs in use — the last fold's inputs, as [`Status::temps_c`] — in their units
+    /// (NaN when unusable).
     pub aux: [f32; STATUS_AUX],
     /// Per-aux state and last fault (as [`Status::sensor_bits`]).
     pub aux_bits: [ChannelBits; STATUS_AUX],

@@ -73,6 +73,7 @@ fn custom_settings() -> Settings {
         stage_baud: 57_600,
         mains: Mains::Hz60,
         sample_period_ms: 500,
+        fold_period_ms: 8_000,
         stage_unit: StageUnit::Mm,
         ..Settings::default()
     };
@@ -170,6 +171,14 @@ fn settings_bytes() {
     assert_eq!(
         Settings::decode(&SETTINGS_CUSTOM).unwrap(),
         custom_settings()
+    );
+    // a layout 2 record (stored by a firmware before the fold period) decodes with the default
+    assert_eq!(
+        Settings::decode(&SETTINGS_CUSTOM_V2).unwrap(),
+        Settings {
+            fold_period_ms: nanocal_interface::settings::DEFAULT_FOLD_PERIOD_MS,
+            ..custom_settings()
+        }
     );
 }
 

@@ -463,11 +463,18 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
             }
         }
         for (i, ch) in m.faults.channels.iter().enumerate().take(STATUS_SENSORS) {
-            s.temps_c[i] = ch.value_c().unwrap_or(f32::NAN);
+            // the fold's input (the average of the fold period), for a usable channel
+            s.temps_c[i] = match ch.value_c() {
+                Some(_) => m.slow.temps_c[i] as f32,
+                None => f32::NAN,
+            };
             s.sensor_bits[i] = ch.status_bits();
         }
         for (i, ch) in m.aux_faults.channels.iter().enumerate().take(STATUS_AUX) {
-            s.aux[i] = ch.value_c().unwrap_or(f32::NAN);
+            s.aux[i] = match ch.value_c() {
+                Some(_) => m.slow.aux[i] as f32,
+                None => f32::NAN,
+            };
             s.aux_bits[i] = ch.status_bits();
         }
         s.slow_outside = m.slow_outside;

@@ -117,7 +117,7 @@ pub struct ModelState {
     pub model_crc32: u32,
     /// Increases with every model change (the sensor task restarts its lag filters on change).
     pub generation: u32,
-    /// Slow inputs of the last fold.
+    /// Slow inputs of the last fold: the readings averaged over the fold period.
     pub slow: SlowInputs,
     /// Temperature fault policy state.
     pub faults: Faults,
@@ -278,7 +278,12 @@ impl Shared {
                 model: None,
                 model_crc32: 0,
                 generation: 0,
-                slow: SlowInputs::default(),
+                // no input read yet: the status shows none until the first fold
+                slow: SlowInputs {
+                    temps_c: [f64::NAN; nanocal_model::MAX_TEMPS],
+                    aux: [f64::NAN; MAX_AUX],
+                    ..SlowInputs::default()
+                },
                 faults: Faults::new(Policy::default()),
                 aux_faults: Faults::new(aux_policy),
                 slow_outside: 0,

@@ -543,9 +543,10 @@ pub fn format_settings(s: &Settings) -> String {
         .collect();
     o += &format!("GCS axis names (model axes 0,1,2): {}\n", names.join(","));
     o += &format!(
-        "mains: {} Hz  sample period: {} ms\n",
+        "mains: {} Hz  sample period: {} ms  fold period: {} ms (readings averaged)\n",
         if s.mains == Mains::Hz50 { 50 } else { 60 },
-        s.sample_period_ms
+        s.sample_period_ms,
+        s.fold_period_ms
     );
     for (cs, c) in s.sensors.iter().enumerate() {
         let d = match c {

@@ -61,9 +61,11 @@ pub use request::Request;
 /// bytes did not change with the move.) 5: the model's content hash — the CRC-32 its blob
 /// carries — in `STATUS` (`Status::model_crc32`, in place of the reserved byte at offset 6:
 /// every later field moved by 3 bytes) and in `UPLOAD_COMMIT`'s reply (in place of its
-/// reserved byte); the model id alone did not tell two models apart (issue 21); HELLO ends
-/// with the reset site; reset causes 8 (panic), 9 (double ECC error outside the store), 10 (CPU
-/// fault) (issue 16).
+/// reserved byte); the model id alone did not tell two models apart (issue 21). Also in 5 (the
+/// changes met before any was released): HELLO ends with the reset site, reset causes 8
+/// (panic), 9 (double ECC error outside the store), 10 (CPU fault) (issue 16); settings layout 3
+/// (the fold period, 2 bytes more in CONFIG_GET/CONFIG_SET), and `Status::temps_c`/`Status::aux`
+/// are the last fold's inputs (the readings averaged over the fold period) (issue 18).
 pub const PROTOCOL: u16 = 5;
 /// Largest upload chunk (payload minus the offset).
 pub const MAX_CHUNK: usize = 256;

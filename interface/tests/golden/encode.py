@@ -7,7 +7,7 @@ def frame(kind, seq, payload):
     body = hdr + payload
     return bytes([0xA7, 0x5C]) + body + struct.pack('<I', zlib.crc32(body))
 
-def settings(baud, sensors, mains, period, unit, axes, aux, version=2, n_cs=16):
+def settings(baud, sensors, mains, period, unit, axes, aux, fold_ms=5000, version=3, n_cs=16):
     b = b'NCST' + bytes([version]) + struct.pack('<I', baud)
     for i in range(n_cs):
         kind, a, rr, r0 = sensors.get(i, (0, 0, 0.0, 0.0))
@@ -17,6 +17,8 @@ def settings(baud, sensors, mains, period, unit, axes, aux, version=2, n_cs=16):
         b += bytes([len(name)]) + name + bytes(8 - len(name))
     for kind, ch, sc, off in aux:
         b += bytes([kind, ch]) + struct.pack('<ff', sc, off)
+    if version >= 3:
+        b += struct.pack('<H', fold_ms)
     return b + struct.pack('<I', zlib.crc32(b))
 
 def status():
@@ -42,16 +44,21 @@ def rust(name, b, doc):
 
 default_settings = settings(115200, {i: (1, 3, 0.0, 0.0) for i in range(4)}, 50, 250, 0,
                             [b'1', b'2', b'3'], [(0, 0, 0.0, 0.0)] * 4)
-custom_settings = settings(57600, {0: (1, 3, 0.0, 0.0), 1: (1, 7, 0.0, 0.0), 2: (2, 3, 430.0, 100.0),
-                                   3: (2, 4, 4300.0, 1000.0)}, 60, 500, 1, [b'X', b'Y', b'3'],
-                           [(1, 0, 0.0, 0.0), (2, 0, 0.01, -20.48), (0, 0, 0.0, 0.0), (0, 0, 0.0, 0.0)])
-assert len(default_settings) == 244
+custom_args = (57600, {0: (1, 3, 0.0, 0.0), 1: (1, 7, 0.0, 0.0), 2: (2, 3, 430.0, 100.0),
+                       3: (2, 4, 4300.0, 1000.0)}, 60, 500, 1, [b'X', b'Y', b'3'],
+               [(1, 0, 0.0, 0.0), (2, 0, 0.01, -20.48), (0, 0, 0.0, 0.0), (0, 0, 0.0, 0.0)])
+custom_settings = settings(*custom_args, fold_ms=8000)
+# the same settings as a version 2 record (no fold period), as a firmware before layout 3 stored them
+custom_settings_v2 = settings(*custom_args, version=2)
+assert len(default_settings) == 246
+assert len(custom_settings_v2) == 244
 
 hello = struct.pack('<HHH', 5, 2, 256) + bytes([5]) + b'0.1.0' + bytes(range(12)) + bytes([8]) + bytes([19]) + b'src/bin/stm32.rs:42'
 items = [
     ("STATUS_BYTES", status(), "The status of `status()` alone (206 bytes)."),
-    ("SETTINGS_DEFAULT", default_settings, "`Settings::default()` (244 bytes)."),
-    ("SETTINGS_CUSTOM", custom_settings, "The settings of `custom_settings()`."),
+    ("SETTINGS_DEFAULT", default_settings, "`Settings::default()` (246 bytes, layout 3)."),
+    ("SETTINGS_CUSTOM", custom_settings, "The settings of `custom_settings()` (fold period 8 s)."),
+    ("SETTINGS_CUSTOM_V2", custom_settings_v2, "`custom_settings()` as a layout 2 record (no fold period, 244 bytes)."),
     ("REQ_HELLO", frame(0x01, 1, b''), "HELLO, seq 1."),
     ("REQ_STATUS", frame(0x02, 2, b''), "STATUS, seq 2."),
     ("REQ_UPLOAD_BEGIN", frame(0x10, 3, struct.pack('<IIH', 1234, 0xDEADBEEF, 2)), "UPLOAD_BEGIN 1234 bytes, CRC DEADBEEFh, format 2, seq 3."),

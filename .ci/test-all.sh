@@ -13,6 +13,9 @@ rustup target add thumbv7em-none-eabihf
 step "firmware: QEMU 10, both boards in release, clippy -D warnings, fmt"
 bash "$root/.ci/firmware.sh"
 
+step "emulated STM32 board prerequisites (cmake, libclang for the unicorn-engine crate)"
+bash "$root/.ci/emulator.sh"
+
 step "host workspace: format and lints"
 cd "$root/host-tests"
 cargo fmt --all --check

@@ -90,6 +90,19 @@ impl<R: RawFlash, const ERASE: usize> L4Nor<R, ERASE> {
     }
 }
 
+/// Flash that counts the double words it handed over as corrupt (double ECC errors: torn by a
+/// power cut), for the status.
+pub trait EccErrors {
+    /// Double words that failed ECC on read since start-up.
+    fn ecc_errors(&self) -> u32;
+}
+
+impl<R, const ERASE: usize> EccErrors for L4Nor<R, ERASE> {
+    fn ecc_errors(&self) -> u32 {
+        self.ecc_errors
+    }
+}
+
 impl<R, const ERASE: usize> ErrorType for L4Nor<R, ERASE> {
     type Error = FlashError;
 }

@@ -9,6 +9,7 @@
 //! - [`proxy`]: the GCS proxy (targets corrected, position replies mapped back, refusals);
 //! - [`sensor`] and [`fault`]: temperature amplifiers at register level and the fault policy;
 //! - [`inputs`]: which model inputs the board supplies;
+//! - [`slow_average`]: the slow path's clock: readings averaged over the fold period;
 //! - [`upload`]: the chunked upload's state machine;
 //! - [`store`], [`l4flash`]: the persistent store on the L4's flash (and its simulation);
 //! - [`clock`], [`lps22hb`]: clock rules, the barometer.
@@ -34,5 +35,6 @@ pub mod l4flash;
 pub mod lps22hb;
 pub mod proxy;
 pub mod sensor;
+pub mod slow_average;
 pub mod store;
 pub mod upload;

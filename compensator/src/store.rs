@@ -20,10 +20,23 @@
 use core::fmt;
 use embedded_storage_async::nor_flash::NorFlash;
 use nanocal_model::{blob, MAX_AXES};
-use sequential_storage::cache::{Cache, Uncached};
-
-type NoCache = Cache<Uncached, Uncached, Uncached, u8>;
+use sequential_storage::cache::key_pointers::ArrayKeyPointers;
+use sequential_storage::cache::page_pointers::ArrayPagePointers;
+use sequential_storage::cache::page_states::ArrayPageStates;
+use sequential_storage::cache::Cache;
 use sequential_storage::map::{MapConfig, MapStorage, SerializationError, Value};
+
+/// Most erase units a store may have (the boards' have 8: 64 KiB in 8 KiB units).
+pub const MAX_PAGES: usize = 32;
+
+/// The map's cache: page states, page pointers, and where the newest item of each of the three
+/// keys is. Without the key pointers, freeing a page costs a scan of the whole store per item
+/// on that page (sequential-storage's `migrate_items` looks up the newest item of each key):
+/// on a store whose free space KMZ updates had used up, the next upload kept the CPU busy for
+/// more than the watchdog's 2 s and the board reset in the middle of the write — at every
+/// attempt (tests/e2e_stm32_power_cut.rs). With them it is a lookup. ~330 bytes of RAM.
+type MapCache =
+    Cache<ArrayPageStates<MAX_PAGES>, ArrayPagePointers<MAX_PAGES>, ArrayKeyPointers<u8, 3>, u8>;
 
 /// A value produced by an encoder straight into the map's data buffer (possibly several times:
 /// a page migration reuses the buffer before the item is written).
@@ -95,16 +108,29 @@ fn err<E>(e: sequential_storage::Error<E>) -> StoreError {
 
 /// The store over `flash` (the whole of it: erase-unit aligned).
 pub struct Store<F: NorFlash> {
-    map: MapStorage<u8, F, NoCache>,
+    map: MapStorage<u8, F, MapCache>,
     scratch: [u8; SCRATCH],
 }
 
 impl<F: NorFlash> Store<F> {
     /// A store over the whole of `flash`.
+    ///
+    /// # Panics
+    /// When `flash` has more than [`MAX_PAGES`] erase units (a board's configuration error).
     pub fn new(flash: F) -> Self {
-        let end = (flash.capacity() / F::ERASE_SIZE * F::ERASE_SIZE) as u32;
+        let pages = flash.capacity() / F::ERASE_SIZE;
+        assert!(
+            pages <= MAX_PAGES,
+            "a store of {pages} erase units: at most {MAX_PAGES}"
+        );
+        let end = (pages * F::ERASE_SIZE) as u32;
+        let cache = MapCache::new(
+            ArrayPageStates::new(),
+            ArrayPagePointers::new(),
+            ArrayKeyPointers::new(),
+        );
         Self {
-            map: MapStorage::new(flash, MapConfig::new(0..end), NoCache::new_uncached()),
+            map: MapStorage::new(flash, MapConfig::new(0..end), cache),
             scratch: [0; SCRATCH],
         }
     }

@@ -1,11 +1,19 @@
 //! Candidate design: a readable spec of which terms may enter the model, mapped 1:1 onto the
 //! shared model's [`Term`]s.
 //!
-//! Regressors are computed by the model crate itself: a skeleton [`Model`] carries the scalings
-//! (from the training envelope), [`Model::scale`] turns raw inputs into [`ScaledInputs`], and
-//! [`Term::value`] evaluates each candidate. A fitted coefficient is therefore exactly the
-//! coefficient stored in the blob, and the fitted intercept is the offset λ — nothing is written
-//! twice.
+//! Candidates are the papers' own regressors, in raw units: the powers of the measured
+//! position itself (`x`, `x²`, `x³`: paper 000 Eq. 8, 11–13; and for more axes the monomials of
+//! the positions as they are), the temperatures, their products with the position. Regressors
+//! are computed by the model crate itself: a skeleton [`Model`] with identity scalings turns raw
+//! inputs into [`ScaledInputs`] ([`Model::scale`]) and [`Term::value`] evaluates each candidate
+//! ([`DesignFrame::raw_inputs`]). Selection (stepwise) therefore decides on `x²`, not on the
+//! square of a centred variable: dropping `u²` with `u = (x − c)/h` is not dropping `x²`, and
+//! the selected set would not be the paper's. (Scaling or centring a candidate *column*, with
+//! the intercept in the model, changes no selection; stepwise and least squares do that
+//! internally.) The fitted raw coefficients are then converted exactly — the binomial expansion
+//! of [`nanocal_model::ModelBuilder::add_raw_term`] — into the blob's centred and scaled basis
+//! (the skeleton with the training envelope's scalings, [`DesignFrame::builder`]), where the
+//! firmware's f32 evaluation keeps its precision.
 //!
 //! Spec syntax (tokens separated by spaces or commas):
 //!
@@ -23,10 +31,11 @@
 //! | `static` | shorthand for the published static model: `poly=3 temps` |
 //! | `adaptive` | shorthand for the published adaptive model: `poly=3` (offset re-measured by KMZ) |
 //! | `eq22` | shorthand for paper 000's 2-DoF model, Eq. 22 with n1 = n2 = 3: `poly=3 other_poly=3 temps` — `q_x = Σ a_ix x^i + Σ b_ix y^i + Σ c_ix t_i + λ_x`, no x·y products |
+//! | `paper001` | paper 001's split, §VII.A "78 parameters (45 geometric and 33 thermal)": per motor 15 geometric monomials and 11 thermal terms (every temperature and the own coordinate × temperature `o`), the shapes of [`nanocal_model::reference::delta_robot_78`] (the paper gives only the counts) |
 
 use nanocal_model::{
-    Factor, Input, LagBank, Model, ModelBuilder, ModelError, ScaledInputs, SlowInputs, Term,
-    MAX_AUX, MAX_AXES, MAX_TEMPS,
+    Factor, HysteresisState, Input, LagBank, Model, ModelBuilder, ModelError, ScaledInputs,
+    SlowInputs, Term, MAX_AUX, MAX_AXES, MAX_TEMPS,
 };
 
 use crate::dwell::Dwells;
@@ -35,7 +44,7 @@ use crate::dwell::Dwells;
 #[derive(Debug, thiserror::Error)]
 pub enum DesignError {
     /// The spec text could not be read.
-    #[error("design spec: expected one of poly=N, poly_<axis>=N, other_poly=N, cross=N, temps, temp_x_pos, aux, direction, lag=TAU_S, static, adaptive, eq22; found `{0}`")]
+    #[error("design spec: expected one of poly=N, poly_<axis>=N, other_poly=N, cross=N, temps, temp_x_pos, aux, direction, lag=TAU_S, static, adaptive, eq22, paper001; found `{0}`")]
     BadToken(String),
     /// An axis named in the spec is not in the data.
     #[error("design spec names axis `{0}`, but the data has axes: {1}")]
@@ -56,6 +65,93 @@ pub enum DesignError {
     /// The model crate rejected the skeleton.
     #[error("model: {0:?}")]
     Model(ModelError),
+}
+
+/// A factor of an [`ExtensionTerm`]: a lag filter or play operator counts from the
+/// extension's own first one.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ExtensionFactor {
+    /// No factor.
+    None,
+    /// Temperature input `n`.
+    Temp(u8),
+    /// Aux input `n`.
+    Aux(u8),
+    /// The extension's lag filter `k`.
+    Lagged(u8),
+    /// The extension's play operator `k`.
+    Play(u8),
+}
+
+/// A term shape of an [`Extension`]; the fit sets its coefficient.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ExtensionTerm {
+    /// Output axis.
+    pub output: u8,
+    /// Powers of the positions.
+    pub powers: [u8; MAX_AXES],
+    /// Factor.
+    pub factor: ExtensionFactor,
+    /// 0, or 1 + the axis whose sign of approach multiplies the term.
+    pub direction: u8,
+}
+
+/// Candidate terms beyond the spec's tokens: an effect `explain` found, in the form the blob
+/// carries it ([`crate::effects::BlobTerms`]): lag filters, play operators, and term shapes
+/// (paper 001 §II step 5: back to step 1 with more sources of inaccuracy in the model).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Extension {
+    /// What it models, for people (the effect and its channel).
+    pub name: String,
+    /// Lag filters: (temperature input, τ in s).
+    pub lags: Vec<(u8, f64)>,
+    /// Play operators: (axis, threshold in µm), grouped by axis, thresholds ascending.
+    pub plays: Vec<(u8, f64)>,
+    /// Term shapes.
+    pub terms: Vec<ExtensionTerm>,
+}
+
+impl Extension {
+    /// The extension that carries what explain found (`blob`, its deployable form).
+    pub fn from_blob_terms(name: &str, blob: &crate::effects::BlobTerms) -> Self {
+        let terms = blob
+            .terms
+            .iter()
+            .map(|t| ExtensionTerm {
+                output: t.output,
+                powers: t.powers,
+                factor: match t.factor {
+                    Factor::None => ExtensionFactor::None,
+                    Factor::Temp(n) => ExtensionFactor::Temp(n),
+                    Factor::Aux(n) => ExtensionFactor::Aux(n),
+                    Factor::Lagged(k) => ExtensionFactor::Lagged(k),
+                    Factor::Play(k) => ExtensionFactor::Play(k),
+                },
+                direction: t.direction,
+            })
+            .collect();
+        Extension {
+            name: name.to_string(),
+            lags: blob.lags.clone(),
+            plays: blob.plays.clone(),
+            terms,
+        }
+    }
+
+    fn uses_temps(&self) -> bool {
+        !self.lags.is_empty()
+            || self
+                .terms
+                .iter()
+                .any(|t| matches!(t.factor, ExtensionFactor::Temp(_)))
+    }
+
+    fn uses_aux(&self) -> bool {
+        self.terms
+            .iter()
+            .any(|t| matches!(t.factor, ExtensionFactor::Aux(_)))
+    }
 }
 
 /// Which candidate terms a fit may use (see the module doc for the text form).
@@ -79,6 +175,10 @@ pub struct DesignSpec {
     pub direction: bool,
     /// Lagged temperature terms: every temperature through a first-order lag with this τ, s.
     pub lag_tau_s: Option<f64>,
+    /// Paper 001's split: per motor its 15 geometric and 11 thermal terms (token `paper001`).
+    pub paper001_split: bool,
+    /// Effects found by `explain`, added as they deploy in the blob (no text form).
+    pub extensions: Vec<Extension>,
 }
 
 impl DesignSpec {
@@ -127,6 +227,9 @@ impl DesignSpec {
                     s.temps = true;
                 }
                 "adaptive" => s.poly_order = s.poly_order.max(3),
+                "paper001" => {
+                    s.paper001_split = true;
+                }
                 "eq22" => {
                     s.poly_order = s.poly_order.max(3);
                     s.other_order = s.other_order.max(3);
@@ -192,7 +295,11 @@ pub struct DesignFrame {
     pub temps: Vec<String>,
     /// Aux columns (model Aux index = position here).
     pub aux: Vec<String>,
+    /// Per extension of the spec, its first lag filter and first play operator in the model.
+    extension_bases: Vec<(u8, u8)>,
     skeleton: Model,
+    /// The same inputs with identity scalings: its [`Model::scale`] gives the raw values.
+    raw: Model,
 }
 
 fn range(v: &[f64]) -> (f64, f64) {
@@ -222,7 +329,11 @@ impl DesignFrame {
                 max: MAX_AXES,
             });
         }
-        let use_temps = spec.temps || spec.temp_x_position || spec.lag_tau_s.is_some();
+        let use_temps = spec.temps
+            || spec.temp_x_position
+            || spec.lag_tau_s.is_some()
+            || spec.paper001_split
+            || spec.extensions.iter().any(Extension::uses_temps);
         let temps: Vec<String> = if use_temps {
             d.channels
                 .iter()
@@ -232,7 +343,7 @@ impl DesignFrame {
         } else {
             Vec::new()
         };
-        let aux: Vec<String> = if spec.aux {
+        let aux: Vec<String> = if spec.aux || spec.extensions.iter().any(Extension::uses_aux) {
             d.channels
                 .iter()
                 .map(|c| c.0.clone())
@@ -288,17 +399,50 @@ impl DesignFrame {
             let (lo, hi) = range(d.channel(name).expect("listed"));
             b = b.trained_range(Input::Aux(i as u8), lo, hi);
         }
+        let mut raw =
+            ModelBuilder::new(d.axes.len(), temps.len(), aux.len()).map_err(DesignError::Model)?;
         if let Some(tau) = spec.lag_tau_s {
             for i in 0..temps.len() {
                 b.lag(i as u8, tau).map_err(DesignError::Model)?;
+                raw.lag(i as u8, tau).map_err(DesignError::Model)?;
+            }
+        }
+        let mut extension_bases = Vec::new();
+        let mut lags = if spec.lag_tau_s.is_some() {
+            temps.len() as u8
+        } else {
+            0
+        };
+        let mut plays = 0u8;
+        for e in &spec.extensions {
+            extension_bases.push((lags, plays));
+            for &(sensor, tau) in &e.lags {
+                if usize::from(sensor) >= temps.len() {
+                    return Err(DesignError::Data(format!(
+                        "{}: a lag filter on temperature {sensor}, the data has {}",
+                        e.name,
+                        temps.len()
+                    )));
+                }
+                b.lag(sensor, tau).map_err(DesignError::Model)?;
+                raw.lag(sensor, tau).map_err(DesignError::Model)?;
+                lags += 1;
+            }
+            for &(axis, r) in &e.plays {
+                b.play(axis, r).map_err(DesignError::Model)?;
+                raw.play(axis, r).map_err(DesignError::Model)?;
+                plays += 1;
             }
         }
         let skeleton = b.build().map_err(DesignError::Model)?;
+        let raw = raw.build().map_err(DesignError::Model)?;
         Ok(DesignFrame {
             axes: d.axes.clone(),
             temps,
             aux,
+            extension_bases,
             skeleton,
+            raw,
         })
     }
 
@@ -326,6 +470,10 @@ impl DesignFrame {
         for spec in m.lags() {
             b.lag(spec.sensor, spec.tau_s)
                 .expect("skeleton's lags are valid");
+        }
+        for spec in m.play_operators() {
+            b.play(spec.axis, spec.threshold_um)
+                .expect("skeleton's play operators are valid");
         }
         b
     }
@@ -366,7 +514,10 @@ impl DesignFrame {
             });
         }
         let add_monomial = |out: &mut Vec<Candidate>, powers: [u8; MAX_AXES]| {
-            if !out.iter().any(|c| c.term.powers == powers) {
+            let same = |c: &Candidate| {
+                c.term.powers == powers && c.term.factor == Factor::None && c.term.direction == 0
+            };
+            if !out.iter().any(same) {
                 out.push(Candidate {
                     term: term(powers, Factor::None, 0),
                     name: mono_name(&powers),
@@ -414,7 +565,13 @@ impl DesignFrame {
             }
         }
         if let Some(tau) = spec.lag_tau_s {
-            for (k, lag) in self.skeleton.lags().iter().enumerate() {
+            for (k, lag) in self
+                .skeleton
+                .lags()
+                .iter()
+                .enumerate()
+                .take(self.temps.len())
+            {
                 out.push(Candidate {
                     term: term([0; MAX_AXES], Factor::Lagged(k as u8), 0),
                     name: format!("lag({}, {tau} s)", self.temps[lag.sensor as usize]),
@@ -427,6 +584,73 @@ impl DesignFrame {
                     term: term([0; MAX_AXES], Factor::Aux(i as u8), 0),
                     name: name.clone(),
                 });
+            }
+        }
+        for (e, &(lag0, play0)) in spec.extensions.iter().zip(&self.extension_bases) {
+            for t in e.terms.iter().filter(|t| usize::from(t.output) == output) {
+                let (factor, what) = match t.factor {
+                    ExtensionFactor::None => (Factor::None, String::new()),
+                    ExtensionFactor::Temp(n) => (
+                        Factor::Temp(n),
+                        self.temps.get(usize::from(n)).cloned().unwrap_or_default(),
+                    ),
+                    ExtensionFactor::Aux(n) => (
+                        Factor::Aux(n),
+                        self.aux.get(usize::from(n)).cloned().unwrap_or_default(),
+                    ),
+                    ExtensionFactor::Lagged(k) => {
+                        let (sensor, tau) = e.lags[usize::from(k)];
+                        let name = &self.temps[usize::from(sensor)];
+                        (Factor::Lagged(lag0 + k), format!("lag({name}, {tau:.0} s)"))
+                    }
+                    ExtensionFactor::Play(k) => {
+                        let (axis, r) = e.plays[usize::from(k)];
+                        let name = &self.axes[usize::from(axis)];
+                        (Factor::Play(play0 + k), format!("play({name}, {r:.4} µm)"))
+                    }
+                };
+                let shape = term(t.powers, factor, t.direction);
+                if out.iter().any(|c| c.term.same_shape(&shape)) {
+                    continue;
+                }
+                let mut parts: Vec<String> = Vec::new();
+                let mono = mono_name(&t.powers);
+                if !mono.is_empty() {
+                    parts.push(mono);
+                }
+                if !what.is_empty() {
+                    parts.push(what);
+                }
+                if t.direction > 0 {
+                    parts.push(format!("sign_{}", self.axes[usize::from(t.direction - 1)]));
+                }
+                out.push(Candidate {
+                    term: shape,
+                    name: parts.join("*"),
+                });
+            }
+        }
+        if spec.paper001_split {
+            use nanocal_model::reference::{delta_robot_78_geometric, delta_robot_78_interaction};
+            for powers in delta_robot_78_geometric(output) {
+                add_monomial(&mut out, powers);
+            }
+            let mut push_unique = |term: Term, name: String| {
+                if !out.iter().any(|c| c.term.same_shape(&term)) {
+                    out.push(Candidate { term, name });
+                }
+            };
+            for (i, name) in self.temps.iter().enumerate() {
+                push_unique(term([0; MAX_AXES], Factor::Temp(i as u8), 0), name.clone());
+            }
+            let (powers, factor) = delta_robot_78_interaction(output);
+            if let Factor::Temp(t) = factor {
+                if let Some(name) = self.temps.get(t as usize) {
+                    push_unique(
+                        term(powers, factor, 0),
+                        format!("{}*{name}", mono_name(&powers)),
+                    );
+                }
             }
         }
         out
@@ -459,9 +683,22 @@ impl DesignFrame {
     }
 
     /// Scaled inputs of every dwell, at the measured (calibrated) positions, by the model's
-    /// own scaling.
+    /// own scaling (what the blob's terms evaluate on).
     pub fn scaled_inputs(&self, d: &Dwells) -> Vec<ScaledInputs> {
+        self.inputs_by(&self.skeleton, d)
+    }
+
+    /// Raw inputs of every dwell (positions in µm, temperatures in °C, …), in the form
+    /// [`Term::value`] reads: the regressors of the candidates as the papers write them.
+    pub fn raw_inputs(&self, d: &Dwells) -> Vec<ScaledInputs> {
+        self.inputs_by(&self.raw, d)
+    }
+
+    /// Inputs of every dwell by `model`'s scalings; its play operators (if any) run over the
+    /// dwells in time order, fed by the calibrated (measured) positions.
+    fn inputs_by(&self, model: &Model, d: &Dwells) -> Vec<ScaledInputs> {
         let slow = self.slow_inputs(d);
+        let mut hyst = HysteresisState::<f64>::new();
         (0..d.len())
             .map(|i| {
                 let mut x = [0.0; MAX_AXES];
@@ -470,7 +707,7 @@ impl DesignFrame {
                     x[a] = d.meas_um[a][i];
                     dir[a] = d.dir[a][i];
                 }
-                self.skeleton.scale(&x, &dir, &slow[i])
+                model.scale_with_state(&x, &dir, &slow[i], &mut hyst)
             })
             .collect()
     }

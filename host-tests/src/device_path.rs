@@ -1,25 +1,65 @@
 //! The device's slow path replayed on the host: which fold the inline compensator had in force
 //! when a command passed through it.
 //!
-//! The firmware's sensor task (`src/app/sensors.rs`) wakes every sample period, reads every
-//! sensor (f32 °C), feeds the readings to the model's [`LagBank`] with the elapsed time, and
-//! folds the model (`Model::fold`); a `MOV` is corrected with the fold of the last tick before
-//! it. [`DeviceSlowPath`] does the same over a recording's sensor samples: ticks every
-//! `fold_period_s` from the first sample, a reading is the latest sample at or before the tick
-//! (the sensors are sample-and-hold between the recording's rows), rounded to f32 as the device
-//! stores it, and the lag filters run at every tick. The fold itself is a pure function of the
-//! slow inputs, so it is computed only when a command needs it.
+//! The firmware's sensor task (`src/app/sensors.rs`) wakes every sample period and reads every
+//! sensor (f32 °C); the readings of a fold period are averaged and, once a fold period, the
+//! model's [`LagBank`] runs on the averages with the time since the last fold and the model is
+//! folded (`Model::fold`) — [`nanocal_compensator::slow_average`]; a `MOV` is corrected with the
+//! last fold before it. [`DeviceSlowPath`] runs the same rule, through the same
+//! [`SlowAverage`], over a recording's sensor samples: sample ticks every `sample_s` from the
+//! first sample, a reading is the latest sample at or before the tick (the sensors are
+//! sample-and-hold between the recording's rows), in f32 as the device stores it; a fold at the
+//! first tick and then at the first tick a fold period after the last. The fold itself is a pure
+//! function of the slow inputs, so it is computed only when a command needs it.
 
+use nanocal_compensator::slow_average::SlowAverage;
 use nanocal_model::{FastInputs, LagBank, LagSpec, SlowInputs, MAX_AUX, MAX_TEMPS};
 
 use crate::dwell::Dwells;
 use crate::recording::Recording;
 
-/// The device's default sample-and-fold period, s: the sensor task folds once a sample period
-/// (`src/app/sensors.rs`), whose default is the compensator's
-/// `Settings::default().sample_period_ms` (250 ms; a management setting, 50 ms – 60 s). Paper
-/// 001 §VI: thermal terms "can be calculated in a non-real-time process each 5-10 seconds".
-pub const DEVICE_FOLD_PERIOD_S: f64 = 0.25;
+/// The device's default sample period, s: the compensator's `Settings::default()
+/// .sample_period_ms` (250 ms; a management setting, 50 ms – 60 s).
+pub const DEVICE_SAMPLE_PERIOD_S: f64 = 0.25;
+
+/// The device's default fold period, s: the compensator's `Settings::default().fold_period_ms`
+/// (5 s; a management setting, 1–10 s). Paper 001 §VI: thermal terms "can be calculated in a
+/// non-real-time process each 5-10 seconds".
+pub const DEVICE_FOLD_PERIOD_S: f64 = 5.0;
+
+/// The device's slow-path periods: how often it samples its sensors, how often it folds the
+/// averages.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SlowPeriods {
+    /// Sample period, s.
+    pub sample_s: f64,
+    /// Fold period, s.
+    pub fold_s: f64,
+}
+
+impl SlowPeriods {
+    /// The device's defaults ([`DEVICE_SAMPLE_PERIOD_S`], [`DEVICE_FOLD_PERIOD_S`]).
+    pub const DEVICE: SlowPeriods = SlowPeriods {
+        sample_s: DEVICE_SAMPLE_PERIOD_S,
+        fold_s: DEVICE_FOLD_PERIOD_S,
+    };
+}
+
+impl Default for SlowPeriods {
+    fn default() -> Self {
+        SlowPeriods::DEVICE
+    }
+}
+
+/// A single period: one reading a fold (sample and fold every `period_s`).
+impl From<f64> for SlowPeriods {
+    fn from(period_s: f64) -> Self {
+        SlowPeriods {
+            sample_s: period_s,
+            fold_s: period_s,
+        }
+    }
+}
 
 /// The slow channels of a recording as the device's sensors see them: temperatures (model Temp
 /// index = order here) and auxiliary channels (model Aux index = order here), sampled at `t_s`.
@@ -111,66 +151,90 @@ impl SensorStream {
 #[derive(Debug, Clone)]
 pub struct DeviceSlowPath<'a> {
     stream: &'a SensorStream,
-    period_s: f64,
+    periods: SlowPeriods,
     bank: LagBank,
+    average: SlowAverage,
+    /// Slow inputs of the last fold.
     slow: SlowInputs,
-    /// Index of the next tick to run.
+    /// Index of the next sample tick to run.
     next_tick: u64,
     /// Next stream sample not yet read.
     next_sample: usize,
-    ticked: bool,
+    /// The latest stream sample read (the sensors' value until the next).
+    reading: SlowInputs,
+    folded: bool,
 }
 
 impl<'a> DeviceSlowPath<'a> {
     /// A device running a model's lag filters (`lags`, [`nanocal_model::Model::lags`]) over
-    /// `stream`, folding every `period_s` seconds (the first tick at the first sample). A
-    /// non-positive or non-finite period is taken as [`DEVICE_FOLD_PERIOD_S`].
-    pub fn new(lags: &[LagSpec], stream: &'a SensorStream, period_s: f64) -> Self {
-        let period_s = if period_s > 0.0 && period_s.is_finite() {
-            period_s
-        } else {
-            DEVICE_FOLD_PERIOD_S
-        };
+    /// `stream` with the slow-path `periods` (the first sample tick at the first sample). A
+    /// non-positive or non-finite period is taken as the device's default.
+    pub fn new(
+        lags: &[LagSpec],
+        stream: &'a SensorStream,
+        periods: impl Into<SlowPeriods>,
+    ) -> Self {
+        let mut periods = periods.into();
+        let ok = |p: f64| p > 0.0 && p.is_finite();
+        if !ok(periods.sample_s) {
+            periods.sample_s = DEVICE_SAMPLE_PERIOD_S;
+        }
+        if !ok(periods.fold_s) {
+            periods.fold_s = DEVICE_FOLD_PERIOD_S;
+        }
         DeviceSlowPath {
             stream,
-            period_s,
+            periods,
             bank: LagBank::new(lags),
+            average: SlowAverage::new(),
             slow: SlowInputs::default(),
             next_tick: 0,
             next_sample: 0,
-            ticked: false,
+            reading: SlowInputs::default(),
+            folded: false,
         }
     }
 
     fn tick_time(&self, k: u64) -> f64 {
-        self.stream.t_s.first().copied().unwrap_or(0.0) + k as f64 * self.period_s
+        self.stream.t_s.first().copied().unwrap_or(0.0) + k as f64 * self.periods.sample_s
     }
 
-    /// The slow inputs of the last fold at or before `t_s` (the readings of the first tick if
-    /// `t_s` precedes it).
+    /// The slow inputs of the last fold at or before `t_s` (those of the first fold if `t_s`
+    /// precedes it).
     pub fn slow_at(&mut self, t_s: f64) -> SlowInputs {
         if self.stream.is_empty() {
             return self.slow;
         }
-        while !self.ticked || self.tick_time(self.next_tick) <= t_s + 1e-9 {
+        let fold_ms = (self.periods.fold_s * 1000.0).round() as u32;
+        while !self.folded || self.tick_time(self.next_tick) <= t_s + 1e-9 {
             let tick = self.tick_time(self.next_tick);
             while self.next_sample < self.stream.len()
                 && self.stream.t_s[self.next_sample] <= tick + 1e-9
             {
                 let i = self.next_sample;
                 for (n, (_, col)) in self.stream.temps.iter().enumerate().take(MAX_TEMPS) {
-                    // the device keeps its readings in f32
-                    self.slow.temps_c[n] = f64::from(col[i] as f32);
+                    self.reading.temps_c[n] = col[i];
                 }
                 for (n, (_, col)) in self.stream.aux.iter().enumerate().take(MAX_AUX) {
-                    self.slow.aux[n] = f64::from(col[i] as f32);
+                    self.reading.aux[n] = col[i];
                 }
                 self.next_sample += 1;
             }
-            let dt_s = if self.ticked { self.period_s } else { 0.0 };
-            let temps_c = self.slow.temps_c;
-            self.bank.update(&temps_c, dt_s, &mut self.slow.lagged_c);
-            self.ticked = true;
+            // the device keeps its readings in f32
+            for n in 0..self.stream.temps.len().min(MAX_TEMPS) {
+                self.average.add_temp(n, self.reading.temps_c[n] as f32);
+            }
+            for n in 0..self.stream.aux.len().min(MAX_AUX) {
+                self.average.add_aux(n, self.reading.aux[n] as f32);
+            }
+            let now_ms = ((tick - self.tick_time(0)) * 1000.0).round() as u32;
+            if self.average.due(now_ms, fold_ms) {
+                let slow = &mut self.slow;
+                let dt_s = self.average.fold(now_ms, slow, |_| None);
+                let temps_c = slow.temps_c;
+                self.bank.update(&temps_c, dt_s, &mut slow.lagged_c);
+                self.folded = true;
+            }
             self.next_tick += 1;
         }
         self.slow
@@ -191,24 +255,43 @@ mod tests {
     }
 
     #[test]
-    fn the_default_period_is_the_devices_default_setting() {
-        let ms = nanocal_interface::settings::Settings::default().sample_period_ms;
-        assert_eq!(DEVICE_FOLD_PERIOD_S, f64::from(ms) / 1000.0);
+    fn the_default_periods_are_the_devices_default_settings() {
+        let s = nanocal_interface::settings::Settings::default();
+        assert_eq!(
+            DEVICE_SAMPLE_PERIOD_S,
+            f64::from(s.sample_period_ms) / 1000.0
+        );
+        assert_eq!(DEVICE_FOLD_PERIOD_S, f64::from(s.fold_period_ms) / 1000.0);
     }
 
     #[test]
     fn readings_are_sample_and_hold_at_the_last_tick() {
         let m = ModelBuilder::new(1, 1, 1).unwrap().build().unwrap();
         let s = stream();
+        // one reading a fold
         let mut dev = DeviceSlowPath::new(m.lags(), &s, 0.25);
         assert_eq!(dev.slow_at(0.0).temps_c[0], 20.0);
         assert_eq!(dev.slow_at(0.9).temps_c[0], 20.0);
         assert_eq!(dev.slow_at(1.1).temps_c[0], 21.0);
         assert_eq!(dev.slow_at(1.1).aux[0], 1001.0);
-        // a 5 s fold period sees only the first sample until t = 5 s
-        let mut slow = DeviceSlowPath::new(m.lags(), &s, 5.0);
-        assert_eq!(slow.slow_at(3.0).temps_c[0], 20.0);
-        assert_eq!(slow.slow_at(5.0).temps_c[0], 23.0);
+    }
+
+    #[test]
+    fn a_fold_averages_the_readings_of_its_period() {
+        let m = ModelBuilder::new(1, 1, 1).unwrap().build().unwrap();
+        let s = stream();
+        // sampled every 0.5 s, folded every 2 s: the first fold at t = 0 (20), then at 2 s the
+        // readings at 0.5, 1, 1.5, 2 s: 20, 21, 21, 22
+        let periods = SlowPeriods {
+            sample_s: 0.5,
+            fold_s: 2.0,
+        };
+        let mut dev = DeviceSlowPath::new(m.lags(), &s, periods);
+        assert_eq!(dev.slow_at(1.9).temps_c[0], 20.0);
+        assert_eq!(dev.slow_at(2.0).temps_c[0], 21.0);
+        assert_eq!(dev.slow_at(2.0).aux[0], 1001.0);
+        // at 4 s: 22, 23, 23, 23
+        assert_eq!(dev.slow_at(4.0).temps_c[0], 22.75);
     }
 
     #[test]

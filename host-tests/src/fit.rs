@@ -4,8 +4,10 @@
 //! The model maps a calibrated target position `x` to the command `q` to send, so each output
 //! axis regresses the command `cmd_<axis>` on the candidate terms evaluated at the measured
 //! position `meas_*` (and temperatures, aux, direction of approach). The regressors are the
-//! model's own term values on scaled inputs ([`crate::design`]): the fitted coefficients go into
-//! the blob unchanged and the intercept is the offset λ.
+//! papers' raw candidates (`x`, `x²`, `x³`, `t_i`, …: [`crate::design`]), so the terms are
+//! selected as the papers select them and the coefficients are the papers' (paper 000 Table 1:
+//! a_1 … a_3, b_1 … b_4, λ). They go into the blob converted exactly into its centred and
+//! scaled basis ([`nanocal_model::ModelBuilder::add_raw_term`]); the intercept is λ.
 
 use nanocal_model::{Model, ModelError, MAX_AXES};
 
@@ -93,11 +95,12 @@ pub struct AxisFit {
     pub candidates: Vec<Candidate>,
     /// Which candidates are in the model.
     pub selected: Vec<bool>,
-    /// Coefficient per candidate (0 if not selected), µm.
+    /// Coefficient per candidate in raw units (0 if not selected): µm of command per unit of
+    /// the raw regressor (µm per µm^p of position, per °C of temperature, …).
     pub coeff_um: Vec<f64>,
-    /// Standard error per selected candidate (0 if not selected), µm.
+    /// Standard error per selected candidate (0 if not selected), same units.
     pub se_um: Vec<f64>,
-    /// Offset λ (intercept), µm.
+    /// Offset λ (intercept, raw units: the command at zero position and 0 °C), µm.
     pub offset_um: f64,
     /// Residual RMS on the training dwells, µm.
     pub rmse_um: f64,
@@ -141,7 +144,7 @@ pub fn fit_recording(rec: &Recording, opts: &FitOptions) -> Result<FitReport, Fi
 /// Fits a model on per-dwell samples.
 pub fn fit_dwells(d: &Dwells, opts: &FitOptions) -> Result<FitReport, FitError> {
     let frame = DesignFrame::from_dwells(d, &opts.spec)?;
-    let inputs = frame.scaled_inputs(d);
+    let inputs = frame.raw_inputs(d);
     let mut builder = frame.builder().id(opts.id);
     let mut axes = Vec::new();
     for (a, axis) in frame.axes.iter().enumerate() {
@@ -213,9 +216,10 @@ pub fn fit_dwells(d: &Dwells, opts: &FitOptions) -> Result<FitReport, FitError> 
             .zip(fit.selected.iter().zip(&fit.coeff_um))
         {
             if sel {
-                let mut t = c.term;
-                t.coeff = coeff;
-                builder.add_term(t).map_err(FitError::Model)?;
+                let t = c.term;
+                builder
+                    .add_raw_term(t.output, t.powers, t.factor, t.direction, coeff)
+                    .map_err(FitError::Model)?;
             }
         }
         builder = builder.offset_um(a, fit.offset_um);
@@ -254,6 +258,38 @@ pub fn fit_dwells(d: &Dwells, opts: &FitOptions) -> Result<FitReport, FitError> 
         dwells: d.len(),
         temp_vif,
     })
+}
+
+/// A fitted model's parameters counted as paper 001 counts them (§VII.A: "78 parameters (45
+/// geometric and 33 thermal)"): the selected terms, offsets excluded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ParameterCount {
+    /// Position terms (no factor, no sign of approach).
+    pub geometric: usize,
+    /// Terms with a temperature or a lagged temperature.
+    pub thermal: usize,
+    /// Everything else (aux inputs, signs of approach, play operators).
+    pub other: usize,
+}
+
+/// The selected terms of `fit` by kind, offsets excluded ([`ParameterCount`]).
+pub fn parameter_count(fit: &FitReport) -> ParameterCount {
+    use nanocal_model::Factor;
+    let mut n = ParameterCount {
+        geometric: 0,
+        thermal: 0,
+        other: 0,
+    };
+    for ax in &fit.axes {
+        for (c, _) in ax.candidates.iter().zip(&ax.selected).filter(|(_, s)| **s) {
+            match (c.term.factor, c.term.direction) {
+                (Factor::None, 0) => n.geometric += 1,
+                (Factor::Temp(_) | Factor::Lagged(_), _) => n.thermal += 1,
+                _ => n.other += 1,
+            }
+        }
+    }
+    n
 }
 
 /// The regressors of output axis `axis` at `inputs`: the model's own terms of that axis, in the

@@ -7,9 +7,14 @@
 //!   `Acc = |mean(x_m) − x_T|`;
 //! - pose repeatability (ISO 9283 clause 7.2.2) `RP = l̄ + 3·S_l` with `l_j = ‖x_j − x̄‖`,
 //!   `l̄ = mean_j l_j` and `S_l = sqrt(Σ_j (l_j − l̄)² / (n − 1))`. Paper 000's Eq. 3 writes
-//!   `Rep = (1/n) Σ |x_mi − x̄| + 3σ` without saying σ of what; we take ISO's `S_l`, the sample
-//!   standard deviation of the distances `l_j` (in 1-D, of `|x_mi − x̄|`). With one visit
-//!   `S_l = 0`.
+//!   `Rep = (1/n) Σ |x_mi − x̄| + 3σ` "with σ the standard deviation" without saying of what.
+//!   Rep is ISO's RP with σ = `S_l`, the sample standard deviation of the distances `l_j` (in
+//!   1-D, of `|x_mi − x̄|`), which is what every `repeatability_um` here is. Read as the
+//!   standard deviation of the positions themselves, `σ_x = sqrt(Σ_j ‖x_j − x̄‖² / (n − 1))`
+//!   (in 1-D the sample standard deviation of `x_mi`), Rep is larger: for normal scatter
+//!   `l̄ + 3·S_l ≈ 2.61 σ_x` while `l̄ + 3·σ_x ≈ 3.80 σ_x`, 1.46 times as much. Both are kept
+//!   ([`PoseStats::repeatability_position_sigma_um`]) and printed where paper 000 quotes Rep.
+//!   With one visit `S_l = σ_x = 0`.
 //!
 //! Forward and backward approaches of the same position are separate poses (paper 000,
 //! Fig. 10–11: "forward and backward motions"): [`per_pose`] groups visits by commanded pose
@@ -47,6 +52,9 @@ pub struct PoseStats {
     pub accuracy_um: f64,
     /// Pose repeatability RP = l̄ + 3·S_l (1-D: Rep, Eq. 3 with σ = S_l), µm.
     pub repeatability_um: f64,
+    /// Eq. 3 with σ read as the standard deviation of the positions, `l̄ + 3·σ_x` (see the
+    /// module doc), µm.
+    pub repeatability_position_sigma_um: f64,
 }
 
 /// Accuracy and repeatability of one pose from its errors `x_j − x_c` (one `Vec` per visit,
@@ -66,10 +74,13 @@ pub fn pose_stats(target_um: &[f64], errors_um: &[Vec<f64>]) -> Option<PoseStats
         .map(|e| (0..k).map(|a| (e[a] - mean[a]).powi(2)).sum::<f64>().sqrt())
         .collect();
     let lbar = l.iter().sum::<f64>() / n as f64;
-    let sl = if n > 1 {
-        (l.iter().map(|v| (v - lbar).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt()
+    let (sl, sx) = if n > 1 {
+        (
+            (l.iter().map(|v| (v - lbar).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt(),
+            (l.iter().map(|v| v * v).sum::<f64>() / (n - 1) as f64).sqrt(),
+        )
     } else {
-        0.0
+        (0.0, 0.0)
     };
     Some(PoseStats {
         target_um: target_um.to_vec(),
@@ -78,6 +89,7 @@ pub fn pose_stats(target_um: &[f64], errors_um: &[Vec<f64>]) -> Option<PoseStats
         mean_error_um: mean,
         accuracy_um: accuracy,
         repeatability_um: lbar + 3.0 * sl,
+        repeatability_position_sigma_um: lbar + 3.0 * sx,
     })
 }
 
@@ -146,12 +158,18 @@ pub struct TestStats {
     pub accuracy_um: f64,
     /// Rep of the test = max over its poses (Eq. 7), µm.
     pub repeatability_um: f64,
+    /// Rep with Eq. 3's σ read as the positions' standard deviation, max over the poses, µm.
+    pub repeatability_position_sigma_um: f64,
 }
 
 impl TestStats {
     /// A test from its per-pose statistics.
     pub fn new(index: usize, t_start_s: f64, t_end_s: f64, poses: Vec<PoseStats>) -> Self {
         let (accuracy_um, repeatability_um) = max_over_poses(&poses);
+        let repeatability_position_sigma_um = poses
+            .iter()
+            .map(|p| p.repeatability_position_sigma_um)
+            .fold(f64::NAN, f64::max);
         TestStats {
             index,
             t_start_s,
@@ -159,6 +177,7 @@ impl TestStats {
             poses,
             accuracy_um,
             repeatability_um,
+            repeatability_position_sigma_um,
         }
     }
 
@@ -337,6 +356,8 @@ mod tests {
         let p = pose_stats(&[10.0], &[vec![1.0], vec![2.0], vec![3.0]]).unwrap();
         assert!((p.accuracy_um - 2.0).abs() < 1e-15);
         assert!((p.repeatability_um - 2.398_717_474).abs() < 1e-9);
+        // σ read as the positions' standard deviation: sd(1, 2, 3) = 1 → 2/3 + 3 = 3.666 667
+        assert!((p.repeatability_position_sigma_um - 11.0 / 3.0).abs() < 1e-12);
     }
 
     #[test]

@@ -15,6 +15,7 @@ pub mod fit;
 pub mod gcsarray;
 pub mod html_report;
 pub mod iso9283;
+pub mod kmz;
 pub mod linalg;
 pub mod plan;
 pub mod plot;

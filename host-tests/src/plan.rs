@@ -5,16 +5,29 @@
 //! A [`Plan`] has a training [`Procedure`] (cycles through poses, the stage driven without a
 //! model) and a [`ValidationPlan`]: tests of a fixed number of cycles, run in a repeating order
 //! of compensations (paper 000 §4.3.2: no model, adaptive KMZ, static), with the KMZ
-//! re-measured at a reference pose before an adaptive test when its interval has passed.
+//! re-measured at a reference pose at the start of an adaptive test when its interval has
+//! passed. Paper 000 §3.4, Eq. 17: "λ_KMZ is only measured at the first zero position" — when
+//! a test's cycle starts at the reference pose, that first visit *is* the KMZ step (measured,
+//! and counted as a visit of the test, its drift cancelled by the λ_KMZ it gives: Eq. 18);
+//! otherwise a KMZ step at the reference pose comes before the test and is not counted.
 //! [`Plan::schedule`] unrolls it into timed [`Step`]s.
 //!
 //! Every step is a rise followed by a hold at one commanded pose (paper 000 Fig. 9: "the rising
 //! time of the input signal is 2 s and the input keeps constant 20 s"); the measurement of a
-//! step is the mean over its last `average_last_s` seconds. A step's direction of approach is
-//! the sign of the last change of each axis' command; a step that repeats the previous pose (the
-//! turning point of a forward/backward cycle) belongs to the sweep that leaves it, so a 1-DoF
-//! cycle up and down through 17 poses has 17 forward and 17 backward steps (the paper's 34 poses
-//! per cycle, Fig. 11).
+//! step is the mean over its last `average_last_s` seconds. A step's direction of approach is,
+//! per axis, the direction of the motion that reached it: the sign of the last change of that
+//! axis' command. A step that repeats the previous pose (a turning point held for a second
+//! step, the 0 µm that ends one cycle and starts the next) is the same physical approach as the
+//! step before it and keeps its direction; before the first motion every axis counts as forward
+//! (+1, as the digital twin and [`crate::dwell::dwell_average`] take it).
+//!
+//! Paper 000's 1-DoF cycle (0, 30, …, 480, 480, 450, …, 0: 34 steps) is then, from the second
+//! cycle on, 17 forward (30 … 480 and the held 480) and 17 backward (450 … 0 and the held 0 that
+//! starts the next cycle). The paper counts "18 poses (forward) + 16 poses (backward)" (§4.3.2):
+//! it splits the cycle at its turning point — the first 18 steps (0, 30, …, 480 and the held
+//! 480) forward, the 16 of the descent backward. The held 480 is forward both ways; the only
+//! difference is the 0 that starts a cycle, which the stage holds after reaching it backward
+//! (forward only in the very first cycle, from rest).
 
 use serde::{Deserialize, Serialize};
 
@@ -122,10 +135,15 @@ pub struct Plan {
 pub enum Phase {
     /// A training step.
     Training,
-    /// The KMZ re-measurement at the reference pose before validation test `test`.
+    /// The KMZ re-measurement at the reference pose, at the start of validation test `test`.
     Kmz {
         /// The test it belongs to.
         test: usize,
+        /// It is the test's first visit (the cycle starts at the reference pose: paper 000
+        /// Eq. 17–18 count it, its drift cancelled); else a step of its own before the test,
+        /// not counted.
+        #[serde(default)]
+        visit: bool,
     },
     /// A visit of validation test `test`.
     Test {
@@ -202,6 +220,10 @@ pub const PAPER000_2DOF_POINTS_UM: [(f64, f64); 6] = [
     (15.0, 15.0),
 ];
 
+/// Duration of one validation test of paper 000's 1-DoF procedure, s ("Every test of
+/// validation takes 1.25 h for 15 cycles", §4.2).
+pub const PAPER000_TEST_S: f64 = 1.25 * 3600.0;
+
 /// The published 2 s rise + 20 s hold, mean of the last 5 s (paper 000 §4.2, Fig. 9).
 fn published_step(cycle_um: Vec<Vec<f64>>, cycles: usize) -> Procedure {
     Procedure {
@@ -217,16 +239,20 @@ impl Plan {
     /// Paper 000's 1-DoF procedure (§4.2, §4.3.2).
     ///
     /// Training: 0:30:480 µm forward then backward, 34 steps a cycle ("18 poses (forward) + 16
-    /// poses (backward)" in the paper, 17 + 17 here by the rule of the module doc), 2 s rise +
+    /// poses (backward)" in the paper; 17 + 17 by the motion that reached each, see the module
+    /// doc for how the two counts map onto the cycle), 2 s rise +
     /// 20 s hold, mean of the last 5 s. The paper gives both "about 12 h for 24 cycles" (§4.2)
     /// and "about 14 h with 67 cycles" (§4.3.2); only the second agrees with its own step:
     /// 67 × 34 × 22 s = 13.9 h, while 24 cycles take 5.0 h (12 h would need 53 s a step). So:
     /// 67 cycles.
     ///
-    /// Validation: poses 0, 80, …, 480 forward then backward (14 steps = 308 s a cycle), tests of
-    /// 15 cycles (1.28 h; the paper: 1.25 h), in the repeating order no model, adaptive KMZ,
-    /// static, 31 rounds = 93 tests ≈ 119 h (Fig. 12: five days); KMZ at 0 µm re-measured every
-    /// 3.75 h (before each adaptive test, whose visits are then up to 1.28 h after it).
+    /// Validation: poses 0, 80, …, 480 forward then backward (14 steps a cycle), tests of 15
+    /// cycles taking 1.25 h ("Every test of validation takes 1.25 h for 15 cycles", §4.2 and
+    /// §4.3.2), so a step is 1.25 h / 210 = 21.43 s: the 2 s rise and 19.43 s of hold, the last
+    /// 5 s averaged (the paper states the 22 s step for training; 22 s would make a test 1.28 h
+    /// and the KMZ spacing 3.85 h). In the repeating order no model, adaptive KMZ, static,
+    /// 31 rounds = 93 tests = 116.25 h (Fig. 12: five days). The KMZ at 0 µm ("Here the KMZ is
+    /// measured every 3.75 h") is the first visit of each adaptive test, 3 tests = 3.75 h apart.
     pub fn paper000_1dof() -> Plan {
         Plan {
             name: "paper000-1dof".into(),
@@ -235,7 +261,10 @@ impl Plan {
             training: published_step(up_and_down(&grid(0.0, 30.0, 480.0)), 67),
             pause_s: 0.0,
             validation: ValidationPlan {
-                test: published_step(up_and_down(&grid(0.0, 80.0, 480.0)), 15),
+                test: Procedure {
+                    hold_s: PAPER000_TEST_S / (15.0 * 14.0) - 2.0,
+                    ..published_step(up_and_down(&grid(0.0, 80.0, 480.0)), 15)
+                },
                 order: vec![TestKind::NoModel, TestKind::Adaptive, TestKind::Static],
                 rounds: 31,
                 kmz: Some(KmzPlan {
@@ -320,9 +349,51 @@ impl Plan {
         self.validation.order.len() * self.validation.rounds
     }
 
+    /// Whether a KMZ re-measurement is the first visit of its test (the test's cycle starts
+    /// at the reference pose), rather than a step of its own before the test.
+    pub fn kmz_is_first_visit(&self) -> bool {
+        let v = &self.validation;
+        v.kmz
+            .as_ref()
+            .is_some_and(|k| v.test.cycle_um.first() == Some(&k.reference_um))
+    }
+
+    /// The schedule ([`Plan::schedule`]) followed by `blocks` validation blocks of the
+    /// validate-and-return loop (paper 001 §II step 5), each `tests` tests of the plan's test
+    /// procedure with the static model (refitted for the block), one after the other; test
+    /// indices continue the plan's.
+    pub fn schedule_with_blocks(&self, blocks: usize, tests: usize) -> Vec<Step> {
+        let mut steps = self.schedule();
+        let mut t = steps.last().map_or(0.0, Step::t_end_s);
+        let v = &self.validation.test;
+        for n in 0..blocks * tests {
+            let phase = Phase::Test {
+                test: self.tests() + n,
+                kind: TestKind::Static,
+            };
+            for _ in 0..v.cycles {
+                for pose in &v.cycle_um {
+                    steps.push(Step {
+                        t_start_s: t,
+                        rise_s: v.rise_s,
+                        hold_s: v.hold_s,
+                        average_last_s: v.average_last_s,
+                        target_um: pose.clone(),
+                        approach: Vec::new(),
+                        phase,
+                    });
+                    t += v.step_s();
+                }
+            }
+        }
+        label_approach(&mut steps);
+        steps
+    }
+
     /// Unrolls the plan into timed steps: training, the pause, then the validation tests in
-    /// order, each adaptive test preceded by a KMZ step when the KMZ interval has passed (and
-    /// before the first).
+    /// order; at the start of each adaptive test whose KMZ interval has passed (and of the
+    /// first), the KMZ step — the test's first visit when its cycle starts at the reference
+    /// pose, else a step of its own before it.
     pub fn schedule(&self) -> Vec<Step> {
         let mut steps = Vec::new();
         let mut t = 0.0;
@@ -346,30 +417,29 @@ impl Plan {
         }
         t += self.pause_s;
         let v = &self.validation;
+        let first_visit = self.kmz_is_first_visit();
         let mut last_kmz: Option<f64> = None;
         for test in 0..self.tests() {
             let kind = v.order[test % v.order.len()];
+            let mut kmz_now = false;
             if let (TestKind::Adaptive, Some(kmz)) = (kind, &v.kmz) {
-                if last_kmz.is_none_or(|t0| t - t0 >= kmz.interval_s - 1e-9) {
+                if last_kmz.is_none_or(|t0| t - t0 >= kmz.interval_s - 1e-6) {
                     last_kmz = Some(t);
-                    push(
-                        &mut steps,
-                        &mut t,
-                        &v.test,
-                        &kmz.reference_um,
-                        Phase::Kmz { test },
-                    );
+                    kmz_now = true;
+                    if !first_visit {
+                        let phase = Phase::Kmz { test, visit: false };
+                        push(&mut steps, &mut t, &v.test, &kmz.reference_um, phase);
+                    }
                 }
             }
-            for _ in 0..v.test.cycles {
-                for pose in &v.test.cycle_um {
-                    push(
-                        &mut steps,
-                        &mut t,
-                        &v.test,
-                        pose,
-                        Phase::Test { test, kind },
-                    );
+            for c in 0..v.test.cycles {
+                for (i, pose) in v.test.cycle_um.iter().enumerate() {
+                    let phase = if kmz_now && first_visit && c == 0 && i == 0 {
+                        Phase::Kmz { test, visit: true }
+                    } else {
+                        Phase::Test { test, kind }
+                    };
+                    push(&mut steps, &mut t, &v.test, pose, phase);
                 }
             }
         }
@@ -378,37 +448,22 @@ impl Plan {
     }
 }
 
-/// Direction of approach of every step (see the module doc).
+/// Direction of approach of every step (see the module doc): per axis, the sign of the last
+/// change of its command; a held pose keeps it; +1 before the first motion.
 fn label_approach(steps: &mut [Step]) {
     let k = steps.first().map_or(0, |s| s.target_um.len());
     let mut dir = vec![1i8; k];
-    for i in 0..steps.len() {
-        let prev = if i > 0 {
-            Some(steps[i - 1].target_um.clone())
-        } else {
-            None
-        };
-        let cur = steps[i].target_um.clone();
-        match prev {
-            Some(p) if p != cur => {
-                for a in 0..k {
-                    if cur[a] != p[a] {
-                        dir[a] = if cur[a] > p[a] { 1 } else { -1 };
-                    }
-                }
-            }
-            _ => {
-                // a repeated pose (or the first): the sweep that leaves it
-                if let Some(next) = steps.get(i + 1).map(|s| &s.target_um) {
-                    for a in 0..k {
-                        if next[a] != cur[a] {
-                            dir[a] = if next[a] > cur[a] { 1 } else { -1 };
-                        }
-                    }
+    let mut prev: Option<Vec<f64>> = None;
+    for step in steps.iter_mut() {
+        if let Some(p) = &prev {
+            for a in 0..k {
+                if step.target_um[a] != p[a] {
+                    dir[a] = if step.target_um[a] > p[a] { 1 } else { -1 };
                 }
             }
         }
-        steps[i].approach = dir.clone();
+        step.approach = dir.clone();
+        prev = Some(step.target_um.clone());
     }
 }
 
@@ -424,10 +479,12 @@ mod tests {
         // 67 cycles of 34 × 22 s: 13.9 h ("about 14 h"); 24 cycles would be 5.0 h, not 12 h
         assert!((p.training.duration_s() / 3600.0 - 13.92).abs() < 0.01);
         assert!((24.0 * p.training.cycle_s() / 3600.0 - 4.99).abs() < 0.01);
-        // a test: 15 cycles of 14 × 22 s = 1.28 h ("1.25 h for 15 cycles")
+        // a test: 15 cycles of 14 steps, 1.25 h ("1.25 h for 15 cycles"): 21.43 s a step
         assert_eq!(p.validation.test.cycle_um.len(), 14);
-        assert!((p.validation.test.duration_s() / 3600.0 - 1.283).abs() < 0.001);
+        assert!((p.validation.test.duration_s() - 4500.0).abs() < 1e-9);
+        assert!((p.validation.test.step_s() - 21.4286).abs() < 1e-4);
         assert_eq!(p.tests(), 93);
+        assert!(p.kmz_is_first_visit());
     }
 
     #[test]
@@ -447,13 +504,21 @@ mod tests {
         let s = p.schedule();
         let training = s.iter().filter(|x| x.phase == Phase::Training).count();
         assert_eq!(training, 68);
-        // 17 forward and 17 backward per training cycle
+        // the first cycle from rest: 0 (forward by convention), 30 … 480, the held 480 forward
         let fwd = s[..34].iter().filter(|x| x.approach == vec![1]).count();
-        assert_eq!(fwd, 17);
+        assert_eq!(fwd, 18);
         assert_eq!(s[16].target_um, vec![480.0]);
-        assert_eq!((s[16].approach[0], s[17].approach[0]), (1, -1));
+        assert_eq!((s[16].approach[0], s[17].approach[0]), (1, 1), "held 480");
+        assert_eq!(s[18].approach, vec![-1]);
         assert_eq!(s[33].approach, vec![-1]);
-        assert_eq!(s[34].approach, vec![1], "next cycle's 0 leaves forward");
+        assert_eq!(
+            s[34].approach,
+            vec![-1],
+            "the held 0 starting the next cycle"
+        );
+        // every later cycle: 17 forward, 17 backward
+        let fwd = s[34..68].iter().filter(|x| x.approach == vec![1]).count();
+        assert_eq!(fwd, 17);
         // tests: none, adaptive, static, …
         let kinds: Vec<(usize, TestKind)> = s
             .iter()
@@ -462,8 +527,10 @@ mod tests {
                 _ => None,
             })
             .collect();
-        assert_eq!(kinds.len(), 9 * 2 * 14);
+        // the first adaptive test's first visit is the KMZ
+        assert_eq!(kinds.len(), 9 * 2 * 14 - 1);
         assert_eq!(kinds[0].1, TestKind::NoModel);
+        assert_eq!(kinds[27].1, TestKind::NoModel);
         assert_eq!(kinds[28].1, TestKind::Adaptive);
         let kmz_steps = |s: &[Step]| -> Vec<Step> {
             s.iter()
@@ -471,17 +538,36 @@ mod tests {
                 .cloned()
                 .collect()
         };
-        // 2-cycle tests: adaptive tests start 3 × 616 s + 22 s apart, under 3.75 h: one KMZ
+        // 2-cycle tests (600 s): adaptive tests start 1800 s apart, under 3.75 h: one KMZ
         let kmz = kmz_steps(&s);
         assert_eq!(kmz.len(), 1);
-        assert_eq!(kmz[0].phase, Phase::Kmz { test: 1 });
+        assert_eq!(
+            kmz[0].phase,
+            Phase::Kmz {
+                test: 1,
+                visit: true
+            }
+        );
         assert_eq!(kmz[0].target_um, vec![0.0]);
-        // every 30 min: before every adaptive test (1870 s apart)
+        // every 30 min: at every adaptive test (1800 s apart)
         let mut q = p.clone();
         q.validation.kmz.as_mut().unwrap().interval_s = 1800.0;
         let kmz = kmz_steps(&q.schedule());
         assert_eq!(kmz.len(), 3);
-        assert!((kmz[1].t_start_s - kmz[0].t_start_s - 1870.0).abs() < 1e-9);
+        assert!((kmz[1].t_start_s - kmz[0].t_start_s - 1800.0).abs() < 1e-6);
+        // a reference pose the cycle does not start at: a step of its own, before the test
+        q.validation.kmz.as_mut().unwrap().reference_um = vec![240.0];
+        let s2 = q.schedule();
+        let kmz = kmz_steps(&s2);
+        assert_eq!(kmz.len(), 3);
+        assert_eq!(
+            kmz[0].phase,
+            Phase::Kmz {
+                test: 1,
+                visit: false
+            }
+        );
+        assert_eq!(s2.len(), s.len() + 3);
         // contiguous in time
         assert!(s
             .windows(2)

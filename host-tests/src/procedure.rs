@@ -8,7 +8,7 @@
 
 use nanocal_model::Model;
 
-use crate::device_path::SensorStream;
+use crate::device_path::{SensorStream, SlowPeriods};
 use crate::dwell::{step_average, DwellError, Dwells};
 use crate::plan::{KmzPlan, Phase, Step, TestKind};
 use crate::recording::Recording;
@@ -63,7 +63,10 @@ impl ProcedureData {
             .iter()
             .map(|s| match s.phase {
                 Phase::Test { test, kind: k } if k == kind => Role::Visit(test),
-                Phase::Kmz { test } if kind_of(test) == Some(kind) => Role::Kmz(test),
+                Phase::Kmz { test, visit } if kind_of(test) == Some(kind) => Role::Kmz {
+                    test,
+                    counted: visit,
+                },
                 _ => Role::Skip,
             })
             .collect()
@@ -84,13 +87,14 @@ impl ProcedureData {
 
     /// Validates the `kind` tests: no model, the static `model`, or the adaptive `model`
     /// (already reduced to Eq. 14, see [`crate::fit::adaptive_from_static`]) re-measured at the
-    /// plan's KMZ steps. `Time` of R_t is the whole validation.
+    /// plan's KMZ steps, the device's slow path with `periods` (a single period: one reading a
+    /// fold). `Time` of R_t is the whole validation.
     pub fn validate(
         &self,
         kind: TestKind,
         model: Option<&Model>,
         kmz: Option<&KmzPlan>,
-        fold_period_s: f64,
+        periods: impl Into<SlowPeriods>,
     ) -> Result<ValidationReport, ValidateError> {
         let axes = self.data.dwells.axes.len();
         let comp = match kind {
@@ -102,7 +106,7 @@ impl ProcedureData {
             },
         };
         let opts = ValidationOptions {
-            fold_period_s,
+            slow: periods.into(),
             cycles_per_test: 1,
             time_h: Some(self.validation_h()),
         };

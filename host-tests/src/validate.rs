@@ -2,8 +2,8 @@
 //!
 //! Each dwell of the validation recording is a visit of the commanded pose `cmd`. Without a
 //! model the stage goes to `meas`, so the error is `meas − cmd`. With a model the device folds
-//! its sensor readings at its own cadence ([`crate::device_path`]: fold period, lag filters,
-//! f32 readings) and maps targets through the f32 fast path; the user target for which the
+//! its sensor readings at its own cadence ([`crate::device_path`]: readings averaged over the
+//! fold period, lag filters, f32 readings) and maps targets through the f32 fast path; the user target for which the
 //! device would have sent `cmd` is `x̂ = fold.inverse(cmd)` with the fold in force when the
 //! move was sent (the start of the dwell), and the stage, having received `cmd`, went to
 //! `meas`: the compensated error is `meas − x̂`. This is exact, not a linearisation:
@@ -20,10 +20,12 @@
 //!
 //! Adaptive (KMZ, paper 000 §3.4, Eq. 14): at the dwells whose [`Role`] is a KMZ
 //! re-measurement — a plan's KMZ steps, or, in a recording of cycles, a visit of the reference
-//! pose once `interval_s` has passed since the last — λ_KMZ is re-measured
-//! ([`Model::set_kmz_from_reference`]); those reference visits are not counted in the statistics
-//! (paper 000's Eq. 18 counts the first one with its drift term cancelled; we keep it out — it
-//! was made with the previous λ_KMZ).
+//! pose once `interval_s` has passed since the last — λ_KMZ is re-measured from the
+//! difference of the reference readings at the KMZ pose ([`crate::kmz::KmzDrift`]). A KMZ that
+//! is a visit of its test (the first visit of the test, at the reference pose) is counted as
+//! paper 000's Eq. 17–18 count it: "λ_KMZ is only measured at the first zero position, so
+//! λ_KMZ = −D₁(t)" — its error is evaluated with the λ_KMZ it gave, the drift of that visit
+//! cancelled. A KMZ step of its own before a test is not a visit of the test.
 //!
 //! Visits are grouped into **tests** (paper 000 §4.2: a test is one block of cycles, 15 cycles
 //! in 1.25 h): per test, Acc and Rep are the maxima over its poses (Eq. 6–7, ISO 9283
@@ -33,7 +35,7 @@
 use nanocal_compensator::proxy::{Corrector, FoldCorrector};
 use nanocal_model::{FastInputs, HysteresisState, Model, SlowInputs, MAX_AXES};
 
-use crate::device_path::{DeviceSlowPath, SensorStream, DEVICE_FOLD_PERIOD_S};
+use crate::device_path::{DeviceSlowPath, SensorStream, SlowPeriods};
 use crate::dwell::{dwell_average, DwellError, DwellOptions, Dwells};
 use crate::iso9283::{
     distribution, per_pose_approach, space_robustness_um, time_robustness_um_per_h,
@@ -114,8 +116,8 @@ impl Compensation {
 /// How visits are evaluated and grouped.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ValidationOptions {
-    /// The device's fold period, s ([`DEVICE_FOLD_PERIOD_S`] for the STM32 board).
-    pub fold_period_s: f64,
+    /// The device's sample and fold periods ([`SlowPeriods::DEVICE`]: the board's defaults).
+    pub slow: SlowPeriods,
     /// Cycles per test when tests are found from the recording (paper 000: 15).
     pub cycles_per_test: usize,
     /// `Time` of Eq. 21, h; `None`: from the start of the first test to the end of the last.
@@ -125,7 +127,7 @@ pub struct ValidationOptions {
 impl Default for ValidationOptions {
     fn default() -> Self {
         ValidationOptions {
-            fold_period_s: DEVICE_FOLD_PERIOD_S,
+            slow: SlowPeriods::DEVICE,
             cycles_per_test: 15,
             time_h: None,
         }
@@ -182,8 +184,10 @@ pub struct Visit {
     pub dir: Vec<i8>,
     /// Index of the test this visit belongs to.
     pub test: usize,
-    /// True if λ_KMZ was re-measured here (not counted).
+    /// True if λ_KMZ was re-measured here.
     pub kmz_reference: bool,
+    /// True for a KMZ step of its own before its test: not a visit of the test, not counted.
+    pub extra: bool,
     /// True if the device would have refused a move to the commanded pose (outside the
     /// training envelope, or its corrected command outside the travel): the stage would not
     /// have gone there (not counted).
@@ -201,10 +205,10 @@ pub struct Visit {
 }
 
 impl Visit {
-    /// Whether the visit counts in the statistics (not a KMZ reference, not refused, error
+    /// Whether the visit counts in the statistics (a visit of its test, not refused, error
     /// finite).
     pub fn counted(&self) -> bool {
-        !self.kmz_reference && !self.refused && self.error_um.iter().all(|e| e.is_finite())
+        !self.extra && !self.refused && self.error_um.iter().all(|e| e.is_finite())
     }
 }
 
@@ -265,8 +269,14 @@ pub enum Role {
     Skip,
     /// A visit of test `n`.
     Visit(usize),
-    /// The KMZ re-measurement at the reference pose, in test `n` (adaptive only; not counted).
-    Kmz(usize),
+    /// The KMZ re-measurement at the reference pose, in test `test` (adaptive only); `counted`
+    /// when it is a visit of the test (paper 000 Eq. 18), not when it is a step of its own.
+    Kmz {
+        /// The test.
+        test: usize,
+        /// Counted as a visit of the test.
+        counted: bool,
+    },
 }
 
 /// Roles of the dwells of a recording that is a sequence of cycles: a cycle starts whenever the
@@ -295,7 +305,10 @@ pub fn roles_from_cycles(d: &Dwells, cycles_per_test: usize, comp: &Compensation
                 let due = last_kmz.is_none_or(|t0| d.t_end_s[i] - t0 >= interval_s - 1e-9);
                 if at_ref && due && (0..k).all(|a| d.meas_um[a][i].is_finite()) {
                     last_kmz = Some(d.t_end_s[i]);
-                    return Role::Kmz(test);
+                    return Role::Kmz {
+                        test,
+                        counted: true,
+                    };
                 }
             }
             Role::Visit(test)
@@ -348,7 +361,7 @@ pub fn validate_roles(
     }
     let stream = &data.sensors;
     let lags = model.as_ref().map_or(Vec::new(), |m| m.lags().to_vec());
-    let mut device = DeviceSlowPath::new(&lags, stream, opts.fold_period_s);
+    let mut device = DeviceSlowPath::new(&lags, stream, opts.slow);
     let temps: Vec<&[f64]> = d
         .channels
         .iter()
@@ -360,15 +373,16 @@ pub fn validate_roles(
     let mut inverse_failures = 0;
     // the device's play-operator memory, as the commands sent left it
     let mut hyst = HysteresisState::new();
+    let mut kmz_drift = crate::kmz::KmzDrift::default();
     for (i, role) in roles.iter().enumerate() {
-        let (test, kmz) = match *role {
+        let (test, kmz, extra) = match *role {
             Role::Skip => {
                 // another model was in service for this dwell: the device's memory restarts
                 hyst.reset();
                 continue;
             }
-            Role::Visit(n) => (n, false),
-            Role::Kmz(n) => (n, true),
+            Role::Visit(n) => (n, false, false),
+            Role::Kmz { test, counted } => (test, true, !counted),
         };
         let slow = device.slow_at(d.t_start_s[i]);
         let mut q = [0.0; MAX_AXES];
@@ -391,7 +405,7 @@ pub fn validate_roles(
                     // the reference move went out with the fold in force before the update
                     let before = FoldCorrector::new(m, &slow);
                     let sent = before.fold.inverse(&q32, &dir, &fast, &hyst).ok();
-                    m.set_kmz_from_reference_with_state(&q, &x, &dir, &slow, &hyst.into());
+                    kmz_drift.measure(m, &q, &x, &dir, &slow, &hyst.into());
                     if let Some(xh) = sent {
                         before.fold.step(&xh, &mut hyst);
                     }
@@ -442,6 +456,7 @@ pub fn validate_roles(
             dir: dir[..k].to_vec(),
             test,
             kmz_reference,
+            extra,
             refused,
             outside_envelope: outside,
             mean_temp_c: if temps.is_empty() {

@@ -59,10 +59,14 @@ fn config(out: &Path, plan: Option<Plan>, faults: Faults) -> Config {
         out: out.to_path_buf(),
         bench: Some(BenchSpec::Virtual { seed: 3 }),
         sample_period_ms: None,
+        fold_period_ms: None,
         safe_pose_um: None,
         sensor_names: None,
         design: None,
         explain: false,
+        target_accuracy_nm: None,
+        loop_tests: None,
+        max_loops: 3,
         resume: false,
         faults,
     }
@@ -162,7 +166,10 @@ fn a_campaign_stopped_and_resumed_gives_the_rows_and_result_of_one_run_through()
         assert_eq!(c.tests.len(), f.tests.len());
     }
     agrees_within_1_nm(&o);
-    assert_eq!(o.state.kmz_updates, 1, "one KMZ before the adaptive test");
+    assert_eq!(
+        o.state.kmz_updates, 1,
+        "the KMZ at the adaptive test's first visit"
+    );
     assert!(whole.join("static.blob").exists() && whole.join("report").is_dir());
 
     // stopped in validation (after the fit), then resumed
@@ -422,19 +429,86 @@ fn a_reset_that_takes_the_ports_away_is_reopened_and_the_campaign_goes_on() {
     let _ = std::fs::remove_dir_all(out);
 }
 
-/// A sample period other than the default: the table still agrees with the file-based
+/// Periods other than the virtual bench's defaults (sample 1 s, fold 5 s): a 5 s sample period,
+/// and a 10 s fold averaging ten readings — the table still agrees with the file-based
 /// `validate` within 1 nm (it did not with 5 s before the replay read each row's recorded fold:
 /// 9.5 nm on the published run).
 #[test]
-fn a_five_second_fold_agrees_with_file_based_validate_within_1_nm() {
-    if skip("a_five_second_fold") {
+fn other_sample_and_fold_periods_agree_with_file_based_validate_within_1_nm() {
+    if skip("other_sample_and_fold_periods") {
         return;
     }
-    let out = fresh_dir("fold5");
-    let mut cfg = config(&out, Some(short_plan()), Faults::default());
-    cfg.sample_period_ms = Some(5000);
-    let o = run(&cfg).expect("campaign");
-    assert_eq!(o.state.sample_period_ms, 5000);
+    for (sample, fold) in [(5000, 5000), (1000, 10_000)] {
+        let out = fresh_dir(&format!("fold{fold}"));
+        let mut cfg = config(&out, Some(short_plan()), Faults::default());
+        cfg.sample_period_ms = Some(sample);
+        cfg.fold_period_ms = Some(fold);
+        let o = run(&cfg).expect("campaign");
+        assert_eq!(
+            (o.state.sample_period_ms, o.state.fold_period_ms),
+            (sample, fold)
+        );
+        agrees_within_1_nm(&o);
+        let _ = std::fs::remove_dir_all(out);
+    }
+}
+
+/// Paper 001 §II, step 5: "Validation (evaluation of the robot absolute accuracy) and eventually
+/// return to 1. (if the desired absolute accuracy has not yet been reached and consider other
+/// sources of inaccuracy), or return to 0. (if all the possible sources of inaccuracy have
+/// already been considered)."
+///
+/// The twin's stage hides a 20 min structural lag and ±5 nm of hysteresis. With a desired
+/// accuracy below what the static model reaches, the loop runs explain on the validation,
+/// finds both, adds them as the blob carries them (lag filters, a play-operator bank), fits the
+/// static model again on the training data and validates it in a block of tests through the
+/// firmware: the block's mean test accuracy improves on the model before it (evaluated on the
+/// same block), and the firmware's table agrees with the file-based validation.
+#[test]
+fn the_validate_and_return_loop_finds_the_lag_and_the_hysteresis_and_improves() {
+    if skip("the_validate_and_return_loop") {
+        return;
+    }
+    let out = fresh_dir("loop");
+    let mut cfg = config(
+        &out,
+        Some(Plan::paper000_1dof().shortened(40, 5, 4)),
+        Faults::default(),
+    );
+    // the README's run (`--shorten 40,5,4 --target-accuracy-nm 15 --loop-tests 4`, seed 1)
+    cfg.bench = Some(BenchSpec::Virtual { seed: 1 });
+    cfg.target_accuracy_nm = Some(15.0);
+    cfg.loop_tests = Some(4);
+    cfg.max_loops = 1;
+    let o = run(&cfg).expect("campaign with the loop");
+    let lp = o.state.loops.as_ref().expect("loop state");
+    eprintln!("{}", nanocal::cli::campaign::loops_table(lp));
+    assert_eq!(lp.loops.len(), 1);
+    let l = &lp.loops[0];
+    let added: Vec<&str> = l.added.iter().map(|e| e.name.as_str()).collect();
+    assert!(added.contains(&"thermal_lag on x"), "{added:?}");
+    assert!(added.contains(&"hysteresis on x"), "{added:?}");
+    assert!(l.acc_from_nm > 15.0, "the static model misses the target");
+    let (before, after) = (l.before.expect("block ran"), l.after.expect("block ran"));
+    assert!(
+        after.mean_nm < 0.85 * before.mean_nm,
+        "the refitted model improves the block: {before:?} → {after:?}"
+    );
+    // the recording carries one fold a step (the move's); the lag filters ran on every 5 s fold,
+    // whose phase against the moves differs from run to run (when QEMU's UART hands the line
+    // over): the file-based replay of a lag model agrees to a few nm, not 1 (3.2, 3.4, 6.2 nm
+    // in three runs)
+    assert!(l.agreement_nm.expect("compared") < 10.0);
+    assert!(matches!(
+        lp.stop,
+        Some(campaign::LoopStop::MaxLoops | campaign::LoopStop::TargetMet { .. })
+    ));
+    // the block ran through the compensator with the refitted model
+    let steps = Plan::paper000_1dof()
+        .shortened(40, 5, 4)
+        .schedule_with_blocks(1, 4);
+    assert_eq!(o.state.next_step, steps.len());
+    assert!(out.join("static-1.blob").exists() && out.join("static-0.blob").exists());
     agrees_within_1_nm(&o);
     let _ = std::fs::remove_dir_all(out);
 }

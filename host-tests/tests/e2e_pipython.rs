@@ -12,118 +12,17 @@
 //! the test is skipped loudly — except in CI (`CI` set), where it fails.
 
 mod fw_sim;
+mod pipython_session;
 
-use fw_sim::{repo_root, wait_until, Config, Event, Qemu, SensorSim, StageSim};
+use fw_sim::{wait_until, Qemu, SensorSim, StageSim};
 use nanocal::published::published_1dof;
 use nanocal_interface::status::Flags;
-use nanocal_model::{blob, Model, SlowInputs, MAX_AXES};
-use std::path::PathBuf;
-use std::process::Command;
-
-const SCRIPT: &str = r#"
-import sys
-from pipython import GCSError, pitools
-from pipython.pidevice.interfaces.pisocket import PISocket
-from pipython.pidevice.gcsmessages import GCSMessages
-from pipython.pidevice.gcscommands import GCSCommands
-
-def show(key, value):
-    print(key, value, flush=True)
-
-def refused(call):
-    try:
-        call()
-        return 'NOERROR'
-    except GCSError as e:
-        return e.val
-
-with PISocket(host='127.0.0.1', port=int(sys.argv[1])) as gateway:
-    gateway.settimeout(120000)
-    msgs = GCSMessages(gateway)
-    with GCSCommands(msgs) as dev:
-        show('IDN', dev.qIDN().strip())
-        show('AXES', ' '.join(dev.qSAI()))
-        show('UNIT', dev.qPUN()['1'])
-        dev.SVO(['1', '2'], [True, True])
-        dev.FRF(['1', '2'])
-        pitools.waitonreferencing(dev, axes=['1', '2'])
-        show('REFERENCED', dev.qFRF(['1', '2'])['1'])
-        dev.MOV(['1', '2'], [100.0, 50.0])
-        pitools.waitontarget(dev, axes=['1', '2'])
-        pos = dev.qPOS(['1', '2'])
-        show('POS', '%r %r' % (pos['1'], pos['2']))
-        dev.MVR('1', 20.0)
-        pitools.waitontarget(dev, axes='1')
-        show('MOVQ', repr(dev.qMOV('1')['1']))
-        dev.MVE(['1', '2'], [150.0, 60.0])
-        pitools.waitontarget(dev, axes=['1', '2'])
-        # a long move, halted on the way: slow enough (125 s to its target) that the HLT
-        # reaches the controller first however loaded the machine is
-        dev.VEL('1', 2.0)
-        dev.MOV('1', 400.0)
-        dev.HLT('1', noraise=True)
-        pitools.waitontarget(dev, axes='1')
-        dev.VEL('1', 250.0)
-        show('HALTED', repr(dev.qMOV('1')['1']))
-        dev.MVR('1', 10.0)
-        pitools.waitontarget(dev, axes='1')
-        show('AFTERHALT', repr(dev.qMOV('1')['1']))
-        dev.STP(noraise=True)
-        dev.SVO(['1', '2'], [True, True])
-        dev.MOV('1', 200.0)
-        pitools.waitontarget(dev, axes='1')
-        dev.GOH()
-        pitools.waitontarget(dev, axes=['1', '2'])
-        pos = dev.qPOS()
-        show('HOME', '%r %r' % (pos['1'], pos['2']))
-        show('POSSTATUS', repr(dev.GetPosStatus()['1']))
-        show('MOVING', dev.IsMoving(['1', '2'])['1'])
-        show('ERR', dev.qERR())
-        dev.send('mov 1 42')
-        pitools.waitontarget(dev, axes='1')
-        show('LOWER', dev.read('pos? 1').strip())
-        show('STE', refused(lambda: dev.STE('1', 5.0)))
-        show('SVA', refused(lambda: dev.SVA('1', 10.0)))
-        show('OUTSIDE', refused(lambda: dev.MOV('1', 500.0)))
-        # ERR? in the same write as the command: the answers come back in order
-        msgs.embederr = True
-        show('EMBEDDED', refused(lambda: dev.MOV('1', 500.0)))
-        dev.MOV('1', 250.0)
-        msgs.embederr = False
-        pitools.waitontarget(dev, axes='1')
-        show('LAST', repr(dev.qPOS('1')['1']))
-"#;
-
-fn python() -> Option<PathBuf> {
-    let mut candidates = vec![];
-    if let Some(p) = std::env::var_os("NANOCAL_PYTHON") {
-        candidates.push(PathBuf::from(p));
-    }
-    candidates.push(repo_root().join("target/pipython-venv/bin/python"));
-    candidates.push(PathBuf::from("python3"));
-    candidates.into_iter().find(|p| {
-        Command::new(p)
-            .args(["-c", "import pipython"])
-            .output()
-            .map(|o| o.status.success())
-            .unwrap_or(false)
-    })
-}
-
-/// Temperatures the simulated sensors report (exact in MAX31856 LSBs).
-const TEMPS_C: [f32; 4] = [22.0, 22.125, 21.875, 22.25];
-
-fn command(model: &Model, x_um: f64) -> f64 {
-    let mut slow = SlowInputs::default();
-    for (i, t) in TEMPS_C.iter().enumerate() {
-        slow.temps_c[i] = f64::from(*t);
-    }
-    model.eval_f64(&[x_um, 0.0, 0.0], &[0; MAX_AXES], &slow)[0]
-}
+use nanocal_model::blob;
+use pipython_session::{controller, TEMPS_C};
 
 #[test]
 fn e2e_pipython_session_through_the_compensator() {
-    let Some(py) = python() else {
+    let Some(py) = pipython_session::python() else {
         assert!(
             std::env::var_os("CI").is_none(),
             "PIPython missing in CI (run .ci/firmware.sh first)"
@@ -134,14 +33,7 @@ fn e2e_pipython_session_through_the_compensator() {
     let Some(mut q) = Qemu::start_or_skip("e2e_pipython") else {
         return;
     };
-    // a C-867 with two axes in µm: servo off and unreferenced at power-up; moves take time — the
-    // 250 µm move halted on the way lasts 1 s at this velocity, so the HLT that follows it over
-    // QEMU's serial ports reaches the controller in time even on a loaded machine
-    let mut cfg = Config::c867(2, "µm");
-    for a in &mut cfg.axes {
-        a.velocity = 250.0;
-    }
-    let stage = StageSim::serve(q.connect(1), cfg);
+    let stage = StageSim::serve(q.connect(1), controller());
     let _sensors = SensorSim::start(q.link(), &TEMPS_C);
     let host_port = q.gcs_port();
     let mut c = q.client();
@@ -154,114 +46,6 @@ fn e2e_pipython_session_through_the_compensator() {
         (!s.flags.contains(Flags::SENSOR_BLOCK) && s.folds >= 2).then_some(())
     });
 
-    let out = Command::new(&py)
-        .args(["-c", SCRIPT, &host_port.to_string()])
-        .output()
-        .expect("run python");
-    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert!(
-        out.status.success(),
-        "PIPython script failed:\n{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let value = |key: &str| -> String {
-        stdout
-            .lines()
-            .find_map(|l| l.strip_prefix(&format!("{key} ")))
-            .unwrap_or_else(|| panic!("{key} missing in:\n{stdout}"))
-            .to_string()
-    };
-    let num = |key: &str| -> f64 { value(key).parse().unwrap() };
-    let near = |key: &str, got: f64, want: f64| {
-        assert!(
-            (got - want).abs() <= 5e-4,
-            "{key}: {got} vs {want} (session:\n{stdout})"
-        );
-    };
-    assert!(value("IDN").contains("C-867"));
-    assert_eq!(value("AXES"), "1 2");
-    assert_eq!(value("UNIT"), "µm");
-    assert_eq!(value("REFERENCED"), "True");
-    let pos: Vec<f64> = value("POS")
-        .split(' ')
-        .map(|v| v.parse().unwrap())
-        .collect();
-    near("POS 1 (mapped)", pos[0], 100.0);
-    near("POS 2 (not in the model, relayed)", pos[1], 50.0);
-    near("MOVQ", num("MOVQ"), 120.0);
-    let halted = num("HALTED");
-    assert!(
-        halted > 150.0 - 5e-4 && halted < 390.0,
-        "HLT stopped the move on the way: {halted}"
-    );
-    near("AFTERHALT", num("AFTERHALT"), halted + 10.0);
-    let home: Vec<f64> = value("HOME")
-        .split(' ')
-        .map(|v| v.parse().unwrap())
-        .collect();
-    near("HOME 1", home[0], 0.0);
-    near("HOME 2", home[1], 0.0);
-    near("POSSTATUS", num("POSSTATUS"), 0.0);
-    assert_eq!(value("MOVING"), "False");
-    assert_eq!(value("ERR"), "0");
-    near(
-        "LOWER",
-        value("LOWER").strip_prefix("1=").unwrap().parse().unwrap(),
-        42.0,
-    );
-    assert_eq!(value("STE"), "9008");
-    assert_eq!(value("SVA"), "9008");
-    assert_eq!(value("OUTSIDE"), "9001");
-    assert_eq!(value("EMBEDDED"), "9001");
-    near("LAST", num("LAST"), 250.0);
-
-    // every target the controller accepted on the model's axis, in order, against the f64
-    // reference of what the script meant
-    let targets: Vec<(f64, String)> = stage
-        .events()
-        .into_iter()
-        .filter_map(|e| match e {
-            Event::Target { axis: 0, value, by } => Some((value, by)),
-            Event::RawMotion { command, .. } => panic!("{command} reached the controller"),
-            _ => None,
-        })
-        .collect();
-    let meant = [
-        100.0,
-        120.0,
-        150.0,
-        400.0,
-        halted + 10.0,
-        200.0,
-        0.0,
-        42.0,
-        250.0,
-    ];
-    assert_eq!(targets.len(), meant.len(), "{targets:?}");
-    for ((q, by), x) in targets.iter().zip(meant) {
-        let want = command(&model, x);
-        assert!(
-            (q - want).abs() <= 5e-4,
-            "target for {x} µm: controller got {q} ({by}), correction {want}"
-        );
-        assert!(by == "MOV" || by == "MVE", "{by}");
-    }
-    assert_eq!(targets[2].1, "MVE", "a vector move stays one");
-    // the controller saw the script's three MOV? and the proxy's own before each of the two
-    // MVR (the base of a relative move is the controller's target, after HLT as always);
-    // never the lower-case line raw, never a refused command
-    let seen = stage.drain();
-    assert_eq!(
-        seen.iter().filter(|s| *s == "MOV? 1").count(),
-        5,
-        "{seen:?}"
-    );
-    assert!(!seen.iter().any(|s| s == "mov 1 42"), "{seen:?}");
-    assert!(
-        !seen.iter().any(|s| {
-            let s = s.to_ascii_uppercase();
-            s.starts_with("STE") || s.starts_with("SVA")
-        }),
-        "{seen:?}"
-    );
+    let stdout = pipython_session::run(&py, host_port);
+    pipython_session::check(&stdout, &model, stage.events(), stage.drain());
 }

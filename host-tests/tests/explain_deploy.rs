@@ -73,10 +73,13 @@ fn representative(name: &str) -> Proposal {
         "hysteresis" => {
             p.detail = Detail::Play(PlayBank {
                 axis: 0,
+                drive: None,
+                leading_poly: 0,
                 thresholds_um: vec![0.5, 2.0],
                 sense: 1.0,
                 amplitude_um: 20.0,
                 half_width_per_noise: 0.1,
+                grid_spread_um: 0.0,
             })
         }
         _ => {}

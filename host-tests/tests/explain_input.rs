@@ -1,7 +1,7 @@
 //! Explain refuses unusable recordings with errors that say what was expected, what was found
-//! and where; and works on recordings without commands (several measured channels, thermal only).
+//! and where; reports what a logger got wrong as data faults with their rows; and works on recordings without commands (several measured channels, thermal only).
 
-use nanocal::explain::{explain, Data, Settings};
+use nanocal::explain::{explain, Data, FaultKind, Settings};
 use nanocal::recording::Recording;
 
 fn rec(cols: Vec<(&str, Vec<f64>)>) -> Recording {
@@ -21,17 +21,57 @@ fn errors_name_what_and_where() {
         .to_string();
     assert!(e.contains("meas_"), "{e}");
 
+    let no_time = rec(vec![("t", vec![f64::NAN; 100]), ("meas_x", t.clone())]);
+    let e = Data::from_recording(&no_time, None)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("`t`") && e.contains("100 of 100"), "{e}");
+}
+
+/// What a logger gets wrong is a data fault with its rows, fitted around — not a refusal, and
+/// not physics: a time stamp out of order, a missing reading.
+#[test]
+fn logging_faults_are_reported_with_their_rows_and_fitted_around() {
+    let t: Vec<f64> = (0..100).map(|i| i as f64).collect();
+    let wiggle: Vec<f64> = (0..100).map(|i| 0.01 * ((i * 37) % 11) as f64).collect();
     let mut back = t.clone();
     back[50] = 10.0;
-    let bad_t = rec(vec![("t", back), ("meas_x", t.clone())]);
-    let e = Data::from_recording(&bad_t, None).unwrap_err().to_string();
-    assert!(e.contains("`t`") && e.contains("row"), "{e}");
+    let d =
+        Data::from_recording(&rec(vec![("t", back), ("meas_x", wiggle.clone())]), None).unwrap();
+    let f = d
+        .faults
+        .iter()
+        .find(|f| f.kind == FaultKind::TimeBackwards)
+        .unwrap_or_else(|| panic!("{:?}", d.faults));
+    assert_eq!(f.rows, vec![(50, 51)]);
+    assert!(d.t_s.windows(2).all(|w| w[1] > w[0]));
 
-    let mut nan = t.clone();
+    let mut nan = wiggle.clone();
     nan[7] = f64::NAN;
-    let bad_v = rec(vec![("t", t.clone()), ("meas_x", nan)]);
-    let e = Data::from_recording(&bad_v, None).unwrap_err().to_string();
-    assert!(e.contains("meas_x") && e.contains("row 8"), "{e}");
+    let d = Data::from_recording(&rec(vec![("t", t.clone()), ("meas_x", nan)]), None).unwrap();
+    let f = d
+        .faults
+        .iter()
+        .find(|f| f.kind == FaultKind::Missing)
+        .unwrap_or_else(|| panic!("{:?}", d.faults));
+    assert_eq!(
+        (f.column.as_str(), f.rows_in_words()),
+        ("meas_x", "8".to_string())
+    );
+    assert!(
+        d.channels[0].y_um[7].is_nan(),
+        "the row is left out of the fit"
+    );
+    let rep = explain(&d, &Settings::default()).unwrap();
+    assert!(
+        rep.to_text()
+            .contains("readings missing in meas_x (data rows 8)"),
+        "{}",
+        rep.to_text()
+    );
+    let json = serde_json::to_value(rep.to_json()).unwrap();
+    assert_eq!(json["data_faults"][0]["kind"], "missing");
+    assert_eq!(json["data_faults"][0]["rows"][0][0], 8);
 }
 
 #[test]

@@ -109,8 +109,7 @@ fn stepwise_fit_selects_the_true_terms_and_predictions_match_regression() {
     // the fitted value of each dwell IS the model's evaluation (coefficients not rewritten)
     let d = dwell_average(&rec, &DwellOptions::default()).unwrap();
     let st = ax.stepwise.as_ref().unwrap();
-    let x: Vec<Vec<f64>> =
-        nanocal::design::regressors(&ax.candidates, &rep.frame.scaled_inputs(&d));
+    let x: Vec<Vec<f64>> = nanocal::design::regressors(&ax.candidates, &rep.frame.raw_inputs(&d));
     for i in 0..d.len() {
         let mut yhat = st.intercept;
         for (j, col) in x.iter().enumerate() {
@@ -184,7 +183,7 @@ fn lagged_temperature_term_is_selected_and_deployed() {
     let model = blob::decode(&encode_blob(&rep.model)).unwrap();
     // the device ticks on the dwells' 60 s grid, its lag filter seeing what the fit saw
     let opts = ValidationOptions {
-        fold_period_s: 60.0,
+        slow: 60.0.into(),
         ..Default::default()
     };
     let v = validate(

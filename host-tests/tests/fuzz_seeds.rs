@@ -188,6 +188,13 @@ fn seeds() -> Vec<(&'static str, &'static str, Vec<u8>)> {
     cut.extend_from_slice(&frame(Kind::UploadChunk.code(), 1, &chunk)[..26]);
     cut.extend(frame(Kind::Status.code(), 2, &[]));
     s.push(("mgmt_frames", "raw-half-frame-then-status", cut));
+    // … and sealed frames arriving 4 ms a byte: a full chunk (1 s) times out between two
+    // STATUS requests, which are answered
+    let mut slow = vec![3u8];
+    slow.extend(unsealed(Kind::Status.code(), 1, &[]));
+    slow.extend(unsealed(Kind::UploadChunk.code(), 2, &[0x5A; 250]));
+    slow.extend(unsealed(Kind::Status.code(), 3, &[]));
+    s.push(("mgmt_frames", "sealed-slow-chunk-times-out", slow));
 
     // settings: mode byte (bit 0: the harness writes the CRC), then the settings
     s.push((

@@ -62,13 +62,13 @@ fn frames_round_trip_and_resynchronise() {
     let mut d = Decoder::new();
     let mut got = vec![];
     for &b in &wire {
-        match d.feed(b) {
-            Some(Ok(())) => {
+        let mut ev = d.feed(b, 0);
+        while let Some(e) = ev {
+            got.push(e.map(|()| {
                 let f = d.frame();
-                got.push(Ok((f.kind, f.seq, f.payload.to_vec())));
-            }
-            Some(Err(e)) => got.push(Err(e)),
-            None => {}
+                (f.kind, f.seq, f.payload.to_vec())
+            }));
+            ev = d.next(0);
         }
     }
     assert_eq!(
@@ -87,6 +87,7 @@ fn status_round_trips() {
     let s = Status {
         flags: Flags::MODEL | Flags::SENSOR_BLOCK,
         model_id: 0x1234,
+        model_crc32: 0x5678_9ABC,
         move_fold: 9,
         temps_c: core::array::from_fn(|i| 20.0 + i as f32 * 0.25),
         sensor_bits: [0, 1, 2, 0, 0, 0, 0, 4, 0, 0, 0, 0, 0, 0, 0, 0x14].map(bits),
@@ -218,9 +219,13 @@ proptest! {
     ) {
         let mut d = Decoder::new();
         for &b in &bytes {
-            if let Some(Ok(())) = d.feed(b) {
-                let f = d.frame();
-                let _ = Status::decode(&mut Reader::new(f.payload));
+            let mut ev = d.feed(b, 0);
+            while let Some(e) = ev {
+                if e.is_ok() {
+                    let f = d.frame();
+                    let _ = Status::decode(&mut Reader::new(f.payload));
+                }
+                ev = d.next(0);
             }
         }
         let mut buf = vec![0u8; blob::MAX_BLOB_LEN];

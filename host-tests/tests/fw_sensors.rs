@@ -362,8 +362,50 @@ fn settings_round_trip_and_reject_what_they_must() {
     );
 }
 
+/// Layout 3 adds the fold period (u16 LE at 240, CRC at 242): golden bytes of its fields, a
+/// fold period outside 1–10 s refused, and a layout-2 record (244 bytes, CRC at 240) — settings
+/// stored by the firmware before — decoding with the default fold period (5 s).
+#[test]
+fn settings_layout_3_carries_the_fold_period() {
+    use nanocal_interface::settings::{DEFAULT_FOLD_PERIOD_MS, LEN};
+    let mut s = Settings {
+        fold_period_ms: 7_250,
+        ..Default::default()
+    };
+    let v3 = s.encode();
+    assert_eq!(
+        (v3.len(), LEN),
+        (246, 246),
+        "9 + 16 x 10 + 4 + 27 + 40 + 2 + 4"
+    );
+    assert_eq!(&v3[..5], b"NCST\x03");
+    assert_eq!(&v3[240..242], &[0x52, 0x1C], "7250 ms, little endian");
+    let crc = nanocal_interface::crc32(&v3[..242]);
+    assert_eq!(&v3[242..], &crc.to_le_bytes());
+    assert_eq!(Settings::decode(&v3), Ok(s));
+    for bad in [999, 10_001, 0] {
+        s.fold_period_ms = bad;
+        assert!(Settings::decode(&s.encode()).is_err(), "{bad} ms");
+    }
+    // layout 2: the same bytes up to 240, then the CRC
+    let mut v2 = v3[..240].to_vec();
+    v2[4] = 2;
+    let crc = nanocal_interface::crc32(&v2);
+    v2.extend_from_slice(&crc.to_le_bytes());
+    let old = Settings::decode(&v2).unwrap();
+    assert_eq!(old.fold_period_ms, DEFAULT_FOLD_PERIOD_MS);
+    assert_eq!(DEFAULT_FOLD_PERIOD_MS, 5_000);
+    assert_eq!(
+        Settings {
+            fold_period_ms: 7_250,
+            ..old
+        },
+        Settings::decode(&v3).unwrap()
+    );
+}
+
 /// Settings stored by a firmware with layout 1 (8 chip-selects, 164 bytes: mains at 89, axes at
-/// 93, aux at 120, CRC at 160) survive the update to layout 2 (16 chip-selects).
+/// 93, aux at 120, CRC at 160) survive the update to layout 3 (16 chip-selects, fold period).
 #[test]
 fn settings_of_layout_1_still_decode() {
     let mut s = Settings {
@@ -378,8 +420,8 @@ fn settings_of_layout_1_still_decode() {
     s.axis_names[2] = nanocal_compensator::gcs::AxisId::new(b"Z").unwrap();
     s.aux[1] = AuxSource::AirPressure;
     let v2 = s.encode();
-    assert_eq!(v2.len(), 244, "layout 2: 9 + 16 x 10 + 4 + 27 + 40 + 4");
-    assert_eq!(v2[4], 2);
+    assert_eq!(v2.len(), 246, "layout 3: 9 + 16 x 10 + 4 + 27 + 40 + 2 + 4");
+    assert_eq!(v2[4], 3);
     // layout 1, byte for byte: header, 8 sensors, then the same tail at 89
     let mut v1 = Vec::new();
     v1.extend_from_slice(b"NCST\x01");
@@ -396,9 +438,9 @@ fn settings_of_layout_1_still_decode() {
     assert_eq!(Settings::decode(&v1), Ok(s));
     // a layout-1 record cut to a layout-2 length, or with an unknown version, is refused
     assert!(Settings::decode(&v1[..163]).is_err());
-    let mut v3 = v1.clone();
-    v3[4] = 3;
-    assert!(Settings::decode(&v3).is_err());
+    let mut v4 = v1.clone();
+    v4[4] = 4;
+    assert!(Settings::decode(&v4).is_err());
 }
 
 /// A model with more temperatures than the board has chip-select lines is refused at upload

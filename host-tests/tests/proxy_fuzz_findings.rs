@@ -1,7 +1,7 @@
 //! What the `gcs_proxy` fuzz target (`fuzz/`) found in the GCS proxy, each as the input that
 //! showed it, against the target's own model and controller (`fuzz/src/checks.rs`: the model
 //! corrects every target by +1000 µm, so an uncorrected move cannot hide). The control-byte
-//! findings are issue 21's item 4: such a line is refused (9010), never forwarded.
+//! findings are issue 21's item 4: such a line is refused (9011), never forwarded.
 
 mod proxy_rig;
 

@@ -11,7 +11,7 @@
 mod proxy_rig;
 
 use nanocal::design::DesignSpec;
-use nanocal::device_path::{DeviceSlowPath, DEVICE_FOLD_PERIOD_S};
+use nanocal::device_path::{DeviceSlowPath, SlowPeriods};
 use nanocal::fit::{fit_dwells, FitOptions, Selection};
 use nanocal::plan::{Plan, TestKind};
 use nanocal::procedure::ProcedureData;
@@ -55,10 +55,10 @@ fn every_validated_visit_is_what_the_gcs_proxy_forwards() {
     let (data, model) = fitted(4, 2);
     let model = &model;
     let report = data
-        .validate(TestKind::Static, Some(model), None, DEVICE_FOLD_PERIOD_S)
+        .validate(TestKind::Static, Some(model), None, SlowPeriods::DEVICE)
         .unwrap();
     assert_eq!(report.visits.len(), 2 * 2 * 14);
-    let mut device = DeviceSlowPath::new(model.lags(), &data.data.sensors, DEVICE_FOLD_PERIOD_S);
+    let mut device = DeviceSlowPath::new(model.lags(), &data.data.sensors, SlowPeriods::DEVICE);
     let mut rig = Rig::new(everything(1), Some(model), &[]);
     let mut refused = 0;
     let mut edge = 0;

@@ -23,8 +23,8 @@
 //! 0x028  u64   board       BOOT_AT: bench time of the last boot (the board's uptime = NOW − BOOT_AT)
 //! 0x030  u32×5 board       TX_BYTES[n]: bytes the board has written to serial n since power-on
 //! 0x048  u32   host        WATCHING: 1 while the host polls this page (no doorbells needed)
-//! 0x04C  u32   board       LINE_STATES: host-link line state bytes applied (the bench knows a
-//!                          new GCS session has started before it sends on it; layout 2)
+//! 0x04C  u32   board       LINE_STATES: line state bytes applied, either port (the bench knows
+//!                          a new session has started before it sends on it; layout 2)
 //! 0x050  u32×5 board       RX_BYTES[n]: bytes the board has read from serial n since power-on
 //! 0x080  u32   board       BUS_REQ_SEQ: incremented when a request is posted (after its bytes)
 //! 0x084  37 B  board       BUS_REQ: the request frame (`crate::bus` layout, A5 … )
@@ -34,7 +34,12 @@
 //! All fields little-endian. Bench ticks count [`TICK_HZ`] from the start of the bench (QEMU's
 //! start), across resets of the board; the board's own `Instant` is its uptime.
 //!
-//! Doorbells (serial4, besides the host-link line state `C0h | DTR`):
+//! Line states (serial4, host → board): [`LINE_HOST`] | bits for the GCS host link,
+//! [`LINE_MGMT`] | bits for the management port, bits as USB CDC SET_CONTROL_LINE_STATE's
+//! wValue ([`LINE_DTR`], bit 1 RTS), sent whenever the bench's client opens or closes the port
+//! (the USB ports' line state on the STM32 board).
+//!
+//! Doorbells (serial4, besides the line states):
 //! - board → host [`RING_WAITING`]: the board is idle at the horizon (once per instant);
 //!   [`RING_BUS`]: a bus request is posted. Neither is sent while WATCHING is set: the host
 //!   polls the page then, and clears WATCHING and looks once more before it stops polling.
@@ -83,7 +88,7 @@ pub const TX_BYTES: usize = 0x030;
 pub const SERIALS: usize = 5;
 /// Offset of the host's "polling the page" flag.
 pub const WATCHING: usize = 0x048;
-/// Offset of the count of host-link line state bytes the board has applied.
+/// Offset of the count of line state bytes (GCS or management port) the board has applied.
 pub const LINE_STATES: usize = 0x04C;
 /// Offset of the per-serial receive byte counters (the bench knows its input was taken in).
 pub const RX_BYTES: usize = 0x050;
@@ -104,6 +109,12 @@ pub const RING_WAITING: u8 = 0xE1;
 pub const RING_BUS: u8 = 0xE2;
 /// Doorbell host → board: the horizon moved.
 pub const RING_HORIZON: u8 = 0xD1;
+/// Line state host → board of the GCS host link: `LINE_HOST | bits` (low nibble).
+pub const LINE_HOST: u8 = 0xC0;
+/// Line state host → board of the management port: `LINE_MGMT | bits` (low nibble).
+pub const LINE_MGMT: u8 = 0xB0;
+/// Line-state bit: DTR (the port is open).
+pub const LINE_DTR: u8 = 0x01;
 /// Seconds of bench time of `ticks`.
 pub fn ticks_to_s(ticks: u64) -> f64 {
     ticks as f64 / TICK_HZ as f64

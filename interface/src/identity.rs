@@ -20,6 +20,14 @@ code_enum! {
         LowPower = 6 => "illegal low-power entry",
         /// Option bytes loaded, or firewall.
         Other = 7 => "option-byte load or firewall",
+        /// The firmware panicked (a bug); HELLO's reset site says where ([`Site`]).
+        Panic = 8 => "panic (a firmware bug)",
+        /// A double ECC error outside the store: the firmware's own flash (code, constants)
+        /// is damaged — reflash the board; the reset site has the address.
+        FlashEcc = 9 => "double ECC error in the firmware's flash (reflash the board)",
+        /// The CPU faulted (HardFault: an undefined instruction, a bad access); the reset site
+        /// has the PC.
+        Fault = 10 => "CPU fault (HardFault)",
     }
 }
 
@@ -46,6 +54,82 @@ impl ResetCause {
         } else {
             ResetCause::Unknown
         }
+    }
+}
+
+/// Longest reset site text in `HELLO`.
+pub const MAX_SITE: usize = 64;
+
+/// Where a reset the firmware recorded itself came from ([`ResetCause::Panic`],
+/// [`ResetCause::FlashEcc`], [`ResetCause::Fault`]): kept over the reset (on the STM32 board in
+/// RTC backup registers) and reported in HELLO after the reset cause as text.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Site<'a> {
+    /// Nothing recorded.
+    None,
+    /// A source line (a panic).
+    Line {
+        /// Source file.
+        file: &'a str,
+        /// Line.
+        line: u32,
+    },
+    /// An address (the double word with the ECC error, or the faulting PC).
+    Address(u32),
+}
+
+impl Site<'_> {
+    /// The site as text into `out` (`file:line`, or `0x` and eight hex digits); its length
+    /// (cut to `out`).
+    pub fn write(&self, out: &mut [u8]) -> usize {
+        let mut n = 0;
+        let mut push = |b: u8| {
+            if let Some(c) = out.get_mut(n) {
+                *c = b;
+                n += 1;
+            }
+        };
+        match *self {
+            Site::None => {}
+            Site::Line { file, line } => {
+                file.bytes().for_each(&mut push);
+                push(b':');
+                let mut digits = [0u8; 10];
+                let mut k = 0;
+                let mut v = line;
+                loop {
+                    digits[k] = b'0' + (v % 10) as u8;
+                    k += 1;
+                    v /= 10;
+                    if v == 0 {
+                        break;
+                    }
+                }
+                digits[..k].iter().rev().for_each(|&d| push(d));
+            }
+            Site::Address(a) => {
+                const HEX: &[u8; 16] = b"0123456789abcdef";
+                push(b'0');
+                push(b'x');
+                for i in (0..8).rev() {
+                    push(HEX[((a >> (4 * i)) & 0xF) as usize]);
+                }
+            }
+        }
+        n
+    }
+
+    /// The site as HELLO's text ([`Self::write`], cut to [`MAX_SITE`] bytes; empty for
+    /// [`Site::None`], and for a file name that is not ASCII).
+    pub fn text(&self) -> heapless::String<MAX_SITE> {
+        let mut buf = [0u8; MAX_SITE];
+        let n = self.write(&mut buf);
+        let mut s = heapless::String::new();
+        if buf[..n].is_ascii() {
+            // ASCII is UTF-8, and n <= MAX_SITE
+            let _ = s.push_str(core::str::from_utf8(&buf[..n]).unwrap_or(""));
+        }
+        s
     }
 }
 

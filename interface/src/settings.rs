@@ -11,11 +11,14 @@
 //!       173  axis names: 3 × { len u8 | 8 bytes }                                    (9 bytes each)
 //!       200  aux sources: MAX_AUX × { kind u8 (0 none, 1 air pressure hPa, 2 force N) | channel u8
 //!            | scale f32 | offset f32 }                                            (10 bytes each)
-//!       240  crc32 u32 LE (CRC-32/ISO-HDLC of bytes 0..240)
+//!       240  fold_period_ms u16 LE (1000..=10000)
+//!       242  crc32 u32 LE (CRC-32/ISO-HDLC of bytes 0..242)
 //! ```
-//! Version 2 (16 chip-selects: a model has up to 16 temperatures). Version 1 (8 chip-selects,
-//! the same fields, 164 bytes, mains at 89, axes at 93, aux at 120, CRC at 160) still decodes,
-//! with chip-selects 8..15 empty: settings stored by an older firmware survive an update.
+//! Version 3 adds the fold period (the readings of a fold period are averaged and the model
+//! folded once a period: `nanocal_compensator::slow_average`). Version 2 (16 chip-selects, no fold period:
+//! 244 bytes, CRC at 240) and version 1 (8 chip-selects, 164 bytes, mains at 89, axes at 93, aux
+//! at 120, CRC at 160, chip-selects 8..15 empty) still decode, with the default fold period:
+//! settings stored by an older firmware survive an update.
 
 use core::fmt;
 use nanocal_model::{MAX_AUX, MAX_AXES};
@@ -158,9 +161,16 @@ pub const SENSORS: usize = nanocal_model::MAX_TEMPS;
 /// Settings magic.
 pub const MAGIC: [u8; 4] = *b"NCST";
 /// Layout version; bumped whenever the bytes change.
-pub const VERSION: u8 = 2;
+pub const VERSION: u8 = 3;
 /// Encoded length.
-pub const LEN: usize = Layout::of(SENSORS).len;
+pub const LEN: usize = Layout::of(SENSORS, true).len;
+/// Fold period of settings that do not say (the default, and versions 1 and 2), ms: paper 001
+/// §VI's "each 5-10 seconds" at its short end.
+pub const DEFAULT_FOLD_PERIOD_MS: u16 = 5_000;
+/// Shortest fold period the settings accept, ms.
+pub const MIN_FOLD_PERIOD_MS: u16 = 1_000;
+/// Longest fold period the settings accept, ms (paper 001 §VI: "each 5-10 seconds").
+pub const MAX_FOLD_PERIOD_MS: u16 = 10_000;
 
 /// Unit of the stage controller's positions (the model works in µm).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -225,6 +235,9 @@ pub struct Settings {
     pub mains: Mains,
     /// Sensor sampling period, ms.
     pub sample_period_ms: u16,
+    /// Fold period, ms: the readings of a period are averaged and the model folded with the
+    /// averages once a period (1000..=10000; `nanocal_compensator::slow_average`).
+    pub fold_period_ms: u16,
     /// Unit of the controller's positions.
     pub stage_unit: StageUnit,
     /// GCS identifiers of model axes 0, 1, 2.
@@ -245,6 +258,7 @@ impl Default for Settings {
             sensors,
             mains: Mains::Hz50,
             sample_period_ms: 250,
+            fold_period_ms: DEFAULT_FOLD_PERIOD_MS,
             stage_unit: StageUnit::Um,
             axis_names: [
                 AxisId::single(b'1'),
@@ -289,27 +303,35 @@ impl fmt::Display for SettingsError {
 
 const SENSOR_AT: usize = 9;
 
-/// Where the fields after the sensors sit, for a layout with `sensors` chip-selects.
+/// Where the fields after the sensors sit, for a layout with `sensors` chip-selects (and the
+/// fold period, or not).
 struct Layout {
     sensors: usize,
     mains_at: usize,
     axes_at: usize,
     aux_at: usize,
+    fold_at: Option<usize>,
     crc_at: usize,
     len: usize,
 }
 
 impl Layout {
-    const fn of(sensors: usize) -> Layout {
+    const fn of(sensors: usize, fold: bool) -> Layout {
         let mains_at = SENSOR_AT + 10 * sensors;
         let axes_at = mains_at + 4;
         let aux_at = axes_at + 9 * MAP_AXES;
-        let crc_at = aux_at + 10 * MAX_AUX;
+        let end = aux_at + 10 * MAX_AUX;
+        let (fold_at, crc_at) = if fold {
+            (Some(end), end + 2)
+        } else {
+            (None, end)
+        };
         Layout {
             sensors,
             mains_at,
             axes_at,
             aux_at,
+            fold_at,
             crc_at,
             len: crc_at + 4,
         }
@@ -318,25 +340,43 @@ impl Layout {
     /// The layout of a record of `version`.
     fn of_version(version: u8) -> Option<Layout> {
         match version {
-            1 => Some(Layout::of(8)),
-            VERSION => Some(Layout::of(SENSORS)),
+            1 => Some(Layout::of(8, false)),
+            2 => Some(Layout::of(SENSORS, false)),
+            VERSION => Some(Layout::of(SENSORS, true)),
             _ => None,
         }
     }
 }
 
-const NOW: Layout = Layout::of(SENSORS);
+const NOW: Layout = Layout::of(SENSORS, true);
 const MAINS_AT: usize = NOW.mains_at;
 const AXES_AT: usize = NOW.axes_at;
 const AUX_AT: usize = NOW.aux_at;
+const FOLD_AT: usize = AUX_AT + 10 * MAX_AUX;
 const CRC_AT: usize = NOW.crc_at;
 
+/// Lowest stage-link baud rate: the STM32 board's UART4 divides its 80 MHz clock by at most
+/// 65 535 and has no prescaler (RM0351 §40.5.4), so 1 221 Bd is its floor; 1 200 Bd was
+/// accepted, then the UART could not be configured and the board stopped at every boot.
+pub const MIN_STAGE_BAUD: u32 = 2_400;
+/// Highest stage-link baud rate.
+pub const MAX_STAGE_BAUD: u32 = 1_000_000;
+
 impl Settings {
-    /// Check ranges: baud 1200..=1 Mbaud, period 50 ms..=60 s, resistors positive.
+    /// Check ranges: baud [`MIN_STAGE_BAUD`]..=[`MAX_STAGE_BAUD`], sample period 50 ms..=60 s,
+    /// fold period 1..=10 s,
+    /// resistors positive.
     pub fn validate(&self) -> Result<(), SettingsError> {
-        if !(1200..=1_000_000).contains(&self.stage_baud) {
+        if !(MIN_STAGE_BAUD..=MAX_STAGE_BAUD).contains(&self.stage_baud) {
             return Err(SettingsError::Field(5));
         }
+        self.validate_stored()
+    }
+
+    /// [`Self::validate`] without the baud rate's range, for a stored record: one stored by a
+    /// firmware with other limits still gives its sensors, axes and inputs (the board falls
+    /// back to the default rate when it cannot make the stored one).
+    pub fn validate_stored(&self) -> Result<(), SettingsError> {
         for (i, s) in self.sensors.iter().enumerate() {
             if let Some(Chip::Max31865 {
                 r_ref_ohm, r0_ohm, ..
@@ -350,6 +390,9 @@ impl Settings {
         }
         if !(50..=60_000).contains(&self.sample_period_ms) {
             return Err(SettingsError::Field(MAINS_AT as u16 + 1));
+        }
+        if !(MIN_FOLD_PERIOD_MS..=MAX_FOLD_PERIOD_MS).contains(&self.fold_period_ms) {
+            return Err(SettingsError::Field(FOLD_AT as u16));
         }
         for (i, a) in self.aux.iter().enumerate() {
             if let AuxSource::Force {
@@ -416,12 +459,14 @@ impl Settings {
             b[o + 2..o + 6].copy_from_slice(&f32::to_le_bytes(sc));
             b[o + 6..o + 10].copy_from_slice(&f32::to_le_bytes(off));
         }
+        b[FOLD_AT..FOLD_AT + 2].copy_from_slice(&self.fold_period_ms.to_le_bytes());
         let crc = crate::crc32(&b[..CRC_AT]);
         b[CRC_AT..].copy_from_slice(&crc.to_le_bytes());
         b
     }
 
-    /// Decode (this version's layout, or version 1's) and validate.
+    /// Decode (this version's layout, or version 1's) and validate as a stored record
+    /// ([`Self::validate_stored`]: the baud rate is not held to this firmware's range).
     pub fn decode(b: &[u8]) -> Result<Self, SettingsError> {
         if b.len() < 5 {
             return Err(SettingsError::Length);
@@ -495,7 +540,10 @@ impl Settings {
                 _ => return Err(SettingsError::Field(o as u16)),
             };
         }
-        s.validate()?;
+        if let Some(o) = l.fold_at {
+            s.fold_period_ms = u16::from_le_bytes([b[o], b[o + 1]]);
+        }
+        s.validate_stored()?;
         Ok(s)
     }
 }

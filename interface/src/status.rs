@@ -5,28 +5,32 @@
 //! offset size            field
 //!      0 u16             flags (Flags)
 //!      2 u32             model_id (0: no model)
-//!      6 u8              reserved, 0xFF (was: flash slot)
-//!      7 u32             move_fold
-//!     11 f32 × 16        temps_c (NaN: unusable)
-//!     75 u8 × 16         sensor_bits (ChannelBits: state in bits 0..3, last fault in 4..7)
-//!     91 u8              sensors configured
-//!     92 u32             slow_outside (model input bits, nanocal_model::EnvelopeFlags)
-//!     96 f64 × 3         kmz_um
-//!    120 u32 × 7         host_lines, moves, refused, mapped_replies, uploads_ok,
+//!      6 u32             model_crc32 (the model's blob's own CRC-32, its last four bytes;
+//!                        0: no model)
+//!     10 u32             move_fold
+//!     14 f32 × 16        temps_c (NaN: unusable)
+//!     78 u8 × 16         sensor_bits (ChannelBits: state in bits 0..3, last fault in 4..7)
+//!     94 u8              sensors configured
+//!     95 u32             slow_outside (model input bits, nanocal_model::EnvelopeFlags)
+//!     99 f64 × 3         kmz_um
+//!    123 u32 × 7         host_lines, moves, refused, mapped_replies, uploads_ok,
 //!                        uploads_rejected, folds
-//!    148 i32             pending_error (GcsErrorCode code, 0: none)
-//!    152 u8              last_upload_error (Refusal code, 0: none)
-//!    153 u32             uptime_ms
-//!    157 u8 × 12         uid
-//!    169 u8              reset_cause (ResetCause code)
-//!    170 u8              led (LedState code)
-//!    171 u32             fold_age_ms
-//!    175 u32             flash_ecc_errors
-//!    179 u32             sensor_reconfigs
-//!    183 f32 × 4         aux (NaN: unusable)
-//!    199 u8 × 4          aux_bits (ChannelBits)
-//!    203                 end (Status::LEN)
+//!    151 i32             pending_error (GcsErrorCode code, 0: none)
+//!    155 u8              last_upload_error (Refusal code, 0: none)
+//!    156 u32             uptime_ms
+//!    160 u8 × 12         uid
+//!    172 u8              reset_cause (ResetCause code)
+//!    173 u8              led (LedState code)
+//!    174 u32             fold_age_ms
+//!    178 u32             flash_ecc_errors
+//!    182 u32             sensor_reconfigs
+//!    186 f32 × 4         aux (NaN: unusable)
+//!    202 u8 × 4          aux_bits (ChannelBits)
+//!    206                 end (Status::LEN)
 //! ```
+//! Protocol 5 put `model_crc32` where protocol 4 had a reserved byte (the flash slot of an
+//! older store): every later field moved by 3 bytes.
+//!
 //! All little-endian. Adding a field: the struct, [`Status::encode`], [`Status::decode`],
 //! [`Status::LEN`], this diagram, the golden bytes in the tests, and a bump of
 //! [`crate::mgmt::PROTOCOL`] — all in this file but the last.
@@ -243,14 +247,22 @@ impl fmt::Debug for Flags {
 pub struct Status {
     /// Flags.
     pub flags: Flags,
-    /// Model id (0 without a model).
+    /// Model id (0 without a model). Chosen by whoever fitted the model: it names the model,
+    /// it does not tell two models apart — [`Status::model_crc32`] does.
     pub model_id: u32,
+    /// The content hash of the model in service: the CRC-32 its blob carries
+    /// ([`nanocal_model::blob::stored_crc`], the blob's last four bytes, as the device stored
+    /// it; 0 without a model). A blob file's own CRC: the device serves exactly that file when
+    /// id and CRC match. λ_KMZ set later (`SET_KMZ`) does not change it ([`Status::kmz_um`]
+    /// has the one in use).
+    pub model_crc32: u32,
     /// The fold (the value [`Status::folds`] had) that corrected the last move forwarded to the
     /// controller; 0: no move since start-up. With [`Flags::MOVE_FOLD`] (firmware that reports
     /// it; the field was an unused 0 before). A host that reads `move_fold == folds` knows the
     /// temperatures in this report are the ones its last move was corrected with.
     pub move_fold: u32,
-    /// Temperatures in use, °C (NaN when unusable).
+    /// Temperatures in use — the last fold's inputs, the readings averaged over the fold period
+    /// (protocol 5) — °C (NaN when unusable or not folded yet).
     pub temps_c: [f32; STATUS_SENSORS],
     /// Per-sensor state and last fault.
     pub sensor_bits: [ChannelBits; STATUS_SENSORS],
@@ -293,7 +305,8 @@ pub struct Status {
     pub flash_ecc_errors: u32,
     /// Times a sensor was found without its configuration and reconfigured.
     pub sensor_reconfigs: u32,
-    /// Auxiliary inputs in use, in their units (NaN when unusable).
+    /// Auxiliary inputs in use — the last fold's inputs, as [`Status::temps_c`] — in their units
+    /// (NaN when unusable).
     pub aux: [f32; STATUS_AUX],
     /// Per-aux state and last fault (as [`Status::sensor_bits`]).
     pub aux_bits: [ChannelBits; STATUS_AUX],
@@ -304,6 +317,7 @@ impl Default for Status {
         Status {
             flags: Flags::empty(),
             model_id: 0,
+            model_crc32: 0,
             move_fold: 0,
             temps_c: [0.0; STATUS_SENSORS],
             sensor_bits: [ChannelBits::default(); STATUS_SENSORS],
@@ -332,14 +346,11 @@ impl Default for Status {
     }
 }
 
-/// The reserved byte at offset 6 (the flash slot of an older store).
-const RESERVED: u8 = 0xFF;
-
 impl Status {
     /// Encoded length.
     pub const LEN: usize = 2
         + 4
-        + 1
+        + 4
         + 4
         + 4 * STATUS_SENSORS
         + STATUS_SENSORS
@@ -360,7 +371,7 @@ impl Status {
     pub fn encode(&self, w: &mut Writer<'_>) -> Result<(), PayloadError> {
         w.u16(self.flags.bits())?;
         w.u32(self.model_id)?;
-        w.u8(RESERVED)?;
+        w.u32(self.model_crc32)?;
         w.u32(self.move_fold)?;
         for t in self.temps_c {
             w.f32(t)?;
@@ -407,9 +418,9 @@ impl Status {
         let mut s = Status {
             flags: Flags::from_bits_retain(r.u16()?),
             model_id: r.u32()?,
+            model_crc32: r.u32()?,
             ..Default::default()
         };
-        r.u8()?; // reserved
         s.move_fold = r.u32()?;
         for t in s.temps_c.iter_mut() {
             *t = r.f32()?;

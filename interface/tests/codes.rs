@@ -45,13 +45,13 @@ fn every_code_maps_back() {
 
 #[test]
 fn gcs_errors_mean_what_the_proxy_raises_them_for() {
-    // the compensator's own codes, 9001..=9013, each with its own meaning
+    // the compensator's own codes, 9001..=9014, each with its own meaning
     let own: Vec<i32> = GcsErrorCode::ALL
         .iter()
         .filter(|e| e.is_compensators())
         .map(|e| e.code())
         .collect();
-    assert_eq!(own, (9001..=9013).collect::<Vec<_>>());
+    assert_eq!(own, (9001..=9014).collect::<Vec<_>>());
     // the two the campaign once mislabelled (9006 as a unit mismatch)
     assert_eq!(
         GcsErrorCode::from_code(9006),
@@ -72,10 +72,33 @@ fn gcs_errors_mean_what_the_proxy_raises_them_for() {
     assert!(GcsErrorCode::RefusedWhileCompensating
         .to_string()
         .contains("refused while compensating"));
+    // main's stage-link code keeps 9010; the proxy's refusals follow it
+    assert_eq!(GcsErrorCode::from_code(9010), Some(GcsErrorCode::LinkLost));
     assert_eq!(
-        GcsErrorCode::from_code(9010),
+        GcsErrorCode::from_code(9011),
         Some(GcsErrorCode::NotPrintable)
     );
     assert!(GcsErrorCode::NotPrintable.to_string().contains("printable"));
-    assert_eq!(GcsErrorCode::from_code(9014), None);
+    assert_eq!(GcsErrorCode::from_code(9014), Some(GcsErrorCode::NoAnswer));
+    assert_eq!(GcsErrorCode::from_code(9015), None);
+}
+
+#[test]
+fn reset_sites_read_as_text() {
+    use nanocal_interface::identity::Site;
+    assert_eq!(Site::None.text().as_str(), "");
+    assert_eq!(Site::Address(0x0800_1a2c).text().as_str(), "0x08001a2c");
+    let line = Site::Line {
+        file: "src/app/mod.rs",
+        line: 1207,
+    };
+    assert_eq!(line.text().as_str(), "src/app/mod.rs:1207");
+    // cut to the buffer, never past it
+    let mut short = [0u8; 6];
+    assert_eq!(line.write(&mut short), 6);
+    assert_eq!(&short, b"src/ap");
+    // the new causes keep their codes
+    assert_eq!(ResetCause::from_code(8), Some(ResetCause::Panic));
+    assert_eq!(ResetCause::from_code(9), Some(ResetCause::FlashEcc));
+    assert_eq!(ResetCause::from_code(10), Some(ResetCause::Fault));
 }

@@ -55,10 +55,16 @@ proptest! {
     #[test]
     fn frame_decoder_takes_any_bytes(b in proptest::collection::vec(any::<u8>(), 0..2000)) {
         let mut d = Decoder::new();
-        for &x in &b {
-            if let Some(Ok(())) = d.feed(x) {
-                let f = d.frame();
-                prop_assert!(f.payload.len() <= nanocal_interface::mgmt::MAX_PAYLOAD);
+        for (i, &x) in b.iter().enumerate() {
+            // a clock that jumps now and then, so that timeouts happen too
+            let now = (i as u32 / 97) * 300;
+            let mut ev = d.feed(x, now);
+            while let Some(e) = ev {
+                if e.is_ok() {
+                    let f = d.frame();
+                    prop_assert!(f.payload.len() <= nanocal_interface::mgmt::MAX_PAYLOAD);
+                }
+                ev = d.next(now);
             }
         }
     }
@@ -83,7 +89,8 @@ fn mutated_settings_with_a_fixed_crc() {
         let crc = nanocal_interface::crc32(&b[..n]);
         b[n..].copy_from_slice(&crc.to_le_bytes());
         if let Ok(s) = Settings::decode(&b) {
-            assert!(s.validate().is_ok());
+            // a stored record may hold a baud rate of a firmware with other limits
+            assert!(s.validate_stored().is_ok());
         }
     }
 }

@@ -4,7 +4,7 @@
 //! when both sides change together; these fail when the bytes change at all.
 
 use nanocal_interface::bus::{BusOp, BusReply, BusRequest, BusStatus};
-use nanocal_interface::identity::ResetCause;
+use nanocal_interface::identity::{ResetCause, Site};
 use nanocal_interface::led::LedState;
 use nanocal_interface::mgmt::{
     self, Decoder, Hello, InputCode, InputWhy, Kind, Reader, Refusal, Reply, Request, Writer,
@@ -40,6 +40,7 @@ fn status() -> Status {
     Status {
         flags: Flags::MODEL | Flags::EXTRAPOLATING | Flags::HOST_CONNECTED | Flags::MOVE_FOLD,
         model_id: 0x0003_0001,
+        model_crc32: 0x89AB_CDEF,
         move_fold: 41,
         temps_c,
         sensor_bits,
@@ -72,6 +73,7 @@ fn custom_settings() -> Settings {
         stage_baud: 57_600,
         mains: Mains::Hz60,
         sample_period_ms: 500,
+        fold_period_ms: 8_000,
         stage_unit: StageUnit::Mm,
         ..Settings::default()
     };
@@ -103,10 +105,12 @@ fn deframe(bytes: &[u8]) -> (u8, u8, Vec<u8>) {
     let mut d = Decoder::new();
     let mut got = None;
     for &b in [0x00, 0xA7, 0x00].iter().chain(bytes) {
-        if let Some(r) = d.feed(b) {
+        let mut ev = d.feed(b, 0);
+        while let Some(r) = ev {
             r.unwrap();
             let f = d.frame();
             got = Some((f.kind, f.seq, f.payload.to_vec()));
+            ev = d.next(0);
         }
     }
     got.expect("a complete frame")
@@ -168,6 +172,14 @@ fn settings_bytes() {
         Settings::decode(&SETTINGS_CUSTOM).unwrap(),
         custom_settings()
     );
+    // a layout 2 record (stored by a firmware before the fold period) decodes with the default
+    assert_eq!(
+        Settings::decode(&SETTINGS_CUSTOM_V2).unwrap(),
+        Settings {
+            fold_period_ms: nanocal_interface::settings::DEFAULT_FOLD_PERIOD_MS,
+            ..custom_settings()
+        }
+    );
 }
 
 #[test]
@@ -215,12 +227,17 @@ fn every_reply_frame() {
     let mut firmware = heapless::String::new();
     firmware.push_str("0.1.0").unwrap();
     let hello = Hello {
-        protocol: 4,
+        protocol: 5,
         blob_format: 2,
         max_chunk: 256,
         firmware,
         uid: core::array::from_fn(|i| i as u8),
-        reset_cause: ResetCause::PowerOn,
+        reset_cause: ResetCause::Panic,
+        reset_site: Site::Line {
+            file: "src/bin/stm32.rs",
+            line: 42,
+        }
+        .text(),
     };
     reply_is(Reply::Hello(hello), 0x01, 1, &REP_HELLO);
     reply_is(Reply::Status(status()), 0x02, 2, &REP_STATUS);
@@ -234,6 +251,7 @@ fn every_reply_frame() {
     reply_is(
         Reply::UploadCommit {
             model_id: 0x0003_0001,
+            model_crc32: 0x89AB_CDEF,
             uploads_accepted: 3,
         },
         0x12,

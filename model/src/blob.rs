@@ -212,6 +212,19 @@ pub fn crc32(bytes: &[u8]) -> u32 {
     crc32_update(0, bytes)
 }
 
+/// The CRC-32 a blob carries (its last four bytes, over everything before them): the model's
+/// content hash, which the device reports with the model's id (`nanocal_interface::status`).
+/// Two blobs that differ in any byte — a coefficient, an envelope, λ_KMZ — differ in it (up
+/// to CRC-32's collisions). Read as stored, not checked: `None` for fewer bytes than a header
+/// and a CRC; [`decode`] checks it.
+pub fn stored_crc(bytes: &[u8]) -> Option<u32> {
+    if bytes.len() < HEADER_LEN + TRAILER_LEN {
+        return None;
+    }
+    let t = &bytes[bytes.len() - TRAILER_LEN..];
+    Some(u32::from_le_bytes([t[0], t[1], t[2], t[3]]))
+}
+
 /// Continues a CRC-32 over more bytes: `crc32_update(crc32(a), b) == crc32(a ++ b)`.
 pub fn crc32_update(crc: u32, bytes: &[u8]) -> u32 {
     let mut c = !crc;

@@ -47,45 +47,61 @@ pub fn delta_robot_78() -> Result<Model, ModelError> {
         let mut unit = [0u8; MAX_AXES];
         unit[o] = 1;
         b.add_raw_term(o as u8, unit, Factor::None, 0, 1.0)?;
-        let (own, next, prev) = (o, (o + 1) % MAX_AXES, (o + 2) % MAX_AXES);
-        let mono = |pairs: &[(usize, u8)]| {
-            let mut p = [0u8; MAX_AXES];
-            for &(a, k) in pairs {
-                p[a] += k;
-            }
-            p
-        };
-        let geometric: [([u8; MAX_AXES], f64); 15] = [
-            (mono(&[(0, 1)]), 0.5),
-            (mono(&[(1, 1)]), 0.5),
-            (mono(&[(2, 1)]), 0.5),
-            (mono(&[(0, 2)]), 0.3),
-            (mono(&[(1, 2)]), 0.3),
-            (mono(&[(2, 2)]), 0.3),
-            (mono(&[(0, 1), (1, 1)]), 0.3),
-            (mono(&[(0, 1), (2, 1)]), 0.3),
-            (mono(&[(1, 1), (2, 1)]), 0.3),
-            (mono(&[(own, 3)]), 0.1),
-            (mono(&[(own, 1), (next, 2)]), 0.1),
-            (mono(&[(own, 1), (prev, 2)]), 0.1),
-            (mono(&[(0, 1), (1, 1), (2, 1)]), 0.1),
-            (mono(&[(own, 2), (next, 1)]), 0.1),
-            (mono(&[(own, 4)]), 0.05),
+        // linear and quadratic terms larger than cubic ones, the quartic smallest
+        const SCALES: [f64; 15] = [
+            0.5, 0.5, 0.5, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.1, 0.1, 0.1, 0.1, 0.1, 0.05,
         ];
-        for (powers, scale) in geometric {
+        for (powers, scale) in delta_robot_78_geometric(o).into_iter().zip(SCALES) {
             b.add_term(term(o, powers, Factor::None, coeff(scale)))?;
         }
         for t in 0..ROBOT_TEMPS as u8 {
             b.add_term(term(o, [0; MAX_AXES], Factor::Temp(t), coeff(0.4)))?;
         }
-        b.add_term(term(
-            o,
-            mono(&[(own, 1)]),
-            Factor::Temp(o as u8),
-            coeff(0.05),
-        ))?;
+        let (powers, factor) = delta_robot_78_interaction(o);
+        b.add_term(term(o, powers, factor, coeff(0.05)))?;
     }
     b.build()
+}
+
+/// The 15 geometric monomials of motor `o` in [`delta_robot_78`] (powers of the three motor
+/// coordinates): the 3 linear and 6 quadratic ones, 5 cubic (own³, own·next², own·prev², x·y·z,
+/// own²·next) and own⁴. Paper 001 gives only the count (45 geometric parameters for three
+/// motors); these shapes are this project's choice.
+pub fn delta_robot_78_geometric(o: usize) -> [[u8; MAX_AXES]; 15] {
+    let (own, next, prev) = (o % MAX_AXES, (o + 1) % MAX_AXES, (o + 2) % MAX_AXES);
+    let mono = |pairs: &[(usize, u8)]| {
+        let mut p = [0u8; MAX_AXES];
+        for &(a, k) in pairs {
+            p[a] += k;
+        }
+        p
+    };
+    [
+        mono(&[(0, 1)]),
+        mono(&[(1, 1)]),
+        mono(&[(2, 1)]),
+        mono(&[(0, 2)]),
+        mono(&[(1, 2)]),
+        mono(&[(2, 2)]),
+        mono(&[(0, 1), (1, 1)]),
+        mono(&[(0, 1), (2, 1)]),
+        mono(&[(1, 1), (2, 1)]),
+        mono(&[(own, 3)]),
+        mono(&[(own, 1), (next, 2)]),
+        mono(&[(own, 1), (prev, 2)]),
+        mono(&[(0, 1), (1, 1), (2, 1)]),
+        mono(&[(own, 2), (next, 1)]),
+        mono(&[(own, 4)]),
+    ]
+}
+
+/// The 11th thermal term of motor `o` in [`delta_robot_78`] (beside the 10 temperatures): the
+/// motor's own coordinate times its structure sensor, temperature `o` — (powers, factor).
+/// Paper 001 gives only the count (33 thermal parameters for three motors).
+pub fn delta_robot_78_interaction(o: usize) -> ([u8; MAX_AXES], Factor) {
+    let mut p = [0u8; MAX_AXES];
+    p[o % MAX_AXES] = 1;
+    (p, Factor::Temp((o % MAX_AXES) as u8))
 }
 
 fn term(output: usize, powers: [u8; MAX_AXES], factor: Factor, coeff: f64) -> Term {

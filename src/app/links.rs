@@ -6,29 +6,104 @@
 //! arrive; a line the proxy holds until the controller answered its own query is resumed from
 //! the stage link, which also gives the proxy the time for its reply timeout.
 
-use super::{read_some, Core, Shared, PIPE_LEN};
+use super::{read_some, task, Core, Shared};
 use core::sync::atomic::Ordering;
 use embassy_futures::join::join;
-use embassy_futures::select::{select, Either};
+use embassy_futures::select::{select, select3, Either, Either3};
 use embassy_time::{Instant, Timer};
-use embedded_io_async::{Read, Write};
+use embedded_io_async::{Error as _, ErrorKind, Read, Write};
 use nanocal_compensator::proxy::Output;
 
 /// How often the stage link lets the proxy check its reply timeout, ms.
 const POLL_MS: u64 = 50;
 
+/// How long the host may leave a packet for it unread before it is dropped, ms: a host that
+/// has its port open but does not read must not stop the compensator (its replies go; what the
+/// controller sends is still read, see [`send_from_stage`]).
+const HOST_STALL_MS: u64 = 1_000;
+
 fn now_ms() -> u32 {
     Instant::now().as_millis() as u32
 }
 
-async fn pump<W: Write>(pipe: &embassy_sync::pipe::Pipe<super::Cs, PIPE_LEN>, tx: &mut W) -> ! {
+/// Bytes for the stage controller, out on its link. While a write waits (the UART sends at
+/// its baud rate) the task is marked busy: a transmitter that never finishes is a wedged link,
+/// and the supervisor lets the watchdog reset the board.
+async fn stage_pump<W: Write>(sh: &Shared, tx: &mut W) -> ! {
     let mut buf = [0u8; 128];
     loop {
-        let n = pipe.read(&mut buf).await;
+        let n = sh.to_stage.read(&mut buf).await;
+        let _busy = sh.beats[task::STAGE_OUT].busy(super::now_ms());
         if tx.write_all(&buf[..n]).await.is_err() {
-            warn!("link write failed; {=usize} bytes dropped", n);
+            warn!("stage link write failed; {=usize} bytes dropped", n);
         }
         let _ = tx.flush().await;
+    }
+}
+
+/// Bytes for the host, out packet by packet. A session that ends meanwhile takes the rest
+/// with it (never delivered to the next one: the write waiting for the USB endpoint is
+/// cancelled, not woken), and a host that leaves a packet unread for [`HOST_STALL_MS`] loses
+/// the bytes.
+async fn host_pump<W: Write>(sh: &Shared, tx: &mut W) -> ! {
+    let mut buf = [0u8; 128];
+    loop {
+        let n = sh.to_host.read(&mut buf).await;
+        let session = sh.host_session.load(Ordering::Acquire);
+        sh.host_cancel.reset();
+        let mut off = 0;
+        while off < n && sh.host_session.load(Ordering::Acquire) == session {
+            match select3(
+                sh.host_cancel.wait(),
+                Timer::after_millis(HOST_STALL_MS),
+                tx.write(&buf[off..n]),
+            )
+            .await
+            {
+                Either3::First(()) => break,
+                Either3::Second(()) => {
+                    warn!(
+                        "the host did not read for 1 s; {=usize} bytes dropped",
+                        n - off
+                    );
+                    sh.host_bytes_dropped
+                        .fetch_add((n - off) as u32, Ordering::Relaxed);
+                    break;
+                }
+                Either3::Third(Ok(k)) => off += k,
+                Either3::Third(Err(_)) => break,
+            }
+        }
+        let _ = tx.flush().await;
+    }
+}
+
+/// Send what the proxy produced from the controller's bytes: commands to the stage controller
+/// as [`send`]; what is for the host goes into its pipe as far as there is room and the rest is
+/// dropped (counted) — waiting for a host that does not read would stop the stage link reading
+/// the UART, and the controller's next bytes would be lost in the receive buffer.
+async fn send_from_stage(sh: &Shared, out: &Output) {
+    if !out.to_stage.is_empty() {
+        sh.to_stage.write_all(out.to_stage.as_bytes()).await;
+        sh.stage_sent.signal(());
+    }
+    let host_connected = sh
+        .host_connected
+        .load(core::sync::atomic::Ordering::Relaxed);
+    let mut bytes = out.to_host.as_bytes();
+    if !host_connected {
+        return;
+    }
+    while !bytes.is_empty() {
+        match sh.to_host.try_write(bytes) {
+            Ok(n) => bytes = &bytes[n..],
+            Err(_) => {
+                warn!("host pipe full: {=usize} reply bytes dropped", bytes.len());
+                sh.host_bytes_dropped
+                    .fetch_add(bytes.len() as u32, Ordering::Relaxed);
+                return;
+            }
+        }
     }
 }
 
@@ -48,8 +123,9 @@ async fn send(sh: &Shared, out: &Output) {
 
 /// Hand `buf` to the proxy through `step` until it has taken all of it, sending what it
 /// produces each time. (When it takes nothing and produces nothing, a held line fills its
-/// input: wait for the controller's answer.) Host bytes stop when their session ends
-/// (`session`: the session they were read in).
+/// input: wait for the controller's answer.) `session` is the host session host bytes were
+/// read in (they stop when it ends); `None` for the controller's bytes (sent as
+/// [`send_from_stage`] sends).
 async fn feed(
     sh: &Shared,
     buf: &[u8],
@@ -59,13 +135,17 @@ async fn feed(
 ) {
     let mut i = 0;
     while i < buf.len() {
-        if session.is_some_and(|s| s != sh.session.load(Ordering::Relaxed)) {
+        if session.is_some_and(|s| s != sh.host_session.load(Ordering::Acquire)) {
             // the host closed the port meanwhile: the rest belongs to no one
             return;
         }
         let used = sh.core.lock(|c| step(&mut c.borrow_mut(), &buf[i..], out));
         i += used;
-        send(sh, out).await;
+        if session.is_none() {
+            send_from_stage(sh, out).await;
+        } else {
+            send(sh, out).await;
+        }
         if used == 0 && out.is_empty() {
             Timer::after_millis(1).await;
         }
@@ -75,6 +155,7 @@ async fn feed(
 /// Host lines received earlier that the proxy can process now (after the controller answered
 /// a held line's query), and the proxy's own answers that are due.
 async fn resume(sh: &Shared, out: &mut Output) {
+    // (called from the stage link: its output for the host must not wait for the host)
     loop {
         let worked = sh.core.lock(|c| {
             let mut c = c.borrow_mut();
@@ -89,7 +170,20 @@ async fn resume(sh: &Shared, out: &mut Output) {
         if !worked {
             return;
         }
-        send(sh, out).await;
+        send_from_stage(sh, out).await;
+    }
+}
+
+/// At least one byte from the stage link into `buf`; `None` when the link lost bytes (a UART
+/// overrun or a full receive buffer: the board's reader reports it as `InvalidData`). Other
+/// errors are retried after a short pause, as [`read_some`] does.
+async fn read_stage<R: Read>(rx: &mut R, buf: &mut [u8]) -> Option<usize> {
+    loop {
+        match rx.read(buf).await {
+            Ok(n) if n > 0 => return Some(n),
+            Err(e) if e.kind() == ErrorKind::InvalidData => return None,
+            _ => Timer::after_millis(5).await,
+        }
     }
 }
 
@@ -100,19 +194,20 @@ pub async fn host_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) -> 
         let mut out = Output::new();
         let mut buf = [0u8; 64];
         loop {
-            let session = sh.session.load(Ordering::Relaxed);
+            let session = sh.host_session.load(Ordering::Acquire);
             let n = match select(read_some(&mut rx, &mut buf), sh.host_hangup.wait()).await {
                 Either::First(n) => n,
                 // the host closed or opened the port: nothing of the old connection survives
                 // it (the session was ended where the line state changed)
                 Either::Second(()) => continue,
             };
-            if session != sh.session.load(Ordering::Relaxed)
+            if session != sh.host_session.load(Ordering::Acquire)
                 || !sh.host_connected.load(Ordering::Relaxed)
             {
                 // read in a session that has ended, or while the port is closed: no one's
                 continue;
             }
+            let _busy = sh.beats[task::HOST_IN].busy(now_ms());
             feed(sh, &buf[..n], &mut out, Some(session), |c, b, out| {
                 let now = now_ms();
                 c.drive(now, |proxy, comp| proxy.host_bytes(comp, b, now, out))
@@ -120,7 +215,7 @@ pub async fn host_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) -> 
             .await;
         }
     };
-    join(rx_loop, pump(&sh.to_host, &mut tx)).await;
+    join(rx_loop, host_pump(sh, &mut tx)).await;
     unreachable!()
 }
 
@@ -142,13 +237,19 @@ pub async fn stage_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) ->
                     sh.stage_sent.wait().await
                 }
             };
-            match select(read_some(&mut rx, &mut buf), tick).await {
-                Either::First(n) => {
+            match select(read_stage(&mut rx, &mut buf), tick).await {
+                Either::First(Some(n)) => {
+                    let _busy = sh.beats[task::STAGE_IN].busy(now_ms());
                     feed(sh, &buf[..n], &mut out, None, |c, b, out| {
                         let now = now_ms();
                         c.drive(now, |proxy, comp| proxy.stage_bytes(comp, b, now, out))
                     })
                     .await
+                }
+                Either::First(None) => {
+                    warn!("stage link lost bytes: replies in flight dropped");
+                    sh.core
+                        .lock(|c| c.borrow_mut().proxy.stage_bytes_lost(now_ms()));
                 }
                 Either::Second(()) => {
                     sh.core.lock(|c| {
@@ -156,12 +257,12 @@ pub async fn stage_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) ->
                         let now = now_ms();
                         c.drive(now, |proxy, comp| proxy.poll(comp, now, &mut out))
                     });
-                    send(sh, &out).await;
+                    send_from_stage(sh, &out).await;
                 }
             }
             resume(sh, &mut out).await;
         }
     };
-    join(rx_loop, pump(&sh.to_stage, &mut tx)).await;
+    join(rx_loop, stage_pump(sh, &mut tx)).await;
     unreachable!()
 }

@@ -2,12 +2,14 @@
 //! settings, reset.
 
 use super::supervisor::led_state;
-use super::{now_ms, read_some, Comp, Shared};
+use super::{now_ms, read_some, task, Comp, Shared};
 use core::sync::atomic::Ordering;
+use embassy_futures::select::{select, select3, Either, Either3};
 use embedded_io_async::{Read, Write};
 use embedded_storage_async::nor_flash::NorFlash;
 use nanocal_compensator::gcs::AxisMap;
 use nanocal_compensator::inputs;
+use nanocal_compensator::l4flash::EccErrors;
 use nanocal_compensator::proxy::Gate;
 use nanocal_compensator::store::Store;
 use nanocal_compensator::upload::Upload;
@@ -16,6 +18,9 @@ use nanocal_interface::mgmt::{self, Decoder, Hello, Kind, Refusal, Reply, Reques
 use nanocal_interface::settings::{self, Settings};
 use nanocal_interface::status::{Flags, Status, STATUS_AUX, STATUS_SENSORS};
 use nanocal_model::{blob, MAX_AXES};
+
+/// How long a reply may wait for the host to read it, ms.
+const REPLY_STALL_MS: u64 = 1_000;
 
 /// Firmware version reported in HELLO.
 pub const VERSION: &str = env!("CARGO_PKG_VERSION");
@@ -64,15 +69,16 @@ async fn load_model<F: NorFlash>(store: &mut Store<F>, sh: &Shared) {
             }
         });
     }
-    info!("model {=u32} loaded", id);
+    info!("model {=u32:#x} loaded", id);
     sh.release();
 }
 
 /// Decode a stored blob and stage it; its id.
 fn stage_blob(sh: &Shared, bytes: &[u8]) -> Option<u32> {
     let model = blob::decode(bytes).ok()?;
+    let crc = blob::stored_crc(bytes)?;
     let id = model.id();
-    sh.stage(model);
+    sh.stage(model, crc);
     Some(id)
 }
 
@@ -90,7 +96,9 @@ fn stage_upload(
     upload: &mut Upload,
     buf: &[u8],
 ) -> Result<(u32, [f64; MAX_AXES]), Refused> {
-    let (model, _) = upload.finish(buf).map_err(|e| Refused::Upload(e.code()))?;
+    let (model, len) = upload.finish(buf).map_err(|e| Refused::Upload(e.code()))?;
+    // decoded, so its CRC was checked (and it is longer than one)
+    let crc = blob::stored_crc(&buf[..len]).unwrap_or(0);
     let settings = sh.settings.lock(|s| *s.borrow());
     let board = sh.board.lock(|b| *b.borrow());
     inputs::check(&model, &settings, &board).map_err(|e| Refused::Input(e.code()))?;
@@ -99,22 +107,40 @@ fn stage_upload(
         *v = model.kmz_offset_um(a);
     }
     let id = model.id();
-    sh.stage(model);
+    sh.stage(model, crc);
     Ok((id, kmz))
 }
 
-/// Encode the staged model into `out` (the store's scratch); its length.
+/// Encode the staged model into `out` (the store's scratch); its length. The CRC of what is
+/// stored becomes the model's content hash (what comes back from flash after a reset; the
+/// same as the upload's, the encoding being canonical — the host checks).
 fn encode_staged(sh: &Shared, out: &mut [u8]) -> Option<usize> {
     sh.model.lock(|m| {
-        let m = m.borrow();
-        blob::encode(m.model.as_ref()?, out).ok()
+        let mut m = m.borrow_mut();
+        let n = blob::encode(m.model.as_ref()?, out).ok()?;
+        m.model_crc32 = blob::stored_crc(&out[..n])?;
+        Some(n)
     })
+}
+
+/// What woke the management task.
+enum Wake {
+    /// Bytes arrived.
+    Bytes(usize),
+    /// The frame still arriving ran out of time, or the management port was closed: the
+    /// decoder has something to do without a byte.
+    Decoder,
 }
 
 /// Run the management channel. The store's scratch receives uploads (a blob is either being
 /// received or being written); `reset` resets the device (after the reply to a `RESET` went
 /// out).
-pub async fn management<R: Read, W: Write, F: NorFlash>(
+///
+/// A frame that stops arriving (a connection closed mid-frame) is dropped when its time is up
+/// (`mgmt::FRAME_TIMEOUT_MS` after its first byte) and the bytes after it are searched again
+/// for a sync, so the requests that followed are answered, not swallowed; the management
+/// port's closing (its line state, where the board has it) drops a half frame at once.
+pub async fn management<R: Read, W: Write, F: NorFlash + EccErrors>(
     mut rx: R,
     mut tx: W,
     store: &mut Store<F>,
@@ -133,34 +159,92 @@ pub async fn management<R: Read, W: Write, F: NorFlash>(
             load_model(store, sh).await;
             load = false;
         }
-        let n = read_some(&mut rx, &mut inbuf).await;
-        for &b in &inbuf[..n] {
-            match dec.feed(b) {
-                Some(Ok(())) => {
-                    let f = dec.frame();
-                    let (k, seq) = (f.kind, f.seq);
-                    let reply = handle(k, f.payload, &mut upload, store, sh).await;
-                    let resets = matches!(reply, Reply::Reset);
-                    let mut w = Writer::new(&mut frame[mgmt::PAYLOAD_AT..][..mgmt::MAX_PAYLOAD]);
-                    // every reply fits the payload (the golden-byte tests encode each)
-                    let _ = reply.encode(&mut w);
-                    let len = w.len();
-                    drop(reply);
-                    if let Ok(m) = mgmt::seal(k | mgmt::REPLY, seq, len, &mut frame) {
-                        let _ = tx.write_all(&frame[..m]).await;
-                        let _ = tx.flush().await;
-                    }
-                    load = sh.model.lock(|m| m.borrow().pending);
-                    if resets {
-                        embassy_time::Timer::after_millis(50).await;
-                        reset();
-                    }
+        super::note_flash_ecc_errors(sh, store.flash().ecc_errors());
+        let wait_ms = dec.wait_ms(now_ms()).unwrap_or(u32::MAX);
+        let wake = match select3(
+            read_some(&mut rx, &mut inbuf),
+            embassy_time::Timer::after_millis(u64::from(wait_ms)),
+            sh.mgmt_hangup.wait(),
+        )
+        .await
+        {
+            Either3::First(n) => Wake::Bytes(n),
+            Either3::Second(()) => Wake::Decoder,
+            Either3::Third(()) => {
+                if dec.wait_ms(now_ms()).is_some() {
+                    warn!("management port closed mid-frame: the frame is dropped");
                 }
-                Some(Err(_)) => warn!("management frame dropped (CRC or length)"),
-                None => {}
+                // the bytes held are the closed connection's, but the next one's may have
+                // followed them already: drop the half frame as if its time were up
+                dec.cut(now_ms());
+                Wake::Decoder
             }
+        };
+        let now = now_ms();
+        let bytes = match wake {
+            Wake::Bytes(n) => &inbuf[..n],
+            Wake::Decoder => &[][..],
+        };
+        let mut i = 0;
+        let mut ev = dec.next(now);
+        loop {
+            while let Some(e) = ev {
+                match e {
+                    Ok(()) => {
+                        let f = dec.frame();
+                        let (k, seq) = (f.kind, f.seq);
+                        let reply = {
+                            let _busy = sh.beats[task::MGMT].busy(now_ms());
+                            handle(k, f.payload, &mut upload, store, sh).await
+                        };
+                        super::note_flash_ecc_errors(sh, store.flash().ecc_errors());
+                        if answer(&mut tx, &mut frame, k, seq, reply).await {
+                            embassy_time::Timer::after_millis(50).await;
+                            reset();
+                        }
+                        load = sh.model.lock(|m| m.borrow().pending);
+                    }
+                    Err(mgmt::FrameError::Timeout) => {
+                        warn!("management frame incomplete when its time was up: dropped")
+                    }
+                    Err(_) => warn!("management frame dropped (CRC or length)"),
+                }
+                ev = dec.next(now_ms());
+            }
+            let Some(&b) = bytes.get(i) else { break };
+            i += 1;
+            ev = dec.feed(b, now);
         }
     }
+}
+
+/// Send `reply` to request `k`/`seq`; true when the device must reset now.
+async fn answer<W: Write>(
+    tx: &mut W,
+    frame: &mut [u8; mgmt::MAX_FRAME],
+    k: u8,
+    seq: u8,
+    reply: Reply,
+) -> bool {
+    let resets = matches!(reply, Reply::Reset);
+    let mut w = Writer::new(&mut frame[mgmt::PAYLOAD_AT..][..mgmt::MAX_PAYLOAD]);
+    // every reply fits the payload (the golden-byte tests encode each)
+    let _ = reply.encode(&mut w);
+    let len = w.len();
+    drop(reply);
+    if let Ok(m) = mgmt::seal(k | mgmt::REPLY, seq, len, frame) {
+        // a host that does not read its reply loses it, not the device its management channel
+        let sent = select(
+            embassy_time::Timer::after_millis(REPLY_STALL_MS),
+            tx.write_all(&frame[..m]),
+        )
+        .await;
+        if let Either::First(()) = sent {
+            warn!("management reply not read for 1 s: dropped");
+        }
+        let _ = tx.flush().await;
+    }
+    resets
 }
 
 /// Answer one request (kind byte `k`, `payload`).
@@ -215,14 +299,18 @@ async fn handle<F: NorFlash>(
                     return reject(sh, Refusal::Storage);
                 }
                 sh.release();
-                let uploads_accepted = sh.model.lock(|m| {
+                let (uploads_accepted, model_crc32) = sh.model.lock(|m| {
                     let mut m = m.borrow_mut();
                     m.uploads_ok = m.uploads_ok.wrapping_add(1);
-                    m.uploads_ok
+                    (m.uploads_ok, m.model_crc32)
                 });
-                info!("model {=u32} stored and installed", id);
+                info!(
+                    "model {=u32:#x} (blob CRC {=u32:#x}) stored and installed",
+                    id, model_crc32
+                );
                 Reply::UploadCommit {
                     model_id: id,
+                    model_crc32,
                     uploads_accepted,
                 }
             }
@@ -261,6 +349,9 @@ async fn handle<F: NorFlash>(
             Reply::Bypass
         }
         Request::ConfigGet => Reply::ConfigGet(sh.settings.lock(|s| *s.borrow())),
+        // decoded as stored records are, then held to today's ranges (a stored record may come
+        // from a firmware with other limits; a new one may not)
+        Request::ConfigSet(s) if s.validate().is_err() => Reply::refused(Refusal::Settings),
         Request::ConfigSet(s) => match store.save_settings(&s.encode()).await {
             Ok(()) => {
                 apply_settings(sh, s);
@@ -291,6 +382,7 @@ fn hello(sh: &Shared) -> Hello {
         firmware,
         uid: sh.identity.uid,
         reset_cause: sh.identity.reset_cause,
+        reset_site: sh.identity.reset_site.text(),
     }
 }
 
@@ -362,6 +454,7 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
         if let Some(model) = &m.model {
             s.flags |= Flags::MODEL;
             s.model_id = model.id();
+            s.model_crc32 = m.model_crc32;
             for a in 0..model.axes().min(3) {
                 s.kmz_um[a] = model.kmz_offset_um(a);
             }
@@ -370,11 +463,18 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
             }
         }
         for (i, ch) in m.faults.channels.iter().enumerate().take(STATUS_SENSORS) {
-            s.temps_c[i] = ch.value_c().unwrap_or(f32::NAN);
+            // the fold's input (the average of the fold period), for a usable channel
+            s.temps_c[i] = match ch.value_c() {
+                Some(_) => m.slow.temps_c[i] as f32,
+                None => f32::NAN,
+            };
             s.sensor_bits[i] = ch.status_bits();
         }
         for (i, ch) in m.aux_faults.channels.iter().enumerate().take(STATUS_AUX) {
-            s.aux[i] = ch.value_c().unwrap_or(f32::NAN);
+            s.aux[i] = match ch.value_c() {
+                Some(_) => m.slow.aux[i] as f32,
+                None => f32::NAN,
+            };
             s.aux_bits[i] = ch.status_bits();
         }
         s.slow_outside = m.slow_outside;

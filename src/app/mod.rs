@@ -32,7 +32,7 @@ use nanocal_compensator::fault::{Faults, Policy, MAX_CHANNELS};
 use nanocal_compensator::gcs::AxisMap;
 use nanocal_compensator::inputs::{self, FastSamples};
 use nanocal_compensator::proxy::{FoldCorrector, Gate, Proxy};
-use nanocal_interface::identity::ResetCause;
+use nanocal_interface::identity::{ResetCause, Site};
 use nanocal_interface::mgmt::Refusal;
 use nanocal_interface::settings::Settings;
 use nanocal_model::{Model, SlowInputs, MAX_AUX};
@@ -105,15 +105,19 @@ pub struct Identity {
     pub uid: [u8; 12],
     /// Why it last reset.
     pub reset_cause: ResetCause,
+    /// Where, when the firmware recorded it (a panic's line, an ECC error's address).
+    pub reset_site: Site<'static>,
 }
 
 /// The model and everything the slow path and management need.
 pub struct ModelState {
     /// The model in service.
     pub model: Option<Model>,
+    /// The CRC-32 its blob carries (the content hash the status reports; 0 without a model).
+    pub model_crc32: u32,
     /// Increases with every model change (the sensor task restarts its lag filters on change).
     pub generation: u32,
-    /// Slow inputs of the last fold.
+    /// Slow inputs of the last fold: the readings averaged over the fold period.
     pub slow: SlowInputs,
     /// Temperature fault policy state.
     pub faults: Faults,
@@ -170,15 +174,89 @@ pub struct Shared {
     /// The host closed or opened the GCS port: the host link drops what belongs to the old
     /// connection.
     pub host_hangup: Signal<Cs, ()>,
-    /// Host sessions so far (incremented at every open and close of the GCS port): bytes read
-    /// in one session are never handed to the proxy in the next.
-    pub session: AtomicU32,
+    /// The host closed the management port (its line state, where the board has it): a frame
+    /// still arriving is dropped at once.
+    pub mgmt_hangup: Signal<Cs, ()>,
     /// Bytes were queued for the stage controller: the stage link watches for its reply.
     pub stage_sent: Signal<Cs, ()>,
     /// Heartbeat of the sensor task (ms since boot of its last completed cycle).
     pub sensor_beat_ms: AtomicU32,
+    /// The link and management tasks, busy or idle ([`task`]): the supervisor stops petting the
+    /// watchdog when one stays busy past its limit.
+    pub beats: [Beat; task::COUNT],
     /// Flash double words that failed ECC on read.
     pub flash_ecc_errors: AtomicU32,
+    /// Host sessions so far (incremented at every open and close of the GCS port): bytes read
+    /// in one session are never handed to the proxy in the next, and the host pump drops what
+    /// belongs to an older one.
+    pub host_session: AtomicU32,
+    /// A host session ended: the host pump's write in progress is cancelled.
+    pub host_cancel: Signal<Cs, ()>,
+    /// Bytes for the host dropped because it did not read them.
+    pub host_bytes_dropped: AtomicU32,
+}
+
+/// The tasks with heartbeats ([`Shared::beats`]) and how long each may stay busy.
+pub mod task {
+    /// Host link, host → proxy (waits for room toward the stage controller).
+    pub const HOST_IN: usize = 0;
+    /// Stage link, controller → proxy (never waits for the host).
+    pub const STAGE_IN: usize = 1;
+    /// Stage link, proxy → controller (waits for the UART to send).
+    pub const STAGE_OUT: usize = 2;
+    /// Management: one request, store writes included.
+    pub const MGMT: usize = 3;
+    /// Tasks with a heartbeat.
+    pub const COUNT: usize = 4;
+    /// How long each may stay busy, ms: 256 bytes at 1 200 Bd take 2.1 s; a store write with
+    /// its erases ~0.2 s.
+    pub const LIMIT_MS: [u32; COUNT] = [5_000, 5_000, 5_000, 5_000];
+    /// Names, for the log.
+    pub const NAMES: [&str; COUNT] = [
+        "host link",
+        "stage link (in)",
+        "stage link (out)",
+        "management",
+    ];
+}
+
+/// A task's heartbeat: since when it has been busy (0: idle).
+pub struct Beat(AtomicU32);
+
+/// Busy until dropped.
+pub struct Busy<'a>(&'a Beat);
+
+impl Beat {
+    /// Idle.
+    pub const fn new() -> Self {
+        Self(AtomicU32::new(0))
+    }
+
+    /// Busy from `now_ms` until the guard is dropped.
+    pub fn busy(&self, now_ms: u32) -> Busy<'_> {
+        self.0.store(now_ms | 1, Ordering::Relaxed);
+        Busy(self)
+    }
+
+    /// How long it has been busy at `now_ms` (0 when idle).
+    pub fn busy_for_ms(&self, now_ms: u32) -> u32 {
+        match self.0.load(Ordering::Relaxed) {
+            0 => 0,
+            since => now_ms.wrapping_sub(since),
+        }
+    }
+}
+
+impl Default for Beat {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Drop for Busy<'_> {
+    fn drop(&mut self) {
+        self.0 .0.store(0, Ordering::Relaxed);
+    }
 }
 
 impl Shared {
@@ -201,8 +279,14 @@ impl Shared {
             })),
             model: Mutex::new(RefCell::new(ModelState {
                 model: None,
+                model_crc32: 0,
                 generation: 0,
-                slow: SlowInputs::default(),
+                // no input read yet: the status shows none until the first fold
+                slow: SlowInputs {
+                    temps_c: [f64::NAN; nanocal_model::MAX_TEMPS],
+                    aux: [f64::NAN; MAX_AUX],
+                    ..SlowInputs::default()
+                },
                 faults: Faults::new(Policy::default()),
                 aux_faults: Faults::new(aux_policy),
                 slow_outside: 0,
@@ -224,10 +308,14 @@ impl Shared {
             to_stage: Pipe::new(),
             host_connected: AtomicBool::new(true),
             host_hangup: Signal::new(),
-            session: AtomicU32::new(0),
+            mgmt_hangup: Signal::new(),
             stage_sent: Signal::new(),
             sensor_beat_ms: AtomicU32::new(0),
+            beats: [const { Beat::new() }; task::COUNT],
             flash_ecc_errors: AtomicU32::new(0),
+            host_session: AtomicU32::new(0),
+            host_cancel: Signal::new(),
+            host_bytes_dropped: AtomicU32::new(0),
         }
     }
 
@@ -236,10 +324,12 @@ impl Shared {
     /// store has it) and every input it uses has a valid reading: until the sensor task folds
     /// it, moves are refused and replies pass unmapped (never a fold at 0 °C temperatures that
     /// were never read).
-    pub fn stage(&self, model: Model) {
+    /// `crc32` is the CRC its blob carries (`nanocal_model::blob::stored_crc`).
+    pub fn stage(&self, model: Model, crc32: u32) {
         self.model.lock(|m| {
             let mut m = m.borrow_mut();
             m.model = Some(model);
+            m.model_crc32 = crc32;
             m.generation = m.generation.wrapping_add(1);
             m.inputs_ready = false;
             m.pending = true;
@@ -266,6 +356,7 @@ impl Shared {
         self.model.lock(|m| {
             let mut m = m.borrow_mut();
             m.model = None;
+            m.model_crc32 = 0;
             m.generation = m.generation.wrapping_add(1);
             m.inputs_ready = false;
             m.pending = false;
@@ -294,19 +385,23 @@ pub fn now_ms() -> u32 {
     embassy_time::Instant::now().as_millis() as u32
 }
 
-/// Count a flash ECC error (the board's NMI handler or its storage wrapper calls this).
-pub fn count_ecc(sh: &Shared, n: u32) {
-    sh.flash_ecc_errors.fetch_add(n, Ordering::Relaxed);
+/// The store's flash has handed over `total` double words that failed ECC since start-up (as
+/// corrupt: a torn write), for the status.
+pub fn note_flash_ecc_errors(sh: &Shared, total: u32) {
+    sh.flash_ecc_errors.store(total, Ordering::Relaxed);
 }
 
 /// The host closed the GCS port (USB DTR dropped), or opened it: drop the bytes queued for it
-/// and start a new host session in the proxy (no half-received line, queued line, pending
-/// error or reply still due carries over to the next connection: the replies the controller
-/// still sends for the old one are dropped, so the pairing with the controller stays exact);
-/// what the proxy read of the controller, bypass, the move gate and the counters stay.
+/// (and cancel the one being written) and start a new host session in the proxy (no
+/// half-received line, queued line, pending error or reply still due carries over to the next
+/// connection: the replies the controller still sends for the old one are read and dropped, so
+/// the pairing with the controller stays exact,
+/// [`nanocal_compensator::proxy::Proxy::new_session`]); what the proxy read of the controller,
+/// bypass, the move gate and the counters stay.
 pub fn end_host_session(sh: &Shared) {
-    sh.session.fetch_add(1, Ordering::Relaxed);
+    sh.host_session.fetch_add(1, Ordering::AcqRel);
     sh.to_host.clear();
+    sh.host_cancel.signal(());
     sh.core.lock(|c| c.borrow_mut().proxy.new_session());
 }
 
@@ -318,5 +413,13 @@ pub fn host_line_state(sh: &Shared, dtr: bool) {
     if was != dtr {
         end_host_session(sh);
         sh.host_hangup.signal(());
+    }
+}
+
+/// Tell the application the management port's line state (DTR, as [`host_line_state`]): a
+/// fall drops a management frame still arriving (the next connection starts clean).
+pub fn mgmt_line_state(sh: &Shared, dtr: bool) {
+    if !dtr {
+        sh.mgmt_hangup.signal(());
     }
 }

@@ -1,7 +1,9 @@
 //! The sensor task: drive every amplifier at register level (configure, wait for the first
 //! conversion, dump and check its registers every cycle), read the aux sources (barometer,
-//! ADC), apply the fault policy, run the lag filters and fold the model (the slow path).
-//! Publishes the fold and the move gate to the command path.
+//! ADC), apply the fault policy, average the readings over the fold period, and once a fold
+//! period run the lag filters on the averages and fold the model (the slow path,
+//! [`nanocal_compensator::slow_average`]; a new model is folded at once). Publishes the fold
+//! and the move gate to the command path.
 //!
 //! Beside that slow cycle, and sharing the buses with it one transaction at a time, the task
 //! samples the model's fast inputs (a force on an ADC channel) every [`FAST_PERIOD_MS`]: the
@@ -18,14 +20,18 @@ use embassy_futures::join::join;
 use embassy_futures::select::{select3, Either3};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::mutex::Mutex;
-use embassy_time::{with_timeout, Duration, Instant, Timer};
-use nanocal_compensator::fault::MAX_CHANNELS;
+use embassy_time::{with_timeout, Duration, Timer};
+use nanocal_compensator::fault::{ChannelState, MAX_CHANNELS};
 use nanocal_compensator::inputs;
 use nanocal_compensator::lps22hb;
 use nanocal_compensator::proxy::Gate;
 use nanocal_compensator::sensor::{Driver, Outcome, SensorFault, MAX_TXN};
+use nanocal_compensator::slow_average::SlowAverage;
 use nanocal_interface::settings::{AuxSource, Settings};
 use nanocal_model::{LagBank, MAX_AUX};
+
+/// Times the barometer is asked at start-up before it counts as absent.
+const PROBES: usize = 3;
 
 /// Sampling period of the fast inputs, ms.
 pub const FAST_PERIOD_MS: u64 = 10;
@@ -117,17 +123,25 @@ struct Baro {
 }
 
 impl Baro {
+    /// Whether the barometer answers, asked up to [`PROBES`] times: a bus a slave holds at
+    /// power-up fails the first transaction, which frees it (the board's bus recovery).
     async fn probe<B: InputBus>(bus: &SharedBus<B>, timeout: Duration) -> bool {
-        let mut id = [0u8; 1];
-        let mut bus = bus.lock().await;
-        matches!(
-            with_timeout(
-                timeout,
-                bus.i2c(lps22hb::ADDRESS, &[lps22hb::WHO_AM_I], &mut id)
-            )
-            .await,
-            Ok(Ok(()))
-        ) && id[0] == lps22hb::ID
+        for _ in 0..PROBES {
+            let mut id = [0u8; 1];
+            let mut bus = bus.lock().await;
+            let answered = matches!(
+                with_timeout(
+                    timeout,
+                    bus.i2c(lps22hb::ADDRESS, &[lps22hb::WHO_AM_I], &mut id)
+                )
+                .await,
+                Ok(Ok(()))
+            );
+            if answered {
+                return id[0] == lps22hb::ID;
+            }
+        }
+        false
     }
 
     async fn read<B: InputBus>(
@@ -249,7 +263,8 @@ async fn fast_inputs<B: InputBus>(bus: &SharedBus<B>, timeout: Duration, sh: &Sh
     }
 }
 
-/// The slow cycle: temperatures, aux inputs, fault policy, lag filters, fold.
+/// The slow cycle: temperatures, aux inputs, fault policy; once a fold period the averages,
+/// lag filters, fold.
 async fn slow_cycle<B: InputBus>(bus: &SharedBus<B>, timeout: Duration, sh: &Shared) -> ! {
     let mut settings = sh.settings.lock(|s| *s.borrow());
     let mut drv = drivers(&settings);
@@ -267,7 +282,7 @@ async fn slow_cycle<B: InputBus>(bus: &SharedBus<B>, timeout: Duration, sh: &Sha
     info!("barometer: {=bool}", barometer);
     let mut baro = Baro::default();
     let mut lags: Option<(u32, LagBank)> = None;
-    let mut last = Instant::now();
+    let mut average = SlowAverage::new();
     loop {
         let period = Duration::from_millis(u64::from(settings.sample_period_ms));
         if let Either3::Third(()) = select3(
@@ -280,10 +295,7 @@ async fn slow_cycle<B: InputBus>(bus: &SharedBus<B>, timeout: Duration, sh: &Sha
             settings = sh.settings.lock(|s| *s.borrow());
             drv = drivers(&settings);
         }
-        let now = Instant::now();
         let ms = now_ms();
-        let dt_s = (now - last).as_micros() as f64 * 1e-6;
-        last = now;
         // sample outside any lock
         let mut readings = [None; MAX_CHANNELS];
         let mut reconfigs = 0;
@@ -303,66 +315,93 @@ async fn slow_cycle<B: InputBus>(bus: &SharedBus<B>, timeout: Duration, sh: &Sha
             let mut m = m.borrow_mut();
             let m = &mut *m;
             m.sensor_reconfigs = m.sensor_reconfigs.wrapping_add(reconfigs);
+            // this cycle's good readings join the fold period's averages (a reading the
+            // policy accepted leaves its channel Ok, holding that reading)
             for (cs, r) in readings.iter().enumerate() {
                 match r {
-                    Some(r) => m.faults.update(cs, *r, ms),
+                    Some(r) => {
+                        m.faults.update(cs, *r, ms);
+                        let ch = &m.faults.channels[cs];
+                        if r.is_ok() && ch.state == ChannelState::Ok {
+                            average.add_temp(cs, ch.last_good_c);
+                        }
+                    }
                     None => m.faults.tick(cs, ms),
                 }
             }
             for (i, r) in aux.iter().enumerate() {
                 match r {
-                    Some(r) => m.aux_faults.update(i, *r, ms),
+                    Some(r) => {
+                        m.aux_faults.update(i, *r, ms);
+                        let ch = &m.aux_faults.channels[i];
+                        if r.is_ok() && ch.state == ChannelState::Ok {
+                            average.add_aux(i, ch.last_good_c);
+                        }
+                    }
                     None => m.aux_faults.tick(i, ms),
                 }
             }
-            for (i, ch) in m.faults.channels.iter().enumerate() {
-                if let Some(t) = ch.value_c() {
-                    m.slow.temps_c[i] = f64::from(t);
-                }
-            }
-            for (i, ch) in m.aux_faults.channels.iter().take(MAX_AUX).enumerate() {
-                if let Some(v) = ch.value_c() {
-                    m.slow.aux[i] = f64::from(v);
-                }
-            }
+            let fold_ms = u32::from(settings.fold_period_ms);
+            let ready = m.model.as_ref().filter(|_| !m.pending).map(|model| {
+                m.faults.all_usable(model.temps()) && m.aux_faults.all_usable(model.aux())
+            });
+            // a model released and readable for the first time is folded at once
+            let first = ready == Some(true)
+                && !matches!(&lags, Some((g, _)) if *g == m.generation && m.inputs_ready);
+            let dt_s = if average.due(ms, fold_ms) || first {
+                // a channel without a reading in the period holds the policy's value
+                let (t, a) = (&m.faults.channels, &m.aux_faults.channels);
+                let held = |i: usize| match i.checked_sub(t.len()) {
+                    None => t[i].value_c(),
+                    Some(k) => a.get(k).and_then(|c| c.value_c()),
+                };
+                Some(average.fold(ms, &mut m.slow, held))
+            } else {
+                None
+            };
             let model = m.model.as_ref()?;
             if m.pending {
                 // received, not stored yet: no move may use it
                 return Some(None);
             }
             let (temps, auxn) = (model.temps(), model.aux());
-            let ready = m.faults.all_usable(temps) && m.aux_faults.all_usable(auxn);
-            if !ready {
+            let blocked = m.faults.blocks_moves(temps) || m.aux_faults.blocks_moves(auxn);
+            if ready != Some(true) {
                 // never prime lag filters or fold on inputs that were never read
                 if !m.inputs_ready {
                     lags = None;
                 }
                 return Some(None);
             }
+            let Some(dt_s) = dt_s else {
+                // between folds the fold in force stands; a failed input closes the gate now,
+                // the next fold opens it again
+                return Some(Some((None, blocked)));
+            };
             m.inputs_ready = true;
             let bank = match &mut lags {
                 Some((g, bank)) if *g == m.generation => bank,
-                // a new bank primes on these (valid) readings
+                // a new bank primes on these (valid) averages
                 _ => &mut lags.insert((m.generation, LagBank::new(model.lags()))).1,
             };
             bank.update(&m.slow.temps_c, dt_s, &mut m.slow.lagged_c);
             let comp = Comp::new(model, &m.slow);
             m.slow_outside = comp.fold.slow_outside_envelope();
             m.folds = m.folds.wrapping_add(1);
-            let blocked = m.faults.blocks_moves(temps) || m.aux_faults.blocks_moves(auxn);
-            Some(Some((comp, m.folds, blocked)))
+            Some(Some((Some((comp, m.folds)), blocked)))
         });
         match update {
-            Some(Some((comp, fold, blocked))) => sh.core.lock(|c| {
+            Some(Some((folded, blocked))) => sh.core.lock(|c| {
                 let mut c = c.borrow_mut();
-                c.comp = Some(comp);
-                c.comp_fold = fold;
-                c.folded_at_ms = ms;
-                c.proxy.gate = if blocked {
-                    Gate::SensorFault
-                } else {
-                    Gate::Open
-                };
+                if let Some((comp, fold)) = folded {
+                    c.comp = Some(comp);
+                    c.comp_fold = fold;
+                    c.folded_at_ms = ms;
+                    c.proxy.gate = Gate::Open;
+                }
+                if blocked {
+                    c.proxy.gate = Gate::SensorFault;
+                }
             }),
             Some(None) => sh
                 .core

@@ -1,8 +1,11 @@
 //! The supervisor task: refuses moves on a stale fold, drives the status LED, and pets the
-//! watchdog only while the sensor task makes progress — a hung sensor task or a blocked
-//! executor resets the board (IWDG on the STM32, the CMSDK watchdog on QEMU).
+//! watchdog only while the sensor task makes progress and no link or management task is stuck
+//! in a step that should end (a stage-link write the UART never sends, a store write) — a hung
+//! task or a blocked executor resets the board (IWDG on the STM32, the CMSDK watchdog on
+//! QEMU). Waiting for input is no hang, nor is a host that does not read (its bytes are
+//! dropped, see `links.rs`).
 
-use super::{now_ms, Shared};
+use super::{now_ms, task, Shared};
 use core::sync::atomic::Ordering;
 use embassy_time::Timer;
 use nanocal_compensator::proxy::Gate;
@@ -16,11 +19,22 @@ pub trait Board {
     fn pet_watchdog(&mut self);
 }
 
-/// Longest a fold may age before moves are refused, ms: two sample periods plus a bus-timeout
-/// allowance for eight chips and the aux sources.
+/// Longest a fold may age before moves are refused, ms: two fold periods (a fold runs at the
+/// first sample cycle a fold period after the last, so at most a sample period late) plus a
+/// bus-timeout allowance for the chips and the aux sources.
 pub fn stale_limit_ms(sh: &Shared) -> u32 {
-    let period = sh.settings.lock(|s| u32::from(s.borrow().sample_period_ms));
-    2 * period + 4000
+    limits_ms(sh).0
+}
+
+/// (stale-fold limit, heartbeat limit), ms: the sensor task beats once a sample cycle, so its
+/// heartbeat may age two sample periods plus the bus-timeout allowance before the watchdog is no
+/// longer petted.
+fn limits_ms(sh: &Shared) -> (u32, u32) {
+    let (sample, fold) = sh.settings.lock(|s| {
+        let s = s.borrow();
+        (u32::from(s.sample_period_ms), u32::from(s.fold_period_ms))
+    });
+    (2 * sample.max(fold) + 4000, 2 * sample + 4000)
 }
 
 /// What the LED shows now.
@@ -49,7 +63,7 @@ pub async fn supervisor<B: Board>(mut board: B, sh: &Shared) -> ! {
     loop {
         Timer::after_millis(u64::from(sleep_ms)).await;
         let now = now_ms();
-        let limit = stale_limit_ms(sh);
+        let (limit, beat_limit) = limits_ms(sh);
         sh.core.lock(|c| {
             let mut c = c.borrow_mut();
             if c.comp.is_some() && now.wrapping_sub(c.folded_at_ms) > limit {
@@ -62,7 +76,15 @@ pub async fn supervisor<B: Board>(mut board: B, sh: &Shared) -> ! {
             .next_edge_ms(now)
             .map_or(SUPERVISE_MS, |e| e.clamp(1, SUPERVISE_MS));
         let beat = sh.sensor_beat_ms.load(Ordering::Relaxed);
-        if now.wrapping_sub(beat) <= limit || now < limit {
+        let sensors_alive = now.wrapping_sub(beat) <= beat_limit || now < beat_limit;
+        let stuck = (0..task::COUNT).find(|&t| sh.beats[t].busy_for_ms(now) > task::LIMIT_MS[t]);
+        if let Some(t) = stuck {
+            warn!(
+                "{=str} stuck: the watchdog will reset the board",
+                task::NAMES[t]
+            );
+        }
+        if sensors_alive && stuck.is_none() {
             board.pet_watchdog();
         }
     }

@@ -1,7 +1,7 @@
 //! QEMU `mps2-an386` board: host link on serial0, stage link on serial1, management on serial3,
-//! the host link's line state (USB DTR stand-in) and the bench's doorbells on serial4; the
-//! virtual bench's page (PSRAM) carries the board's clock and the bus stand-in (SPI/I2C/ADC to
-//! simulated chips); CMSDK watchdog, FPGA LED 0 as the status LED, the L4 flash model in RAM that
+//! the host link's and the management port's line states (USB DTR stand-in) and the bench's
+//! doorbells on serial4; the virtual bench's page (PSRAM) carries the board's clock and the bus
+//! stand-in (SPI/I2C/ADC to simulated chips); CMSDK watchdog, FPGA LED 0 as the status LED, the L4 flash model in RAM that
 //! survives a system reset.
 #![no_std]
 #![no_main]
@@ -18,6 +18,7 @@ use nanocal_fw::qemu::board::{self, TimedFlash};
 use nanocal_fw::qemu::sensor_bus::MailboxBus;
 use nanocal_fw::qemu::uart::{self, Uart, UartRx, UartTx};
 use nanocal_fw::qemu::{self, executor, time};
+use nanocal_interface::bench_link;
 use static_cell::StaticCell;
 
 /// Store erase unit: four 2 KiB pages (a whole blob fits one unit).
@@ -71,21 +72,27 @@ async fn management_task(
     app::management(rx, tx, store, board::software_reset, sh).await
 }
 
-/// The host link's line state: the bench sends C0h | bits of USB CDC SET_CONTROL_LINE_STATE's
-/// wValue (bit 0 DTR, bit 1 RTS) whenever its GCS client opens or closes the port. The bench's
-/// doorbells on the same port only wake the board (its clock reads the new horizon when idle).
+/// The ports' line states: the bench sends C0h | bits of USB CDC SET_CONTROL_LINE_STATE's
+/// wValue (bit 0 DTR, bit 1 RTS) whenever its GCS client opens or closes the port, B0h | bits
+/// for its management client (`nanocal_interface::bench_link::LINE_*`); the board counts each
+/// one it applied in the bench's page (`LINE_STATES`: the bench waits for it before it talks
+/// to the new session). The bench's doorbells on the same port only wake the board (its clock
+/// reads the new horizon when idle).
 #[embassy_executor::task]
 async fn line_state_task(mut rx: UartRx, sh: &'static Shared) {
     let mut buf = [0u8; 16];
     loop {
         let n = rx.read(&mut buf).await.unwrap_or(0);
         for &b in &buf[..n] {
-            if b & 0xF0 == 0xC0 {
-                app::host_line_state(sh, b & 1 != 0);
-                // the bench waits for this before it talks to the new session
-                let off = nanocal_interface::bench_link::LINE_STATES;
-                qemu::link::write_u32(off, qemu::link::read_u32(off).wrapping_add(1));
+            let dtr = b & bench_link::LINE_DTR != 0;
+            match b & 0xF0 {
+                bench_link::LINE_HOST => app::host_line_state(sh, dtr),
+                bench_link::LINE_MGMT => app::mgmt_line_state(sh, dtr),
+                // a doorbell: it only woke the board
+                _ => continue,
             }
+            let off = bench_link::LINE_STATES;
+            qemu::link::write_u32(off, qemu::link::read_u32(off).wrapping_add(1));
         }
     }
 }
@@ -141,6 +148,7 @@ async fn boot_task(spawner: Spawner, cause: nanocal_interface::identity::ResetCa
     let identity = Identity {
         uid: *b"QEMU-mps2-an",
         reset_cause: cause,
+        reset_site: nanocal_interface::identity::Site::None,
     };
     let sh: &'static Shared = SHARED.init(Shared::new(settings, identity));
     // SAFETY: each UART index is taken exactly once, here.

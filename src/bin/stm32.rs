@@ -9,284 +9,54 @@
 
 use defmt_rtt as _;
 
-use core::ptr::{read_volatile, write_volatile};
-use core::sync::atomic::{AtomicBool, Ordering};
-use cortex_m_rt::exception;
+use core::sync::atomic::Ordering;
 use embassy_executor::Spawner;
-use embassy_stm32::adc::{Adc, SampleTime};
+use embassy_stm32::adc::Adc;
 use embassy_stm32::gpio::{Level, Output, Pull, Speed};
 use embassy_stm32::i2c::{self, I2c};
-use embassy_stm32::mode::{Async, Blocking};
-use embassy_stm32::peripherals::{ADC1, DMA1_CH2, DMA1_CH3, PC5, UART4, USB_OTG_FS};
+use embassy_stm32::peripherals::{DMA1_CH2, DMA1_CH3, UART4, USB_OTG_FS};
 use embassy_stm32::spi::{self, Spi};
 use embassy_stm32::time::Hertz;
-use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
+use embassy_stm32::usart::{self, BufferedUart, BufferedUartTx};
 use embassy_stm32::wdg::IndependentWatchdog;
-use embassy_stm32::{bind_interrupts, dma, usb, Config, Peri};
+use embassy_stm32::{bind_interrupts, dma, usb, Config};
 use embassy_time::{Duration, Timer};
-use embassy_usb::class::cdc_acm::{BufferedReceiver, CdcAcmClass, ControlChanged, Sender, State};
+use embassy_usb::class::cdc_acm::{CdcAcmClass, ControlChanged, State};
 use embassy_usb::UsbDevice;
 use nanocal_compensator::clock;
-use nanocal_compensator::l4flash::{FlashError, L4Nor, RawFlash, DWORD, PAGE};
+use nanocal_compensator::l4flash::L4Nor;
 use nanocal_compensator::store::Store;
-use nanocal_fw::app::{self, Identity, InputBus, Shared};
-use nanocal_interface::identity::{self, ResetCause};
+use nanocal_fw::app::{self, Identity, Shared};
+use nanocal_fw::stm32::buses::{Buses, I2C_TIMEOUT};
+use nanocal_fw::stm32::crash;
+use nanocal_fw::stm32::flash::{self, L4Flash, ERASE};
+use nanocal_fw::stm32::stage::{StageRx, StageRxWatch, RX_RING};
+use nanocal_fw::stm32::usb::{LineWatch, UsbDriver, UsbRx, UsbTx, USB_PACKET};
+use nanocal_interface::identity::{self, ResetCause, Site};
+use nanocal_interface::settings::{Settings, MAX_STAGE_BAUD, MIN_STAGE_BAUD};
 use static_cell::StaticCell;
 
 bind_interrupts!(struct Irqs {
     OTG_FS => usb::InterruptHandler<USB_OTG_FS>;
-    UART4 => usart::BufferedInterruptHandler<UART4>;
+    // the loss watch reads UART4's status before embassy's handler clears it
+    UART4 => StageRxWatch, usart::BufferedInterruptHandler<UART4>;
     DMA1_CHANNEL2 => dma::InterruptHandler<DMA1_CH2>;
     DMA1_CHANNEL3 => dma::InterruptHandler<DMA1_CH3>;
 });
 
-/// Chip-selects, one per amplifier, on the Arduino Uno V3 connector's free pins (UM2153's connector
-/// table; the same mapping as Zephyr's disco_l475_iot1 board): D10 PA2, D9 PA15, D8 PB2, D7 PA4, D6 PB1, D5 PB4, D4 PA3, D3 PB0, D2 PD14, A1 PC4, A2 PC3,
-/// A3 PC2, A4 PC1, A5 PC0, D14 PB9, D15 PB8): 16, as many as the settings and the model can
-/// name. D0/D1 are the stage link, D11–D13 SPI1, A0 the force input.
-const CS_PINS: usize = 16;
-/// The store: the last 64 KiB of flash (bank 2, pages 224..255), excluded from FLASH in
-/// memory.x.
-const STORE_BASE: u32 = 0x080F_0000;
-const STORE_SIZE: usize = 64 * 1024;
-const BANK2_BASE: u32 = 0x0808_0000;
-/// Store erase unit: four 2 KiB pages (a whole blob fits one unit).
-const ERASE: usize = 8 * 1024;
-/// USB packet size of the CDC-ACM endpoints.
-const USB_PACKET: u16 = 64;
-
-type UsbDriver = usb::Driver<'static, USB_OTG_FS>;
 type Flash = L4Nor<L4Flash, ERASE>;
 
-// ---------------------------------------------------------------- flash (RM0351 §3.3, §3.7)
-
-const FLASH_KEYR: usize = 0x4002_2008;
-const FLASH_SR: usize = 0x4002_2010;
-const FLASH_CR: usize = 0x4002_2014;
-const FLASH_ECCR: usize = 0x4002_2018;
 const FLASH_ACR: usize = 0x4002_2000;
-const SR_BSY: u32 = 1 << 16;
-/// OPTVERR, RDERR, FASTERR, MISERR, PGSERR, SIZERR, PGAERR, WRPERR, PROGERR, OPERR.
-const SR_ERRORS: u32 = 0xC3FA;
-const CR_PG: u32 = 1 << 0;
-const CR_PER: u32 = 1 << 1;
-const CR_BKER: u32 = 1 << 11;
-const CR_STRT: u32 = 1 << 16;
-const CR_LOCK: u32 = 1 << 31;
-const ECCR_ECCD: u32 = 1 << 31;
-
-/// Set by the NMI handler when a flash read hit a double ECC error.
-static ECC_ERROR: AtomicBool = AtomicBool::new(false);
-
-/// True until the executor runs the tasks: the store's flash waits spin instead of awaiting a
-/// timer (embassy-time's timers need an executor task; at start-up nothing else runs).
-static BOOTING: AtomicBool = AtomicBool::new(true);
 
 fn reg(a: usize) -> u32 {
-    // SAFETY: FLASH controller register, 32-bit access.
-    unsafe { read_volatile(a as *const u32) }
+    // SAFETY: a peripheral register, 32-bit access.
+    unsafe { core::ptr::read_volatile(a as *const u32) }
 }
 
 fn set(a: usize, v: u32) {
     // SAFETY: as above.
-    unsafe { write_volatile(a as *mut u32, v) }
+    unsafe { core::ptr::write_volatile(a as *mut u32, v) }
 }
-
-/// A flash read with two bit errors raises the NMI (RM0351 §3.3.4): clear ECCD and flag it, so
-/// the read returns and the store treats that double word as corrupt. cortex-m-rt's default
-/// handler would loop for ever and every boot that reads a torn double word would hang. Any
-/// other NMI (clock security system) stops here and the IWDG resets the board.
-#[exception]
-unsafe fn NonMaskableInt() {
-    let eccr = reg(FLASH_ECCR);
-    if eccr & ECCR_ECCD != 0 {
-        set(FLASH_ECCR, eccr);
-        ECC_ERROR.store(true, Ordering::SeqCst);
-        return;
-    }
-    loop {
-        cortex_m::asm::nop();
-    }
-}
-
-/// A panic logs where it happened (defmt over RTT; the message would pull in `core::fmt`,
-/// about 3 KiB of flash, for the few panics the firmware has, all on start-up paths) and ends in
-/// a permanent UDF, which probe-rs reports with a backtrace; without a probe the IWDG resets
-/// the board.
-#[panic_handler]
-fn panic(info: &core::panic::PanicInfo) -> ! {
-    match info.location() {
-        Some(l) => defmt::error!("panic at {=str}:{=u32}", l.file(), l.line()),
-        None => defmt::error!("panic"),
-    }
-    cortex_m::asm::udf()
-}
-
-/// The store's flash: bank 2, erased and programmed through the controller's registers with
-/// BSY polled asynchronously. Code runs from bank 1, so while bank 2 is busy the executor keeps
-/// serving the command path (read-while-write, RM0351 §3.3.1) instead of stalling ~22 ms per
-/// page as embassy-stm32's blocking flash driver does.
-struct L4Flash;
-
-impl L4Flash {
-    fn unlock() {
-        if reg(FLASH_CR) & CR_LOCK != 0 {
-            set(FLASH_KEYR, 0x4567_0123);
-            set(FLASH_KEYR, 0xCDEF_89AB);
-        }
-    }
-
-    async fn wait_idle(poll_us: u64) -> Result<(), FlashError> {
-        while reg(FLASH_SR) & SR_BSY != 0 {
-            if BOOTING.load(Ordering::Relaxed) {
-                continue;
-            }
-            if poll_us == 0 {
-                embassy_futures::yield_now().await;
-            } else {
-                Timer::after_micros(poll_us).await;
-            }
-        }
-        let sr = reg(FLASH_SR);
-        set(FLASH_SR, sr & (SR_ERRORS | 1));
-        if sr & SR_ERRORS != 0 {
-            return Err(FlashError::Controller);
-        }
-        Ok(())
-    }
-
-    /// Reset the data cache after an erase (RM0351 §3.3.3: stale lines may hold old data).
-    fn reset_dcache() {
-        let acr = reg(FLASH_ACR);
-        set(FLASH_ACR, acr & !(1 << 10));
-        set(FLASH_ACR, (acr & !(1 << 10)) | (1 << 12));
-        set(FLASH_ACR, acr & !(1 << 12));
-    }
-}
-
-impl RawFlash for L4Flash {
-    fn capacity(&self) -> usize {
-        STORE_SIZE
-    }
-
-    fn read_dword(&mut self, offset: u32) -> [u8; DWORD] {
-        let a = (STORE_BASE + offset) as usize;
-        let (lo, hi) = (reg(a), reg(a + 4));
-        let mut d = [0u8; DWORD];
-        d[..4].copy_from_slice(&lo.to_le_bytes());
-        d[4..].copy_from_slice(&hi.to_le_bytes());
-        d
-    }
-
-    fn take_ecc_error(&mut self) -> bool {
-        ECC_ERROR.swap(false, Ordering::SeqCst)
-    }
-
-    async fn erase_page(&mut self, offset: u32) -> Result<(), FlashError> {
-        let page = (STORE_BASE + offset - BANK2_BASE) / PAGE as u32;
-        Self::wait_idle(500).await?;
-        Self::unlock();
-        set(FLASH_CR, CR_PER | CR_BKER | (page << 3));
-        set(FLASH_CR, CR_PER | CR_BKER | (page << 3) | CR_STRT);
-        let r = Self::wait_idle(1000).await;
-        set(FLASH_CR, CR_LOCK);
-        Self::reset_dcache();
-        r
-    }
-
-    async fn program_dword(&mut self, offset: u32, data: [u8; DWORD]) -> Result<(), FlashError> {
-        let a = (STORE_BASE + offset) as usize;
-        Self::wait_idle(0).await?;
-        Self::unlock();
-        set(FLASH_CR, CR_PG);
-        let w = |i: usize| u32::from_le_bytes([data[i], data[i + 1], data[i + 2], data[i + 3]]);
-        set(a, w(0));
-        set(a + 4, w(4));
-        let r = Self::wait_idle(0).await;
-        set(FLASH_CR, CR_LOCK);
-        r
-    }
-}
-
-// ---------------------------------------------------------------- buses
-
-/// SPI1 (DMA) with one chip-select per sensor, I2C2 (the LPS22HB), ADC1 channel A0.
-struct Buses {
-    spi: Spi<'static, Async, spi::mode::Master>,
-    cs: [Output<'static>; CS_PINS],
-    i2c: I2c<'static, Blocking, i2c::Master>,
-    adc: Adc<'static, ADC1>,
-    a0: Peri<'static, PC5>,
-}
-
-impl InputBus for Buses {
-    async fn spi(&mut self, cs: u8, buf: &mut [u8]) -> Result<(), ()> {
-        let Some(pin) = self.cs.get_mut(usize::from(cs)) else {
-            buf.fill(0xFF); // nothing wired: MISO pull-up
-            return Ok(());
-        };
-        pin.set_low();
-        // DMA transfer: the executor runs the command path meanwhile
-        let r = self.spi.transfer_in_place(buf).await;
-        pin.set_high();
-        r.map_err(|_| ())
-    }
-
-    async fn i2c(&mut self, addr: u8, w: &[u8], r: &mut [u8]) -> Result<(), ()> {
-        // a few bytes at 400 kHz (< 0.2 ms): blocking is shorter than a context switch
-        let res = if r.is_empty() {
-            self.i2c.blocking_write(addr, w)
-        } else {
-            self.i2c.blocking_write_read(addr, w, r)
-        };
-        res.map_err(|_| ())
-    }
-
-    async fn adc(&mut self, channel: u8) -> Result<u16, ()> {
-        if channel != 0 {
-            return Err(());
-        }
-        Ok(self
-            .adc
-            .blocking_read(&mut self.a0, SampleTime::CYCLES247_5))
-    }
-
-    fn adc_channels(&self) -> u32 {
-        1
-    }
-
-    fn chip_selects(&self) -> u8 {
-        // see `CS_PINS`
-        self.cs.len() as u8
-    }
-}
-
-// ---------------------------------------------------------------- USB
-
-/// CDC-ACM sender writing at most one short packet per call, so that no zero-length packet is
-/// ever needed to end a transfer. With DTR low nobody has the port open: the bytes belong to no
-/// connection and are dropped instead of piling up for the next one.
-struct UsbTx(Sender<'static, UsbDriver>);
-
-impl embedded_io_async::ErrorType for UsbTx {
-    type Error = embassy_usb::class::cdc_acm::CdcAcmError;
-}
-
-impl embedded_io_async::Write for UsbTx {
-    async fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
-        let n = buf.len().min(usize::from(USB_PACKET) - 1);
-        if !self.0.dtr() {
-            return Ok(n);
-        }
-        self.0.write(&buf[..n]).await
-    }
-
-    async fn flush(&mut self) -> Result<(), Self::Error> {
-        Ok(())
-    }
-}
-
-type UsbRx = BufferedReceiver<'static, UsbDriver>;
 
 static SHARED: StaticCell<Shared> = StaticCell::new();
 static STORE: StaticCell<Store<Flash>> = StaticCell::new();
@@ -297,11 +67,27 @@ async fn usb_task(mut dev: UsbDevice<'static, UsbDriver>) {
     dev.run().await
 }
 
-/// The GCS port's line state: a DTR fall ends the host session.
+/// The GCS port's line state: a DTR fall ends the host session — also a fall and rise that
+/// came in between two looks (counted by [`LineWatch`]).
 #[embassy_executor::task]
-async fn line_state_task(ctl: ControlChanged<'static>, sh: &'static Shared) {
+async fn line_state_task(sh: &'static Shared) {
+    let mut falls_seen = 0;
     loop {
-        app::host_line_state(sh, ctl.dtr());
+        let (falls, dtr) = LineWatch::state();
+        if falls != falls_seen {
+            falls_seen = falls;
+            app::host_line_state(sh, false);
+        }
+        app::host_line_state(sh, dtr);
+        LineWatch::changed().await;
+    }
+}
+
+/// The management port's line state: a DTR fall drops a management frame still arriving.
+#[embassy_executor::task]
+async fn mgmt_line_state_task(ctl: ControlChanged<'static>, sh: &'static Shared) {
+    loop {
+        app::mgmt_line_state(sh, ctl.dtr());
         ctl.control_changed().await;
     }
 }
@@ -312,11 +98,7 @@ async fn host_link_task(rx: UsbRx, tx: UsbTx, sh: &'static Shared) {
 }
 
 #[embassy_executor::task]
-async fn stage_link_task(
-    rx: BufferedUartRx<'static>,
-    tx: BufferedUartTx<'static>,
-    sh: &'static Shared,
-) {
+async fn stage_link_task(rx: StageRx, tx: BufferedUartTx<'static>, sh: &'static Shared) {
     app::stage_link(rx, tx, sh).await
 }
 
@@ -375,6 +157,12 @@ fn clocks() -> Config {
     });
     config.rcc.sys = Sysclk::PLL1_R;
     config.rcc.mux.clk48sel = mux::Clk48sel::MSI;
+    // The ADC's kernel clock: CCIPR.ADCSEL resets to 00, "no clock" (RM0351 §6.4.28), and
+    // embassy-stm32 leaves ADC_CCR.CKMODE at 00 (the asynchronous clock), so an unset mux
+    // leaves the ADC unclocked: `Adc::new` spins on ADCAL for ever and the watchdog resets the
+    // board every 2 s (issue 16; tests/stm32_boot.rs). SYSCLK (80 MHz) is within the ADC's
+    // 80 MHz maximum (datasheet fADC).
+    config.rcc.mux.adcsel = mux::Adcsel::SYS;
     config
 }
 
@@ -393,18 +181,37 @@ fn flash_latency_first() {
     while reg(FLASH_ACR) & 0x7 != ws {}
 }
 
-/// Why the chip reset (RCC_CSR, RM0351 §6.4.29), then clear the flags (RMVF).
-fn reset_cause() -> ResetCause {
+/// Why the chip reset: the firmware's own record when it made one (a panic, an ECC error
+/// outside the store, a HardFault — RCC_CSR would say "watchdog" or "software"), else RCC_CSR
+/// (RM0351 §6.4.29); the flags are cleared (RMVF).
+fn reset_cause() -> (ResetCause, Site<'static>) {
     const RCC_CSR: usize = 0x4002_1094;
     let csr = reg(RCC_CSR);
     set(RCC_CSR, csr | (1 << 23));
-    ResetCause::from_rcc_csr(csr)
+    crash::take().unwrap_or((ResetCause::from_rcc_csr(csr), Site::None))
+}
+
+/// The stage link's UART at the stored baud rate. A rate the USART cannot make (a record stored
+/// by a firmware that accepted it) must not stop the board at every boot: the default is used
+/// instead, and the settings show what is stored.
+fn stage_uart_config(settings: &Settings) -> usart::Config {
+    let mut c = usart::Config::default();
+    c.baudrate = settings.stage_baud;
+    if !(MIN_STAGE_BAUD..=MAX_STAGE_BAUD).contains(&c.baudrate) {
+        defmt::warn!(
+            "stored stage baud rate {=u32} is out of range: {=u32} in force",
+            c.baudrate,
+            Settings::default().stage_baud
+        );
+        c.baudrate = Settings::default().stage_baud;
+    }
+    c
 }
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
     flash_latency_first();
-    let cause = reset_cause();
+    let (cause, site) = reset_cause();
     let p = embassy_stm32::init(clocks());
     // the watchdog first: a hang anywhere from here on resets the board
     let mut wdg = IndependentWatchdog::new(p.IWDG, 2_000_000);
@@ -420,12 +227,13 @@ async fn main(spawner: Spawner) {
     // polled here before any task runs (flash waits spin meanwhile, see `BOOTING`), so the main
     // task's future does not keep the store's read state for ever
     let settings = embassy_futures::block_on(app::load_settings(store));
-    BOOTING.store(false, Ordering::Relaxed);
+    flash::booted();
     let sh: &'static Shared = SHARED.init(Shared::new(
         settings,
         Identity {
             uid,
             reset_cause: cause,
+            reset_site: site,
         },
     ));
     // nobody has the GCS port open until the host raises DTR
@@ -465,6 +273,7 @@ async fn main(spawner: Spawner) {
     static MGMT_STATE: StaticCell<State> = StaticCell::new();
     static GCS_RX: StaticCell<[u8; 64]> = StaticCell::new();
     static MGMT_RX: StaticCell<[u8; 64]> = StaticCell::new();
+    static LINE_WATCH: StaticCell<LineWatch> = StaticCell::new();
     let mut builder = embassy_usb::Builder::new(
         driver,
         config,
@@ -473,30 +282,31 @@ async fn main(spawner: Spawner) {
         MSOS_DESC.init([]),
         CONTROL.init([0; 64]),
     );
+    // before the CDC functions: it sees the GCS port's line state requests first
+    builder.handler(LINE_WATCH.init(LineWatch::new()));
     let gcs = CdcAcmClass::new(&mut builder, GCS_STATE.init(State::new()), USB_PACKET);
     let mgmt = CdcAcmClass::new(&mut builder, MGMT_STATE.init(State::new()), USB_PACKET);
     let usb = builder.build();
-    let (gcs_tx, gcs_rx, gcs_ctl) = gcs.split_with_control();
-    let (mgmt_tx, mgmt_rx) = mgmt.split();
+    let (gcs_tx, gcs_rx) = gcs.split();
+    let (mgmt_tx, mgmt_rx, mgmt_ctl) = mgmt.split_with_control();
 
     // Stage link at the configured baud rate.
     static UART_TX: StaticCell<[u8; 256]> = StaticCell::new();
-    static UART_RX: StaticCell<[u8; 256]> = StaticCell::new();
-    let mut uart_config = usart::Config::default();
-    uart_config.baudrate = settings.stage_baud;
+    static UART_RX: StaticCell<[u8; RX_RING as usize]> = StaticCell::new();
     let uart = match BufferedUart::new(
         p.UART4,
         p.PA1,
         p.PA0,
         UART_TX.init([0; 256]),
-        UART_RX.init([0; 256]),
+        UART_RX.init([0; RX_RING as usize]),
         Irqs,
-        uart_config,
+        stage_uart_config(&settings),
     ) {
         Ok(u) => u,
         Err(_) => panic!("stage UART configuration rejected"),
     };
     let (stage_tx, stage_rx) = uart.split();
+    let stage_rx = StageRx::new(stage_rx);
 
     // Sensors: SPI mode 1 (MAX31856/MAX31865 latch on the falling edge), 1 MHz, MISO pulled up
     // so that an absent chip reads all ones (a fault), never a floating temperature.
@@ -527,6 +337,7 @@ async fn main(spawner: Spawner) {
     ];
     let mut i2c_config = i2c::Config::default();
     i2c_config.frequency = Hertz(400_000);
+    i2c_config.timeout = I2C_TIMEOUT;
     let i2c = I2c::new_blocking(p.I2C2, p.PB10, p.PB11, i2c_config);
     let adc = Adc::new(p.ADC1);
     let bus = Buses {
@@ -535,6 +346,7 @@ async fn main(spawner: Spawner) {
         i2c,
         adc,
         a0: p.PC5,
+        i2c_recoveries: 0,
     };
 
     let led = Output::new(p.PB14, Level::Low, Speed::Low); // LD2
@@ -544,7 +356,8 @@ async fn main(spawner: Spawner) {
     let mgmt_rx = mgmt_rx.into_buffered(MGMT_RX.init([0; 64]));
     spawner.spawn(supervisor_task(Stm32Board { led, wdg }, sh).expect("task pool"));
     spawner.spawn(usb_task(usb).expect("task pool"));
-    spawner.spawn(line_state_task(gcs_ctl, sh).expect("task pool"));
+    spawner.spawn(line_state_task(sh).expect("task pool"));
+    spawner.spawn(mgmt_line_state_task(mgmt_ctl, sh).expect("task pool"));
     spawner.spawn(management_task(mgmt_rx, UsbTx(mgmt_tx), store, sh).expect("task pool"));
     spawner.spawn(sensor_task(bus, sh).expect("task pool"));
     spawner.spawn(stage_link_task(stage_rx, stage_tx, sh).expect("task pool"));

@@ -47,6 +47,7 @@ mod corrector;
 mod moves;
 mod queue;
 mod replies;
+mod session;
 pub mod travel;
 
 pub use corrector::{Corrected, Corrector, FoldCorrector};
@@ -133,6 +134,8 @@ pub struct Counters {
     /// Times the proxy gave up what was in flight (a silent controller, a marker that brought
     /// back something else) and resynchronised.
     pub resyncs: u32,
+    /// Times bytes from the controller were lost (UART overrun, full receive buffer).
+    pub link_losses: u32,
 }
 
 /// What the proxy knows of the model axes' targets: what it sent.
@@ -242,6 +245,9 @@ pub struct ProxyState {
     pub gate: Gate,
     /// Counters.
     pub counters: Counters,
+    /// Bytes from the controller were lost: until the line is quiet, nothing received can be
+    /// paired with a query and no host line goes out ([`Proxy::stage_bytes_lost`]).
+    link_lost: bool,
 }
 
 impl Default for Proxy {
@@ -292,6 +298,7 @@ impl Proxy {
                 bypass: false,
                 gate: Gate::Open,
                 counters: Counters::default(),
+                link_lost: false,
             },
         }
     }
@@ -300,7 +307,7 @@ impl Proxy {
     /// does [`poll`](Self::poll) have anything to decide, so the stage link need not wake for it
     /// otherwise.
     pub fn awaiting_controller(&self) -> bool {
-        !self.st.queue.is_empty() || self.st.rx.active()
+        !self.st.queue.is_empty() || self.st.rx.active() || self.st.link_lost
     }
 
     /// True when host bytes already received can be processed now (call
@@ -373,6 +380,9 @@ impl Proxy {
     ) -> usize {
         out.clear();
         self.st.now_ms = now_ms;
+        if let Some(taken) = self.link_lost_hold(input, out) {
+            return taken;
+        }
         if !self.st.queue.is_empty() {
             self.st.emit_answers(out);
         }
@@ -1031,6 +1041,10 @@ impl ProxyState {
     fn poll<C: Corrector>(&mut self, c: Option<&C>, now_ms: u32, out: &mut Output) {
         out.clear();
         self.now_ms = now_ms;
+        if self.link_lost {
+            self.try_end_link_loss(c, out);
+            return;
+        }
         self.emit_answers(out);
         let waiting = !self.queue.is_empty() || self.rx.active();
         let quiet = now_ms.wrapping_sub(self.last_rx_ms) > REPLY_TIMEOUT_MS

@@ -165,6 +165,10 @@ impl ProxyState {
         if !input.is_empty() {
             self.last_rx_ms = now_ms;
         }
+        if self.link_lost {
+            // bytes were lost: nothing that arrives can be paired until the line is quiet
+            return input.len();
+        }
         let mut i = 0;
         while i < input.len() {
             if self.rx.entry.is_none() {

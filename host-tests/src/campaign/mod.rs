@@ -11,6 +11,7 @@
 pub mod analysis;
 pub mod bench;
 pub mod gcs;
+pub mod loops;
 pub mod recorder;
 pub mod reference;
 pub mod run;
@@ -25,6 +26,7 @@ use recorder::{Layout, Recorder};
 use reference::{ClockMap, ClockMode};
 use run::{CampaignError, Links, Progress, Reopen, Runner};
 use state::{BenchSpec, Stage, State};
+pub use state::{LoopRecord, LoopState, LoopStop};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
@@ -35,8 +37,11 @@ pub const RECORDING: &str = "recording.csv";
 /// File name of the plan in the campaign's folder.
 pub const PLAN: &str = "plan.json";
 /// The compensator's sample period on the virtual bench unless told otherwise, ms: four times
-/// the STM32 default (250 ms), five to ten times finer than paper 001 §VI asks of thermal terms.
+/// the STM32 default (250 ms) — each sample cycle costs the emulated board bus transactions.
 pub const VIRTUAL_SAMPLE_PERIOD_MS: u16 = 1000;
+/// The compensator's fold period on the virtual bench unless told otherwise, ms: the device's
+/// default (paper 001 §VI: "each 5-10 seconds"), five readings averaged.
+pub const VIRTUAL_FOLD_PERIOD_MS: u16 = nanocal_interface::settings::DEFAULT_FOLD_PERIOD_MS;
 /// Plan time between the end of the set-up and the first step on a real bench, s.
 const REAL_LEAD_S: f64 = 5.0;
 
@@ -51,6 +56,9 @@ pub struct Config {
     /// The compensator's sample period to set, ms (None: as configured; the virtual bench:
     /// [`VIRTUAL_SAMPLE_PERIOD_MS`]).
     pub sample_period_ms: Option<u16>,
+    /// The compensator's fold period to set, ms (None: as configured; the virtual bench:
+    /// [`VIRTUAL_FOLD_PERIOD_MS`]).
+    pub fold_period_ms: Option<u16>,
     /// Where to leave the stage when stopping early (default: the plan's first pose).
     pub safe_pose_um: Option<Vec<f64>>,
     /// Names of the temperature channels (default: the twin's on the virtual bench, else
@@ -60,6 +68,13 @@ pub struct Config {
     pub design: Option<crate::design::DesignSpec>,
     /// Run `explain` at the end.
     pub explain: bool,
+    /// The desired accuracy of the validate-and-return loop (paper 001 §II step 5): the worst
+    /// static test's Acc, nm ([`loops`]); None: no loop.
+    pub target_accuracy_nm: Option<f64>,
+    /// Tests in each loop's validation block (default: the plan's rounds).
+    pub loop_tests: Option<usize>,
+    /// Most loops.
+    pub max_loops: usize,
     /// Continue the campaign in `out`.
     pub resume: bool,
     /// Faults to stage (tests; none by default).
@@ -219,14 +234,15 @@ fn open(
     }
 }
 
-/// Set the compensator up for the campaign and return the recording's layout.
+/// Set the compensator up for the campaign; the recording's layout and the compensator's
+/// (sample, fold) periods, ms.
 fn configure(
     links: &mut Links,
     cfg: &Config,
     spec: &BenchSpec,
     plan: &Plan,
     axes: usize,
-) -> Result<(Layout, u16), CampaignError> {
+) -> Result<(Layout, u16, u16), CampaignError> {
     let mut settings: Option<Result<Settings, crate::device::DeviceError>> = None;
     {
         let dev = &mut links.device;
@@ -250,11 +266,15 @@ fn configure(
             }
             s.aux = Default::default();
             s.sample_period_ms = cfg.sample_period_ms.unwrap_or(VIRTUAL_SAMPLE_PERIOD_MS);
+            s.fold_period_ms = cfg.fold_period_ms.unwrap_or(VIRTUAL_FOLD_PERIOD_MS);
             Some(names)
         }
         BenchSpec::Real { .. } => {
             if let Some(p) = cfg.sample_period_ms {
                 s.sample_period_ms = p;
+            }
+            if let Some(p) = cfg.fold_period_ms {
+                s.fold_period_ms = p;
             }
             None
         }
@@ -311,7 +331,7 @@ fn configure(
         temps: names,
         aux,
     };
-    Ok((layout, s.sample_period_ms))
+    Ok((layout, s.sample_period_ms, s.fold_period_ms))
 }
 
 /// Run (or resume) a campaign.
@@ -354,8 +374,9 @@ pub fn run(
         })?;
         (plan, None)
     };
-    let steps = plan.schedule();
     let axes = plan.training.axes();
+    // the schedule so far: the plan's, and the blocks of the loops started
+    let steps = loops::schedule(&plan, prior.as_ref().and_then(|s| s.loops.as_ref()));
     let spec = cfg
         .bench
         .clone()
@@ -365,16 +386,39 @@ pub fn run(
             what: "no bench: give --device/--gcs/--reference or --virtual".into(),
         })?;
     let resume_at = prior.as_ref().map_or(0, |s| s.next_step);
+    // a loop decision still to make needs the bench too
+    let pending = |s: &State| {
+        s.loops
+            .as_ref()
+            .is_some_and(|l| l.stop.is_none() && l.decided <= l.loops.len())
+    };
     let mut state = match &prior {
-        Some(s) if s.stage != Stage::Steps => s.clone(),
+        Some(s) if s.stage != Stage::Steps && !pending(s) => s.clone(),
         _ => {
-            let opened = open(&spec, &plan, &steps, resume_at, &cfg.faults)?;
+            // the virtual bench's twin plays every block the loop may add
+            let bench_steps = match cfg.target_accuracy_nm.or(prior
+                .as_ref()
+                .and_then(|s| s.loops.as_ref().map(|l| l.target_nm)))
+            {
+                Some(_) => {
+                    let (blocks, tests) = match prior.as_ref().and_then(|s| s.loops.as_ref()) {
+                        Some(l) => (l.max_loops, l.tests_per_block),
+                        None => (
+                            cfg.max_loops,
+                            cfg.loop_tests.unwrap_or(plan.validation.rounds),
+                        ),
+                    };
+                    plan.schedule_with_blocks(blocks, tests)
+                }
+                None => steps.clone(),
+            };
+            let opened = open(&spec, &plan, &bench_steps, resume_at, &cfg.faults)?;
             let Opened {
                 mut links,
                 vbench_pid,
                 transactions,
             } = opened;
-            let (layout, period) = configure(&mut links, cfg, &spec, &plan, axes)?;
+            let (layout, period, fold) = configure(&mut links, cfg, &spec, &plan, axes)?;
             links
                 .reference
                 .first(links.driver.now_s(), Duration::from_secs(10))?;
@@ -392,6 +436,7 @@ pub fn run(
                     }
                     s.bench = spec.clone();
                     s.sample_period_ms = period;
+                    s.fold_period_ms = fold;
                     s
                 }
                 None => State {
@@ -399,6 +444,7 @@ pub fn run(
                     bench: spec.clone(),
                     layout: layout.clone(),
                     sample_period_ms: period,
+                    fold_period_ms: fold,
                     safe_pose_um: cfg.safe_pose_um.clone().unwrap_or_else(|| {
                         steps
                             .first()
@@ -408,10 +454,20 @@ pub fn run(
                     recording_bytes: 0,
                     stage: Stage::Steps,
                     model_ids: None,
+                    uploaded: None,
                     kmz_um: None,
+                    kmz_first: None,
                     kmz_updates: 0,
                     device_resets: 0,
                     interruptions: Vec::new(),
+                    loops: cfg.target_accuracy_nm.map(|target_nm| state::LoopState {
+                        target_nm,
+                        tests_per_block: cfg.loop_tests.unwrap_or(plan.validation.rounds),
+                        max_loops: cfg.max_loops,
+                        loops: Vec::new(),
+                        decided: 0,
+                        stop: None,
+                    }),
                 },
             };
             let rec_path = dir.join(RECORDING);
@@ -434,8 +490,17 @@ pub fn run(
                 2 => crate::design::DesignSpec::published_2dof(),
                 _ => crate::design::DesignSpec::published_static(),
             });
-            let mut runner =
-                Runner::new(dir, &plan, state, links, gcs_axes, design, recorder, stop)?;
+            let mut runner = Runner::new(
+                dir,
+                &plan,
+                steps.clone(),
+                state,
+                links,
+                gcs_axes,
+                design,
+                recorder,
+                stop,
+            )?;
             runner.reset_before_step = cfg.faults.reset_before_step;
             runner.ports_lost_before_step = cfg.faults.ports_lost_before_step;
             if prior.is_none() {
@@ -448,7 +513,11 @@ pub fn run(
                     return Err(e);
                 }
             }
-            let r = runner.run(progress);
+            let periods = crate::device_path::SlowPeriods {
+                sample_s: f64::from(runner.state.sample_period_ms) / 1000.0,
+                fold_s: f64::from(runner.state.fold_period_ms) / 1000.0,
+            };
+            let r = run_with_loops(&mut runner, dir, &plan, periods, progress);
             if std::env::var_os("NANOCAL_CAMPAIGN_PROFILE").is_some() {
                 eprintln!("campaign profile (wall s): {:?}", runner.profile());
             }
@@ -458,11 +527,48 @@ pub fn run(
             let mut st = runner.state.clone();
             st.interruptions.retain(|_| true);
             drop(runner);
-            return finish(cfg, dir, plan, &steps, st, wall, qemu_cpu, txns, progress);
+            return finish(cfg, dir, plan, st, wall, qemu_cpu, txns, progress);
         }
     };
     state.stage = Stage::Analysis;
-    finish(cfg, dir, plan, &steps, state, wall, None, None, progress)
+    finish(cfg, dir, plan, state, wall, None, None, progress)
+}
+
+/// Run the steps, and after each validation the validate-and-return loop's decision
+/// ([`loops::decide`]): a new block of steps runs on the same bench until the loop stops.
+fn run_with_loops(
+    runner: &mut Runner,
+    dir: &Path,
+    plan: &Plan,
+    periods: crate::device_path::SlowPeriods,
+    progress: &mut dyn Progress,
+) -> Result<(), CampaignError> {
+    loop {
+        if runner.state.stage == Stage::Steps {
+            runner.run(progress)?;
+        }
+        let pending = runner
+            .state
+            .loops
+            .as_ref()
+            .is_some_and(|l| l.stop.is_none() && l.decided <= l.loops.len());
+        if !pending {
+            return Ok(());
+        }
+        progress
+            .note("validate-and-return (paper 001 §II step 5): validating, explaining, refitting");
+        let spec = runner.spec.clone();
+        let steps = runner.steps.clone();
+        match loops::decide(dir, plan, &steps, &spec, periods, &mut runner.state)? {
+            loops::Decision::Block(new_steps) => {
+                runner.steps = new_steps;
+                runner.state.stage = Stage::Steps;
+                runner.reload_models()?;
+            }
+            loops::Decision::Stop => {}
+        }
+        runner.save()?;
+    }
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -470,7 +576,6 @@ fn finish(
     cfg: &Config,
     dir: &Path,
     plan: Plan,
-    steps: &[Step],
     mut state: State,
     wall: Instant,
     qemu_cpu_s: Option<f64>,
@@ -478,8 +583,11 @@ fn finish(
     progress: &mut dyn Progress,
 ) -> Result<Outcome, CampaignError> {
     progress.note("validating: the table from the stage's commands and the file-based validate");
-    let fold_s = f64::from(state.sample_period_ms) / 1000.0;
-    let analysis = analysis::analyse(dir, &plan, steps, fold_s, cfg.explain)?;
+    let periods = crate::device_path::SlowPeriods {
+        sample_s: f64::from(state.sample_period_ms) / 1000.0,
+        fold_s: f64::from(state.fold_period_ms) / 1000.0,
+    };
+    let analysis = analysis::analyse(dir, &plan, &plan.schedule(), periods, cfg.explain)?;
     let reports: Vec<&crate::validate::ValidationReport> = analysis.file.iter().collect();
     crate::report::write_report(&dir.join("report"), &reports)
         .map_err(|e| CampaignError::Fit(format!("report plots: {e}")))?;

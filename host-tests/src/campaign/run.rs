@@ -19,7 +19,7 @@ use super::bench::{BenchDriver, BenchError, ReferenceReader};
 use super::gcs::{GcsError, GcsLink};
 use super::recorder::{Recorder, RecorderError, Row};
 use super::reference::ReferenceError;
-use super::state::{Interruption, Stage, State, StateError};
+use super::state::{Interruption, Stage, State, StateError, UploadedModel};
 use crate::device::{Client, DeviceError};
 use crate::fit::{adaptive_from_static, encode_blob};
 use crate::plan::{Phase, Plan, Step, TestKind};
@@ -118,7 +118,7 @@ pub enum CampaignError {
 }
 
 /// What a GCS error code answered to the campaign's `ERR?` means: the codes the compensator
-/// raises itself (9001–9009, and PI's 1, 7 and 15) from the one table both the firmware and the
+/// raises itself (9001–9014, and PI's 1, 7 and 15) from the one table both the firmware and the
 /// host use ([`GcsErrorCode`]), the other PI codes a campaign meets from PI's own list.
 pub fn gcs_meaning(code: i32) -> &'static str {
     if let Some(e) = GcsErrorCode::from_code(code) {
@@ -191,6 +191,17 @@ impl Models {
         })
     }
 
+    /// The plan's models: the static model before any loop of the validate-and-return loop
+    /// refitted it (`static-0.blob`, written when the first loop starts), and the adaptive one.
+    pub fn load_plan(dir: &Path) -> Result<Models, CampaignError> {
+        let mut m = Models::load(dir)?;
+        if let Ok(b) = std::fs::read(dir.join(static_blob(0))) {
+            m.static_model = nanocal_model::blob::decode(&b)
+                .map_err(|e| CampaignError::Fit(format!("{}: {e}", static_blob(0))))?;
+        }
+        Ok(m)
+    }
+
     /// The adaptive model with `kmz_um` as its λ_KMZ (what the compensator must hold).
     pub fn adaptive_with(&self, kmz_um: Option<&[f64]>) -> Model {
         let Some(k) = kmz_um else {
@@ -202,6 +213,11 @@ impl Models {
         }
         m
     }
+}
+
+/// File name of the static model of loop `l` of the validate-and-return loop (0: the plan's).
+pub fn static_blob(l: usize) -> String {
+    format!("static-{l}.blob")
 }
 
 /// Fits the static model (stepwise among `spec`'s candidates, as paper 000 §3.3 trains) and
@@ -309,10 +325,14 @@ impl std::io::Write for GonePort {
     }
 }
 
-/// `s` shows `want` loaded, with its λ_KMZ.
-fn serves(s: &Status, want: &Model) -> bool {
+/// `s` shows `want` loaded, with its λ_KMZ: the model the campaign uploaded last
+/// (`uploaded`, its id and blob CRC as the device confirmed them) is in service, and it is
+/// `want`. The id alone is not enough: a model of an earlier campaign (or an earlier fit) on
+/// the device has the same id and other coefficients; the blob's CRC tells them apart.
+fn serves(s: &Status, want: &Model, uploaded: Option<UploadedModel>) -> bool {
     s.flags.contains(Flags::MODEL)
         && s.model_id == want.id()
+        && uploaded.is_some_and(|u| u.model_id == s.model_id && u.model_crc32 == s.model_crc32)
         && (0..want.axes()).all(|a| (s.kmz_um[a] - want.kmz_offset_um(a)).abs() < 1e-9)
 }
 
@@ -401,7 +421,10 @@ pub struct Profile {
 fn describe(phase: Phase, plan: &Plan) -> String {
     match phase {
         Phase::Training => "training".into(),
-        Phase::Kmz { test } => format!("KMZ before test {}/{}", test + 1, plan.tests()),
+        Phase::Kmz { test, visit: true } => {
+            format!("KMZ, first visit of test {}/{}", test + 1, plan.tests())
+        }
+        Phase::Kmz { test, .. } => format!("KMZ before test {}/{}", test + 1, plan.tests()),
         Phase::Test { test, kind } => {
             format!("test {}/{} ({})", test + 1, plan.tests(), kind.name())
         }
@@ -414,6 +437,7 @@ impl<'a> Runner<'a> {
     pub fn new(
         dir: &Path,
         plan: &'a Plan,
+        steps: Vec<Step>,
         state: State,
         links: Links,
         axes: Vec<String>,
@@ -421,7 +445,6 @@ impl<'a> Runner<'a> {
         recorder: Recorder,
         stop: Arc<AtomicBool>,
     ) -> Result<Self, CampaignError> {
-        let steps = plan.schedule();
         let models = if state.model_ids.is_some() {
             Some(Models::load(dir)?)
         } else {
@@ -493,9 +516,17 @@ impl<'a> Runner<'a> {
         self.links.driver.now_s()
     }
 
-    fn save(&mut self) -> Result<(), CampaignError> {
+    /// Write the state now.
+    pub fn save(&mut self) -> Result<(), CampaignError> {
         self.state.save(&self.dir)?;
         self.saved_at = std::time::Instant::now();
+        Ok(())
+    }
+
+    /// Read the models from the campaign's folder again (a loop of the validate-and-return
+    /// loop refitted the static one).
+    pub fn reload_models(&mut self) -> Result<(), CampaignError> {
+        self.models = Some(Models::load(&self.dir)?);
         Ok(())
     }
 
@@ -616,20 +647,40 @@ impl<'a> Runner<'a> {
         )
     }
 
-    /// Step `k` is over (its window collected): a KMZ step sends its measurement.
+    /// Step `k` is over (its window collected): a KMZ step computes λ_KMZ from its reading
+    /// (paper 000 §3.4: the difference of two readings at the KMZ pose,
+    /// [`crate::kmz::KmzDrift`]) and sends it to the compensator.
     fn finish(&mut self, k: usize) -> Result<(), CampaignError> {
         if let Phase::Kmz { .. } = self.steps[k].phase {
             let x = self.window_mean().ok_or_else(|| CampaignError::NotReady {
                 step: k,
                 what: "no reference sample in the KMZ step's averaging window".into(),
             })?;
+            let models = self.models.as_ref().ok_or_else(|| {
+                CampaignError::Fit("a KMZ step before the models were fitted".into())
+            })?;
             let mut q = [0.0; MAX_AXES];
             let mut xm = [0.0; MAX_AXES];
+            let mut dir = [0i8; MAX_AXES];
             let n = x.len();
             q[..n].copy_from_slice(&self.cmd_um[..n]);
             xm[..n].copy_from_slice(&x);
-            let kmz = self.device(move |c| c.set_kmz(q, xm))?;
-            self.state.kmz_um = Some(kmz[..x.len()].to_vec());
+            dir[..n].copy_from_slice(&self.steps[k].approach[..n]);
+            let mut model = models.adaptive_with(self.state.kmz_um.as_deref());
+            let mut drift = crate::kmz::KmzDrift::new(self.state.kmz_first);
+            let slow = nanocal_model::SlowInputs::default();
+            let kmz = drift.measure(
+                &mut model,
+                &q,
+                &xm,
+                &dir,
+                &slow,
+                &nanocal_model::HysteresisState::new(),
+            );
+            let (rq, rx) = crate::kmz::set_kmz_request(&model, &kmz, &xm, &slow);
+            let held = self.device(move |c| c.set_kmz(rq, rx))?;
+            self.state.kmz_first = drift.first();
+            self.state.kmz_um = Some(held[..n].to_vec());
             self.state.kmz_updates += 1;
         }
         Ok(())
@@ -743,7 +794,7 @@ impl<'a> Runner<'a> {
         let Ok(want) = self.wanted_model(kind) else {
             return false;
         };
-        !s.flags.contains(Flags::WARMING_UP) && serves(s, &want)
+        !s.flags.contains(Flags::WARMING_UP) && serves(s, &want, self.state.uploaded)
     }
 
     /// The move of a step with one status read instead of two, when the compensator reports
@@ -786,9 +837,14 @@ impl<'a> Runner<'a> {
         };
         if let Some(kind) = mode.model {
             let want = self.wanted_model(kind)?;
-            if !serves(&s, &want) {
+            if !serves(&s, &want, self.state.uploaded) {
                 let blob = encode_blob(&want);
-                self.device(move |c| c.upload(&blob).map(|_| ()))?;
+                // the device confirms the blob's CRC (`Client::upload`)
+                let c = self.device(move |c| c.upload(&blob))?;
+                self.state.uploaded = Some(UploadedModel {
+                    model_id: c.model_id,
+                    model_crc32: c.model_crc32,
+                });
                 s = self.read_status(k)?;
             }
             // the first fold of a new model waits for every input's reading

@@ -7,8 +7,15 @@ use super::recorder::Layout;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-/// State format version.
-pub const VERSION: u32 = 1;
+/// State format version. 2: the plan's schedule changed (issue 18: the KMZ is the first visit of
+/// an adaptive test, paper 000's tests take 1.25 h, visits are labelled by the motion that
+/// reached them), the fold period, the first KMZ reading and the validate-and-return loop.
+pub const VERSION: u32 = 2;
+/// The fold period of a state that does not record one (the firmware's default).
+fn default_fold_period_ms() -> u16 {
+    nanocal_interface::settings::DEFAULT_FOLD_PERIOD_MS
+}
+
 /// File name of the state in the campaign's folder.
 pub const FILE: &str = "campaign.json";
 
@@ -68,8 +75,11 @@ pub struct State {
     pub bench: BenchSpec,
     /// The recording's columns.
     pub layout: Layout,
-    /// The compensator's sample (fold) period, ms.
+    /// The compensator's sample period, ms.
     pub sample_period_ms: u16,
+    /// The compensator's fold period, ms (readings averaged over it).
+    #[serde(default = "default_fold_period_ms")]
+    pub fold_period_ms: u16,
     /// Where the stage is left when the campaign stops early, µm per axis.
     pub safe_pose_um: Vec<f64>,
     /// First step not yet completed.
@@ -80,14 +90,119 @@ pub struct State {
     pub stage: Stage,
     /// Model ids once fitted: (static, adaptive).
     pub model_ids: Option<(u32, u32)>,
+    /// The model this campaign uploaded last, as the device confirmed it: in service while
+    /// the device's status shows its id and blob CRC (a state file without it: none).
+    #[serde(default)]
+    pub uploaded: Option<UploadedModel>,
     /// λ_KMZ per axis last measured and sent to the compensator, µm.
     pub kmz_um: Option<Vec<f64>>,
+    /// The first KMZ re-measurement, which later ones are differences to
+    /// ([`crate::kmz::KmzDrift`]).
+    #[serde(default)]
+    pub kmz_first: Option<crate::kmz::KmzReading>,
     /// KMZ re-measurements so far.
     pub kmz_updates: usize,
     /// Device resets seen.
     pub device_resets: usize,
     /// Interruptions so far.
     pub interruptions: Vec<Interruption>,
+    /// The validate-and-return loop (paper 001 §II step 5), when a target accuracy was given.
+    #[serde(default)]
+    pub loops: Option<LoopState>,
+}
+
+/// The validate-and-return loop of paper 001 §II step 5: "Validation (evaluation of the robot
+/// absolute accuracy) and eventually return to 1. (if the desired absolute accuracy has not yet
+/// been reached and consider other sources of inaccuracy), or return to 0. (if all the possible
+/// sources of inaccuracy have already been considered)".
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LoopState {
+    /// The desired accuracy: the worst test's Acc of the static model, nm.
+    pub target_nm: f64,
+    /// Tests in each loop's validation block.
+    pub tests_per_block: usize,
+    /// Most loops to run.
+    pub max_loops: usize,
+    /// The loops started, in order.
+    pub loops: Vec<LoopRecord>,
+    /// Validations decided on (0: none; 1: the plan's; 1 + l: loop l's block too).
+    pub decided: usize,
+    /// Why the loop stopped, once it did.
+    pub stop: Option<LoopStop>,
+}
+
+/// One loop: what was added, the model, its validation block and what it showed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LoopRecord {
+    /// What explain named and the model now carries (lag filters, play operators, terms).
+    pub added: Vec<crate::design::Extension>,
+    /// explain's words on each, with its held-out RMS before → after, on the validation the
+    /// loop started from.
+    pub evidence: Vec<String>,
+    /// Id of the refitted static model (its blob: `static-<loop>.blob`).
+    pub model_id: u32,
+    /// Terms selected, geometric + thermal + other (offsets excluded).
+    pub parameters: (usize, usize, usize),
+    /// The static model's worst test accuracy on the validation the loop started from, nm.
+    pub acc_from_nm: f64,
+    /// Once its block ran: the previous static model evaluated on the block's data (open loop:
+    /// the same commands, never used for a fit).
+    pub before: Option<BlockAccuracy>,
+    /// Once its block ran: this loop's model through the firmware.
+    pub after: Option<BlockAccuracy>,
+    /// Once its block ran: the largest difference between its table from what the stage
+    /// received and the file-based validation of the same rows, nm.
+    pub agreement_nm: Option<f64>,
+    /// Once its block ran: visits with a temperature outside the training range, of all.
+    pub outside_training: Option<(usize, usize)>,
+}
+
+/// A static model's accuracy over a block of tests.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct BlockAccuracy {
+    /// The mean over tests of the test accuracy (Eq. 6: max over its poses) — the numerator
+    /// of paper 000's time robustness, Eq. 21 — nm. The loop's held-out measure.
+    pub mean_nm: f64,
+    /// The worst test's accuracy, nm.
+    pub worst_nm: f64,
+}
+
+/// Why the loop stopped.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LoopStop {
+    /// The desired accuracy is met.
+    TargetMet {
+        /// Worst test Acc, nm.
+        acc_nm: f64,
+    },
+    /// The last loop did not improve held-out accuracy (the mean test accuracy of its block):
+    /// its model is not kept.
+    NoImprovement {
+        /// The previous model on the last block, nm.
+        before_nm: f64,
+        /// The last loop's model on it, nm.
+        after_nm: f64,
+        /// What to change, in words (e.g. training over the range of use).
+        advice: Vec<String>,
+    },
+    /// What remains needs a design change (step 0): explain named nothing the blob can carry.
+    DesignChange {
+        /// What to change, in words (a sensor where, a source with no input).
+        advice: Vec<String>,
+    },
+    /// The most loops allowed ran.
+    MaxLoops,
+}
+
+/// A model the campaign uploaded: its id and the CRC-32 its blob carries (the content hash
+/// the device reports with the id).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct UploadedModel {
+    /// The model's id.
+    pub model_id: u32,
+    /// The CRC-32 its blob carries.
+    pub model_crc32: u32,
 }
 
 /// Errors of the state file.
@@ -167,13 +282,20 @@ mod tests {
                 aux: vec![],
             },
             sample_period_ms: 1000,
+            fold_period_ms: 5000,
             safe_pose_um: vec![0.0],
             next_step: 17,
             recording_bytes: 12345,
             stage: Stage::Steps,
             model_ids: Some((1, 2)),
+            uploaded: Some(UploadedModel {
+                model_id: 2,
+                model_crc32: 0x89AB_CDEF,
+            }),
             kmz_um: Some(vec![0.125]),
+            kmz_first: None,
             kmz_updates: 1,
+            loops: None,
             device_resets: 0,
             interruptions: vec![Interruption {
                 step: 17,

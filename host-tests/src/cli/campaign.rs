@@ -53,9 +53,27 @@ pub struct CampaignArgs {
     /// Continue the campaign in `--out`.
     #[arg(long)]
     pub resume: bool,
-    /// Set the compensator's sample (fold) period, ms (the virtual bench: 1000 by default).
+    /// Set the compensator's sensor sample period, ms (the virtual bench: 1000 by default).
     #[arg(long)]
     pub sample_period_ms: Option<u16>,
+    /// The validate-and-return loop (paper 001 §II step 5): after the validation, while the
+    /// static model's worst test is above this accuracy, add what `explain` finds that the
+    /// compensator can run (lag filters, play operators, interactions, temperature terms), fit
+    /// the static model again on the training data and validate it in a block of tests; stop
+    /// when met, when a loop no longer improves held-out accuracy, or when what remains needs a
+    /// design change (which is printed). nm.
+    #[arg(long)]
+    pub target_accuracy_nm: Option<f64>,
+    /// Tests in each loop's validation block (default: the plan's rounds).
+    #[arg(long)]
+    pub loop_tests: Option<usize>,
+    /// Most loops of the validate-and-return loop.
+    #[arg(long, default_value_t = 3)]
+    pub max_loops: usize,
+    /// Set the compensator's fold period, ms (1000..=10000; the readings of a period are
+    /// averaged; the virtual bench: 5000 by default).
+    #[arg(long)]
+    pub fold_period_ms: Option<u16>,
     /// Where to leave the stage when stopping early, µm per axis (default: the plan's first pose).
     #[arg(long, value_delimiter = ',')]
     pub safe_pose_um: Option<Vec<f64>>,
@@ -161,10 +179,14 @@ pub fn run(args: CampaignArgs) -> anyhow::Result<()> {
         out: args.out.clone(),
         bench,
         sample_period_ms: args.sample_period_ms,
+        fold_period_ms: args.fold_period_ms,
         safe_pose_um: args.safe_pose_um.clone(),
         sensor_names: args.sensor_names.clone(),
         design,
         explain: !args.no_explain,
+        target_accuracy_nm: args.target_accuracy_nm,
+        loop_tests: args.loop_tests,
+        max_loops: args.max_loops,
         resume: args.resume,
         faults: Default::default(),
     };
@@ -231,6 +253,19 @@ fn print_outcome(o: &campaign::Outcome, out: &std::path::Path) {
             .fold(f64::NAN, f64::max);
         println!("largest test accuracy with a model: {} nm", nm(worst));
     }
+    if !a.jitter_nm.is_empty() {
+        let j: Vec<String> = a
+            .jitter_nm
+            .iter()
+            .map(|(k, v)| format!("{} {v:.1} nm", k.name()))
+            .collect();
+        println!(
+            "command jitter (scatter of a pose's command between its visits, fold period {} ms, sample period {} ms): {}",
+            o.state.fold_period_ms,
+            o.state.sample_period_ms,
+            j.join(", ")
+        );
+    }
     if !a.advice.is_empty() {
         println!("\nexplain on the validation steps — what the model leaves out (paper 001 §II step 5: add it and train again):");
         for l in &a.advice {
@@ -238,6 +273,9 @@ fn print_outcome(o: &campaign::Outcome, out: &std::path::Path) {
         }
     } else if a.explain.is_some() {
         println!("\nexplain on the validation steps found nothing more the model could carry.");
+    }
+    if let Some(lp) = &o.state.loops {
+        print!("{}", loops_table(lp));
     }
     if let Some(c) = o.qemu_cpu_s {
         println!(
@@ -256,6 +294,87 @@ fn print_outcome(o: &campaign::Outcome, out: &std::path::Path) {
             ""
         }
     );
+}
+
+/// The validate-and-return loop, one loop a row: what was added, the accuracy it started from,
+/// before and after on its own block of tests (held out), and why it stopped.
+pub fn loops_table(lp: &campaign::LoopState) -> String {
+    use crate::campaign::state::BlockAccuracy;
+    use std::fmt::Write;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "\nvalidate and return (paper 001 §II step 5), desired accuracy {:.0} nm (worst static test), blocks of {} tests:",
+        lp.target_nm, lp.tests_per_block
+    );
+    let _ = writeln!(
+        s,
+        "  {:<4} {:<48} {:>9} {:>8} {:>15} {:>15} {:>8}",
+        "loop",
+        "added (explain; deployable in the blob)",
+        "terms",
+        "from nm",
+        "before mean/max",
+        "after mean/max",
+        "agree"
+    );
+    let f = |v: Option<BlockAccuracy>| {
+        v.map_or("–".to_string(), |x| {
+            format!("{:.1}/{:.1}", x.mean_nm, x.worst_nm)
+        })
+    };
+    for (i, l) in lp.loops.iter().enumerate() {
+        let names: Vec<&str> = l.added.iter().map(|e| e.name.as_str()).collect();
+        let (g, t, o) = l.parameters;
+        let _ = writeln!(
+            s,
+            "  {:<4} {:<48} {:>9} {:>8.1} {:>15} {:>15} {:>8}",
+            i + 1,
+            names.join(", "),
+            format!("{g}+{t}+{o}"),
+            l.acc_from_nm,
+            f(l.before),
+            f(l.after),
+            l.agreement_nm.map_or("–".into(), |v| format!("{v:.2}"))
+        );
+        for e in &l.evidence {
+            let _ = writeln!(s, "       {e}");
+        }
+    }
+    let _ = writeln!(
+        s,
+        "  (nm. from: the static model's worst test on the validation the loop started from; before/after: the model without and with the loop's terms on the loop's own block of tests, never used for a fit — mean over its tests of the test accuracy (Eq. 21's numerator) / the worst test; after through the firmware, before open loop on the same commands; agree: |firmware table − file-based validate|; terms geometric+thermal+other, offsets excluded)"
+    );
+    let stop = match &lp.stop {
+        None => "not stopped yet (continue with --resume)".to_string(),
+        Some(campaign::LoopStop::TargetMet { acc_nm }) => {
+            format!("stopped: the desired accuracy is met ({acc_nm:.1} nm)")
+        }
+        Some(campaign::LoopStop::NoImprovement {
+            before_nm,
+            after_nm,
+            advice,
+        }) => {
+            let mut t = format!(
+                "stopped: the last loop did not improve held-out accuracy (mean test {before_nm:.1} → {after_nm:.1} nm); its model is not kept (static.blob is the one before)"
+            );
+            for a in advice {
+                t += &format!("\n    - {a}");
+            }
+            t
+        }
+        Some(campaign::LoopStop::MaxLoops) => "stopped: --max-loops reached".to_string(),
+        Some(campaign::LoopStop::DesignChange { advice }) => {
+            let mut t =
+                String::from("stopped: what remains needs a design change (paper 001 §II step 0):");
+            for a in advice {
+                t += &format!("\n    - {a}");
+            }
+            t
+        }
+    };
+    let _ = writeln!(s, "  {stop}");
+    s
 }
 
 fn json(o: &campaign::Outcome) -> serde_json::Value {
@@ -282,5 +401,9 @@ fn json(o: &campaign::Outcome) -> serde_json::Value {
         "qemu_cpu_s": o.qemu_cpu_s,
         "bus_transactions": o.bus_transactions,
         "advice": o.analysis.advice,
+        "loops": o.state.loops,
+        "fold_period_ms": o.state.fold_period_ms,
+        "sample_period_ms": o.state.sample_period_ms,
+        "command_jitter_nm": o.analysis.jitter_nm.iter().map(|(k, v)| (k.name(), *v)).collect::<std::collections::BTreeMap<_, _>>(),
     })
 }

@@ -63,6 +63,10 @@ pub enum DeviceCommand {
         /// Sensor sampling period, ms (50..=60000).
         #[arg(long)]
         sample_period_ms: Option<u16>,
+        /// Fold period, ms (1000..=10000): the readings of a period are averaged and the model
+        /// folded with the averages once a period (paper 001 §VI: "each 5-10 seconds").
+        #[arg(long)]
+        fold_period_ms: Option<u16>,
         /// Unit of the controller's positions: um, mm or nm.
         #[arg(long)]
         stage_unit: Option<String>,
@@ -178,6 +182,7 @@ pub fn edit_settings(
     stage_baud: Option<u32>,
     mains: Option<u32>,
     sample_period_ms: Option<u16>,
+    fold_period_ms: Option<u16>,
     stage_unit: Option<&str>,
     axes: Option<&[String]>,
     sensors: &[String],
@@ -196,6 +201,14 @@ pub fn edit_settings(
     }
     if let Some(p) = sample_period_ms {
         s.sample_period_ms = p;
+    }
+    if let Some(p) = fold_period_ms {
+        use nanocal_compensator::slow_average::{MAX_FOLD_PERIOD_MS, MIN_FOLD_PERIOD_MS};
+        anyhow::ensure!(
+            (MIN_FOLD_PERIOD_MS..=MAX_FOLD_PERIOD_MS).contains(&p),
+            "--fold-period-ms {p}: {MIN_FOLD_PERIOD_MS}..={MAX_FOLD_PERIOD_MS}"
+        );
+        s.fold_period_ms = p;
     }
     if let Some(u) = stage_unit {
         s.stage_unit = match u {
@@ -234,13 +247,21 @@ pub fn run(cmd: DeviceCommand) -> anyhow::Result<()> {
                 std::fs::read(&blob).with_context(|| format!("reading {}", blob.display()))?;
             let mut c = Client::open(&port)?;
             let r = c.upload(&bytes)?;
-            println!("model {:#010x} stored and in service", r.model_id);
+            println!(
+                "model {:#010x} (blob CRC {:#010x}) stored and in service",
+                r.model_id, r.model_crc32
+            );
         }
         DeviceCommand::Status { port } => {
             let mut c = Client::open(&port)?;
             let h = c.identify()?;
+            let site = if h.reset_site.is_empty() {
+                String::new()
+            } else {
+                format!(" at {}", h.reset_site)
+            };
             println!(
-                "firmware {} (protocol {}, blob format {})  chip UID {}  last reset: {}",
+                "firmware {} (protocol {}, blob format {})  chip UID {}  last reset: {}{site}",
                 h.firmware,
                 h.protocol,
                 h.blob_format,
@@ -270,6 +291,7 @@ pub fn run(cmd: DeviceCommand) -> anyhow::Result<()> {
             stage_baud,
             mains,
             sample_period_ms,
+            fold_period_ms,
             stage_unit,
             axes,
             sensor,
@@ -282,6 +304,7 @@ pub fn run(cmd: DeviceCommand) -> anyhow::Result<()> {
                 stage_baud,
                 mains,
                 sample_period_ms,
+                fold_period_ms,
                 stage_unit.as_deref(),
                 axes.as_deref(),
                 &sensor,

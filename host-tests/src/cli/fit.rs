@@ -145,7 +145,8 @@ pub fn run(args: FitArgs) -> anyhow::Result<()> {
 }
 
 /// A readable summary of a fit: per axis the selected terms with coefficients ± standard
-/// errors (scaled inputs, µm), λ, RMS and R², and the training envelope.
+/// errors in raw units (µm of command per µm^p of position, per °C, …: the papers' form, e.g.
+/// paper 000 Table 1), λ, RMS and R², and the training envelope.
 pub fn summary(rep: &FitReport) -> String {
     use std::fmt::Write;
     let mut s = String::new();

@@ -7,7 +7,7 @@ use anyhow::Context;
 use clap::Args;
 use nanocal_model::Model;
 
-use crate::device_path::DEVICE_FOLD_PERIOD_S;
+use crate::device_path::{SlowPeriods, DEVICE_FOLD_PERIOD_S, DEVICE_SAMPLE_PERIOD_S};
 use crate::dwell::DwellOptions;
 use crate::iso9283::TestStats;
 use crate::recording::Recording;
@@ -159,9 +159,13 @@ pub struct ValidationInputs {
     /// pose.
     #[arg(long, default_value_t = 15)]
     pub cycles_per_test: usize,
-    /// The device's fold period, s (STM32 board: 0.25).
+    /// The device's fold period, s: the readings of a period are averaged and the model folded
+    /// once a period (the device's default: 5 s).
     #[arg(long, default_value_t = DEVICE_FOLD_PERIOD_S)]
     pub fold_period_s: f64,
+    /// The device's sensor sample period, s (the device's default: 0.25 s).
+    #[arg(long, default_value_t = DEVICE_SAMPLE_PERIOD_S)]
+    pub sample_period_s: f64,
     /// `Time` of R_t (Eq. 21), h; default: from the start of the first test to the end of the
     /// last.
     #[arg(long)]
@@ -174,6 +178,14 @@ pub struct ValidationInputs {
 }
 
 impl ValidationInputs {
+    /// The device's slow-path periods as given.
+    fn periods(&self) -> SlowPeriods {
+        SlowPeriods {
+            sample_s: self.sample_period_s,
+            fold_s: self.fold_period_s,
+        }
+    }
+
     /// Reads the model and the recording, and validates three ways: no model, static, adaptive
     /// KMZ.
     pub fn validate_three_ways(&self) -> anyhow::Result<(ValidationData, [ValidationReport; 3])> {
@@ -193,7 +205,7 @@ impl ValidationInputs {
         )
         .with_context(|| format!("{}", self.recording.display()))?;
         let opts = ValidationOptions {
-            fold_period_s: self.fold_period_s,
+            slow: self.periods(),
             cycles_per_test: self.cycles_per_test,
             time_h: self.time_h,
         };
@@ -241,7 +253,7 @@ impl ValidationInputs {
             )
         })?;
         let kmz = plan.validation.kmz.as_ref();
-        let p = self.fold_period_s;
+        let p = self.periods();
         let reports = [
             data.validate(TestKind::NoModel, None, kmz, p)?,
             data.validate(TestKind::Static, Some(model), kmz, p)?,

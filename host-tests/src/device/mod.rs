@@ -43,6 +43,30 @@ pub enum DeviceError {
     /// The blob is not valid (checked on the host before sending).
     #[error("blob rejected before upload: {0}")]
     Blob(String),
+    /// The device speaks another version of the management protocol: its bytes would be
+    /// misread, so nothing but `HELLO` is exchanged.
+    #[error("the device on {port} speaks management protocol {device}{}, this nanocal speaks {host}: flash the firmware of this nanocal's release (`cargo run --release` at the repository root) or use the nanocal built with the device's firmware", firmware.as_ref().map(|f| format!(" (firmware {f})")).unwrap_or_default())]
+    ProtocolVersion {
+        /// Port specification.
+        port: String,
+        /// The device's protocol version.
+        device: u16,
+        /// This host's ([`mgmt::PROTOCOL`]).
+        host: u16,
+        /// The device's firmware version, when its `HELLO` could be read.
+        firmware: Option<String>,
+    },
+    /// After an upload the device reports another content hash than the blob's: it stored
+    /// other bytes than were sent.
+    #[error("the device stored model {model_id:#010x} with blob CRC {device:#010x}, the uploaded blob's is {blob:#010x}")]
+    StoredOtherBlob {
+        /// The model's id.
+        model_id: u32,
+        /// The CRC the device reports.
+        device: u32,
+        /// The blob's own CRC.
+        blob: u32,
+    },
 }
 
 /// A byte stream to the device.
@@ -85,6 +109,10 @@ pub struct Client {
     name: String,
     seq: u8,
     dec: Decoder,
+    /// The decoder's clock starts here.
+    epoch: Instant,
+    /// The device's `HELLO` said it speaks [`mgmt::PROTOCOL`].
+    protocol_checked: bool,
     /// How long to wait for each reply.
     pub timeout: Duration,
 }
@@ -101,6 +129,8 @@ pub fn uid_hex(uid: &[u8; 12]) -> String {
 pub struct Committed {
     /// Model id now in service.
     pub model_id: u32,
+    /// The CRC-32 of its blob as the device stored it (its content hash).
+    pub model_crc32: u32,
     /// Uploads the device accepted since it started.
     pub uploads_accepted: u32,
 }
@@ -123,8 +153,15 @@ impl Client {
             name: name.to_string(),
             seq: 0,
             dec: Decoder::new(),
+            epoch: Instant::now(),
+            protocol_checked: false,
             timeout,
         }
+    }
+
+    /// Milliseconds on the decoder's clock (it wraps after 49 days, as the decoder expects).
+    fn now_ms(&self) -> u32 {
+        self.epoch.elapsed().as_millis() as u32
     }
 
     fn io(&self, source: io::Error) -> DeviceError {
@@ -134,8 +171,28 @@ impl Client {
         }
     }
 
-    /// Send one request; its reply, or the device's refusal as [`DeviceError::Refused`].
+    /// Send one request; its reply, or the device's refusal as [`DeviceError::Refused`]. The
+    /// first request of a client asks `HELLO` first: a device of another protocol version is
+    /// [`DeviceError::ProtocolVersion`], before any bytes of its are misread.
     pub fn request(&mut self, req: &Request<'_>) -> Result<Reply, DeviceError> {
+        if !matches!(req, Request::Hello) && !self.protocol_checked {
+            self.identify()?;
+        }
+        let k = req.kind();
+        let payload = self.exchange(req)?;
+        match Reply::decode(k, &payload) {
+            Ok(Reply::Refused { refusal, input }) => Err(DeviceError::Refused {
+                kind: k,
+                refusal,
+                input,
+            }),
+            Ok(reply) => Ok(reply),
+            Err(e) => Err(DeviceError::Protocol(k, e.to_string())),
+        }
+    }
+
+    /// Send one request; the payload of its reply.
+    fn exchange(&mut self, req: &Request<'_>) -> Result<Vec<u8>, DeviceError> {
         let k = req.kind();
         self.seq = self.seq.wrapping_add(1);
         let seq = self.seq;
@@ -171,21 +228,19 @@ impl Client {
                 }
                 Err(e) => return Err(self.io(e)),
             };
+            let now = self.now_ms();
             for &b in &buf[..got] {
-                if let Some(Ok(())) = self.dec.feed(b) {
-                    let f = self.dec.frame();
-                    if f.kind != k.reply_code() || f.seq != seq {
-                        continue; // a stale reply
+                let mut ev = self.dec.feed(b, now);
+                while let Some(e) = ev {
+                    if e.is_ok() {
+                        let f = self.dec.frame();
+                        if f.kind == k.reply_code() && f.seq == seq {
+                            // (a later reply in the same read belongs to no request)
+                            return Ok(f.payload.to_vec());
+                        }
+                        // else a stale reply
                     }
-                    return match Reply::decode(k, f.payload) {
-                        Ok(Reply::Refused { refusal, input }) => Err(DeviceError::Refused {
-                            kind: k,
-                            refusal,
-                            input,
-                        }),
-                        Ok(reply) => Ok(reply),
-                        Err(e) => Err(DeviceError::Protocol(k, e.to_string())),
-                    };
+                    ev = self.dec.next(now);
                 }
             }
         }
@@ -208,12 +263,42 @@ impl Client {
         Ok((h.protocol, h.blob_format, h.max_chunk))
     }
 
-    /// Everything HELLO tells: versions, firmware, chip UID, reset cause.
+    /// Everything HELLO tells: versions, firmware, chip UID, reset cause. A device of another
+    /// protocol version is [`DeviceError::ProtocolVersion`] (HELLO's first field is the
+    /// version in every protocol).
     pub fn identify(&mut self) -> Result<Hello, DeviceError> {
-        self.expect(&Request::Hello, |r| match r {
-            Reply::Hello(h) => Some(h),
-            _ => None,
-        })
+        let k = Kind::Hello;
+        let payload = self.exchange(&Request::Hello)?;
+        let reply = Reply::decode(k, &payload);
+        if let [0, lo, hi, ..] = payload[..] {
+            let device = u16::from_le_bytes([lo, hi]);
+            if device != mgmt::PROTOCOL {
+                let firmware = match &reply {
+                    Ok(Reply::Hello(h)) => Some(h.firmware.to_string()),
+                    _ => None,
+                };
+                self.protocol_checked = false;
+                return Err(DeviceError::ProtocolVersion {
+                    port: self.name.clone(),
+                    device,
+                    host: mgmt::PROTOCOL,
+                    firmware,
+                });
+            }
+        }
+        match reply {
+            Ok(Reply::Hello(h)) => {
+                self.protocol_checked = true;
+                Ok(h)
+            }
+            Ok(Reply::Refused { refusal, input }) => Err(DeviceError::Refused {
+                kind: k,
+                refusal,
+                input,
+            }),
+            Ok(r) => Err(DeviceError::Protocol(k, format!("unexpected {r:?}"))),
+            Err(e) => Err(DeviceError::Protocol(k, e.to_string())),
+        }
     }
 
     /// The device's settings.
@@ -277,9 +362,11 @@ impl Client {
         self.expect(&Request::UploadCommit, |r| match r {
             Reply::UploadCommit {
                 model_id,
+                model_crc32,
                 uploads_accepted,
             } => Some(Some(Committed {
                 model_id,
+                model_crc32,
                 uploads_accepted,
             })),
             _ => None,
@@ -287,9 +374,13 @@ impl Client {
     }
 
     /// Upload a blob: decoded on the host first (so a bad file never reaches the device), then
-    /// sent in chunks with its CRC and format version, verified and committed by the firmware.
+    /// sent in chunks with its CRC and format version, verified and committed by the firmware,
+    /// which must report the blob's own CRC as the content hash of what it stored
+    /// ([`DeviceError::StoredOtherBlob`] otherwise).
     pub fn upload(&mut self, blob_bytes: &[u8]) -> Result<Committed, DeviceError> {
         blob::decode(blob_bytes).map_err(|e| DeviceError::Blob(e.to_string()))?;
+        let blob_crc = blob::stored_crc(blob_bytes)
+            .ok_or_else(|| DeviceError::Blob("shorter than a header".into()))?;
         let version = u16::from_le_bytes([blob_bytes[4], blob_bytes[5]]);
         let c = self.upload_raw(
             blob_bytes,
@@ -298,7 +389,16 @@ impl Client {
             version,
             true,
         )?;
-        c.ok_or_else(|| DeviceError::Protocol(Kind::UploadCommit, "no commit reply".into()))
+        let c =
+            c.ok_or_else(|| DeviceError::Protocol(Kind::UploadCommit, "no commit reply".into()))?;
+        if c.model_crc32 != blob_crc {
+            return Err(DeviceError::StoredOtherBlob {
+                model_id: c.model_id,
+                device: c.model_crc32,
+                blob: blob_crc,
+            });
+        }
+        Ok(c)
     }
 
     /// Set λ_KMZ so that the model maps the measured reference `x_meas_um` to the command
@@ -344,7 +444,7 @@ pub fn format_status(s: &Status) -> String {
     o += &format!(
         "model: {}\n",
         if s.flags.contains(Flags::MODEL) {
-            format!("{:#010x}", s.model_id)
+            format!("{:#010x}  blob CRC {:#010x}", s.model_id, s.model_crc32)
         } else {
             "none".into()
         }
@@ -443,9 +543,10 @@ pub fn format_settings(s: &Settings) -> String {
         .collect();
     o += &format!("GCS axis names (model axes 0,1,2): {}\n", names.join(","));
     o += &format!(
-        "mains: {} Hz  sample period: {} ms\n",
+        "mains: {} Hz  sample period: {} ms  fold period: {} ms (readings averaged)\n",
         if s.mains == Mains::Hz50 { 50 } else { 60 },
-        s.sample_period_ms
+        s.sample_period_ms,
+        s.fold_period_ms
     );
     for (cs, c) in s.sensors.iter().enumerate() {
         let d = match c {

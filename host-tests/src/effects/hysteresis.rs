@@ -85,9 +85,171 @@ pub fn full_loop_half_width_um(thresholds_um: &[f64], weights: &[f64], amplitude
         .sum()
 }
 
-/// The explain candidate: a bank of play operators on the commanded position, weights of one
-/// sign (non-negative least squares for each sign; the better sign is the loop's sense).
+/// The explain candidate: a bank of play operators on the drive, weights of one sign
+/// (non-negative least squares for each sign; the better sign is the loop's sense). The drive
+/// is the axis' command, or an auxiliary column that carries it (an actuator voltage that
+/// follows the measurement closely and reverses); thresholds come from the drive's own stroke,
+/// whatever its sign or offset; glitches of the drive are repaired before (see
+/// [`crate::explain::faults`]).
 pub struct Candidate;
+
+/// The drives the loop may be fed by on channel `ch`: the command (if it reverses), then every
+/// auxiliary column that goes with the measurement (|r| ≥ 0.9), reverses at least three times
+/// and is not a copy of the command.
+pub fn drives(d: &Data, ch: usize) -> Vec<(Option<String>, Vec<f64>)> {
+    let c = &d.channels[ch];
+    let mut out = Vec::new();
+    if let (Some(cmd), Some(_)) = (&c.cmd_um, &c.dir) {
+        out.push((None, cmd.clone()));
+    }
+    for (name, x) in &d.aux {
+        if d.pressure_hpa.as_ref().is_some_and(|p| &p.0 == name) || reversals(x) < 3 {
+            continue;
+        }
+        if correlation(x, &c.meas_um).abs() < 0.9 {
+            continue;
+        }
+        if c.cmd_um
+            .as_ref()
+            .is_some_and(|cmd| correlation(x, cmd).abs() > 0.9999)
+        {
+            continue;
+        }
+        out.push((Some(name.clone()), x.clone()));
+    }
+    out
+}
+
+fn correlation(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len()) as f64;
+    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
+    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+    for (x, y) in a.iter().zip(b) {
+        sab += (x - ma) * (y - mb);
+        saa += (x - ma) * (x - ma);
+        sbb += (y - mb) * (y - mb);
+    }
+    let r = sab / (saa * sbb).sqrt();
+    if r.is_finite() {
+        r
+    } else {
+        0.0
+    }
+}
+
+/// Number of reversals of a series beyond a tenth of its range (noise does not count).
+pub fn reversals(x: &[f64]) -> usize {
+    let lo = x.iter().cloned().fold(f64::INFINITY, f64::min);
+    let hi = x.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+    let band = 0.1 * (hi - lo);
+    if band.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return 0;
+    }
+    let (mut count, mut dir) = (0usize, 0i8);
+    let (mut top, mut bottom) = (x[0], x[0]);
+    for &v in x {
+        if dir >= 0 {
+            top = top.max(v);
+            if v < top - band {
+                count += usize::from(dir > 0);
+                dir = -1;
+                bottom = v;
+            }
+        }
+        if dir <= 0 {
+            bottom = bottom.min(v);
+            if v > bottom + band {
+                count += usize::from(dir < 0);
+                dir = 1;
+                top = v;
+            }
+        }
+    }
+    count
+}
+
+/// A polynomial (degree 3) in an auxiliary drive, scaled to [−1, 1]: its static response.
+fn drive_poly(x: &[f64]) -> Vec<Vec<f64>> {
+    let lo = x.iter().cloned().fold(f64::INFINITY, f64::min);
+    let hi = x.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+    let (c, h) = (0.5 * (lo + hi), (0.5 * (hi - lo)).max(f64::MIN_POSITIVE));
+    (1..=3)
+        .map(|p| x.iter().map(|v| ((v - c) / h).powi(p)).collect())
+        .collect()
+}
+
+/// The bank fitted on one drive: (misfit, sense, weights per threshold, thresholds, columns).
+struct BankFit {
+    misfit: f64,
+    sense: f64,
+    weights: Vec<f64>,
+    thresholds: Vec<f64>,
+    cols: Vec<Vec<f64>>,
+    amplitude: f64,
+}
+
+/// Non-negative fit of the operators with thresholds `rs` on `basis` (each sign; the better).
+fn fit_bank(
+    basis: &crate::explain::search::Basis,
+    x: &[f64],
+    rs: Vec<f64>,
+    amplitude: f64,
+) -> BankFit {
+    let cols: Vec<Vec<f64>> = rs.iter().map(|&r| play_deviation(x, r)).collect();
+    let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
+    let (r_mat, b, rest) = basis.reduce(&refs);
+    let neg: Vec<Vec<f64>> = r_mat
+        .iter()
+        .map(|col| col.iter().map(|v| -v).collect())
+        .collect();
+    let misfit = |a: &[Vec<f64>], w: &[f64]| -> f64 {
+        (0..b.len())
+            .map(|i| {
+                let e = b[i] - a.iter().zip(w).map(|(col, wj)| col[i] * wj).sum::<f64>();
+                e * e
+            })
+            .sum::<f64>()
+            + rest
+    };
+    let w_pos = nnls(&r_mat, &b);
+    let w_neg = nnls(&neg, &b);
+    let (mp, mn) = (misfit(&r_mat, &w_pos), misfit(&neg, &w_neg));
+    let (weights, sense, m) = if mp <= mn {
+        (w_pos, 1.0, mp)
+    } else {
+        (w_neg, -1.0, mn)
+    };
+    BankFit {
+        misfit: m,
+        sense,
+        weights: weights.iter().map(|w| w * sense).collect(),
+        thresholds: rs,
+        cols,
+        amplitude,
+    }
+}
+
+/// The thresholds of alternative grids (r = A(i/m)^p for other m and p): the half-width's
+/// spread over them is the part of its uncertainty the choice of grid brings.
+fn alternative_grids(amplitude: f64) -> Vec<Vec<f64>> {
+    [(9usize, 2.0f64), (16, 2.0), (12, 1.5), (12, 2.5)]
+        .iter()
+        .map(|&(m, p)| {
+            (1..=m)
+                .map(|i| amplitude * (i as f64 / m as f64).powf(p))
+                .collect()
+        })
+        .collect()
+}
+
+/// The best bank so far: its fit, the auxiliary drive's name (None for the command), the
+/// drive's own static columns and the search basis with them.
+type BestDrive = (
+    BankFit,
+    Option<String>,
+    Vec<Vec<f64>>,
+    crate::explain::search::Basis,
+);
 
 impl super::Candidate for Candidate {
     fn name(&self) -> &'static str {
@@ -100,45 +262,48 @@ impl super::Candidate for Candidate {
         "in the blob (v2): a play-operator bank on the axis, fed by its target (declared thresholds r_i in µm, terms with Factor::Play(k)); the fit sets the correction's weights, the fast path steps the operators with the same play function"
     }
     fn applies(&self, d: &Data, ch: usize) -> bool {
-        d.channels[ch].dir.is_some() && d.channels[ch].u.is_some()
+        !drives(d, ch).is_empty()
     }
     fn propose(&self, s: &Search) -> Result<Option<Proposal>, ExplainError> {
-        let c = &s.d.channels[s.ch];
-        let Some(cmd) = &c.cmd_um else {
+        let mut best: Option<BestDrive> = None;
+        for (drive, x) in drives(s.d, s.ch) {
+            let lo = x.iter().cloned().fold(f64::INFINITY, f64::min);
+            let hi = x.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+            let amplitude = 0.5 * (hi - lo);
+            if amplitude.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+                continue;
+            }
+            // an auxiliary drive brings its own static response (the baseline's polynomial is
+            // in the command)
+            let poly = if drive.is_some() {
+                drive_poly(&x)
+            } else {
+                Vec::new()
+            };
+            let mut basis = s.basis.clone();
+            for c in &poly {
+                basis.add_column(c);
+            }
+            let fit = fit_bank(&basis, &x, thresholds_um(amplitude), amplitude);
+            if best.as_ref().is_none_or(|b| fit.misfit < b.0.misfit) {
+                best = Some((fit, drive, poly, basis));
+            }
+        }
+        let Some((fit, drive, poly, basis)) = best else {
             return Ok(None);
         };
-        let amplitude_um = c.half_range_um;
-        let rs = thresholds_um(amplitude_um);
-        let cols: Vec<Vec<f64>> = rs.iter().map(|&r| play_deviation(cmd, r)).collect();
-        let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
-        let (r_mat, b, rest) = s.basis.reduce(&refs);
-        let neg: Vec<Vec<f64>> = r_mat
-            .iter()
-            .map(|col| col.iter().map(|v| -v).collect())
+        let active: Vec<usize> = (0..fit.weights.len())
+            .filter(|&j| fit.weights[j] != 0.0)
             .collect();
-        let misfit = |a: &[Vec<f64>], w: &[f64]| -> f64 {
-            (0..b.len())
-                .map(|i| {
-                    let e = b[i] - a.iter().zip(w).map(|(col, wj)| col[i] * wj).sum::<f64>();
-                    e * e
-                })
-                .sum::<f64>()
-                + rest
-        };
-        let w_pos = nnls(&r_mat, &b);
-        let w_neg = nnls(&neg, &b);
-        let (w, sense) = if misfit(&r_mat, &w_pos) <= misfit(&neg, &w_neg) {
-            (w_pos, 1.0)
-        } else {
-            (w_neg, -1.0)
-        };
-        let active: Vec<usize> = (0..w.len()).filter(|&j| w[j] > 0.0).collect();
         if active.is_empty() {
             return Ok(None);
         }
+        let amplitude_um = fit.amplitude;
+        let sense = fit.sense;
+        let rs = &fit.thresholds;
         // σ of the half-width per unit noise: solve Rᵀg = c on the active operators' reduction
-        let act: Vec<&[f64]> = active.iter().map(|&j| cols[j].as_slice()).collect();
-        let (ra, _, _) = s.basis.reduce(&act);
+        let act: Vec<&[f64]> = active.iter().map(|&j| fit.cols[j].as_slice()).collect();
+        let (ra, _, _) = basis.reduce(&act);
         let c: Vec<f64> = active
             .iter()
             .map(|&j| sense * rs[j].min(amplitude_um - rs[j]).max(0.0))
@@ -153,17 +318,45 @@ impl super::Candidate for Candidate {
             };
         }
         let half_width_per_noise = g.iter().map(|v| v * v).sum::<f64>().sqrt();
+        // the grid's share of the uncertainty: the half-width over other threshold grids
+        let x: Vec<f64> = match &drive {
+            None => s.d.channels[s.ch].cmd_um.clone().unwrap_or_default(),
+            Some(name) => {
+                s.d.aux
+                    .iter()
+                    .find(|a| &a.0 == name)
+                    .map(|a| a.1.clone())
+                    .unwrap_or_default()
+            }
+        };
+        let own = full_loop_half_width_um(rs, &fit.weights, amplitude_um);
+        let others: Vec<f64> = alternative_grids(amplitude_um)
+            .into_iter()
+            .map(|grid| {
+                let f = fit_bank(&basis, &x, grid, amplitude_um);
+                full_loop_half_width_um(&f.thresholds, &f.weights, amplitude_um)
+            })
+            .collect();
+        let grid_spread_um = (others.iter().map(|h| (h - own).powi(2)).sum::<f64>()
+            / others.len().max(1) as f64)
+            .sqrt();
+        let mut regs = poly.clone();
+        regs.extend(active.iter().map(|&j| fit.cols[j].clone()));
         Ok(Some(Proposal {
-            regs: active.iter().map(|&j| cols[j].clone()).collect(),
+            regs,
             thetas: Vec::new(),
             detail: Detail::Play(PlayBank {
                 axis: s.ch,
+                drive,
+                leading_poly: poly.len(),
                 thresholds_um: active.iter().map(|&j| rs[j]).collect(),
                 sense,
                 amplitude_um,
                 half_width_per_noise,
+                grid_spread_um,
             }),
             design: None,
+            evidence_units: Some(reversals(&x) as f64),
         }))
     }
     fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
@@ -171,20 +364,30 @@ impl super::Candidate for Candidate {
             return Vec::new();
         };
         let a = bank.amplitude_um;
-        let hw = full_loop_half_width_um(&bank.thresholds_um, f.coeffs, a);
-        let hw_sigma = f.noise_sigma_um * bank.half_width_per_noise;
+        let w = &f.coeffs[bank.leading_poly..];
+        let hw = full_loop_half_width_um(&bank.thresholds_um, w, a);
+        let hw_sigma = (f.noise_sigma_um * bank.half_width_per_noise).hypot(bank.grid_spread_um);
         vec![
             super::Estimate::new("half_width_nm", hw * 1e3, hw_sigma * 1e3),
-            super::Estimate::new("loop_sense", bank.sense, 0.0),
-            super::Estimate::new("operators", bank.thresholds_um.len() as f64, 0.0),
-            super::Estimate::new("stroke_um", 2.0 * a, 0.0),
+            super::Estimate::new("loop_sense", bank.sense, f64::NAN),
+            super::Estimate::new("operators", bank.thresholds_um.len() as f64, f64::NAN),
+            super::Estimate::new(
+                if bank.drive.is_some() {
+                    "drive_stroke"
+                } else {
+                    "stroke_um"
+                },
+                2.0 * a,
+                f64::NAN,
+            ),
         ]
     }
     fn summary(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> String {
         let Detail::Play(bank) = &f.proposal.detail else {
             return String::new();
         };
-        let hw = full_loop_half_width_um(&bank.thresholds_um, f.coeffs, bank.amplitude_um);
+        let w = &f.coeffs[bank.leading_poly..];
+        let hw = full_loop_half_width_um(&bank.thresholds_um, w, bank.amplitude_um);
         let sense = if bank.sense > 0.0 {
             "counter-clockwise loop (measured vs commanded): the response lags the command — on the way up the stage stays below where it is on the way down, as a piezo's does"
         } else {
@@ -193,11 +396,17 @@ impl super::Candidate for Candidate {
         let ops: Vec<String> = bank
             .thresholds_um
             .iter()
-            .zip(f.coeffs)
-            .map(|(r, w)| format!("{:.3} µm × {:.4}", r, w))
+            .zip(w)
+            .map(|(r, w)| format!("{:.3} × {:.4}", r, w))
             .collect();
+        let fed = match &bank.drive {
+            None => "fed by the command (thresholds in µm)".to_string(),
+            Some(name) => format!(
+                "fed by `{name}`, which carries the drive (thresholds in its unit; the loop against the command is not what the stage does) — the compensator can run it only once it reads that channel"
+            ),
+        };
         format!(
-            "{sense}; full-stroke loop half-width {} at mid-stroke; {} play operators (threshold × weight): {}",
+            "{sense}; full-stroke loop half-width {} at mid-stroke; {} play operators {fed} (threshold × weight): {}",
             length_um(hw),
             ops.len(),
             ops.join(", ")
@@ -207,6 +416,10 @@ impl super::Candidate for Candidate {
         let Detail::Play(bank) = &f.proposal.detail else {
             return None;
         };
+        // the compensator's bank is fed by the axis' target: only a loop on the command deploys
+        if bank.drive.is_some() {
+            return None;
+        }
         let plays: Vec<(u8, f64)> = bank
             .thresholds_um
             .iter()

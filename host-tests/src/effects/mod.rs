@@ -199,17 +199,28 @@ pub struct LagTerm {
 pub struct PlayBank {
     /// The axis whose commanded position feeds the operators.
     pub axis: usize,
-    /// Thresholds r_i of the operators kept (non-zero weight), µm, ascending, ≥ 0.
+    /// The column that feeds the operators when it is not the axis' command (an auxiliary
+    /// channel that carries the drive, e.g. the actuator voltage); None: the command.
+    pub drive: Option<String>,
+    /// Leading columns of the proposal that are a polynomial in that auxiliary drive (its
+    /// static response), before the operators' columns.
+    pub leading_poly: usize,
+    /// Thresholds r_i of the operators kept (non-zero weight), in the drive's unit (µm for the
+    /// command), ascending, ≥ 0.
     pub thresholds_um: Vec<f64>,
     /// +1: weights ≥ 0 (counter-clockwise loop: the response lags the command); −1: ≤ 0.
     pub sense: f64,
-    /// Half of the commanded stroke, µm (a full-stroke loop's amplitude).
+    /// Half of the drive's stroke (robust: 0.5th to 99.5th percentile), in the drive's unit (a
+    /// full-stroke loop's amplitude).
     pub amplitude_um: f64,
     /// Standard deviation of the full-loop half-width per unit noise standard deviation
     /// (√(cᵀ(X⊥ᵀX⊥)⁻¹c) with X⊥ the operator columns beyond the rest of the model): the
     /// weights of neighbouring operators are strongly anti-correlated, so the half-width is
     /// known far better than each weight.
     pub half_width_per_noise: f64,
+    /// RMS change of the half-width over other threshold grids, in µm of response: the part of
+    /// its uncertainty the choice of grid brings.
+    pub grid_spread_um: f64,
 }
 
 /// Candidate-specific structure of a proposal (what its columns mean).
@@ -235,6 +246,11 @@ pub struct Proposal {
     /// A held-out design of the candidate's own (a time-only explanation is judged on gaps
     /// longer than its time scale); None: the standard design.
     pub design: Option<crate::explain::fit::Design>,
+    /// Independent events behind the candidate's signature, when they are fewer to count from
+    /// the residual than they are (each reversal of a drive measures a loop afresh, however
+    /// slow the residual around it): the evidence counts at least these (never more than the
+    /// round's independent rows).
+    pub evidence_units: Option<f64>,
 }
 
 impl Proposal {
@@ -245,6 +261,7 @@ impl Proposal {
             thetas: Vec::new(),
             detail: Detail::None,
             design: None,
+            evidence_units: None,
         }
     }
 
@@ -427,5 +444,6 @@ pub fn one_theta(
         thetas: vec![theta],
         detail: Detail::None,
         design: None,
+        evidence_units: None,
     }
 }

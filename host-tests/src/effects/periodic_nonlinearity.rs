@@ -114,6 +114,7 @@ impl super::Candidate for Candidate {
             }],
             detail: super::Detail::None,
             design: None,
+            evidence_units: None,
         }))
     }
     fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {

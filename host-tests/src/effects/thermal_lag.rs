@@ -490,6 +490,7 @@ impl super::Candidate for Candidate {
             thetas: terms.iter().map(|t| t.tau.clone()).collect(),
             detail: Detail::Lags(terms),
             design: None,
+            evidence_units: None,
         }))
     }
     fn params(&self, d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {

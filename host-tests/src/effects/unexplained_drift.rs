@@ -151,6 +151,7 @@ impl super::Candidate for Candidate {
                 }],
                 detail: super::Detail::None,
                 design: Some(design),
+                evidence_units: None,
             }
         }))
     }

@@ -70,8 +70,8 @@ pub struct Data {
     /// Typical time between updates of each temperature channel, s (sample-and-hold logs
     /// update slower than the table's rows).
     pub temp_update_s: Vec<f64>,
-    /// Temperature glitches repaired (column, rows), by interpolation between the readings
-    /// around them.
+    /// Glitches of temperatures and auxiliary channels repaired (column, rows), by
+    /// interpolation between the readings around them.
     pub temp_repairs: Vec<(String, Vec<usize>)>,
     /// Median sample period, s.
     pub median_dt_s: f64,
@@ -86,6 +86,8 @@ pub struct Data {
     pub against_simulation: bool,
     /// The sample period when the samples are (nearly) evenly spaced, s.
     pub uniform_dt_s: Option<f64>,
+    /// Data faults found before any physics (see [`super::faults`]).
+    pub faults: Vec<super::faults::DataFault>,
 }
 
 /// Centred moving average over ±`half` samples (shrinking at the ends); NaN-free input assumed.
@@ -138,32 +140,16 @@ impl Data {
                 "expected at least 20 rows, found {n}"
             )));
         }
+        // data faults first: time repaired, missing and frozen readings, clipped channels, a
+        // glitching drive — reported, and the rows they spoil left out
+        let inspection = super::faults::inspect(rec)?;
+        let rec = &inspection.recording;
         let t_s = rec
             .time_s()
             .ok_or_else(|| {
                 ExplainError::Input("expected a time column `t` (s), found none".into())
             })?
             .to_vec();
-        for name in rec.names() {
-            if let Some(i) = rec
-                .column(name)
-                .and_then(|c| c.iter().position(|v| !v.is_finite()))
-            {
-                return Err(ExplainError::Input(format!(
-                    "column `{name}`, data row {}: expected a finite number, found {}",
-                    i + 1,
-                    rec.column(name).map_or(f64::NAN, |c| c[i])
-                )));
-            }
-        }
-        if let Some(i) = t_s.windows(2).position(|w| w[1] <= w[0]) {
-            return Err(ExplainError::Input(format!(
-                "column `t`, data row {}: expected time to increase, found {} after {}",
-                i + 2,
-                t_s[i + 1],
-                t_s[i]
-            )));
-        }
         if let Some(s) = sim {
             if s.rows() != n {
                 return Err(ExplainError::Input(format!(
@@ -279,6 +265,16 @@ impl Data {
             for &i in &outliers {
                 y_um[i] = f64::NAN;
             }
+            let own = inspection
+                .excluded_meas
+                .iter()
+                .find(|e| e.0 == format!("meas_{axis}"))
+                .map(|e| e.1.as_slice());
+            for (i, y) in y_um.iter_mut().enumerate() {
+                if inspection.excluded_all[i] || own.is_some_and(|m| m[i]) {
+                    *y = f64::NAN;
+                }
+            }
             let position_est_um = meas_um.clone();
             channels.push(Channel {
                 name: axis,
@@ -321,11 +317,20 @@ impl Data {
             .iter()
             .map(|(_, v)| robust::update_interval_s(&t_s, v))
             .collect();
-        let aux: Vec<(String, Vec<f64>)> = rec
+        let mut aux: Vec<(String, Vec<f64>)> = rec
             .aux_columns()
             .iter()
             .map(|&c| (c.to_string(), rec.column(c).unwrap_or_default().to_vec()))
             .collect();
+        // glitches of an auxiliary channel (a drive voltage, a pressure) repaired the same way
+        for (name, v) in aux.iter_mut() {
+            let q = robust::quantisation_step(v);
+            let bad = robust::glitch_rows(v, q, max_glitch_run(n), None);
+            if !bad.is_empty() {
+                interpolate_over(v, &bad);
+                temp_repairs.push((name.clone(), bad));
+            }
+        }
         let pressure_hpa: Option<(String, Vec<f64>)> = aux.iter().find_map(|(name, v)| {
             let l = name.to_ascii_lowercase();
             if !(l.contains("press")
@@ -368,6 +373,7 @@ impl Data {
             pressure_raw_hpa: pressure_hpa,
             against_simulation: sim.is_some(),
             uniform_dt_s,
+            faults: inspection.faults,
         })
     }
 

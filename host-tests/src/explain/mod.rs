@@ -23,13 +23,17 @@
 //!    structure remains that no candidate explains, and where.
 
 pub mod data;
+pub mod events;
+pub mod faults;
 pub mod fit;
 pub mod locate;
+pub mod misspec;
 pub mod nnls;
 pub mod plot;
 pub mod report;
 pub mod robust;
 pub mod search;
+pub mod targeted;
 pub mod units;
 
 use crate::effects::{candidates, Candidate, Estimate, Fitted, Proposal};
@@ -37,6 +41,7 @@ use crate::linalg::LinalgError;
 use crate::recording::RecordingError;
 
 pub use data::Data;
+pub use faults::{DataFault, FaultKind};
 pub use locate::{Finding, NoiseFloor};
 pub use report::{ChannelReport, EffectReport, Report};
 
@@ -124,6 +129,13 @@ impl Model {
             .collect()
     }
 }
+
+fn unexplained_drift_name() -> &'static str {
+    crate::effects::unexplained_drift::NAME
+}
+
+/// Most events (steps of the residual) located per channel.
+pub const MAX_EVENTS: usize = 3;
 
 /// Most denoising explain applies to the temperatures: sensor noise is fast; slower smoothing
 /// would start to shape the thermal response itself (and hand a short lag what it took away).
@@ -221,15 +233,33 @@ struct Round<'a> {
     settings: &'a Settings,
 }
 
+/// An extension of the current model fitted and judged (the same thresholds for an effect and
+/// for an event).
+struct Evaluated {
+    fit: Fit,
+    delta_bic: f64,
+    n_eff: f64,
+    /// Held-out results on the judging design (current, with the extension); None when the
+    /// BIC already failed.
+    cv: Option<(Cv, Cv)>,
+    folds_better: usize,
+    passed: bool,
+}
+
 impl Round<'_> {
-    fn score(
+    /// Fit the model plus `regs` (with `k_extra` parameters beyond their coefficients: searched
+    /// nonlinear parameters) and judge it: BIC with the independent rows behind the evidence,
+    /// held-out prediction on `design` (the round's when None).
+    fn evaluate(
         &self,
-        cand: &'static dyn Candidate,
-        proposal: Proposal,
-    ) -> Result<(Trial, Option<Scored>), ExplainError> {
-        let cols = self.model.with(&proposal.regs);
+        regs: &[Vec<f64>],
+        k_extra: usize,
+        design: Option<&Design>,
+        evidence_units: Option<f64>,
+    ) -> Result<Evaluated, ExplainError> {
+        let cols = self.model.with(regs);
         let f = fit::fit_rows(&cols, self.y, self.rows)?;
-        let k_new = self.k_cur + proposal.regs.len() + proposal.thetas.len();
+        let k_new = self.k_cur + regs.len() + k_extra;
         // the evidence counts the independent rows behind the association of what the
         // extension adds with the noise that is left after it (smooth with smooth: few rows)
         let new_res = fit::gather(&f.residuals, self.rows);
@@ -238,50 +268,77 @@ impl Round<'_> {
             .zip(&new_res)
             .map(|(a, b)| a - b)
             .collect();
-        let n_eff = fit::bartlett_n_eff(&added, &new_res).min(self.n_eff);
+        let n_eff = fit::bartlett_n_eff(&added, &new_res)
+            .max(evidence_units.unwrap_or(0.0))
+            .min(self.n_eff);
         let delta_bic = fit::bic(f.rss, f.n, k_new, n_eff)
             - fit::bic(self.cur_fit.rss, self.cur_fit.n, self.k_cur, n_eff);
-        let design = proposal.design.as_ref().unwrap_or(self.design);
-        let mut trial = Trial {
-            name: cand.name(),
-            theta: proposal.theta(),
+        let mut out = Evaluated {
+            fit: f,
             delta_bic,
-            cv_rms_um: f64::NAN,
+            n_eff,
+            cv: None,
             folds_better: 0,
-            folds: design.folds,
             passed: false,
         };
         if delta_bic.is_nan() || delta_bic >= -self.settings.min_bic_drop {
-            return Ok((trial, None));
+            return Ok(out);
         }
-        let cv_cur = if proposal.design.is_some() {
+        let own = design.is_some();
+        let design = design.unwrap_or(self.design);
+        let cv_cur = if own {
             fit::cross_validate(&self.model.with(&[]), self.y, design, self.rows)?
         } else {
             self.cur_cv.clone()
         };
         let cv_new = fit::cross_validate(&cols, self.y, design, self.rows)?;
-        trial.cv_rms_um = cv_new.rms_um;
-        trial.folds_better = cv_new.folds_better_than(&cv_cur);
+        out.folds_better = cv_new.folds_better_than(&cv_cur);
         let explained_um = (cv_cur.rms_um.powi(2) - cv_new.rms_um.powi(2))
             .max(0.0)
             .sqrt();
-        trial.passed = trial.folds_better >= design.folds_needed(self.settings.min_folds_better)
+        out.passed = out.folds_better >= design.folds_needed(self.settings.min_folds_better)
             && cv_new.rms_um < cv_cur.rms_um * (1.0 - self.settings.min_rms_gain)
             && explained_um >= self.settings.min_effect_of_floor * self.floor_um;
+        out.cv = Some((cv_cur, cv_new));
+        Ok(out)
+    }
+
+    fn score(
+        &self,
+        cand: &'static dyn Candidate,
+        proposal: Proposal,
+    ) -> Result<(Trial, Option<Scored>), ExplainError> {
+        let ev = self.evaluate(
+            &proposal.regs,
+            proposal.thetas.len(),
+            proposal.design.as_ref(),
+            proposal.evidence_units,
+        )?;
+        let design = proposal.design.as_ref().unwrap_or(self.design);
+        let trial = Trial {
+            name: cand.name(),
+            theta: proposal.theta(),
+            delta_bic: ev.delta_bic,
+            cv_rms_um: ev.cv.as_ref().map_or(f64::NAN, |c| c.1.rms_um),
+            folds_better: ev.folds_better,
+            folds: design.folds,
+            passed: ev.passed,
+        };
         let gap_s = design.gap_s;
-        Ok((
-            trial.clone(),
-            trial.passed.then_some(Scored {
+        let scored = match (ev.passed, ev.cv) {
+            (true, Some((cv_cur, cv_new))) => Some(Scored {
                 cand,
                 proposal,
-                fit: f,
+                fit: ev.fit,
                 cv_cur,
                 cv_new,
                 gap_s,
-                n_eff,
-                trial,
+                n_eff: ev.n_eff,
+                trial: trial.clone(),
             }),
-        ))
+            _ => None,
+        };
+        Ok((trial, scored))
     }
 }
 
@@ -377,8 +434,64 @@ fn explain_channel_once(
     let mut effects = Vec::new();
     let mut trials_all = Vec::new();
     let mut accepted: Vec<&'static str> = Vec::new();
+    // model columns [start, end) and searched parameters of each named effect
+    let mut effect_cols: Vec<(usize, usize, usize)> = Vec::new();
     let mut k_cur = model.cols.len() + 1;
     let units_n = locate::unit_count(d, ch);
+    // events first: a residual that steps once and stays is located and modelled as an offset
+    // from its row on before any effect is named, so no drift is handed the credit
+    let mut found_events: Vec<events::Event> = Vec::new();
+    let temp_gains: Vec<f64> = {
+        let offset = if d.against_simulation || d.channels[ch].u.is_none() {
+            0
+        } else {
+            3
+        };
+        (0..d.temps.len())
+            .map(|i| base_fit.ls.coeffs.get(offset + i).copied().unwrap_or(0.0))
+            .collect()
+    };
+    for _ in 0..MAX_EVENTS {
+        let clean = events::without_pose_structure(d, ch, &cur_fit.residuals);
+        let Some(mut ev) = events::find_step(d, ch, &clean, &floor, &temp_gains) else {
+            break;
+        };
+        let col = events::step_column(d.rows(), ev.row);
+        let n_eff = fit::round_effective_n(&fit::gather(&cur_fit.residuals, &rows), units_n);
+        let round = Round {
+            y,
+            rows: &rows,
+            design: &design,
+            model: &model,
+            cur_fit: &cur_fit,
+            cur_cv: &cur_cv,
+            k_cur,
+            n_eff,
+            floor_um: floor.unit_um.max(floor.sample_um),
+            settings,
+        };
+        let e = round.evaluate(std::slice::from_ref(&col), 1, None, None)?;
+        let (true, Some((cv_cur, cv_new))) = (e.passed, e.cv) else {
+            break;
+        };
+        let m = model.cols.len();
+        let infl = (e.fit.n as f64 / e.n_eff.max(1.0)).sqrt().max(1.0);
+        ev.size_um = e.fit.ls.coeffs[m];
+        ev.size_sigma_um = e.fit.ls.std_errors()[m] * infl;
+        ev.evidence = format!(
+            "held-out RMS {} → {} ({} of {} folds better), ΔBIC {:.0}",
+            units::length_um(cv_cur.rms_um),
+            units::length_um(cv_new.rms_um),
+            e.folds_better,
+            design.folds,
+            e.delta_bic
+        );
+        found_events.push(ev);
+        model.cols.push(col);
+        k_cur += 2;
+        cur_fit = e.fit;
+        cur_cv = cv_new;
+    }
     for _round in 0..settings.max_effects {
         // the most independent rows this round can have (dwells, the residual's whiteness);
         // each candidate's own evidence counts fewer when it and the residual are smooth
@@ -506,15 +619,233 @@ fn explain_channel_once(
         });
         accepted.push(sc.cand.name());
         k_cur += sc.proposal.regs.len() + sc.proposal.thetas.len();
+        effect_cols.push((
+            model.cols.len(),
+            model.cols.len() + sc.proposal.regs.len(),
+            sc.proposal.thetas.len(),
+        ));
         model.cols.extend(sc.proposal.regs);
         cur_fit = f;
         cur_cv = cv_std;
+    }
+    // misspecification: a temperature² term per sensor against every named effect that
+    // explains slow structure — a listed name stays only if the data need its form
+    let mut not_in_library: Vec<misspec::Misfit> = Vec::new();
+    if !d.temps.is_empty() && !d.against_simulation {
+        let squares = misspec::temperature_squares(d);
+        let mut withdrawn: Vec<&'static str> = Vec::new();
+        for j in (0..effects.len()).rev() {
+            if !misspec::SMOOTH_EFFECTS.contains(&effects[j].name) {
+                continue;
+            }
+            let (a, b, thetas) = effect_cols[j];
+            // an explanation through recorded channels is judged without the time-only ones
+            // (they were tried only after it, as the last resort)
+            let time_only: Vec<(usize, usize)> = if effects[j].name == unexplained_drift_name() {
+                Vec::new()
+            } else {
+                (0..effects.len())
+                    .filter(|&k| effects[k].name == unexplained_drift_name())
+                    .map(|k| (effect_cols[k].0, effect_cols[k].1))
+                    .collect()
+            };
+            let keep =
+                |i: usize| (i < a || i >= b) && time_only.iter().all(|&(p, q)| i < p || i >= q);
+            let without = |extra: &[Vec<f64>]| -> Model {
+                let mut m = Model {
+                    cols: (0..model.cols.len())
+                        .filter(|&i| keep(i))
+                        .map(|i| model.cols[i].clone())
+                        .collect(),
+                };
+                m.cols.extend(extra.iter().cloned());
+                m
+            };
+            let alt = without(&squares);
+            let alt_cols = alt.with(&[]);
+            let alt_cv = fit::cross_validate(&alt_cols, y, &design, &rows)?;
+            // the named form's own standing on the same footing
+            let named = without(&model.cols[a..b]);
+            let named_cv = fit::cross_validate(&named.with(&[]), y, &design, &rows)?;
+            if !matches!(
+                alt_cv
+                    .rms_um
+                    .partial_cmp(&(named_cv.rms_um * misspec::AS_GOOD)),
+                Some(std::cmp::Ordering::Less | std::cmp::Ordering::Equal)
+            ) {
+                continue;
+            }
+            let rest = Model {
+                cols: (0..model.cols.len())
+                    .filter(|&i| i < a || i >= b)
+                    .map(|i| model.cols[i].clone())
+                    .collect(),
+            };
+            // is the named form needed on top of the squares?
+            let alt_fit = fit::fit_rows(&alt_cols, y, &rows)?;
+            let dropped_time_only: usize = time_only.iter().map(|(p, q)| q - p).sum();
+            let k_alt = k_cur - (b - a) - thetas - dropped_time_only + squares.len();
+            let n_eff = fit::round_effective_n(&fit::gather(&alt_fit.residuals, &rows), units_n);
+            let round = Round {
+                y,
+                rows: &rows,
+                design: &design,
+                model: &alt,
+                cur_fit: &alt_fit,
+                cur_cv: &alt_cv,
+                k_cur: k_alt,
+                n_eff,
+                floor_um: floor.unit_um.max(floor.sample_um),
+                settings,
+            };
+            let regs: Vec<Vec<f64>> = model.cols[a..b].to_vec();
+            if round.evaluate(&regs, thetas, None, None)?.passed {
+                continue;
+            }
+            // not needed: withdrawn; the model goes back to what it was without it
+            withdrawn.push(effects[j].name);
+            effects.remove(j);
+            accepted.remove(j);
+            let removed = b - a;
+            effect_cols.remove(j);
+            for e in effect_cols.iter_mut().skip(j) {
+                e.0 -= removed;
+                e.1 -= removed;
+            }
+            model = rest;
+            k_cur -= removed + thetas;
+            cur_fit = fit::fit_rows(&model.with(&[]), y, &rows)?;
+            cur_cv = fit::cross_validate(&model.with(&[]), y, &design, &rows)?;
+        }
+        // does the square carry structure beyond what is named?
+        let n_eff = fit::round_effective_n(&fit::gather(&cur_fit.residuals, &rows), units_n);
+        let round = Round {
+            y,
+            rows: &rows,
+            design: &design,
+            model: &model,
+            cur_fit: &cur_fit,
+            cur_cv: &cur_cv,
+            k_cur,
+            n_eff,
+            floor_um: floor.unit_um.max(floor.sample_um),
+            settings,
+        };
+        let ev = round.evaluate(&squares, 0, None, None)?;
+        if ev.passed || !withdrawn.is_empty() {
+            let m = model.cols.len();
+            let coeffs = &ev.fit.ls.coeffs[m..];
+            let sensor = misspec::main_square(d, &squares, coeffs);
+            let (rms_nm, evidence) = match &ev.cv {
+                Some((c0, c1)) => (
+                    (c0.rms_um.powi(2) - c1.rms_um.powi(2)).max(0.0).sqrt() * 1e3,
+                    format!(
+                        "a temperature² term per sensor on top of the model: held-out RMS {} → {} ({} of {} folds better), ΔBIC {:.0}",
+                        units::length_um(c0.rms_um),
+                        units::length_um(c1.rms_um),
+                        ev.folds_better,
+                        design.folds,
+                        ev.delta_bic
+                    ),
+                ),
+                None => (
+                    0.0,
+                    format!("ΔBIC of the squares on top of what remains named: {:+.0}", ev.delta_bic),
+                ),
+            };
+            not_in_library.push(misspec::nonlinear_thermal(
+                &sensor, &withdrawn, rms_nm, evidence,
+            ));
+        }
+    }
+    // targeted tests for effects at or below the noise, with a family-wise false-alarm rate
+    let targeted = targeted::run(d, ch, &model.with(&[]), y, &rows);
+    let family = targeted.len();
+    for t in targeted.iter().filter(|t| t.significant) {
+        if accepted.contains(&t.effect) {
+            continue;
+        }
+        let Some(cand) = candidates().into_iter().find(|c| c.name() == t.effect) else {
+            continue;
+        };
+        let new_cols = model.with(&t.columns);
+        let f = fit::fit_rows(&new_cols, y, &rows)?;
+        let cv_new = fit::cross_validate(&new_cols, y, &design, &rows)?;
+        let m = model.cols.len();
+        let proposal = Proposal::linear(t.columns.clone());
+        let se = f.ls.std_errors();
+        let fitted = Fitted {
+            proposal: &proposal,
+            coeffs: &f.ls.coeffs[m..],
+            se: &se[m..],
+            noise_sigma_um: f.ls.rmse(),
+        };
+        let mut params = vec![];
+        match t.period_nm {
+            Some(p) => {
+                params.push(Estimate::new("period_nm", p, f64::NAN));
+                params.push(Estimate::new(
+                    "amplitude_nm",
+                    t.amplitude,
+                    t.amplitude_sigma,
+                ));
+                params.push(Estimate::new("phase_rad", t.phase_rad, f64::NAN));
+            }
+            None => params.push(Estimate::new(
+                "alpha_ppm_per_c",
+                t.amplitude,
+                t.amplitude_sigma,
+            )),
+        }
+        params.push(Estimate::new("z", t.z, f64::NAN));
+        effects.push(EffectReport {
+            name: t.effect,
+            channel: d.channels[ch].name.clone(),
+            description: cand.description(),
+            summary: format!(
+                "found by a targeted test of {}: {} ± {} (z = {:.1}; the family of {family} targeted test(s) on this channel holds a {} % false-alarm rate together; the same in both halves of the record)",
+                t.what,
+                units::sig3(t.amplitude),
+                units::sig3(t.amplitude_sigma),
+                t.z,
+                targeted::FAMILY_FALSE_ALARM * 100.0
+            ),
+            deploy: cand.deploy(),
+            blob: cand.blob_terms(&blob_context(d, ch), &fitted),
+            params,
+            rms_before_nm: cur_cv.rms_um * 1e3,
+            rms_after_nm: cv_new.rms_um * 1e3,
+            evidence: format!(
+                "targeted test: p = {:.2e} against {:.2e} for each of {family} test(s); held-out RMS {} → {}",
+                t.p_value,
+                targeted::FAMILY_FALSE_ALARM / family.max(1) as f64,
+                units::length_um(cur_cv.rms_um),
+                units::length_um(cv_new.rms_um)
+            ),
+        });
+        accepted.push(t.effect);
+        effect_cols.push((m, m + t.columns.len(), 0));
+        model.cols.extend(t.columns.iter().cloned());
+        cur_fit = f;
+        cur_cv = cv_new;
     }
     let final_floor = locate::noise(d, ch, &cur_fit.residuals);
     let mut unexplained = locate::locate(d, ch, &cur_cv.residuals, final_floor);
     // the clearest places first, at most eight per channel
     unexplained.sort_by(|a, b| b.z.total_cmp(&a.z));
     unexplained.truncate(8);
+    for m in &not_in_library {
+        unexplained.insert(
+            0,
+            Finding {
+                place: m.description.clone(),
+                dimension: m.coordinate.clone(),
+                rms_nm: m.rms_nm,
+                mean_nm: 0.0,
+                z: f64::NAN,
+            },
+        );
+    }
     // everything left well above the noise floor without a place (held-out RMS over twice the
     // floor: three quarters of its variance is not noise): say so
     let final_rms = cur_cv.rms_um;
@@ -543,6 +874,9 @@ fn explain_channel_once(
         baseline_in_sample_rms_nm: fit::rms(&base_fit.residuals) * 1e3,
         final_rms_nm: final_rms * 1e3,
         located,
+        events: found_events,
+        not_in_library,
+        targeted,
         effects,
         unexplained,
         trials: trials_all,
@@ -577,5 +911,6 @@ pub fn explain(d: &Data, settings: &Settings) -> Result<Report, ExplainError> {
         time_unit: d.time_unit(),
         duration_s: d.duration_s(),
         temp_repairs: d.temp_repairs.clone(),
+        data_faults: d.faults.clone(),
     })
 }

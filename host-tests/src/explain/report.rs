@@ -6,6 +6,7 @@ use std::fmt::Write as _;
 use serde::Serialize;
 
 use super::data::Data;
+use super::faults::DataFault;
 use super::locate::{Finding, NoiseFloor};
 use super::robust::rows_in_words;
 use super::units::{duration, length_um, sig3, TimeUnit};
@@ -86,6 +87,14 @@ pub struct ChannelReport {
     pub final_rms_nm: f64,
     /// Where the baseline residual is structured.
     pub located: Vec<Finding>,
+    /// Events: steps of the residual (a slip, a re-seat, a collision), located and modelled
+    /// as an offset from their row on before any effect was named.
+    pub events: Vec<super::events::Event>,
+    /// Structure a flexible alternative carries that no listed form explains (see
+    /// [`super::misspec`]); also listed first among `unexplained`.
+    pub not_in_library: Vec<super::misspec::Misfit>,
+    /// Targeted tests for small effects (see [`super::targeted`]), significant or not.
+    pub targeted: Vec<super::targeted::TargetedTest>,
     /// Named effects, in the order they joined the model.
     pub effects: Vec<EffectReport>,
     /// Structure that remains unexplained.
@@ -118,14 +127,33 @@ impl ChannelReport {
                     .join(" + ")
             )
         };
+        let events: String = self
+            .events
+            .iter()
+            .map(|e| {
+                format!(
+                    "; event: a step of {} at data row {} (check the mount)",
+                    length_um(e.size_um),
+                    e.row + 1
+                )
+            })
+            .collect();
+        let named = format!("{named}{events}");
         if self.unexplained.is_empty() {
             format!("{named}; nothing significant remains (the held-out residual is at the noise floor)")
         } else {
             let top = &self.unexplained[0];
-            format!(
-                "{named}; structure remains that no candidate explains ({}, {:.0}σ)",
-                top.place, top.z
-            )
+            if top.z.is_finite() {
+                format!(
+                    "{named}; structure remains that no candidate explains ({}, {:.0}σ)",
+                    top.place, top.z
+                )
+            } else {
+                format!(
+                    "{named}; structure remains that no candidate explains: {}",
+                    top.place
+                )
+            }
         }
     }
 }
@@ -141,6 +169,8 @@ pub struct Report {
     pub duration_s: f64,
     /// Temperature glitches repaired (column, rows).
     pub temp_repairs: Vec<(String, Vec<usize>)>,
+    /// Data faults (sensors or logging to check, not physics), found before any fitting.
+    pub data_faults: Vec<DataFault>,
 }
 
 /// JSON form of a named effect.
@@ -198,6 +228,23 @@ pub struct JsonChannel {
     pub baseline_rms_nm: f64,
     /// Held-out RMS after, nm.
     pub final_rms_nm: f64,
+    /// Events: steps of the residual located on the way (a slip, a re-seat: check the mount).
+    pub events: Vec<JsonEvent>,
+}
+
+/// JSON form of an event (a step of the residual).
+#[derive(Serialize, Debug, Clone)]
+pub struct JsonEvent {
+    /// First data row (counted from 1) at the new level.
+    pub row: usize,
+    /// Data rows (from 1) the step may lie between.
+    pub row_range: [usize; 2],
+    /// Time after the start, s.
+    pub t_s: f64,
+    /// Size of the step, nm.
+    pub size_nm: f64,
+    /// Its 1σ, nm.
+    pub size_sigma_nm: f64,
 }
 
 /// The JSON document `nanocal explain --json` writes.
@@ -211,6 +258,45 @@ pub struct JsonReport {
     pub effects: Vec<JsonEffect>,
     /// Structure no candidate explains.
     pub unexplained: Vec<JsonUnexplained>,
+    /// Data faults: sensors or logging to check, not physics.
+    pub data_faults: Vec<JsonFault>,
+    /// Structure that no listed form explains (a flexible alternative carries it).
+    pub not_in_library: Vec<JsonMisfit>,
+}
+
+/// JSON form of structure no listed form explains.
+#[derive(Serialize, Debug, Clone)]
+pub struct JsonMisfit {
+    /// Channel (axis).
+    pub axis: String,
+    /// The coordinate it lives in.
+    pub coordinate: String,
+    /// What it is.
+    pub description: String,
+    /// Held-out RMS it carries, nm.
+    pub rms_nm: f64,
+    /// Listed names withdrawn for it.
+    pub withdrawn: Vec<String>,
+    /// The numbers behind it.
+    pub evidence: String,
+}
+
+/// JSON form of a data fault.
+#[derive(Serialize, Debug, Clone)]
+pub struct JsonFault {
+    /// Kind (`frozen`, `clock_jump`, …).
+    pub kind: super::faults::FaultKind,
+    /// The column.
+    pub column: String,
+    /// Affected rows as [first, last] data rows counted from 1 (empty: the whole record).
+    pub rows: Vec<[usize; 2]>,
+    /// What was seen.
+    pub detail: String,
+    /// What explain did about it.
+    pub handling: String,
+    /// True for a sensor or logger to check; false for a property of the logging explain
+    /// handles (sample-and-hold).
+    pub needs_check: bool,
 }
 
 /// ISO 9283 accuracy and repeatability (host's [`crate::iso9283`]) of a held-out residual `r`
@@ -349,6 +435,43 @@ impl Report {
                 },
                 baseline_rms_nm: finite(c.baseline_rms_nm),
                 final_rms_nm: finite(c.final_rms_nm),
+                events: c
+                    .events
+                    .iter()
+                    .map(|e| JsonEvent {
+                        row: e.row + 1,
+                        row_range: [e.row_range.0 + 1, e.row_range.1 + 1],
+                        t_s: e.t_s,
+                        size_nm: e.size_um * 1e3,
+                        size_sigma_nm: e.size_sigma_um * 1e3,
+                    })
+                    .collect(),
+            })
+            .collect();
+        let data_faults = self
+            .data_faults
+            .iter()
+            .map(|f| JsonFault {
+                kind: f.kind,
+                column: f.column.clone(),
+                rows: f.rows.iter().map(|&(a, b)| [a + 1, b]).collect(),
+                detail: f.detail.clone(),
+                handling: f.handling.clone(),
+                needs_check: f.kind.needs_check(),
+            })
+            .collect();
+        let not_in_library = self
+            .channels
+            .iter()
+            .flat_map(|c| {
+                c.not_in_library.iter().map(move |m| JsonMisfit {
+                    axis: c.channel.clone(),
+                    coordinate: m.coordinate.clone(),
+                    description: m.description.clone(),
+                    rms_nm: finite(m.rms_nm),
+                    withdrawn: m.withdrawn.iter().map(|w| w.to_string()).collect(),
+                    evidence: m.evidence.clone(),
+                })
             })
             .collect();
         JsonReport {
@@ -356,16 +479,44 @@ impl Report {
             channels,
             effects,
             unexplained,
+            data_faults,
+            not_in_library,
         }
     }
 
     /// The report for a person.
     pub fn to_text(&self) -> String {
         let mut s = String::new();
+        let (check, notes): (Vec<&DataFault>, Vec<&DataFault>) =
+            self.data_faults.iter().partition(|f| f.kind.needs_check());
+        if !check.is_empty() {
+            let _ = writeln!(
+                s,
+                "data faults (a sensor or the logger to check — not physics; explain fits around them):"
+            );
+            for f in check {
+                let _ = writeln!(
+                    s,
+                    "  - {} in {} (data rows {}): {}; {}",
+                    f.kind,
+                    f.column,
+                    f.rows_in_words(),
+                    f.detail,
+                    f.handling
+                );
+            }
+        }
+        for f in notes {
+            let _ = writeln!(
+                s,
+                "data note: {} in {}: {}; {}",
+                f.kind, f.column, f.detail, f.handling
+            );
+        }
         for (name, rows) in &self.temp_repairs {
             let _ = writeln!(
                 s,
-                "temperature glitches in {name} repaired by interpolation (data rows {})",
+                "glitches in {name} repaired by interpolation (data rows {})",
                 rows_in_words(rows, 8)
             );
         }
@@ -429,6 +580,20 @@ impl Report {
                     );
                 }
             }
+            for e in &c.events {
+                let _ = writeln!(
+                    s,
+                    "  event: the response steps by {} ± {} at data row {} ({} after the start; the step lies in data rows {}–{}), abruptly (scan z {:.0}) — a slip, a re-seat or a collision, not a drift: check the mount; modelled as an offset from that row on ({})",
+                    length_um(e.size_um),
+                    length_um(e.size_sigma_um),
+                    e.row + 1,
+                    duration(e.t_s),
+                    e.row_range.0 + 1,
+                    e.row_range.1 + 1,
+                    e.z,
+                    e.evidence
+                );
+            }
             for e in &c.effects {
                 let _ = writeln!(s, "  name: {} — {}", e.name, e.description);
                 if !e.summary.is_empty() {
@@ -459,6 +624,40 @@ impl Report {
                         b.play.len()
                     );
                 }
+            }
+            if !c.targeted.is_empty() {
+                let parts: Vec<String> = c
+                    .targeted
+                    .iter()
+                    .map(|t| {
+                        format!(
+                            "{}: {} ± {}{}, z {:.1}{}",
+                            t.what,
+                            sig3(t.amplitude),
+                            sig3(t.amplitude_sigma),
+                            if t.period_nm.is_some() {
+                                " nm"
+                            } else {
+                                " ppm/°C"
+                            },
+                            t.z,
+                            if t.significant {
+                                " — significant"
+                            } else if !t.halves_agree {
+                                " (the halves disagree)"
+                            } else {
+                                ""
+                            }
+                        )
+                    })
+                    .collect();
+                let _ = writeln!(
+                    s,
+                    "  targeted tests ({} % false alarms over all {} together): {}",
+                    super::targeted::FAMILY_FALSE_ALARM * 100.0,
+                    c.targeted.len(),
+                    parts.join("; ")
+                );
             }
             if let Some(last) = c.trials.last() {
                 let rejected: Vec<String> = last
@@ -505,19 +704,31 @@ impl Report {
             } else {
                 let _ = writeln!(s, "  unexplained (no candidate explains it):");
                 for f in &c.unexplained {
-                    let _ = writeln!(
-                        s,
-                        "    - {} [{}]: RMS {}, mean {} ({:.0}σ)",
-                        f.place,
-                        f.dimension,
-                        nm(f.rms_nm),
-                        nm(f.mean_nm),
-                        f.z
-                    );
+                    if f.z.is_finite() {
+                        let _ = writeln!(
+                            s,
+                            "    - {} [{}]: RMS {}, mean {} ({:.0}σ)",
+                            f.place,
+                            f.dimension,
+                            nm(f.rms_nm),
+                            nm(f.mean_nm),
+                            f.z
+                        );
+                    } else {
+                        let _ = writeln!(
+                            s,
+                            "    - not in the library: {} [{}]: held-out RMS it carries {}",
+                            f.place,
+                            f.dimension,
+                            nm(f.rms_nm)
+                        );
+                    }
+                }
+                for m in &c.not_in_library {
+                    let _ = writeln!(s, "    evidence ({}): {}", m.coordinate, m.evidence);
                 }
             }
         }
-        let _ = duration;
         s
     }
 }

@@ -316,7 +316,7 @@ impl VirtualBench {
             g.set_nodelay(true)?;
             g.set_read_timeout(Some(PORT_READ_TIMEOUT))?;
             // the host opens the port again: a new session on the board
-            super::qemu::apply_line_state(&link, true);
+            super::qemu::apply_line_state(&link, nanocal_interface::bench_link::LINE_HOST, true);
             Ok((counted(m, &sent[1]), counted(g, &sent[0])))
         })
     }

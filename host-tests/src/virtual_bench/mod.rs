@@ -5,6 +5,7 @@
 pub mod bench;
 pub mod chips;
 pub mod controller;
+pub mod jitter;
 pub mod link;
 pub mod qemu;
 pub mod sensors;

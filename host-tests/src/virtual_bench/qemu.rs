@@ -267,7 +267,7 @@ impl Qemu {
     /// Returns once the board has applied it (it counts them in the bench's page), so nothing
     /// sent afterwards can overtake it; false if it did not within 10 s.
     pub fn set_dtr(&mut self, on: bool) -> bool {
-        apply_line_state(&self.link, on)
+        apply_line_state(&self.link, bl::LINE_HOST, on)
     }
 
     /// Wait until the board has read every byte the test's GCS hosts wrote (up to 10 s).
@@ -284,6 +284,14 @@ impl Qemu {
             }
             std::thread::sleep(Duration::from_millis(1));
         }
+    }
+
+    /// The management client opens (`true`) or closes (`false`) the management port: its line
+    /// state (DTR), as [`Self::set_dtr`]'s for the GCS port, and returns once the board has
+    /// applied it (false if not within 10 s). The board drops a management frame still
+    /// arriving when the port closes.
+    pub fn set_mgmt_dtr(&mut self, on: bool) -> bool {
+        apply_line_state(&self.link, bl::LINE_MGMT, on)
     }
 
     /// Process id of QEMU.
@@ -376,6 +384,17 @@ impl Qemu {
         format!("unix:{}", self.log.with_extension("d").join("s3").display())
     }
 
+    /// A raw connection to the management port (serial3), for tests that send bytes no client
+    /// would (a frame cut off); one connection at a time, as [`Self::client`]'s.
+    pub fn mgmt_stream(&mut self) -> UnixStream {
+        dial_unix(
+            &mut self.child,
+            &self.log.with_extension("d").join("s3"),
+            3,
+            &self.log,
+        )
+    }
+
     /// A management client (serial3); one at a time.
     pub fn client(&mut self) -> Client {
         let s = dial_unix(
@@ -398,16 +417,18 @@ impl Qemu {
     }
 }
 
-/// Send the host link's line state (DTR `on`) on serial4 and wait (up to 10 s) until the board
-/// has applied it (it counts them in the bench's page); false if it did not.
-pub fn apply_line_state(link: &BenchLink, on: bool) -> bool {
+/// Send a port's line state (`port`: [`bl::LINE_HOST`] or [`bl::LINE_MGMT`]; DTR `on`) on
+/// serial4 and wait (up to 10 s) until the board has applied it (it counts them in the bench's
+/// page); false if it did not.
+pub fn apply_line_state(link: &BenchLink, port: u8, on: bool) -> bool {
     let page = link.page();
     let before = page.u32(bl::LINE_STATES);
-    link.send_line_state(0xC0 | u8::from(on));
+    let dtr = if on { bl::LINE_DTR } else { 0 };
+    link.send_line_state(port | dtr);
     let deadline = Instant::now() + Duration::from_secs(10);
     while page.u32(bl::LINE_STATES) == before {
         if Instant::now() > deadline {
-            eprintln!("qemu: the board did not apply line state DTR={on} within 10 s");
+            eprintln!("qemu: the board did not apply line state {port:#04x} DTR={on} within 10 s");
             return false;
         }
         std::thread::sleep(Duration::from_millis(1));

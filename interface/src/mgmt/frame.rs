@@ -24,6 +24,9 @@ pub enum FrameError {
     TooLong,
     /// The output buffer is too small.
     OutputFull,
+    /// The frame was still incomplete [`FRAME_TIMEOUT_MS`] after its first byte (cut off);
+    /// the decoder resynchronises on the bytes that followed it.
+    Timeout,
 }
 
 impl fmt::Display for FrameError {
@@ -32,6 +35,7 @@ impl fmt::Display for FrameError {
             FrameError::BadCrc => "management frame CRC mismatch",
             FrameError::TooLong => "management frame longer than the maximum payload",
             FrameError::OutputFull => "output buffer too small for the frame",
+            FrameError::Timeout => "management frame incomplete when its time was up (dropped)",
         })
     }
 }
@@ -81,9 +85,39 @@ pub fn seal(kind: u8, seq: u8, len: usize, out: &mut [u8]) -> Result<usize, Fram
     Ok(n)
 }
 
-/// Byte-wise frame decoder with resynchronisation on the sync bytes.
+/// How long a frame may take to arrive, from its first sync byte to its last CRC byte, ms.
+///
+/// The host writes a whole frame at once: the largest ([`MAX_FRAME`] bytes) takes 30 ms at
+/// 115 200 baud and less than 1 ms over USB. A frame still incomplete after this long was cut
+/// off (a connection closed mid-frame, bytes lost): the decoder drops it and looks for the
+/// next sync in what followed, so a request sent after the cut is answered this much later
+/// instead of being swallowed. A tenth of the host client's 5 s reply timeout.
+pub const FRAME_TIMEOUT_MS: u32 = 500;
+
+/// Byte-wise frame decoder. It resynchronises on the sync bytes: a frame that fails (bad CRC,
+/// a length beyond [`MAX_PAYLOAD`], or [`FRAME_TIMEOUT_MS`] passed before it was complete) is
+/// dropped from its first byte only, and the bytes after that byte are searched again for a
+/// sync — a false sync (in garbage, or a cut frame's header) never swallows the frames that
+/// follow it.
+///
+/// Time is an argument (ms on any clock that wraps at `u32`): the firmware passes its clock,
+/// tests pass what they like.
+///
+/// Use: [`Decoder::feed`] each byte received, then call [`Decoder::next`] until it returns
+/// `None` (one byte can complete a frame and leave bytes to look at again); when no byte
+/// arrives, call [`Decoder::next`] again after [`Decoder::wait_ms`] (a frame that stopped
+/// arriving is dropped then). [`Decoder::clear`] starts afresh (a new connection).
 pub struct Decoder {
-    buf: heapless::Vec<u8, MAX_FRAME>,
+    /// Bytes held: a candidate frame from `buf[0]` (a sync byte), then bytes not yet looked at.
+    buf: [u8; MAX_FRAME],
+    /// Bytes held.
+    held: usize,
+    /// Bytes of the candidate checked so far (`scanned <= held`).
+    scanned: usize,
+    /// `buf[..frame_len]` is a complete frame not yet read past.
+    ready: bool,
+    /// When the candidate started (its first byte arrived, or the bytes were searched again).
+    started_ms: u32,
 }
 
 impl Default for Decoder {
@@ -96,54 +130,132 @@ impl Decoder {
     /// Empty decoder.
     pub const fn new() -> Self {
         Self {
-            buf: heapless::Vec::new(),
+            buf: [0; MAX_FRAME],
+            held: 0,
+            scanned: 0,
+            ready: false,
+            started_ms: 0,
         }
     }
 
-    /// Feed one byte. `Some(Ok(()))` when a frame is complete: read it with [`Decoder::frame`]
-    /// before the next `feed`. `Some(Err(_))` for a corrupt frame (already discarded).
-    pub fn feed(&mut self, b: u8) -> Option<Result<(), FrameError>> {
-        if self.buf.len() >= 6 && self.buf.len() == self.frame_len() {
-            self.buf.clear(); // the previous frame was consumed
+    /// Forget every byte held (a new connection: nothing of the previous one carries over).
+    pub fn clear(&mut self) {
+        self.held = 0;
+        self.scanned = 0;
+        self.ready = false;
+    }
+
+    /// The connection ended at `now_ms`: a frame still arriving is dropped by the next
+    /// [`Decoder::next`] as if its time were up (the bytes after its first are searched again:
+    /// the next connection's may already have followed it).
+    pub fn cut(&mut self, now_ms: u32) {
+        if self.held > 0 && !self.ready {
+            self.started_ms = now_ms.wrapping_sub(FRAME_TIMEOUT_MS);
         }
-        match self.buf.len() {
-            0 if b != SYNC[0] => return None,
-            1 if b != SYNC[1] => {
-                self.buf.clear();
-                if b == SYNC[0] {
-                    let _ = self.buf.push(b);
+    }
+
+    /// Feed one byte received at `now_ms`; the first event it causes, as [`Decoder::next`].
+    /// Call [`Decoder::next`] until `None` before the next `feed` (events left are dropped).
+    pub fn feed(&mut self, b: u8, now_ms: u32) -> Option<Result<(), FrameError>> {
+        while self.ready || self.scanned < self.held {
+            // the caller did not drain: what it left is dropped (room for the byte)
+            let _ = self.next(now_ms);
+        }
+        // a candidate that timed out before this byte arrived does not take it
+        let expired = self.expire(now_ms);
+        if self.held == 0 {
+            self.started_ms = now_ms;
+        }
+        // a drained candidate is shorter than its frame, so there is room
+        if self.held < MAX_FRAME {
+            self.buf[self.held] = b;
+            self.held += 1;
+        }
+        if expired.is_some() {
+            return expired;
+        }
+        self.next(now_ms)
+    }
+
+    /// The next event from the bytes held: `Some(Ok(()))` when a frame is complete (read it
+    /// with [`Decoder::frame`] before calling `feed` or `next` again), `Some(Err(_))` when a
+    /// frame was dropped (the decoder resynchronises: call `next` again), `None` when the
+    /// bytes held are a frame still arriving (or none).
+    pub fn next(&mut self, now_ms: u32) -> Option<Result<(), FrameError>> {
+        if self.ready {
+            self.ready = false;
+            let n = self.frame_len();
+            self.discard(n, now_ms);
+        }
+        while self.scanned < self.held {
+            let i = self.scanned;
+            if (i == 0 && self.buf[0] != SYNC[0]) || (i == 1 && self.buf[1] != SYNC[1]) {
+                self.discard(1, now_ms);
+                continue;
+            }
+            self.scanned += 1;
+            if self.scanned == PAYLOAD_AT && self.payload_len() > MAX_PAYLOAD {
+                self.discard(1, now_ms);
+                return Some(Err(FrameError::TooLong));
+            }
+            let n = self.scanned;
+            if n >= PAYLOAD_AT && n == self.frame_len() {
+                let crc = u32::from_le_bytes([
+                    self.buf[n - 4],
+                    self.buf[n - 3],
+                    self.buf[n - 2],
+                    self.buf[n - 1],
+                ]);
+                if crc32(&self.buf[2..n - 4]) != crc {
+                    self.discard(1, now_ms);
+                    return Some(Err(FrameError::BadCrc));
                 }
-                return None;
+                self.ready = true;
+                return Some(Ok(()));
             }
-            _ => {}
         }
-        if self.buf.push(b).is_err() {
-            self.buf.clear();
-            return Some(Err(FrameError::TooLong));
+        self.expire(now_ms)
+    }
+
+    /// How long until the frame still arriving is dropped, ms (0: due now); `None` when no
+    /// frame is arriving.
+    pub fn wait_ms(&self, now_ms: u32) -> Option<u32> {
+        if self.held == 0 || self.ready {
+            return None;
         }
-        let n = self.buf.len();
-        if n == 6 && self.payload_len() > MAX_PAYLOAD {
-            self.buf.clear();
-            return Some(Err(FrameError::TooLong));
-        }
-        if n >= 6 && n == self.frame_len() {
-            let crc = u32::from_le_bytes([
-                self.buf[n - 4],
-                self.buf[n - 3],
-                self.buf[n - 2],
-                self.buf[n - 1],
-            ]);
-            if crc32(&self.buf[2..n - 4]) != crc {
-                self.buf.clear();
-                return Some(Err(FrameError::BadCrc));
-            }
-            return Some(Ok(()));
+        let age = now_ms.wrapping_sub(self.started_ms);
+        Some(FRAME_TIMEOUT_MS.saturating_sub(age))
+    }
+
+    /// Drop the candidate when its time is up (all its bytes looked at, still incomplete).
+    fn expire(&mut self, now_ms: u32) -> Option<Result<(), FrameError>> {
+        if self.held > 0
+            && !self.ready
+            && self.scanned == self.held
+            && self.wait_ms(now_ms) == Some(0)
+        {
+            self.discard(1, now_ms);
+            return Some(Err(FrameError::Timeout));
         }
         None
     }
 
+    /// Drop the first `n` bytes held and whatever follows up to the next possible sync; the
+    /// rest is looked at again from its start.
+    fn discard(&mut self, n: usize, now_ms: u32) {
+        let n = n.min(self.held);
+        let skip = self.buf[n..self.held]
+            .iter()
+            .position(|&b| b == SYNC[0])
+            .map_or(self.held, |p| n + p);
+        self.buf.copy_within(skip..self.held, 0);
+        self.held -= skip;
+        self.scanned = 0;
+        self.started_ms = now_ms;
+    }
+
     fn payload_len(&self) -> usize {
-        if self.buf.len() < 6 {
+        if self.scanned < PAYLOAD_AT {
             return 0;
         }
         usize::from(u16::from_le_bytes([self.buf[4], self.buf[5]]))
@@ -153,16 +265,21 @@ impl Decoder {
         self.payload_len() + OVERHEAD
     }
 
-    /// The frame completed by the last `feed`.
+    /// The frame completed by the last `feed` or `next` (valid until the next call of
+    /// either; empty kind, seq and payload when none is complete).
     pub fn frame(&self) -> Frame<'_> {
-        let n = self
-            .payload_len()
-            .min(MAX_PAYLOAD)
-            .min(self.buf.len().saturating_sub(6));
+        if !self.ready {
+            return Frame {
+                kind: 0,
+                seq: 0,
+                payload: &[],
+            };
+        }
+        let n = self.payload_len().min(MAX_PAYLOAD);
         Frame {
             kind: self.buf[2],
             seq: self.buf[3],
-            payload: &self.buf[6..6 + n],
+            payload: &self.buf[PAYLOAD_AT..PAYLOAD_AT + n],
         }
     }
 }

@@ -12,11 +12,11 @@
 //!
 //! | kind | request payload | reply data |
 //! |---|---|---|
-//! | `HELLO` 0x01 | – | protocol u16, blob format u16, max chunk u16, firmware (len u8, ASCII), chip UID (12 bytes), reset cause u8 |
+//! | `HELLO` 0x01 | – | protocol u16, blob format u16, max chunk u16, firmware (len u8, ASCII), chip UID (12 bytes), reset cause u8, reset site (len u8, ASCII, empty when none) |
 //! | `STATUS` 0x02 | – | [`Status`] ([`crate::status`] has the layout) |
 //! | `UPLOAD_BEGIN` 0x10 | total_len u32, crc32 u32, format u16 | – |
 //! | `UPLOAD_CHUNK` 0x11 | offset u32, bytes (≤ [`MAX_CHUNK`]) | received u32 |
-//! | `UPLOAD_COMMIT` 0x12 | – | model id u32, reserved u8 = 0 (was: slot), uploads accepted u32 |
+//! | `UPLOAD_COMMIT` 0x12 | – | model id u32, model CRC-32 u32 (the stored blob's own), uploads accepted u32 |
 //! | `UPLOAD_ABORT` 0x13 | – | – |
 //! | `SET_KMZ` 0x20 | q_cmd f64×3, x_meas f64×3 (µm, finite) | kmz f64×3, stored u8 (0/1) |
 //! | `BYPASS` 0x21 | on u8 (0 off, else on) | – |
@@ -27,6 +27,14 @@
 //!
 //! All little-endian. Trailing bytes after a request's fields are ignored. The golden bytes of
 //! every request and reply are in this crate's tests.
+//!
+//! `HELLO`'s request and the first field of its reply (the protocol version, after the result
+//! byte) are the same in every version: a host reads them first and refuses to go on with a
+//! device of another version (naming both) instead of misreading its bytes.
+//!
+//! The decoder ([`Decoder`]) resynchronises on the sync bytes and drops a frame that is still
+//! incomplete [`FRAME_TIMEOUT_MS`] after its first byte (a connection closed mid-frame): the
+//! requests after it are answered, not swallowed.
 
 mod frame;
 mod kind;
@@ -37,8 +45,8 @@ mod request;
 #[cfg(doc)]
 use crate::status::Status;
 pub use frame::{
-    encode, seal, Decoder, Frame, FrameError, PayloadError, Reader, Writer, MAX_FRAME, MAX_PAYLOAD,
-    OVERHEAD, PAYLOAD_AT, SYNC,
+    encode, seal, Decoder, Frame, FrameError, PayloadError, Reader, Writer, FRAME_TIMEOUT_MS,
+    MAX_FRAME, MAX_PAYLOAD, OVERHEAD, PAYLOAD_AT, SYNC,
 };
 pub use kind::{Kind, REPLY};
 pub use refusal::{InputCode, InputWhy, Refusal};
@@ -50,7 +58,14 @@ pub use request::Request;
 /// bits). 3: 16 temperatures in STATUS, settings layout 2 (16 chip-selects). 4:
 /// `Status::move_fold` in the word that was the unused `slot_seq` (0), with `MOVE_FOLD`; the
 /// layout is unchanged. (Version 4 is also the first whose facts live in this crate; the
-/// bytes did not change with the move.)
-pub const PROTOCOL: u16 = 4;
+/// bytes did not change with the move.) 5: the model's content hash — the CRC-32 its blob
+/// carries — in `STATUS` (`Status::model_crc32`, in place of the reserved byte at offset 6:
+/// every later field moved by 3 bytes) and in `UPLOAD_COMMIT`'s reply (in place of its
+/// reserved byte); the model id alone did not tell two models apart (issue 21). Also in 5 (the
+/// changes met before any was released): HELLO ends with the reset site, reset causes 8
+/// (panic), 9 (double ECC error outside the store), 10 (CPU fault) (issue 16); settings layout 3
+/// (the fold period, 2 bytes more in CONFIG_GET/CONFIG_SET), and `Status::temps_c`/`Status::aux`
+/// are the last fold's inputs (the readings averaged over the fold period) (issue 18).
+pub const PROTOCOL: u16 = 5;
 /// Largest upload chunk (payload minus the offset).
 pub const MAX_CHUNK: usize = 256;

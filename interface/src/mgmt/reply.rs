@@ -3,7 +3,7 @@
 use super::frame::{PayloadError, Reader, Writer};
 use super::kind::Kind;
 use super::refusal::{InputCode, Refusal};
-use crate::identity::{ResetCause, UID_LEN};
+use crate::identity::{ResetCause, MAX_SITE, UID_LEN};
 use crate::settings::Settings;
 use crate::status::Status;
 use nanocal_model::MAX_AXES;
@@ -29,6 +29,9 @@ pub struct Hello {
     pub uid: [u8; UID_LEN],
     /// Why the device last reset.
     pub reset_cause: ResetCause,
+    /// Where, when the firmware recorded it (a panic's `file:line`, an address as `0x…`;
+    /// [`crate::identity::Site::text`]); empty otherwise.
+    pub reset_site: heapless::String<MAX_SITE>,
 }
 
 /// A management reply's payload: the result byte and what follows it (the table in
@@ -53,6 +56,9 @@ pub enum Reply {
     UploadCommit {
         /// Id of the model now in service.
         model_id: u32,
+        /// The CRC-32 its blob carries, as the device stored it (the content hash the status
+        /// reports: [`crate::status::Status::model_crc32`]).
+        model_crc32: u32,
         /// Uploads accepted since start-up.
         uploads_accepted: u32,
     },
@@ -111,16 +117,19 @@ impl Reply {
                 w.u8(h.firmware.len() as u8)?;
                 w.bytes(h.firmware.as_bytes())?;
                 w.bytes(&h.uid)?;
-                w.u8(h.reset_cause.code())
+                w.u8(h.reset_cause.code())?;
+                w.u8(h.reset_site.len() as u8)?;
+                w.bytes(h.reset_site.as_bytes())
             }
             Reply::Status(s) => s.encode(w),
             Reply::UploadChunk { received } => w.u32(*received),
             Reply::UploadCommit {
                 model_id,
+                model_crc32,
                 uploads_accepted,
             } => {
                 w.u32(*model_id)?;
-                w.u8(0)?; // reserved (was: the flash slot)
+                w.u32(*model_crc32)?;
                 w.u32(*uploads_accepted)
             }
             Reply::SetKmz { kmz_um, stored } => {
@@ -174,6 +183,11 @@ impl Reply {
                     field: "reset_cause",
                     value: c.into(),
                 })?;
+                let n = r.u8()?;
+                let text = core::str::from_utf8(r.bytes(usize::from(n))?)
+                    .map_err(|_| PayloadError::Text)?;
+                let mut reset_site = heapless::String::new();
+                reset_site.push_str(text).map_err(|_| PayloadError::Text)?;
                 Reply::Hello(Hello {
                     protocol,
                     blob_format,
@@ -181,19 +195,17 @@ impl Reply {
                     firmware,
                     uid,
                     reset_cause,
+                    reset_site,
                 })
             }
             Kind::Status => Reply::Status(Status::decode(&mut r)?),
             Kind::UploadBegin => Reply::UploadBegin,
             Kind::UploadChunk => Reply::UploadChunk { received: r.u32()? },
-            Kind::UploadCommit => {
-                let model_id = r.u32()?;
-                r.u8()?; // reserved
-                Reply::UploadCommit {
-                    model_id,
-                    uploads_accepted: r.u32()?,
-                }
-            }
+            Kind::UploadCommit => Reply::UploadCommit {
+                model_id: r.u32()?,
+                model_crc32: r.u32()?,
+                uploads_accepted: r.u32()?,
+            },
             Kind::UploadAbort => Reply::UploadAbort,
             Kind::SetKmz => {
                 let mut kmz_um = [0.0; MAX_AXES];

@@ -1,0 +1,302 @@
+//! Device state you can trust over the management port, through the QEMU firmware (issue 21,
+//! items 7 and 8):
+//!
+//! - the status names the model in service by its id *and* its content hash (the CRC-32 its
+//!   blob carries): two uploads of blobs that differ only in one coefficient (same id) show
+//!   different hashes, the same blob the same hash — also after a reset, from flash — in the
+//!   client's status and in `nanocal device status`;
+//! - a management frame cut off by a closing connection (the issue's 26 bytes of a chunk frame
+//!   announcing 260) does not leave the port deaf: the board drops it when its time is up
+//!   (`FRAME_TIMEOUT_MS` of the board's clock, measured in lockstep) or at once when the port's
+//!   line state falls, and the requests after it are answered.
+//!
+//! Without qemu-system-arm the tests are skipped with a loud message, except in CI.
+
+mod fw_sim;
+
+use fw_sim::{wait_until, Qemu, SensorSim, StageSim, HANG};
+use nanocal::published::published_1dof;
+use nanocal_interface::mgmt::{Decoder, Kind, Reply, Request, FRAME_TIMEOUT_MS, MAX_FRAME};
+use nanocal_interface::status::{Flags, Status};
+use nanocal_model::blob;
+use std::io::{Read, Write};
+use std::os::unix::net::UnixStream;
+use std::process::Command;
+use std::time::Duration;
+
+/// Temperatures the simulated sensors report (inside the published model's envelope).
+const TEMPS_C: [f32; 4] = [22.0, 22.125, 21.875, 22.25];
+
+fn nanocal(args: &[&str]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_nanocal"))
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "nanocal {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// The published 1-DoF model's blob, and the same blob with its last term's coefficient
+/// changed by one part in a million (same id, CRC recomputed): the issue's "changed
+/// coefficients under the same id".
+fn two_blobs() -> (Vec<u8>, Vec<u8>) {
+    let model = published_1dof().unwrap();
+    let mut a = vec![0u8; blob::MAX_BLOB_LEN];
+    let n = blob::encode(&model, &mut a).unwrap();
+    a.truncate(n);
+    let mut b = a.clone();
+    // the last term's coefficient is the f64 before the CRC
+    let at = n - blob::TRAILER_LEN - 8;
+    let c = f64::from_le_bytes(b[at..at + 8].try_into().unwrap());
+    b[at..at + 8].copy_from_slice(&(c * (1.0 + 1e-6)).to_le_bytes());
+    let crc = blob::crc32(&b[..n - blob::TRAILER_LEN]);
+    b[n - blob::TRAILER_LEN..].copy_from_slice(&crc.to_le_bytes());
+    let (ma, mb) = (blob::decode(&a).unwrap(), blob::decode(&b).unwrap());
+    assert_eq!(ma.id(), mb.id(), "the same id");
+    assert_ne!(ma, mb, "other coefficients");
+    (a, b)
+}
+
+#[test]
+fn model_hash_tells_models_with_one_id_apart_under_qemu() {
+    let Some(mut q) = Qemu::start_or_skip("model_hash_tells_models_with_one_id_apart_under_qemu")
+    else {
+        return;
+    };
+    let clk = q.clock();
+    let _stage = StageSim::start(q.connect(1), 1);
+    let _sensors = SensorSim::start(q.link(), &TEMPS_C);
+    let (a, b) = two_blobs();
+    let (crc_a, crc_b) = (blob::stored_crc(&a).unwrap(), blob::stored_crc(&b).unwrap());
+    assert_ne!(crc_a, crc_b);
+    let id = blob::decode(&a).unwrap().id();
+    let dir = std::env::temp_dir().join(format!("nanocal-e2e-mgmt-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let spec = q.mgmt_spec();
+    drop(q.client()); // the board is up and answering
+
+    let mut seen = vec![];
+    for (name, bytes, crc) in [("a", &a, crc_a), ("b", &b, crc_b), ("a", &a, crc_a)] {
+        let path = dir.join(format!("{name}.blob"));
+        std::fs::write(&path, bytes).unwrap();
+        let up = nanocal(&["device", "upload", "--port", &spec, path.to_str().unwrap()]);
+        assert!(
+            up.contains(&format!("model {id:#010x} (blob CRC {crc:#010x})")),
+            "{up}"
+        );
+        let mut c = q.client();
+        let s = c.status().unwrap();
+        assert!(s.flags.contains(Flags::MODEL));
+        assert_eq!((s.model_id, s.model_crc32), (id, crc), "blob {name}");
+        drop(c);
+        let text = nanocal(&["device", "status", "--port", &spec]);
+        assert!(
+            text.contains(&format!("model: {id:#010x}  blob CRC {crc:#010x}")),
+            "{text}"
+        );
+        seen.push(s.model_crc32);
+    }
+    assert_ne!(
+        seen[0], seen[1],
+        "blobs differing in a coefficient: other hashes"
+    );
+    assert_eq!(seen[0], seen[2], "the same blob: the same hash");
+    let _ = std::fs::remove_dir_all(&dir);
+
+    // after a reset the model comes back from flash with the same hash
+    let mut c = q.client();
+    let boots = q.link().boots();
+    c.reset().unwrap();
+    drop(c);
+    wait_until("the reset", &clk, 10.0, || {
+        (q.link().boots() > boots).then_some(())
+    });
+    let mut c = q.client();
+    let s = wait_until("model reloaded", &clk, 20.0, || {
+        let s = c.status().ok()?;
+        s.flags.contains(Flags::MODEL).then_some(s)
+    });
+    assert_eq!((s.model_id, s.model_crc32), (id, crc_a));
+}
+
+/// The first 26 bytes of an `UPLOAD_CHUNK` frame announcing 260 payload bytes: where the
+/// issue's connection closed.
+fn cut_chunk() -> Vec<u8> {
+    let bytes = [0x5Au8; 256];
+    let req = Request::UploadChunk {
+        offset: 0,
+        bytes: &bytes,
+    };
+    let mut f = [0u8; MAX_FRAME];
+    req.frame(1, &mut f).unwrap();
+    assert_eq!(u16::from_le_bytes([f[4], f[5]]), 260);
+    f[..26].to_vec()
+}
+
+/// Send [`cut_chunk`] on `s` and wait until the board has read every byte of it, before the
+/// caller closes the connection (QEMU drops what it has not handed to the UART when the
+/// connection closes: the cut would not be what the board sees).
+fn send_cut(q: &Qemu, s: &mut UnixStream) {
+    let link = q.link();
+    let had = link.rx_bytes(3);
+    let cut = cut_chunk();
+    s.write_all(&cut).unwrap();
+    let want = had.wrapping_add(cut.len() as u32);
+    let hang = std::time::Instant::now() + HANG;
+    while link.rx_bytes(3) != want {
+        assert!(
+            std::time::Instant::now() < hang,
+            "the board never read the cut frame"
+        );
+        link.wake_for_input();
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// A raw management connection: requests written whole, replies read as they come.
+struct Raw {
+    s: UnixStream,
+    dec: Decoder,
+}
+
+impl Raw {
+    fn open(q: &mut Qemu) -> Raw {
+        let s = q.mgmt_stream();
+        s.set_read_timeout(Some(Duration::from_millis(50))).unwrap();
+        Raw {
+            s,
+            dec: Decoder::new(),
+        }
+    }
+
+    fn send(&mut self, seq: u8) {
+        let mut f = [0u8; MAX_FRAME];
+        let n = Request::Status.frame(seq, &mut f).unwrap();
+        self.s.write_all(&f[..n]).unwrap();
+    }
+
+    /// The status answering request `seq`, if it has come (waits ≤ 50 ms of wall time).
+    fn poll(&mut self, seq: u8) -> Option<Status> {
+        let mut buf = [0u8; 512];
+        let n = match self.s.read(&mut buf) {
+            Ok(n) => n,
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) =>
+            {
+                0
+            }
+            Err(e) => panic!("management port: {e}"),
+        };
+        let mut got = None;
+        for &b in &buf[..n] {
+            let mut ev = self.dec.feed(b, 0);
+            while let Some(e) = ev {
+                if e.is_ok() {
+                    let f = self.dec.frame();
+                    if f.kind == Kind::Status.reply_code() && f.seq == seq {
+                        match Reply::decode(Kind::Status, f.payload) {
+                            Ok(Reply::Status(s)) => got = Some(s),
+                            other => panic!("status reply: {other:?}"),
+                        }
+                    }
+                }
+                ev = self.dec.next(0);
+            }
+        }
+        got
+    }
+
+    /// The status answering `seq` with the board's clock held: it must come without any of
+    /// the board's time passing.
+    fn status_now(&mut self, q: &Qemu, seq: u8) -> Status {
+        self.send(seq);
+        for _ in 0..(HANG.as_millis() / 50) {
+            if let Some(s) = self.poll(seq) {
+                return s;
+            }
+            q.link().wake_for_input();
+        }
+        panic!("no status reply within {HANG:?} of wall time");
+    }
+}
+
+#[test]
+fn a_cut_management_frame_does_not_deafen_the_port_under_qemu() {
+    let Some(mut q) =
+        Qemu::start_or_skip("a_cut_management_frame_does_not_deafen_the_port_under_qemu")
+    else {
+        return;
+    };
+    let clk = q.clock();
+    let _stage = StageSim::start(q.connect(1), 1);
+    let _sensors = SensorSim::start(q.link(), &TEMPS_C);
+    let spec = q.mgmt_spec();
+    drop(q.client()); // the board is up and answering
+
+    // the issue's scenario, as it happened: a connection closes 26 bytes into a chunk frame
+    // announcing 260 (no line state: a TCP-like port), then `nanocal device status` and 24
+    // more requests — each answered
+    let mut cut = q.mgmt_stream();
+    send_cut(&q, &mut cut);
+    drop(cut);
+    let text = nanocal(&["device", "status", "--port", &spec]);
+    assert!(text.contains("model: none"), "{text}");
+    let mut c = q.client();
+    for i in 0..24 {
+        c.status()
+            .unwrap_or_else(|e| panic!("request {} after the cut: {e}", i + 1));
+    }
+    drop(c);
+
+    // with the board's clock held, a request after a cut frame is answered once
+    // FRAME_TIMEOUT_MS of the board's time have passed, not before and not much later
+    clk.lockstep();
+    let mut raw = Raw::open(&mut q);
+    let before = raw.status_now(&q, 1);
+    send_cut(&q, &mut raw.s);
+    drop(raw);
+    let mut raw = Raw::open(&mut q);
+    raw.send(2);
+    let step_s = 0.05;
+    let mut t = clk.now_s();
+    let after = loop {
+        if let Some(s) = (0..4).find_map(|_| raw.poll(2)) {
+            break s;
+        }
+        q.link().wake_for_input();
+        let waited_ms = (clk.now_s() - t) * 1000.0;
+        assert!(
+            waited_ms < 4.0 * f64::from(FRAME_TIMEOUT_MS),
+            "the request after the cut frame was swallowed"
+        );
+        t += step_s;
+        clk.advance_to(t, HANG).unwrap();
+    };
+    let waited_ms = after.uptime_ms - before.uptime_ms;
+    assert!(
+        (FRAME_TIMEOUT_MS..=FRAME_TIMEOUT_MS + 150).contains(&waited_ms),
+        "answered {waited_ms} ms of board time after the cut (the timeout is {FRAME_TIMEOUT_MS} ms)"
+    );
+
+    // the port's line state falling (the host closed it) drops the cut frame at once: the
+    // next connection's request is answered without the board's time moving
+    let before = raw.status_now(&q, 3);
+    send_cut(&q, &mut raw.s);
+    q.set_mgmt_dtr(false);
+    drop(raw);
+    let mut raw = Raw::open(&mut q);
+    q.set_mgmt_dtr(true);
+    let after = raw.status_now(&q, 4);
+    assert_eq!(
+        after.uptime_ms, before.uptime_ms,
+        "answered at once, not at the timeout"
+    );
+    clk.free_run(1.0);
+}

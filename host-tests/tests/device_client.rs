@@ -38,6 +38,7 @@ impl FakeDevice {
                     firmware,
                     uid: [7; 12],
                     reset_cause: ResetCause::PowerOn,
+                    reset_site: Default::default(),
                 })
             }
             Request::Status => Reply::Status(Status {

@@ -21,20 +21,31 @@ fn upload(b: &Stm32, c: &mut nanocal::device::Client, model: &Model) {
     let mut bytes = vec![0u8; blob::MAX_BLOB_LEN];
     let n = blob::encode(model, &mut bytes).unwrap();
     c.upload(&bytes[..n]).expect("model accepted");
-    b.status_until(c, "sensors read and model folded", 5.0, |s| {
+    // the second fold comes one fold period (settings layout 3) after the first
+    b.status_until(c, "sensors read and model folded", fold_wait_s(), |s| {
         s.flags.contains(Flags::MODEL) && !s.flags.contains(Flags::SENSOR_BLOCK) && s.folds >= 2
     });
 }
 
-/// The next `MOV` the controller receives (the first move's `CSV?`/`PUN?` queries skipped).
+/// Board time within which the next fold comes: two default fold periods (settings layout 3;
+/// the first fold may come a second after the upload).
+fn fold_wait_s() -> f64 {
+    2.0 * f64::from(nanocal_interface::settings::DEFAULT_FOLD_PERIOD_MS) / 1e3
+}
+
+/// The next `MOV` the controller receives (the first move's queries of the controller's facts
+/// and their markers skipped).
 fn next_move(b: &Stm32) -> String {
     loop {
         let line = b.stage_line(1.0);
-        if line.starts_with("MOV") {
+        if line.starts_with("MOV ") {
             return line;
         }
         assert!(
-            line == "CSV?" || line.starts_with("PUN?"),
+            ["*IDN?", "CSV?", "SAI?"].contains(&line.as_str())
+                || ["PUN? ", "TMN? ", "TMX? "]
+                    .iter()
+                    .any(|q| line.starts_with(q)),
             "unexpected {line:?}"
         );
     }
@@ -156,7 +167,7 @@ fn e2e_stm32_air_pressure_from_the_lps22hb_on_i2c2() {
         let chip: &mut Lps22hb = chip.any_mut().downcast_mut().unwrap();
         chip.pressure_hpa = 990.5;
     }
-    b.status_until(&mut c, "the new pressure folded", 2.0, |s| {
+    b.status_until(&mut c, "the new pressure folded", fold_wait_s(), |s| {
         s.aux[0] == 990.5
     });
     host.send("MOV 1 50");

@@ -532,6 +532,34 @@ fn an_unanswered_query_is_given_up_and_later_replies_keep_their_attribution() {
     assert!((v - 100.0).abs() < 2e-4, "{v}");
 }
 
+#[test]
+fn lost_stage_bytes_hold_the_host_until_the_line_is_quiet_then_raise_link_lost() {
+    let (mut r, _) = rig_1dof();
+    r.line("MOV 1 100");
+    r.wait_ms(20); // the move ends
+    let now = r.now_ms;
+    r.proxy.stage_bytes_lost(now);
+    assert!(r.proxy.recovering_lost_bytes());
+    // while the line is not yet quiet, a host line waits (the proxy takes none of it)
+    let mut out = nanocal_compensator::proxy::Output::new();
+    let taken = r.proxy.host_bytes(None, b"MOV 1 50\n", now, &mut out);
+    assert_eq!(taken, 0);
+    assert!(out.is_empty());
+    // quiet for RESYNC_QUIET_MS: the replies due are given up, the targets forgotten, and the
+    // host's next ERR? names the loss
+    r.wait_ms(nanocal_compensator::proxy::RESYNC_QUIET_MS);
+    assert!(!r.proxy.recovering_lost_bytes());
+    r.received();
+    r.line("MVR 1 -50");
+    // the relative move's base is asked again: the targets were forgotten
+    assert_eq!(r.received().first().map(String::as_str), Some("MOV? 1"));
+    assert_eq!(r.line("ERR?"), "9010\n");
+    assert_eq!(r.proxy.counters.link_losses, 1);
+    r.wait_ms(20); // the move ends
+    let v = value(&r.line("POS? 1"), "1");
+    assert!((v - 50.0).abs() < 2e-4, "{v}");
+}
+
 // ---------------------------------------------------------------- controller
 
 #[test]

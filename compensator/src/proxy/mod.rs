@@ -52,6 +52,7 @@ pub mod travel;
 
 pub use corrector::{Corrected, Corrector, FoldCorrector};
 pub use queue::MAX_IN_FLIGHT;
+pub use session::RESYNC_QUIET_MS;
 
 use crate::command::{self, Action, Affects, Refusal};
 use crate::gcs::{self, AxisMap, LineBuf, Split, MAP_AXES, MAX_LINE};

@@ -20,7 +20,7 @@ use nanocal_interface::mgmt::Refusal;
 use nanocal_interface::status::{ChannelStatus, Flags, SensorFault};
 use nanocal_model::{blob, SlowInputs, MAX_AXES};
 use nanocal_stm32_board::ResetKind;
-use stm32_sim::{default_buses, stage_value, Stm32};
+use stm32_sim::{default_buses, stage_value, Stm32, FOLD_S};
 
 /// Temperatures the simulated sensors report (exact in MAX31856 LSBs), inside 21–23 °C.
 const TEMPS_C: [f32; 4] = [22.0, 22.125, 21.875, 22.25];
@@ -66,10 +66,8 @@ fn e2e_stm32_upload_sensors_and_corrected_moves() {
     let committed = c.upload(&blob_bytes[..n]).expect("upload");
     assert_eq!(committed.model_id, model.id());
 
-    // the sensors' first conversions (MAX31856 over SPI1 + DMA) fold the model; the second
-    // fold comes one fold period (settings layout 3, default 5 s) after the first
-    let within_s = 1.0 + f64::from(nanocal_interface::settings::DEFAULT_FOLD_PERIOD_MS) / 1e3;
-    let s = b.status_until(&mut c, "sensors read and model folded", within_s, |s| {
+    // the sensors' first conversions (MAX31856 over SPI1 + DMA) fold the model
+    let s = b.status_until(&mut c, "sensors read and model folded", 5.0 + FOLD_S, |s| {
         s.flags.contains(Flags::MODEL)
             && !s.flags.contains(Flags::SENSOR_BLOCK)
             && s.sensor_bits[..4]
@@ -234,8 +232,7 @@ fn e2e_stm32_upload_sensors_and_corrected_moves() {
     assert_eq!(b.stage_line(1.0), "SVO 1 1", "blocked MOV not forwarded");
     // recovery: three good readings
     b.set_tc_status(1, 0);
-    // (within a fold period, as the first folds: 2 s was too short with settings layout 3)
-    b.status_until(&mut c, "sensor recovery", within_s, |s| {
+    b.status_until(&mut c, "sensor recovery", 2.0 + FOLD_S, |s| {
         !s.flags.contains(Flags::SENSOR_BLOCK)
     });
     host.send("MOV 1 250");

@@ -15,22 +15,15 @@ use nanocal::virtual_bench::chips::{lps22hb, Lps22hb};
 use nanocal_interface::settings::AuxSource;
 use nanocal_interface::status::Flags;
 use nanocal_model::{blob, AuxKind, AuxSpec, Factor, Input, Model, ModelBuilder, MAX_AXES};
-use stm32_sim::{default_buses, stage_value, Stm32};
+use stm32_sim::{default_buses, stage_value, Stm32, FOLD_S};
 
 fn upload(b: &Stm32, c: &mut nanocal::device::Client, model: &Model) {
     let mut bytes = vec![0u8; blob::MAX_BLOB_LEN];
     let n = blob::encode(model, &mut bytes).unwrap();
     c.upload(&bytes[..n]).expect("model accepted");
-    // the second fold comes one fold period (settings layout 3) after the first
-    b.status_until(c, "sensors read and model folded", fold_wait_s(), |s| {
+    b.status_until(c, "sensors read and model folded", 5.0 + FOLD_S, |s| {
         s.flags.contains(Flags::MODEL) && !s.flags.contains(Flags::SENSOR_BLOCK) && s.folds >= 2
     });
-}
-
-/// Board time within which the next fold comes: two default fold periods (settings layout 3;
-/// the first fold may come a second after the upload).
-fn fold_wait_s() -> f64 {
-    2.0 * f64::from(nanocal_interface::settings::DEFAULT_FOLD_PERIOD_MS) / 1e3
 }
 
 /// The next `MOV` the controller receives (the first move's queries of the controller's facts
@@ -104,10 +97,14 @@ fn e2e_stm32_force_on_adc1_corrects_each_command() {
         (commanded[2] - commanded[0] + 1.2 * 0.8).abs() < 1e-3,
         "{commanded:?}"
     );
-    // the status reports the force the slow cycle (every 250 ms) converted
-    b.run_for(0.3);
-    let s = c.status().unwrap();
-    assert_eq!(s.aux[0], force_n(848));
+    // the status reports the force the last fold averaged (over its fold period): once a whole
+    // fold has seen only code 848, that is its force
+    b.status_until(
+        &mut c,
+        "the fold's average of the force",
+        1.0 + 2.0 * FOLD_S,
+        |s| (s.aux[0] - force_n(848)).abs() <= 1e-5,
+    );
 
     // a force outside the training range (±2 N): refused, nothing moves
     set_code(4095);
@@ -167,7 +164,7 @@ fn e2e_stm32_air_pressure_from_the_lps22hb_on_i2c2() {
         let chip: &mut Lps22hb = chip.any_mut().downcast_mut().unwrap();
         chip.pressure_hpa = 990.5;
     }
-    b.status_until(&mut c, "the new pressure folded", fold_wait_s(), |s| {
+    b.status_until(&mut c, "the new pressure folded", 2.0 + 2.0 * FOLD_S, |s| {
         s.aux[0] == 990.5
     });
     host.send("MOV 1 50");

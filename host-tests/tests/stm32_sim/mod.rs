@@ -176,6 +176,10 @@ pub fn e727() -> Config {
 /// and whenever the board hands a USB client bytes.
 const STEP_S: f64 = 0.01;
 
+/// The firmware's default fold period, s: the status's inputs and fold count move once a fold
+/// (settings layout 3, paper 001 §VI), so a wait for a fold allows a period more.
+pub const FOLD_S: f64 = nanocal_interface::settings::DEFAULT_FOLD_PERIOD_MS as f64 / 1000.0;
+
 fn ps(s: f64) -> u64 {
     (s * PS as f64).round() as u64
 }

@@ -17,7 +17,7 @@ use nanocal::published::published_1dof;
 use nanocal_interface::status::Flags;
 use nanocal_model::blob;
 use pipython_session::{controller, TEMPS_C};
-use stm32_sim::{default_buses, Stm32};
+use stm32_sim::{default_buses, Stm32, FOLD_S};
 
 #[test]
 fn e2e_stm32_pipython_session_through_the_compensator() {
@@ -55,7 +55,7 @@ fn e2e_stm32_pipython_session_through_the_compensator() {
     );
     assert!(String::from_utf8_lossy(&out.stdout).contains("in service"));
     let mut c = b.mgmt();
-    b.status_until(&mut c, "sensors ready", 5.0, |s| {
+    b.status_until(&mut c, "sensors ready", 5.0 + FOLD_S, |s| {
         !s.flags.contains(Flags::SENSOR_BLOCK) && s.folds >= 2
     });
     drop(c);

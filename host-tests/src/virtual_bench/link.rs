@@ -19,12 +19,16 @@ use std::sync::atomic::{fence, AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
+use super::input_watch::InputWatch;
+
 /// Size of the file behind the board's PSRAM (QEMU's mps2 machines have exactly 16 MiB).
 pub const RAM_FILE_LEN: u64 = 16 * 1024 * 1024;
 const MAP_LEN: usize = 4096;
 /// How long [`BenchClock::advance_to`] watches the page without any progress of the board
 /// before it sleeps until a doorbell.
 const SPIN: Duration = Duration::from_micros(500);
+/// Longest the free-running clock holds for input in flight that the board does not take.
+const MAX_HOLD: Duration = Duration::from_secs(2);
 
 /// The page, mapped in this process.
 pub struct Page {
@@ -193,6 +197,11 @@ pub struct BenchLink {
     pub transactions: AtomicU64,
     /// Wake-ups for input stuck on its way into the board ([`Self::wake_for_input`]).
     pokes: AtomicU64,
+    /// Input written towards the board and not yet taken: the free-running clock holds while
+    /// there is some.
+    inputs: InputWatch,
+    /// Wall time the free-running clock held for input in flight, µs.
+    held_us: AtomicU64,
 }
 
 impl BenchLink {
@@ -214,6 +223,8 @@ impl BenchLink {
             advanced: Condvar::new(),
             transactions: AtomicU64::new(0),
             pokes: AtomicU64::new(0),
+            inputs: InputWatch::default(),
+            held_us: AtomicU64::new(0),
         });
         let l = link.clone();
         std::thread::spawn(move || l.read_doorbells(reader));
@@ -414,13 +425,54 @@ impl BenchLink {
         }
     }
 
+    /// The ways into the board whose input in flight holds the free-running clock.
+    pub fn inputs(&self) -> &InputWatch {
+        &self.inputs
+    }
+
+    /// Wall time the free-running clock has held for input in flight, s.
+    pub fn held_s(&self) -> f64 {
+        self.held_us.load(Ordering::Relaxed) as f64 * 1e-6
+    }
+
+    /// Move the horizon with the wall clock × `scale`, except while input is in flight (see
+    /// [`InputWatch`]): then the horizon holds and the board is rung until it has taken the
+    /// input, as `src/qemu/time.rs` expects of the bench. A hold lasts at most [`MAX_HOLD`] of
+    /// wall time while the unread count stays the same, so a board that stops reading a port
+    /// still sees its time pass.
     fn free_run(&self, scale: f64) {
-        let t0 = Instant::now();
+        let mut last = Instant::now();
+        let mut held = Duration::ZERO;
+        let t0 = last;
         let base = self.page.u64(bl::HORIZON);
+        let mut episode: Option<(u64, Instant)> = None;
         while !self.stop.load(Ordering::Acquire) && !self.lockstep.load(Ordering::Acquire) {
-            let t = base + bl::s_to_ticks(t0.elapsed().as_secs_f64() * scale);
-            self.set_horizon(t);
-            self.notify_advanced();
+            let now = Instant::now();
+            let dt = now - last;
+            last = now;
+            let pending = self.inputs.pending_bytes();
+            let hold = if pending == 0 {
+                episode = None;
+                false
+            } else {
+                match episode {
+                    Some((n, since)) if n == pending => now - since < MAX_HOLD,
+                    _ => {
+                        episode = Some((pending, now));
+                        true
+                    }
+                }
+            };
+            if hold {
+                held += dt;
+                self.held_us
+                    .fetch_add(dt.as_micros() as u64, Ordering::Relaxed);
+                self.wake_for_input();
+            } else {
+                let t = base + bl::s_to_ticks((now - t0 - held).as_secs_f64() * scale);
+                self.set_horizon(t);
+                self.notify_advanced();
+            }
             std::thread::sleep(Duration::from_millis(1));
         }
     }

@@ -5,6 +5,7 @@
 pub mod bench;
 pub mod chips;
 pub mod controller;
+pub mod input_watch;
 pub mod jitter;
 pub mod link;
 pub mod qemu;

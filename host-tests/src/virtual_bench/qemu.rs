@@ -248,6 +248,10 @@ impl Qemu {
         let mut child = child;
         let line = dial_unix(&mut child, &sockets.join("s4"), 4, &log);
         let link = BenchLink::start(page, line);
+        // serial 0-2 (TCP); the management port's sockets are watched as they are opened
+        for p in &ports[..3] {
+            link.inputs().watch_tcp_port(*p);
+        }
         let mut q = Self {
             child,
             ports,
@@ -387,12 +391,14 @@ impl Qemu {
     /// A raw connection to the management port (serial3), for tests that send bytes no client
     /// would (a frame cut off); one connection at a time, as [`Self::client`]'s.
     pub fn mgmt_stream(&mut self) -> UnixStream {
-        dial_unix(
+        let s = dial_unix(
             &mut self.child,
             &self.log.with_extension("d").join("s3"),
             3,
             &self.log,
-        )
+        );
+        self.link.inputs().watch_unix(&s);
+        s
     }
 
     /// A management client (serial3); one at a time.
@@ -404,6 +410,7 @@ impl Qemu {
             &self.log,
         );
         s.set_read_timeout(Some(Duration::from_millis(50))).ok();
+        self.link.inputs().watch_unix(&s);
         let mut c = Client::new(Box::new(s), &self.mgmt_spec(), HANG);
         // QEMU may still be handing over from a previous client, the board may be resetting:
         // retry the first request

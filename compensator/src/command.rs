@@ -73,12 +73,18 @@ pub enum Action {
     Macro,
     /// `PUN` (set the position unit): forwarded, then the unit is read again.
     SetUnit,
-    /// `PUN?`: relayed; the proxy reads the units in the reply too.
+    /// `PUN?`: relayed (the proxy reads the units of the model axes with a query of its own,
+    /// whatever the host asks).
     UnitQuery,
     /// `CSV?`: relayed; the proxy reads the GCS syntax version in the reply too.
     VersionQuery,
     /// `SAI?`: relayed; the proxy learns the controller's axis identifiers from the reply.
     AxesQuery,
+    /// `TMN?`/`TMX?`: relayed (the proxy reads the travel with queries of its own).
+    TravelQuery,
+    /// `*IDN?` (not in the table: five characters; the proxy compares the word): relayed; its
+    /// reply is the controller's identification line, which the proxy's markers bring back.
+    IdnQuery,
     /// `ERR?`: answered by the proxy when it has an error of its own.
     ErrorQuery,
     /// `RBT`: the controller restarts; targets, units and version are unknown afterwards.
@@ -204,6 +210,8 @@ commands! {
     K_PUN_Q = b"PUN?" => UnitQuery,
     K_CSV_Q = b"CSV?" => VersionQuery,
     K_SAI_Q = b"SAI?" => AxesQuery,
+    K_TMN_Q = b"TMN?" => TravelQuery,
+    K_TMX_Q = b"TMX?" => TravelQuery,
     K_ERR_Q = b"ERR?" => ErrorQuery,
     K_RBT = b"RBT" => Reboot,
 }

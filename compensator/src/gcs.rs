@@ -134,6 +134,12 @@ impl<const N: usize> LineBuf<N> {
         self.len += 1;
         Ok(())
     }
+    /// Move the last byte to position `at` (the bytes from `at` on move up by one).
+    pub fn rotate_tail(&mut self, at: usize) {
+        if at < self.len {
+            self.buf[at..self.len].rotate_right(1);
+        }
+    }
     /// Drop the first `n` bytes (the rest moves to the front).
     pub fn consume(&mut self, n: usize) {
         let n = n.min(self.len);
@@ -570,20 +576,55 @@ pub fn is_single_char_command(b: u8) -> bool {
 /// Bit n set for control byte n that is a single-character command.
 const SINGLE_CHAR_MASK: u32 = 0b1111111 << 3 | 1 << 0x0B | 1 << 0x18 | 1 << 0x1B;
 
-/// The first byte of `s` that ends a run of line bytes (an LF or a single-character command).
-/// Command text is printable, so four bytes at a time are first tested for any control byte
-/// at all (SWAR: a byte below 0x20 sets its top bit in `(w − 0x20…) & !w`).
+/// True for a byte GCS allows inside a command line: printable ASCII, `0x20..=0x7E`. PI's GCS
+/// 2.0 syntax (e.g. the C-863.12 manual MS249E, §8.1–8.2 "GCS Syntax for Syntax Version 2.0")
+/// is ASCII: the mnemonic and every argument separated by a space (SP, #32), the line ended by
+/// LF (#10); the only other bytes are the single-character commands (`#24`, …), which are
+/// never part of a line. A CR before the LF is tolerated (terminals send CR LF); any other byte
+/// makes a line the proxy cannot classify, and it is refused (see `proxy::GcsErrorCode::NotPrintable`).
+#[inline(always)]
+pub fn is_printable(b: u8) -> bool {
+    b.wrapping_sub(0x20) < 0x5F
+}
+
+/// True when a command line (LF removed) holds only [printable](is_printable) bytes, apart
+/// from one CR at its end.
+pub fn is_clean_line(line: &[u8]) -> bool {
+    let body = line.strip_suffix(b"\r").unwrap_or(line);
+    body.iter().all(|&b| is_printable(b))
+}
+
+/// The first byte of `s` that ends a run of line bytes (an LF or a single-character command),
+/// and whether every byte before it is [printable](is_printable) — a CR just before the LF
+/// aside. Command text is printable, so four bytes at a time are first tested for any byte
+/// outside `0x20..=0x7E` at all (SWAR: a byte below 0x20 or equal to FFh sets its top bit in
+/// `w − 0x20…`, one from 7Fh to FEh in `w + 0x01…`; a borrow or carry only starts at such a
+/// byte, so the lowest one is always seen).
 #[inline]
-pub fn find_run_end(s: &[u8]) -> Option<usize> {
+pub fn scan_run(s: &[u8]) -> (Option<usize>, bool) {
     let mut i = 0;
     while i + 4 <= s.len() {
         let w = u32::from_le_bytes([s[i], s[i + 1], s[i + 2], s[i + 3]]);
-        if w.wrapping_sub(0x2020_2020) & !w & 0x8080_8080 != 0 {
+        let odd = w.wrapping_sub(0x2020_2020) | w.wrapping_add(0x0101_0101);
+        if odd & 0x8080_8080 != 0 {
             break;
         }
         i += 4;
     }
-    s[i..].iter().position(|&b| ends_run(b)).map(|p| i + p)
+    let mut clean = true;
+    while i < s.len() {
+        let b = s[i];
+        if !is_printable(b) {
+            if ends_run(b) {
+                return (Some(i), clean);
+            }
+            if !(b == b'\r' && s.get(i + 1) == Some(&b'\n')) {
+                clean = false;
+            }
+        }
+        i += 1;
+    }
+    (None, clean)
 }
 
 /// True for a byte that ends a run of line bytes: LF or a single-character command.
@@ -869,4 +910,38 @@ pub fn parse_axis_value(line: &[u8]) -> Option<AxisValue<'_>> {
         value,
         continued,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The four-byte test of `scan_run` agrees with the byte-by-byte definition on every byte
+    /// value in every position, next to printable and non-printable neighbours.
+    #[test]
+    fn scan_run_finds_every_byte_outside_the_printable_set() {
+        for b in 0..=255u8 {
+            for pos in 0..4 {
+                for fill in [b'A', b' ', b'~', 0x7F, 0x00, 0xFF] {
+                    let mut s = [fill; 8];
+                    s[pos] = b;
+                    let line = &s[..];
+                    let (end, clean) = scan_run(line);
+                    let want_end = line.iter().position(|&c| ends_run(c));
+                    assert_eq!(end, want_end, "{line:?}");
+                    let upto = want_end.unwrap_or(line.len());
+                    let want_clean = line[..upto].iter().all(|&c| is_printable(c));
+                    assert_eq!(clean, want_clean, "{line:?}");
+                }
+            }
+        }
+        // a CR just before the LF is no dirt, anywhere else it is
+        assert_eq!(scan_run(b"MOV 1 2\r\n"), (Some(8), true));
+        assert_eq!(scan_run(b"\rMOV 1 2\n"), (Some(8), false));
+        assert_eq!(scan_run(b"MOV\r1 2\n"), (Some(7), false));
+        assert!(is_clean_line(b"MOV 1 2\r"));
+        assert!(!is_clean_line(b"MOV\r1 2"));
+        assert!(!is_clean_line(b"MOV 1 2\r\r"));
+        assert!(!is_clean_line(b"PUN 1 \xB5m"));
+    }
 }

@@ -616,13 +616,11 @@ pub fn gcs_proxy(input: &[u8]) {
     }
 }
 
-/// Issue 21, finding 4, is open: the proxy splits on space and tab and trims a trailing CR
-/// only, so a byte outside GCS's printable set inside a line (`\rMOV 1 200`, ` \xA0MOV 1 100`)
-/// hides a command, which goes out uncorrected to a controller that takes it as white space. Until it is fixed, the target
-/// checks nothing after such a byte (everything else it checks as usual);
-/// `host-tests/tests/proxy_fuzz_findings.rs` holds the failing inputs, ignored until then.
-/// Set this to `false` when issue 21 lands.
-pub const ISSUE_21_CONTROL_BYTES: bool = true;
+/// Issue 21, finding 4: a byte outside GCS's printable set inside a line (`\rMOV 1 200`,
+/// ` \xA0MOV 1 100`) once hid a command, which went out uncorrected to a controller that takes
+/// it as white space. The proxy now refuses such a line (9011), so the target checks every
+/// input; `true` would skip the checks after such a byte again (kept for bisecting).
+pub const ISSUE_21_CONTROL_BYTES: bool = false;
 
 /// True when `sent` has a byte that can hide a command: one outside GCS's printable ASCII
 /// that is not tab, LF, a CR ending a line or one of GCS's single-character commands (the

@@ -7,7 +7,7 @@
 
 mod fw_sim;
 
-use fw_sim::{next_move, wait_until, Qemu, SensorSim, StageSim};
+use fw_sim::{next_move, wait_until, Config, Qemu, SensorSim, StageSim};
 use nanocal::design::DesignSpec;
 use nanocal::fit::{fit_dwells, FitOptions, Selection};
 use nanocal::plan::Plan;
@@ -110,7 +110,15 @@ fn run_under_qemu(
     }
     let mut q = Qemu::start_or_skip(test)?;
     let clk = q.clock();
-    let stage = StageSim::start(q.connect(1), 3);
+    // a controller whose travel covers the robot's motor strokes (the compensator reads
+    // TMN?/TMX? and refuses commands outside them)
+    let mut cfg = Config::e727(3).ready();
+    for a in &mut cfg.axes {
+        a.velocity = 1e12;
+        a.min = -100_000.0;
+        a.max = 100_000.0;
+    }
+    let stage = StageSim::serve(q.connect(1), cfg);
     let _sensors = SensorSim::start(q.link(), temps);
     let mut host = q.gcs_host();
     let mut c = q.client();
@@ -146,7 +154,5 @@ fn run_under_qemu(
             );
         }
     }
-    // (the simulated controller's own travel is not the robot's: it may refuse the motion
-    // itself; what is checked is the command the compensator forwards)
     Some(worst_nm)
 }

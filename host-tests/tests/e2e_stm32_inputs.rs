@@ -26,15 +26,19 @@ fn upload(b: &Stm32, c: &mut nanocal::device::Client, model: &Model) {
     });
 }
 
-/// The next `MOV` the controller receives (the first move's `CSV?`/`PUN?` queries skipped).
+/// The next `MOV` the controller receives (the first move's queries of the controller's facts
+/// and their markers skipped).
 fn next_move(b: &Stm32) -> String {
     loop {
         let line = b.stage_line(1.0);
-        if line.starts_with("MOV") {
+        if line.starts_with("MOV ") {
             return line;
         }
         assert!(
-            line == "CSV?" || line.starts_with("PUN?"),
+            ["*IDN?", "CSV?", "SAI?"].contains(&line.as_str())
+                || ["PUN? ", "TMN? ", "TMX? "]
+                    .iter()
+                    .any(|q| line.starts_with(q)),
             "unexpected {line:?}"
         );
     }

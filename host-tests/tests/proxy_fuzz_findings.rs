@@ -1,8 +1,7 @@
 //! What the `gcs_proxy` fuzz target (`fuzz/`) found in the GCS proxy, each as the input that
 //! showed it, against the target's own model and controller (`fuzz/src/checks.rs`: the model
-//! corrects every target by +1000 µm, so an uncorrected move cannot hide). Findings that belong
-//! to issue 21 (the proxy's rewrite) are ignored here until it lands; run them with
-//! `cargo test --test proxy_fuzz_findings -- --ignored`.
+//! corrects every target by +1000 µm, so an uncorrected move cannot hide). The control-byte
+//! findings are issue 21's item 4: such a line is refused (9011), never forwarded.
 
 mod proxy_rig;
 
@@ -42,7 +41,6 @@ fn a_plain_move_is_corrected() {
 }
 
 #[test]
-#[ignore = "issue 21 (finding 4): a CR inside a line hides a command from the proxy"]
 fn a_cr_before_the_command_does_not_hide_it() {
     // fuzz input fuzz/seeds/gcs_proxy/issue-21-cr-hides-mov (dictionary line "\rMOV 1 200"):
     // the controller, which takes CR as white space, moved to exactly 200 µm, uncorrected
@@ -51,7 +49,6 @@ fn a_cr_before_the_command_does_not_hide_it() {
 }
 
 #[test]
-#[ignore = "issue 21 (finding 4): a byte outside GCS's printable set hides a command"]
 fn a_no_break_space_does_not_hide_a_command() {
     // fuzz input fuzz/seeds/gcs_proxy/issue-21-nbsp-hides-mov: ` \xA0` then `MOV 1 100`; the
     // simulated controller decodes PI's code page, where A0h is a no-break space, white space

@@ -20,7 +20,8 @@
 mod proxy_rig;
 
 use nanocal::published::{coupled_2dof, published_1dof};
-use nanocal::virtual_bench::Event;
+use nanocal::virtual_bench::{Config, Event};
+use nanocal_compensator::proxy::travel::CLAMP_UM;
 use nanocal_model::{Model, MAX_AXES};
 use proptest::prelude::*;
 use proxy_rig::{everything, slow, text, Rig};
@@ -294,9 +295,16 @@ struct Checked {
     mapped: usize,
 }
 
+/// The travel a corrected command of `axis` must lie in: the model's and the controller's.
+fn travel(model: &Model, cfg: &Config, axis: usize) -> (f64, f64) {
+    let (lo, hi) = model.travel_um(axis);
+    (lo.max(cfg.axes[axis].min), hi.min(cfg.axes[axis].max))
+}
+
 fn run(model: &Model, lines: &[Line]) -> Result<Checked, TestCaseError> {
     let n = model.axes();
-    let mut r = Rig::new(everything(3), Some(model), &TEMPS);
+    let cfg = everything(3);
+    let mut r = Rig::new(cfg.clone(), Some(model), &TEMPS);
     let mut checked = Checked {
         targets: 0,
         mapped: 0,
@@ -326,6 +334,8 @@ fn run(model: &Model, lines: &[Line]) -> Result<Checked, TestCaseError> {
         let x_meant = meant(&l.cmd, &values, &host, &x_before, n);
         let q_meant = command(model, &x_meant);
         let mut moved = false;
+        let mut clamped = false;
+        let mut q_sent = q_meant;
         for e in r.events() {
             match e {
                 Event::Target { axis, value, by } if axis < n => {
@@ -333,12 +343,25 @@ fn run(model: &Model, lines: &[Line]) -> Result<Checked, TestCaseError> {
                         by == "MOV" || by == "MVE",
                         "{shown:?}: model axis {axis} moved by {by}"
                     );
+                    // within 0.1 µm outside the travel (the model's and the controller's) a
+                    // command is clamped to its end, further out refused (`proxy::travel`)
+                    let (lo, hi) = travel(model, &cfg, axis);
+                    let want = q_meant[axis].clamp(lo, hi);
                     prop_assert!(
-                        (value - q_meant[axis]).abs() <= 1e-3,
+                        (q_meant[axis] - want).abs() <= CLAMP_UM + 1e-3,
+                        "{shown:?}: axis {axis} sent to {value}, but the correction of {} is {}, \
+                         outside the travel [{lo}, {hi}]",
+                        x_meant[axis],
+                        q_meant[axis]
+                    );
+                    prop_assert!(
+                        (value - want).abs() <= 1e-3,
                         "{shown:?}: axis {axis} sent to {value}, the correction of {} is {}",
                         x_meant[axis],
                         q_meant[axis]
                     );
+                    clamped |= want != q_meant[axis];
+                    q_sent[axis] = value;
                     checked.targets += 1;
                     moved = true;
                 }
@@ -353,9 +376,15 @@ fn run(model: &Model, lines: &[Line]) -> Result<Checked, TestCaseError> {
             }
         }
         if moved {
-            // a corrected move sets every model axis' calibrated target
+            // a corrected move sets every model axis' calibrated target (a clamped one: the
+            // calibrated position of the command sent)
+            let x_set = if clamped {
+                inverse(model, &q_sent, n)
+            } else {
+                x_meant
+            };
             for k in 0..n {
-                host[k] = Some(x_meant[k]);
+                host[k] = Some(x_set[k]);
             }
         }
         for k in forgets(&l.cmd, n) {

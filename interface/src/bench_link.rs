@@ -23,6 +23,8 @@
 //! 0x028  u64   board       BOOT_AT: bench time of the last boot (the board's uptime = NOW − BOOT_AT)
 //! 0x030  u32×5 board       TX_BYTES[n]: bytes the board has written to serial n since power-on
 //! 0x048  u32   host        WATCHING: 1 while the host polls this page (no doorbells needed)
+//! 0x04C  u32   board       LINE_STATES: line state bytes applied, either port (the bench knows
+//!                          a new session has started before it sends on it; layout 2)
 //! 0x050  u32×5 board       RX_BYTES[n]: bytes the board has read from serial n since power-on
 //! 0x080  u32   board       BUS_REQ_SEQ: incremented when a request is posted (after its bytes)
 //! 0x084  37 B  board       BUS_REQ: the request frame (`crate::bus` layout, A5 … )
@@ -62,7 +64,7 @@ pub const PAGE_LEN: usize = 0x100;
 /// Magic value at [`MAGIC`].
 pub const MAGIC_VALUE: u32 = 0x4B4C_434E; // "NCLK"
 /// Layout version at [`VERSION`].
-pub const VERSION_VALUE: u32 = 1;
+pub const VERSION_VALUE: u32 = 2;
 
 /// Offset of the magic.
 pub const MAGIC: usize = 0x000;
@@ -86,6 +88,8 @@ pub const TX_BYTES: usize = 0x030;
 pub const SERIALS: usize = 5;
 /// Offset of the host's "polling the page" flag.
 pub const WATCHING: usize = 0x048;
+/// Offset of the count of line state bytes (GCS or management port) the board has applied.
+pub const LINE_STATES: usize = 0x04C;
 /// Offset of the per-serial receive byte counters (the bench knows its input was taken in).
 pub const RX_BYTES: usize = 0x050;
 /// Offset of the bus request sequence number.
@@ -142,6 +146,7 @@ mod tests {
             (BOOT_AT, 8),
             (TX_BYTES, 4 * SERIALS),
             (WATCHING, 4),
+            (LINE_STATES, 4),
             (RX_BYTES, 4 * SERIALS),
             (BUS_REQ_SEQ, 4),
             (BUS_REQ, FRAME_LEN),

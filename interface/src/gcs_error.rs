@@ -2,7 +2,7 @@
 //! refuses a line (nothing is forwarded to the controller).
 //!
 //! Three are PI's own codes with PI's meaning (GCS 2.0, the controller manuals' error table), so
-//! a host that knows PI's codes understands them; 9001–9010 are the compensator's own, above
+//! a host that knows PI's codes understands them; 9001–9014 are the compensator's own, above
 //! PI's range. The firmware's proxy raises exactly these, and the host's messages (`nanocal
 //! campaign`, `nanocal device status`) come from the same table.
 //!
@@ -21,6 +21,10 @@
 //! | 9008 | refused while compensating |
 //! | 9009 | the controller speaks GCS 3.0 |
 //! | 9010 | bytes from the controller were lost: the replies that were due are dropped |
+//! | 9011 | a byte outside GCS's printable set in the line (a control character other than the terminating LF and a CR before it, or a byte above 7Eh) |
+//! | 9012 | the corrected command is outside the controller's travel (`TMN?`/`TMX?`) by more than the clamp tolerance |
+//! | 9013 | a model axis is not one of the controller's axes (`SAI?`) |
+//! | 9014 | the controller does not answer (identification unanswered or unusable, or silent while the line waited) |
 
 code_enum! {
     /// A GCS error the compensator raises (see the module's table).
@@ -60,6 +64,18 @@ code_enum! {
         /// replies that were due are dropped and the targets forgotten; a move that needs one
         /// asks `MOV?` afresh.
         LinkLost = 9010 => "bytes from the controller were lost: the replies that were due were dropped",
+        /// The line holds a byte outside GCS's printable set (a control character other than
+        /// the terminating LF and a CR before it, or a byte above 7Eh): the proxy could not
+        /// classify it, so it is not forwarded.
+        NotPrintable = 9011 => "the line holds a byte outside GCS's printable set (a control character or a byte above 7Eh); not forwarded",
+        /// The corrected command is outside the controller's travel (`TMN?`/`TMX?`) by more
+        /// than the clamp tolerance (0.1 µm): the controller would refuse it.
+        OutsideControllerTravel = 9012 => "the corrected command is outside the controller's travel (TMN?/TMX?) by more than the 0.1 µm clamp tolerance",
+        /// A model axis is not one of the controller's axes (`SAI?`): moves are refused.
+        NotAnAxis = 9013 => "a model axis is not one of the controller's axes (SAI?)",
+        /// The controller does not answer (its identification `*IDN?` went unanswered or is no
+        /// usable marker, or it went silent while the line waited for it): not forwarded.
+        NoAnswer = 9014 => "the controller does not answer (identification unanswered or unusable, or silent while the line waited)",
     }
 }
 

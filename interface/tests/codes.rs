@@ -45,13 +45,13 @@ fn every_code_maps_back() {
 
 #[test]
 fn gcs_errors_mean_what_the_proxy_raises_them_for() {
-    // the compensator's own codes, 9001..=9010, each with its own meaning
+    // the compensator's own codes, 9001..=9014, each with its own meaning
     let own: Vec<i32> = GcsErrorCode::ALL
         .iter()
         .filter(|e| e.is_compensators())
         .map(|e| e.code())
         .collect();
-    assert_eq!(own, (9001..=9010).collect::<Vec<_>>());
+    assert_eq!(own, (9001..=9014).collect::<Vec<_>>());
     // the two the campaign once mislabelled (9006 as a unit mismatch)
     assert_eq!(
         GcsErrorCode::from_code(9006),
@@ -72,7 +72,15 @@ fn gcs_errors_mean_what_the_proxy_raises_them_for() {
     assert!(GcsErrorCode::RefusedWhileCompensating
         .to_string()
         .contains("refused while compensating"));
-    assert_eq!(GcsErrorCode::from_code(9011), None);
+    // main's stage-link code keeps 9010; the proxy's refusals follow it
+    assert_eq!(GcsErrorCode::from_code(9010), Some(GcsErrorCode::LinkLost));
+    assert_eq!(
+        GcsErrorCode::from_code(9011),
+        Some(GcsErrorCode::NotPrintable)
+    );
+    assert!(GcsErrorCode::NotPrintable.to_string().contains("printable"));
+    assert_eq!(GcsErrorCode::from_code(9014), Some(GcsErrorCode::NoAnswer));
+    assert_eq!(GcsErrorCode::from_code(9015), None);
 }
 
 #[test]

@@ -115,9 +115,7 @@ async fn send(sh: &Shared, out: &Output) {
         // the proxy may now wait for a reply: the stage link polls its timeout from now on
         sh.stage_sent.signal(());
     }
-    let host_connected = sh
-        .host_connected
-        .load(core::sync::atomic::Ordering::Relaxed);
+    let host_connected = sh.host_connected.load(Ordering::Relaxed);
     if !out.to_host.is_empty() && host_connected {
         sh.to_host.write_all(out.to_host.as_bytes()).await;
     }
@@ -125,19 +123,25 @@ async fn send(sh: &Shared, out: &Output) {
 
 /// Hand `buf` to the proxy through `step` until it has taken all of it, sending what it
 /// produces each time. (When it takes nothing and produces nothing, a held line fills its
-/// input: wait for the controller's answer.)
+/// input: wait for the controller's answer.) `session` is the host session host bytes were
+/// read in (they stop when it ends); `None` for the controller's bytes (sent as
+/// [`send_from_stage`] sends).
 async fn feed(
     sh: &Shared,
     buf: &[u8],
     out: &mut Output,
-    from_stage: bool,
+    session: Option<u32>,
     step: impl Fn(&mut Core, &[u8], &mut Output) -> usize,
 ) {
     let mut i = 0;
     while i < buf.len() {
+        if session.is_some_and(|s| s != sh.host_session.load(Ordering::Acquire)) {
+            // the host closed the port meanwhile: the rest belongs to no one
+            return;
+        }
         let used = sh.core.lock(|c| step(&mut c.borrow_mut(), &buf[i..], out));
         i += used;
-        if from_stage {
+        if session.is_none() {
             send_from_stage(sh, out).await;
         } else {
             send(sh, out).await;
@@ -190,16 +194,21 @@ pub async fn host_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) -> 
         let mut out = Output::new();
         let mut buf = [0u8; 64];
         loop {
+            let session = sh.host_session.load(Ordering::Acquire);
             let n = match select(read_some(&mut rx, &mut buf), sh.host_hangup.wait()).await {
                 Either::First(n) => n,
-                Either::Second(()) => {
-                    // the host closed the port: nothing of that connection survives it
-                    super::end_host_session(sh);
-                    continue;
-                }
+                // the host closed or opened the port: nothing of the old connection survives
+                // it (the session was ended where the line state changed)
+                Either::Second(()) => continue,
             };
+            if session != sh.host_session.load(Ordering::Acquire)
+                || !sh.host_connected.load(Ordering::Relaxed)
+            {
+                // read in a session that has ended, or while the port is closed: no one's
+                continue;
+            }
             let _busy = sh.beats[task::HOST_IN].busy(now_ms());
-            feed(sh, &buf[..n], &mut out, false, |c, b, out| {
+            feed(sh, &buf[..n], &mut out, Some(session), |c, b, out| {
                 let now = now_ms();
                 c.drive(now, |proxy, comp| proxy.host_bytes(comp, b, now, out))
             })
@@ -231,7 +240,7 @@ pub async fn stage_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) ->
             match select(read_stage(&mut rx, &mut buf), tick).await {
                 Either::First(Some(n)) => {
                     let _busy = sh.beats[task::STAGE_IN].busy(now_ms());
-                    feed(sh, &buf[..n], &mut out, true, |c, b, out| {
+                    feed(sh, &buf[..n], &mut out, None, |c, b, out| {
                         let now = now_ms();
                         c.drive(now, |proxy, comp| proxy.stage_bytes(comp, b, now, out))
                     })

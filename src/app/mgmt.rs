@@ -2,11 +2,12 @@
 //! settings, reset.
 
 use super::supervisor::led_state;
-use super::{fresh_proxy, now_ms, read_some, task, Comp, Shared};
+use super::{now_ms, read_some, task, Comp, Shared};
 use core::sync::atomic::Ordering;
 use embassy_futures::select::{select, select3, Either, Either3};
 use embedded_io_async::{Read, Write};
 use embedded_storage_async::nor_flash::NorFlash;
+use nanocal_compensator::gcs::AxisMap;
 use nanocal_compensator::inputs;
 use nanocal_compensator::l4flash::EccErrors;
 use nanocal_compensator::proxy::Gate;
@@ -420,10 +421,9 @@ fn apply_kmz(
 fn apply_settings(sh: &Shared, s: Settings) {
     sh.settings.lock(|x| *x.borrow_mut() = s);
     sh.core.lock(|c| {
-        let mut c = c.borrow_mut();
-        let keep = (c.proxy.bypass, c.proxy.gate, c.proxy.counters);
-        c.proxy = fresh_proxy(&s);
-        (c.proxy.bypass, c.proxy.gate, c.proxy.counters) = keep;
+        c.borrow_mut()
+            .proxy
+            .reconfigure(AxisMap::new(&s.axis_names))
     });
     sh.settings_changed.signal(());
 }

@@ -171,7 +171,8 @@ pub struct Shared {
     pub to_stage: Pipe<Cs, PIPE_LEN>,
     /// The host has the GCS port open (USB DTR; always true on links without line state).
     pub host_connected: AtomicBool,
-    /// The host closed the GCS port: the host link drops what belongs to that connection.
+    /// The host closed or opened the GCS port: the host link drops what belongs to the old
+    /// connection.
     pub host_hangup: Signal<Cs, ()>,
     /// The host closed the management port (its line state, where the board has it): a frame
     /// still arriving is dropped at once.
@@ -185,7 +186,9 @@ pub struct Shared {
     pub beats: [Beat; task::COUNT],
     /// Flash double words that failed ECC on read.
     pub flash_ecc_errors: AtomicU32,
-    /// Host sessions ended so far (the host pump drops what belongs to an older one).
+    /// Host sessions so far (incremented at every open and close of the GCS port): bytes read
+    /// in one session are never handed to the proxy in the next, and the host pump drops what
+    /// belongs to an older one.
     pub host_session: AtomicU32,
     /// A host session ended: the host pump's write in progress is cancelled.
     pub host_cancel: Signal<Cs, ()>,
@@ -388,24 +391,26 @@ pub fn note_flash_ecc_errors(sh: &Shared, total: u32) {
     sh.flash_ecc_errors.store(total, Ordering::Relaxed);
 }
 
-/// The host closed the GCS port (USB DTR dropped): drop the bytes queued for it (and cancel the
-/// one being written) and start the proxy afresh — no half-collected reply, pending error or
-/// query attribution carries over to the next connection, and the replies still due from the
-/// controller are read and dropped instead of answering the next session's first queries
-/// ([`nanocal_compensator::proxy::Proxy::end_host_session`]); bypass, the move gate and the
-/// counters stay.
+/// The host closed the GCS port (USB DTR dropped), or opened it: drop the bytes queued for it
+/// (and cancel the one being written) and start a new host session in the proxy (no
+/// half-received line, queued line, pending error or reply still due carries over to the next
+/// connection: the replies the controller still sends for the old one are read and dropped, so
+/// the pairing with the controller stays exact,
+/// [`nanocal_compensator::proxy::Proxy::new_session`]); what the proxy read of the controller,
+/// bypass, the move gate and the counters stay.
 pub fn end_host_session(sh: &Shared) {
     sh.host_session.fetch_add(1, Ordering::AcqRel);
     sh.to_host.clear();
     sh.host_cancel.signal(());
-    sh.core.lock(|c| c.borrow_mut().proxy.end_host_session());
+    sh.core.lock(|c| c.borrow_mut().proxy.new_session());
 }
 
 /// Tell the application the host's line state (USB CDC SET_CONTROL_LINE_STATE, DTR bit): a
-/// fall ends the host session.
+/// fall ends the host session, a rise starts a new one (nothing received while the port was
+/// closed belongs to it).
 pub fn host_line_state(sh: &Shared, dtr: bool) {
     let was = sh.host_connected.swap(dtr, Ordering::Relaxed);
-    if was && !dtr {
+    if was != dtr {
         end_host_session(sh);
         sh.host_hangup.signal(());
     }

@@ -74,8 +74,10 @@ async fn management_task(
 
 /// The ports' line states: the bench sends C0h | bits of USB CDC SET_CONTROL_LINE_STATE's
 /// wValue (bit 0 DTR, bit 1 RTS) whenever its GCS client opens or closes the port, B0h | bits
-/// for its management client (`nanocal_interface::bench_link::LINE_*`). The bench's doorbells on the same port only wake the board (its
-/// clock reads the new horizon when idle).
+/// for its management client (`nanocal_interface::bench_link::LINE_*`); the board counts each
+/// one it applied in the bench's page (`LINE_STATES`: the bench waits for it before it talks
+/// to the new session). The bench's doorbells on the same port only wake the board (its clock
+/// reads the new horizon when idle).
 #[embassy_executor::task]
 async fn line_state_task(mut rx: UartRx, sh: &'static Shared) {
     let mut buf = [0u8; 16];
@@ -86,8 +88,11 @@ async fn line_state_task(mut rx: UartRx, sh: &'static Shared) {
             match b & 0xF0 {
                 bench_link::LINE_HOST => app::host_line_state(sh, dtr),
                 bench_link::LINE_MGMT => app::mgmt_line_state(sh, dtr),
-                _ => {}
+                // a doorbell: it only woke the board
+                _ => continue,
             }
+            let off = bench_link::LINE_STATES;
+            qemu::link::write_u32(off, qemu::link::read_u32(off).wrapping_add(1));
         }
     }
 }

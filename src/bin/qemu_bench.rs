@@ -208,14 +208,30 @@ fn walk_um(i: u32) -> f32 {
     400.0 * tri(i, 200) + 80.0 * tri(i, 14)
 }
 
-/// Tell the proxy what a controller tells it before the first move: GCS 2.0, axis 1 in µm
-/// (the same bytes a controller sends; the first MOV waits for them).
+/// Tell the proxy what a controller tells it before the first move: its identification, GCS
+/// 2.0, axis 1, in µm, its travel (the same bytes a controller sends; the first MOV waits for
+/// them).
 fn prime(proxy: &mut Proxy, c: &FoldCorrector, out: &mut Output) {
     proxy.host_bytes(Some(c), b"MOV 1 1\n", 0, out);
-    for reply in [&b"2.0\n"[..], b"1=\xB5m\n"] {
-        proxy.stage_bytes(Some(c), reply, 0, out);
+    let asked = out.to_stage.clone();
+    let mut replies = nanocal_compensator::gcs::LineBuf::<512>::new();
+    for line in asked.as_bytes().split(|&b| b == b'\n') {
+        let reply: &[u8] = match line {
+            b"*IDN?" => b"(c)2026 Physik Instrumente (PI) GmbH & Co. KG, E-727, bench\n",
+            b"CSV?" => b"2.0\n",
+            b"SAI?" => b"1\n",
+            b"PUN? 1" => b"1=\xB5m\n",
+            b"TMN? 1" => b"1=-20\n",
+            b"TMX? 1" => b"1=520\n",
+            _ => b"",
+        };
+        let _ = replies.extend(reply);
     }
-    if proxy.holding() || proxy.unit_mismatch() {
+    let mut i = 0;
+    while i < replies.len() {
+        i += proxy.stage_bytes(Some(c), &replies.as_bytes()[i..], 0, out);
+    }
+    if proxy.holding() || proxy.unit_mismatch() || proxy.controller_identity().is_none() {
         panic!("the proxy did not take the controller's answers");
     }
 }

@@ -5,63 +5,77 @@
 //! the corrected home) in every multi-axis form, with or without an address prefix, in any
 //! letter case. Commands that would move a model axis to a target the model never saw (open-loop
 //! values, step/impulse responses, wave generator, macros, trajectories, scans, …) are refused
-//! with a GCS error while compensating, see [`crate::command`]. Commands after which the
-//! controller's target is no longer the one the proxy sent (`HLT`, `STP`, `#24`, `FRF`, `SVO`, …,
-//! and a non-zero answer of the controller to the host's `ERR?`: it may have refused a move) make
-//! the proxy forget it; a later move that needs it re-seeds it from the controller's `MOV?` (the
-//! line waits for that one answer). Single-character commands pass at once, even in the
-//! middle of a line. Everything else is forwarded untouched; a line longer than the proxy's
-//! buffer that it does not have to rewrite is streamed through.
+//! with a GCS error while compensating, see [`crate::command`]. A line with a byte outside
+//! GCS's printable set (other than its LF and a CR before it) is refused: the proxy could not
+//! classify it. A target a move does not give — the base of an `MVR`, the other axes of a
+//! coupled model — is read from the controller (`MOV?`; the line waits for that answer): the
+//! base is what the controller did, not what the proxy asked for. Commands after which the
+//! controller's target is no longer the one the proxy sent (`HLT`, `STP`, `#24`, `FRF`, `SVO`,
+//! …, and a non-zero answer of the controller to the host's `ERR?`) make the proxy forget its
+//! record of it. Single-character commands pass at once, even in the middle of a line.
+//! Everything else is forwarded untouched.
 //!
 //! Controller → host: replies to `POS?`, `#3` and `MOV?` are mapped back to calibrated
 //! coordinates (a `MOV?` value equal to the command sent maps back to its target exactly; other
 //! values through the model's own inverse, `Fold::inverse_from`, started at the target, see
 //! [`Corrector::inverse`]); every other
 //! reply is relayed byte for byte, whatever its length. Several queries may be in flight: each
-//! reply is matched to its query in order (`queue`).
+//! reply is matched to its query in order, exactly — a query the controller may leave
+//! unanswered is followed by a marker of the proxy's own (`queue`), and a query naming an axis
+//! the controller does not have is answered by nobody, as the controller would (error 15).
+//! Replies nobody asked for, and the replies to the proxy's own queries, never reach the host.
 //!
 //! Refusals: nothing is forwarded and the error is kept for the host's next `ERR?`, which the
 //! proxy then answers itself, with the address prefix swapped as a daisy-chained controller
 //! does (PIPython asks `ERR?` after every command; the controller's own error, if it has one
 //! too, stays for the following `ERR?`).
 //!
-//! The controller: before correcting the first move the proxy reads the controller's GCS syntax
-//! version (`CSV?`, unless the host asked already) and the position unit of the model axes
-//! (`PUN?`). The model is in µm: another unit, or no answer, refuses moves (code
+//! The controller: before correcting the first move the proxy reads the controller's identity,
+//! GCS syntax version, axes, and the position unit and travel of the model axes (`controller`).
+//! The model is in µm: another unit, or no answer, refuses moves (code
 //! [`GcsErrorCode::UnitMismatch`]); a GCS 3.0 controller (version > 2, PIPython's own test) is not
-//! supported: moves are refused ([`GcsErrorCode::Gcs3`]) and replies relayed untouched.
+//! supported: moves are refused ([`GcsErrorCode::Gcs3`]) and replies relayed untouched. A corrected
+//! command near an end of the travel is clamped to it or refused (`travel`).
 //!
-//! Time enters only as an argument (`now_ms`), for the one timeout the proxy has: queries the
-//! controller does not answer within [`REPLY_TIMEOUT_MS`] (an unknown command only sets the
-//! controller's error) are dropped from the queue so later replies keep their attribution.
+//! Time enters only as an argument (`now_ms`), for one decision: a controller that sends
+//! nothing for [`REPLY_TIMEOUT_MS`] while replies are due has stopped answering (unplugged,
+//! rebooting); the proxy gives up what is in flight and resynchronises with a marker. Pairing
+//! itself never depends on time.
 
+mod controller;
 mod corrector;
 mod moves;
 mod queue;
 mod replies;
 mod session;
+pub mod travel;
 
 pub use corrector::{Corrected, Corrector, FoldCorrector};
 pub use queue::MAX_IN_FLIGHT;
+pub use session::RESYNC_QUIET_MS;
 
 use crate::command::{self, Action, Affects, Refusal};
-use crate::gcs::{self, AxisId, AxisMap, LineBuf, Split, MAP_AXES, MAX_LINE};
+use crate::gcs::{self, AxisMap, LineBuf, Split, MAP_AXES, MAX_LINE};
+use controller::{Certainty, ControllerInfo, Fact};
 use core::fmt;
 pub use nanocal_interface::GcsErrorCode;
 use nanocal_model::HysteresisState;
-use queue::{Expect, Info, Queue};
+use queue::{Answer, Entry, Expect, Info, Queue};
 use replies::ReplyRx;
 
 /// Bytes the proxy can hold from the host: the line being assembled, and the lines that
-/// arrive while a line waits for the controller (then the host link pauses when it is full).
+/// arrive while a line waits for the controller (then the host link pauses when it is full). A
+/// line longer than [`MAX_LINE`] that passes untouched is forwarded once it is here whole; a
+/// longer one is refused.
 pub const INPUT_LEN: usize = 512;
-/// Capacity of [`Output::to_stage`].
-pub const STAGE_OUT: usize = 2 * MAX_LINE + 128;
+/// Capacity of [`Output::to_stage`]: a held line's queries with their markers, then the line
+/// (or a line as long as [`INPUT_LEN`]).
+pub const STAGE_OUT: usize = INPUT_LEN + 192;
 /// Capacity of [`Output::to_host`].
 pub const HOST_OUT: usize = 1280;
-/// A query not answered within this time (ms, counted from the last byte exchanged with the
-/// controller) is taken as unanswered. PI controllers answer within milliseconds; PIPython
-/// waits seconds before it gives up on a reply.
+/// The controller has stopped answering when it sent nothing for this long (ms) while replies
+/// were due (counted from the last byte exchanged with it). PI controllers answer within
+/// milliseconds; PIPython waits seconds before it gives up on a reply.
 pub const REPLY_TIMEOUT_MS: u32 = 2_000;
 
 /// Bytes the proxy produced, for each link. Cleared by every call that fills it.
@@ -114,13 +128,18 @@ pub struct Counters {
     pub mapped_replies: u32,
     /// Replies whose positions could not be inverted (relayed unmapped).
     pub inverse_failures: u32,
-    /// Queries the controller never answered (dropped after [`REPLY_TIMEOUT_MS`]).
+    /// Queries the controller never answered (its marker came back alone, or it went silent).
     pub unanswered: u32,
+    /// Replies (or marker replies) that came when nothing was waiting for them: dropped.
+    pub unsolicited: u32,
+    /// Times the proxy gave up what was in flight (a silent controller, a marker that brought
+    /// back something else) and resynchronised.
+    pub resyncs: u32,
     /// Times bytes from the controller were lost (UART overrun, full receive buffer).
     pub link_losses: u32,
 }
 
-/// What the proxy knows of the model axes' targets.
+/// What the proxy knows of the model axes' targets: what it sent.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub(crate) struct Targets {
     /// The calibrated targets the host asked for (micros), where `known` has the axis' bit.
@@ -146,77 +165,29 @@ impl Targets {
         self.q[a] = q;
         self.known |= 1 << a;
     }
-    /// These targets, with `other`'s for the axes not known here.
-    pub fn merged(&self, other: &Targets) -> Targets {
-        let mut m = *self;
-        for a in 0..MAP_AXES {
-            if m.known >> a & 1 == 0 && other.known >> a & 1 != 0 {
-                m.set(a, other.x[a], other.q[a]);
-            }
-        }
-        m
-    }
 }
 
-/// The controller's position unit of the model axes.
+/// The bases of the held line's move, read from the controller (`MOV?`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Units {
-    /// Not read yet (or changed since).
-    Unknown,
-    /// µm on every model axis (read for this many axes).
-    Micrometre(usize),
-    /// Another unit on some model axis.
-    Mismatch,
-    /// `PUN?` went unanswered.
-    Unanswered,
-}
-
-/// The controller's GCS syntax version.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Version {
-    /// Not read yet.
-    Unknown,
-    /// GCS 2.0 (or `CSV?` unanswered: an older GCS 2 controller).
-    Gcs2,
-    /// GCS 3.0 (`CSV?` > 2).
-    Gcs3,
+pub(crate) enum Reseed {
+    /// Not asked.
+    None,
+    /// Asked for the line held under the current generation.
+    Asked,
+    /// The calibrated positions of the controller's targets, every model axis.
+    Got(Targets),
+    /// The controller did not tell them.
+    Failed,
 }
 
 /// Controller axis identifiers the proxy keeps (from `SAI?`).
-pub(crate) const MAX_CONTROLLER_AXES: usize = 8;
-
-/// What the proxy has read from the controller.
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct ControllerInfo {
-    pub version: Version,
-    pub units: Units,
-    /// Axis identifiers (`SAI?`), when read.
-    pub axes: Option<([Option<AxisId>; MAX_CONTROLLER_AXES], usize)>,
-}
-
-impl ControllerInfo {
-    const fn new() -> Self {
-        Self {
-            version: Version::Unknown,
-            units: Units::Unknown,
-            axes: None,
-        }
-    }
-}
+pub(crate) const MAX_CONTROLLER_AXES: usize = 16;
 
 /// A line waiting for the controller's answer to the proxy's own queries.
 pub(crate) type Held = LineBuf<MAX_LINE>;
 
-/// A host line longer than [`MAX_LINE`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum LongLine {
-    /// None in progress.
-    None,
-    /// Forwarded byte by byte up to its LF (a command the proxy passes untouched).
-    Stream,
-    /// Dropped up to its LF (a command the proxy would have to rewrite or refuse).
-    Discard,
-}
+/// Times a held line is run again at most (each time the controller told something it needed).
+const MAX_HOLDS: u8 = 3;
 
 /// The proxy: the host's bytes assembled into lines, and the [`ProxyState`] they act on.
 ///
@@ -233,7 +204,8 @@ pub struct Proxy {
     /// Host bytes not yet processed: the line being assembled, and the lines that arrive while
     /// a line waits for the controller.
     input: LineBuf<INPUT_LEN>,
-    long: LongLine,
+    /// Dropping a line longer than [`INPUT_LEN`] up to its LF.
+    discarding: bool,
     st: ProxyState,
 }
 
@@ -241,16 +213,26 @@ pub struct Proxy {
 pub struct ProxyState {
     map: AxisMap,
     targets: Targets,
-    /// Targets re-seeded from the controller's `MOV?` for the held line that asked; they become
-    /// the proxy's targets only if that line's move goes out.
-    reseed: Targets,
+    /// The bases of the held line's move, read from the controller for it alone.
+    reseed: Reseed,
+    /// Generation of the held line's `MOV?`: a reply to an older one is never used.
+    reseed_gen: u8,
     dir: [i8; MAP_AXES],
     /// Last error the compensator raised, for the next `ERR?`.
     pending_error: Option<GcsErrorCode>,
     ctrl: ControllerInfo,
+    /// The model axes the controller's per-axis facts are read for.
+    facts_n: usize,
     queue: Queue,
     rx: ReplyRx,
     held: Option<Held>,
+    /// Times the held line has waited.
+    held_runs: u8,
+    /// The controller went silent while the line was held: it is refused.
+    held_lost: bool,
+    /// Waiting for the reply to the marker sent to resynchronise (every reply before it is
+    /// dropped).
+    resyncing: bool,
     /// The model's play operators as the commands sent left them (hysteresis memory): advanced
     /// only when a corrected target goes out, reset whenever the stage may have moved along a
     /// path the proxy did not see (see [`ProxyState::reset_hysteresis`]).
@@ -266,7 +248,7 @@ pub struct ProxyState {
     pub counters: Counters,
     /// Bytes from the controller were lost: until the line is quiet, nothing received can be
     /// paired with a query and no host line goes out ([`Proxy::stage_bytes_lost`]).
-    resync: bool,
+    link_lost: bool,
 }
 
 impl Default for Proxy {
@@ -294,17 +276,22 @@ impl Proxy {
     pub fn new(map: AxisMap) -> Self {
         Self {
             input: LineBuf::new(),
-            long: LongLine::None,
+            discarding: false,
             st: ProxyState {
                 map,
                 targets: Targets::default(),
-                reseed: Targets::default(),
+                reseed: Reseed::None,
+                reseed_gen: 0,
                 dir: [0; MAP_AXES],
                 pending_error: None,
                 ctrl: ControllerInfo::new(),
+                facts_n: 0,
                 queue: Queue::new(),
                 rx: ReplyRx::new(),
                 held: None,
+                held_runs: 0,
+                held_lost: false,
+                resyncing: false,
                 hyst: HysteresisState::new(),
                 now_ms: 0,
                 last_rx_ms: 0,
@@ -312,7 +299,7 @@ impl Proxy {
                 bypass: false,
                 gate: Gate::Open,
                 counters: Counters::default(),
-                resync: false,
+                link_lost: false,
             },
         }
     }
@@ -321,7 +308,7 @@ impl Proxy {
     /// does [`poll`](Self::poll) have anything to decide, so the stage link need not wake for it
     /// otherwise.
     pub fn awaiting_controller(&self) -> bool {
-        !self.st.queue.is_empty() || self.st.rx.active() || self.st.resync
+        !self.st.queue.is_empty() || self.st.rx.active() || self.st.link_lost
     }
 
     /// True when host bytes already received can be processed now (call
@@ -329,10 +316,56 @@ impl Proxy {
     /// due.
     pub fn has_work(&self) -> bool {
         let st = &self.st;
-        let answer_due = !st.rx.active() && matches!(st.queue.front(), Some(Expect::Answer(_)));
+        let answer_due = !st.rx.active()
+            && matches!(
+                st.queue.front(),
+                Some(Entry {
+                    e: Expect::Answer(_),
+                    ..
+                })
+            );
+        let input = self.input.as_bytes();
         answer_due
             || (st.held.is_none()
-                && (self.input.as_bytes().contains(&b'\n') || self.input.len() >= MAX_LINE))
+                && (input.contains(&b'\n')
+                    || self.input.room() == 0
+                    || input
+                        .first()
+                        .is_some_and(|&b| gcs::is_single_char_command(b))))
+    }
+
+    /// A new host session (the host closed and opened the port): nothing of the old one
+    /// carries over — its half-received line, the lines it queued, a held line, its pending
+    /// error, the replies still due to it (they arrive and are dropped: the pairing with the
+    /// controller stays exact), the targets it set (the hysteresis memory with them). What
+    /// the proxy read from the controller stays (it is the controller's); so do bypass, the
+    /// move gate and the counters.
+    pub fn new_session(&mut self) {
+        self.input.clear();
+        self.discarding = false;
+        let st = &mut self.st;
+        st.held = None;
+        st.held_lost = false;
+        st.held_runs = 0;
+        st.reseed = Reseed::None;
+        st.pending_error = None;
+        st.queue.drop_answers();
+        st.queue.retag(|en| match en.e {
+            // the proxy's own queries keep their meaning, except the bases of a dropped line
+            Expect::Internal(Info::Targets(_)) => Expect::Discard,
+            e @ (Expect::Internal(_) | Expect::Marker) => e,
+            _ => Expect::Discard,
+        });
+        st.rx.discard();
+        st.forget(None);
+    }
+
+    /// New axis names (settings): a new session, and the controller's facts about the model
+    /// axes are read again.
+    pub fn reconfigure(&mut self, map: AxisMap) {
+        self.new_session();
+        self.st.map = map;
+        self.st.ctrl.forget_model_axes();
     }
 
     /// Bytes from the host. Processes at most one line or one single-character command (so that
@@ -348,7 +381,7 @@ impl Proxy {
     ) -> usize {
         out.clear();
         self.st.now_ms = now_ms;
-        if let Some(taken) = self.resync_hold(input, out) {
+        if let Some(taken) = self.link_lost_hold(input, out) {
             return taken;
         }
         if !self.st.queue.is_empty() {
@@ -361,7 +394,16 @@ impl Proxy {
         while i < input.len() {
             let b = input[i];
             if gcs::is_single_char_command(b) {
-                if out.to_stage.room() == 0 {
+                if gcs::single_char_has_reply(b) && self.lines_waiting() {
+                    // a query must not overtake complete lines waiting behind a held one: it
+                    // goes in their order (before the partial line it interrupted, as a
+                    // controller takes it)
+                    if !self.defer_single(b) {
+                        break; // full: the host link pauses
+                    }
+                    return i + 1;
+                }
+                if out.to_stage.room() < 2 * controller::MARKER.len() + 1 {
                     break;
                 }
                 self.host_single(b, out);
@@ -369,109 +411,98 @@ impl Proxy {
             }
             // the run of line bytes up to a line end or a single-character command
             let rest = &input[i..];
-            let end = gcs::find_run_end(rest);
+            let (end, clean) = gcs::scan_run(rest);
             let n = match end {
                 Some(p) if rest[p] == b'\n' => p + 1,
                 Some(p) => p,
                 None => rest.len(),
             };
             let run = &rest[..n];
-            match self.long {
-                LongLine::None
-                    if self.input.is_empty()
-                        && self.st.held.is_none()
-                        && run.last() == Some(&b'\n')
-                        && n <= MAX_LINE + 1 =>
-                {
-                    // a whole line in the link's buffer: processed where it is
-                    self.st.fresh_line(c, &run[..n - 1], out);
-                    return i + n;
+            if self.discarding {
+                if run.last() == Some(&b'\n') {
+                    self.discarding = false;
                 }
-                LongLine::None => {
-                    let take = n.min(self.input.room());
-                    if take == 0 {
-                        break; // full while a line waits: the host link pauses
-                    }
-                    let _ = self.input.extend(&run[..take]);
-                    i += take;
-                    if self.step_input(c, out) {
-                        return i;
-                    }
-                }
-                LongLine::Stream => {
-                    let take = n.min(out.to_stage.room());
-                    if take == 0 {
-                        break;
-                    }
-                    let _ = out.to_stage.extend(&run[..take]);
-                    if run[take - 1] == b'\n' {
-                        self.long = LongLine::None;
-                    }
-                    i += take;
-                }
-                LongLine::Discard => {
-                    if run[n - 1] == b'\n' {
-                        self.long = LongLine::None;
-                    }
-                    i += n;
-                }
+                i += n;
+                continue;
+            }
+            if self.input.is_empty()
+                && self.st.held.is_none()
+                && run.last() == Some(&b'\n')
+                && n <= MAX_LINE + 1
+            {
+                // a whole line in the link's buffer: processed where it is
+                self.st.fresh_line(c, &run[..n - 1], clean, out);
+                return i + n;
+            }
+            let take = n.min(self.input.room());
+            if take == 0 {
+                break; // full while a line waits: the host link pauses
+            }
+            let _ = self.input.extend(&run[..take]);
+            i += take;
+            if self.step_input(c, out) {
+                return i;
             }
         }
         i
     }
 
-    /// Process one line from the input buffer, if one is complete (or overlong) and no line is
-    /// held. True when something was processed.
-    fn step_input<C: Corrector>(&mut self, c: Option<&C>, out: &mut Output) -> bool {
-        if self.st.held.is_some() || self.long != LongLine::None {
+    /// True while complete host lines wait to be processed (a line is held, or lines are
+    /// queued behind it).
+    fn lines_waiting(&self) -> bool {
+        self.st.held.is_some() || self.input.as_bytes().contains(&b'\n')
+    }
+
+    /// Queue a single-character query after the complete lines waiting (before a partial line
+    /// at the end of the input). False when there is no room.
+    fn defer_single(&mut self, b: u8) -> bool {
+        if self.input.push(b).is_err() {
             return false;
         }
         let bytes = self.input.as_bytes();
+        let at = bytes[..bytes.len() - 1]
+            .iter()
+            .rposition(|&c| c == b'\n' || gcs::is_single_char_command(c))
+            .map_or(0, |p| p + 1);
+        self.input.rotate_tail(at);
+        true
+    }
+
+    /// Process one line from the input buffer, if one is complete (or the buffer is full
+    /// without one) and no line is held. True when something was processed.
+    fn step_input<C: Corrector>(&mut self, c: Option<&C>, out: &mut Output) -> bool {
+        if self.st.held.is_some() {
+            return false;
+        }
+        if let Some(&b) = self.input.as_bytes().first() {
+            if gcs::is_single_char_command(b) {
+                // a query deferred behind the lines that were waiting
+                self.host_single(b, out);
+                self.input.consume(1);
+                return true;
+            }
+        }
+        let bytes = self.input.as_bytes();
         if let Some(lf) = bytes.iter().position(|&b| b == b'\n') {
+            let line = &bytes[..lf];
+            let clean = gcs::is_clean_line(line);
             if lf > MAX_LINE {
-                self.long_line(c, lf, out);
+                self.st.long_line(line, clean, out);
             } else {
-                self.st.fresh_line(c, &bytes[..lf], out);
+                self.st.fresh_line(c, line, clean, out);
             }
             self.input.consume(lf + 1);
             return true;
         }
-        if bytes.len() >= MAX_LINE {
-            self.long_line(c, bytes.len(), out);
+        if self.input.room() == 0 {
+            // a line longer than the buffer: it cannot be checked whole
+            self.st.counters.host_lines = self.st.counters.host_lines.wrapping_add(1);
+            self.st.refuse(GcsErrorCode::LineTooLong);
             self.input.clear();
+            self.discarding = true;
             return true;
         }
         false
-    }
-
-    /// A line longer than [`MAX_LINE`] (its first `len` bytes in the input buffer, followed by
-    /// its LF when it has arrived): forwarded as it comes when the proxy passes the command
-    /// untouched, else refused and dropped up to its LF.
-    fn long_line<C: Corrector>(&mut self, c: Option<&C>, len: usize, out: &mut Output) {
-        let _ = c;
-        let st = &mut self.st;
-        st.counters.host_lines = st.counters.host_lines.wrapping_add(1);
-        let bytes = &self.input.as_bytes()[..len];
-        let complete = self.input.as_bytes().get(len) == Some(&b'\n');
-        let s = gcs::split(bytes);
-        let passes = st.bypass || command::action(s.command) == Action::Pass;
-        if passes && st.expect_reply(s.command) {
-            let _ = out.to_stage.extend(bytes);
-            if complete {
-                let _ = out.to_stage.push(b'\n');
-            } else {
-                self.long = LongLine::Stream;
-            }
-        } else {
-            st.refuse(if passes {
-                GcsErrorCode::TooManyQueries
-            } else {
-                GcsErrorCode::LineTooLong
-            });
-            if !complete {
-                self.long = LongLine::Discard;
-            }
-        }
     }
 
     /// A single-character command from the host: forwarded at once.
@@ -479,24 +510,32 @@ impl Proxy {
         let st = &mut self.st;
         if !gcs::single_char_has_reply(b) {
             // #24 stops all axes, #27 aborts: targets are wherever the axes stopped, and no
-            // line queued before the stop may start a motion after it
+            // line queued before the stop may start a motion after it (a `MOV?` the held line
+            // asked is answered from before the stop: its reply is never used)
             st.forget(None);
             if st.held.take().is_some() {
                 st.counters.refused = st.counters.refused.wrapping_add(1);
-                st.reseed = Targets::default();
             }
+            st.reseed = Reseed::None;
+            st.held_lost = false;
+            st.held_runs = 0;
+            // a line cut by the stop is dropped to its end too: its rest is no line of its own
+            let partial = self.input.as_bytes().last().is_some_and(|&c| c != b'\n');
             self.input.clear();
-            self.long = LongLine::None;
+            self.discarding = partial;
             let _ = out.to_stage.push(b);
             return;
         }
-        let e = if b == 0x03 && !st.bypass && st.ctrl.version != Version::Gcs3 {
+        // a controller may not know every single-character query: a marker follows it
+        let e = if b == 0x03 && !st.bypass && !st.ctrl.gcs3() {
             Expect::Map { target: false }
         } else {
             Expect::Relay
         };
-        if st.expect(e) {
+        if st.queue.host_queries() < MAX_IN_FLIGHT && st.queue.room() >= 3 && st.ensure_idn(out) {
             let _ = out.to_stage.push(b);
+            st.expect(Entry::new(e, true, true));
+            st.send_marker(out);
         } else {
             // no reply could be matched: better no reply than a wrong one
             st.counters.refused = st.counters.refused.wrapping_add(1);
@@ -516,15 +555,15 @@ impl Proxy {
         self.st.stage_bytes(c, input, now_ms, out)
     }
 
-    /// Time passes: queries the controller has not answered within [`REPLY_TIMEOUT_MS`] are
-    /// given up (their answers are taken as missing), so later replies keep their attribution
-    /// and a held line is decided. Call periodically (every few ms to 100 ms).
+    /// Time passes: a controller that has sent nothing for [`REPLY_TIMEOUT_MS`] while replies
+    /// were due has stopped answering; what was in flight is given up and the proxy
+    /// resynchronises. Call periodically (every few ms to 100 ms).
     #[inline(never)]
     pub fn poll(&mut self, c: Option<&FoldCorrector>, now_ms: u32, out: &mut Output) {
         self.st.poll(c, now_ms, out)
     }
 
-    /// Forget all targets: the next move that needs one asks the controller.
+    /// Forget all targets.
     pub fn forget_targets(&mut self) {
         self.st.forget(None);
     }
@@ -535,9 +574,10 @@ impl ProxyState {
     /// primes them at its targets. The rules (see `src/README.md`, *Hysteresis*): reset for a
     /// new model (the firmware calls this when it stages one), and whenever a target is
     /// forgotten (stops, referencing, servo changes, errors on moves, commands in bypass,
-    /// reboot) — the stage then went somewhere along a path the proxy did not command. A host
-    /// session's end and new settings start a fresh proxy, so they reset it too. A new fold of
-    /// the same model (temperatures, λ_KMZ) keeps it: the stage's memory did not change.
+    /// reboot, a controller target that is not the command sent) — the stage then went
+    /// somewhere along a path the proxy did not command. A host session's end and new
+    /// settings reset it too. A new fold of the same model (temperatures, λ_KMZ) keeps it:
+    /// the stage's memory did not change.
     pub fn reset_hysteresis(&mut self) {
         self.hyst.reset();
     }
@@ -564,15 +604,19 @@ impl ProxyState {
     /// True when moves are refused because the controller's position unit is not the model's
     /// (µm) or the controller did not tell it.
     pub fn unit_mismatch(&self) -> bool {
-        matches!(self.ctrl.units, Units::Mismatch | Units::Unanswered)
+        match self.ctrl.units {
+            Fact::Known(u) => u != (1u8 << self.facts_n.min(MAP_AXES)) - 1,
+            Fact::Unanswered => true,
+            _ => false,
+        }
     }
 
     /// True when the controller announced GCS 3.0 (moves refused, replies untouched).
     pub fn gcs3(&self) -> bool {
-        self.ctrl.version == Version::Gcs3
+        self.ctrl.gcs3()
     }
 
-    /// Queries in flight (sent, reply not complete).
+    /// Queries in flight (sent, reply not complete), the proxy's own and its markers included.
     pub fn in_flight(&self) -> usize {
         self.queue.len() + usize::from(self.rx.active())
     }
@@ -582,18 +626,16 @@ impl ProxyState {
         self.held.is_some()
     }
 
-    /// For a query, record that its reply is to be relayed; `false` when the queue is full.
-    fn expect_reply(&mut self, command: &[u8]) -> bool {
-        !command::is_query(command) || self.expect(Expect::Relay)
+    /// The controller's identification line (`*IDN?`) the proxy recognises its markers by,
+    /// once read.
+    pub fn controller_identity(&self) -> Option<&[u8]> {
+        self.ctrl.marker_reply()
     }
 
-    /// Record an expected reply; `false` when too many are in flight.
-    fn expect(&mut self, e: Expect) -> bool {
-        if self.queue.push(e) {
+    /// Record an expected reply (the caller checked there is room).
+    fn expect(&mut self, en: Entry) {
+        if self.queue.push(en) {
             self.last_tx_ms = self.now_ms;
-            true
-        } else {
-            false
         }
     }
 
@@ -609,35 +651,60 @@ impl ProxyState {
         }
     }
 
-    /// One complete command line (LF removed). `fresh` is false when a held line is run again
-    /// after the controller answered (then it may not wait again).
-    fn process_line<C: Corrector>(
-        &mut self,
-        c: Option<&C>,
-        line: &[u8],
-        out: &mut Output,
-        fresh: bool,
-    ) {
+    /// A host line longer than [`MAX_LINE`] (and at most [`INPUT_LEN`]), whole: forwarded
+    /// untouched when the proxy passes its command (it is never a move), else refused.
+    fn long_line(&mut self, line: &[u8], clean: bool, out: &mut Output) {
+        self.counters.host_lines = self.counters.host_lines.wrapping_add(1);
+        if !clean {
+            self.refuse(GcsErrorCode::NotPrintable);
+            return;
+        }
+        let s = gcs::split(line);
+        let passes = self.bypass || command::action(s.command) == Action::Pass;
+        if !passes {
+            self.refuse(GcsErrorCode::LineTooLong);
+        } else if command::is_query(s.command) {
+            self.query(Expect::Relay, Certainty::Maybe, line, out);
+        } else {
+            self.forward(line, out);
+        }
+    }
+
+    /// One complete command line (LF removed).
+    fn process_line<C: Corrector>(&mut self, c: Option<&C>, line: &[u8], out: &mut Output) {
         let s = gcs::split(line);
         if s.command.is_empty() {
+            // an empty line: nothing for the controller to do
             self.forward(line, out);
             return;
         }
-        let action = command::action_of_key(s.key);
+        let mut action = command::action_of_key(s.key);
+        if action == Action::Pass && s.command.eq_ignore_ascii_case(b"*IDN?") {
+            action = Action::IdnQuery;
+        }
         if action == Action::ErrorQuery && self.pending_error.is_some() {
             self.answer_error(s.prefix, out);
             return;
         }
         if self.bypass {
             // untouched; targets set in bypass are raw
-            if !matches!(action, Action::Pass | Action::ErrorQuery) {
+            if !matches!(
+                action,
+                Action::Pass
+                    | Action::ErrorQuery
+                    | Action::IdnQuery
+                    | Action::PositionQuery { .. }
+                    | Action::UnitQuery
+                    | Action::VersionQuery
+                    | Action::AxesQuery
+                    | Action::TravelQuery
+            ) {
                 self.forget(None);
             }
-            if self.expect_reply(s.command) {
-                self.forward(line, out);
-            } else {
-                self.refuse(GcsErrorCode::TooManyQueries);
+            if matches!(action, Action::SetUnit | Action::Reboot) {
+                self.controller_changed(action);
             }
+            self.pass(&s, action, Expect::Relay, line, out);
             return;
         }
         let action = match action {
@@ -646,14 +713,14 @@ impl ProxyState {
             a => a,
         };
         match action {
-            Action::Move(kind) => self.move_line(c, &s, kind, line, out, fresh),
+            Action::Move(kind) => self.move_line(c, &s, kind, line, out),
             Action::PositionQuery { target } => {
-                let e = if self.ctrl.version == Version::Gcs3 {
+                let e = if self.ctrl.gcs3() {
                     Expect::Relay
                 } else {
                     Expect::Map { target }
                 };
-                self.query(e, s.command, line, out);
+                self.pass(&s, action, e, line, out);
             }
             Action::Forget(affects) => {
                 self.forget_affected(affects, s.args);
@@ -669,21 +736,84 @@ impl ProxyState {
                 }
             }
             Action::SetUnit => {
-                self.ctrl.units = Units::Unknown;
+                self.controller_changed(action);
                 self.forward(line, out);
             }
-            Action::UnitQuery => self.query(Expect::Snoop(Info::Units), s.command, line, out),
-            Action::VersionQuery => self.query(Expect::Snoop(Info::Version), s.command, line, out),
-            Action::ErrorQuery => self.query(Expect::Snoop(Info::Error), s.command, line, out),
+            Action::VersionQuery => self.pass(&s, action, Expect::Snoop(Info::Version), line, out),
+            Action::ErrorQuery => self.pass(&s, action, Expect::Snoop(Info::Error), line, out),
+            Action::IdnQuery => self.pass(&s, action, Expect::Snoop(Info::Idn), line, out),
             Action::AxesQuery if s.args.is_empty() => {
-                self.query(Expect::Snoop(Info::Axes), s.command, line, out)
+                self.pass(&s, action, Expect::Snoop(Info::Axes), line, out)
             }
             Action::Reboot => {
                 self.forget(None);
-                self.ctrl = ControllerInfo::new();
+                self.controller_changed(action);
                 self.forward(line, out);
+                // bytes sent while it restarts may be lost: a marker tells when it answers
+                // again (the replies due before the restart still come first)
+                if self.ctrl.marker_reply().is_some() && self.queue.room() > 0 {
+                    self.send_marker(out);
+                }
             }
-            _ => self.query(Expect::Relay, s.command, line, out),
+            _ => self.pass(&s, action, Expect::Relay, line, out),
+        }
+    }
+
+    /// `PUN` or `RBT` went to the controller: what the proxy read of it may have changed.
+    fn controller_changed(&mut self, action: Action) {
+        match action {
+            Action::SetUnit => {
+                self.ctrl.units = Fact::Unknown;
+                self.ctrl.changed();
+            }
+            _ => self.ctrl.rebooted(),
+        }
+    }
+
+    /// A command that passes: a query is forwarded with its reply expected as `e` (and a
+    /// marker when the controller may leave it unanswered), or answered by nobody when it
+    /// names an axis the controller does not have; any other command is forwarded.
+    fn pass(&mut self, s: &Split<'_>, action: Action, e: Expect, line: &[u8], out: &mut Output) {
+        if !command::is_query(s.command) {
+            self.forward(line, out);
+            return;
+        }
+        let certainty = if self.bypass {
+            match action {
+                Action::ErrorQuery | Action::IdnQuery if s.prefix.is_empty() => Certainty::Certain,
+                _ => Certainty::Maybe,
+            }
+        } else {
+            self.certainty(s, action)
+        };
+        self.query(e, certainty, line, out);
+    }
+
+    /// Forward a query; its reply expected as `e`.
+    fn query(&mut self, e: Expect, certainty: Certainty, line: &[u8], out: &mut Output) {
+        let maybe = match certainty {
+            Certainty::Certain => false,
+            Certainty::Maybe => true,
+            Certainty::InvalidAxis => {
+                // the controller would set error 15 and answer nothing: so does the proxy
+                self.refuse(GcsErrorCode::InvalidAxis);
+                return;
+            }
+        };
+        let room = if maybe { 3 } else { 1 };
+        if self.queue.host_queries() >= MAX_IN_FLIGHT || self.queue.room() < room {
+            self.refuse(GcsErrorCode::TooManyQueries);
+            return;
+        }
+        if maybe && !self.ensure_idn(out) {
+            // no marker can be recognised: the reply could not be paired
+            self.refuse(GcsErrorCode::NoAnswer);
+            return;
+        }
+        self.expect(Entry::new(e, maybe, true));
+        self.forward(line, out);
+        if maybe {
+            self.send_marker(out);
         }
     }
 
@@ -695,12 +825,12 @@ impl ProxyState {
         kind: command::MoveKind,
         line: &[u8],
         out: &mut Output,
-        fresh: bool,
     ) {
-        match self.rewrite_move(c, s, kind, out, fresh) {
+        match self.rewrite_move(c, s, kind, out) {
             Ok(()) => {}
             Err(moves::Stop::Refuse(code)) => {
                 out.to_stage.clear();
+                self.reseed = Reseed::None;
                 self.refuse(code);
             }
             Err(moves::Stop::Hold(needs)) => self.hold(c, line, needs, out),
@@ -708,9 +838,20 @@ impl ProxyState {
     }
 
     /// A whole line straight from the host's buffer. The commonest line, `MOV <axis> <target>`
-    /// without address prefix, goes to the move path without the general dispatch.
-    fn fresh_line<C: Corrector>(&mut self, c: Option<&C>, line: &[u8], out: &mut Output) {
+    /// without address prefix, goes to the move path without the general dispatch. `clean`:
+    /// every byte is printable (see [`gcs::is_clean_line`]).
+    fn fresh_line<C: Corrector>(
+        &mut self,
+        c: Option<&C>,
+        line: &[u8],
+        clean: bool,
+        out: &mut Output,
+    ) {
         self.counters.host_lines = self.counters.host_lines.wrapping_add(1);
+        if !clean {
+            self.refuse(GcsErrorCode::NotPrintable);
+            return;
+        }
         if !self.bypass && line.len() > 4 {
             // "MOV " in any case: one word compare (OR 0x20 folds only these letters' cases)
             let w = u32::from_le_bytes([line[0], line[1], line[2], line[3]]);
@@ -725,20 +866,11 @@ impl ProxyState {
                     key: gcs::key(b"MOV"),
                     args,
                 };
-                self.move_line(c, &s, command::MoveKind::Absolute, line, out, true);
+                self.move_line(c, &s, command::MoveKind::Absolute, line, out);
                 return;
             }
         }
-        self.process_line(c, line, out, true);
-    }
-
-    /// Forward a command; for a query, expect its reply as `e`.
-    fn query(&mut self, e: Expect, command: &[u8], line: &[u8], out: &mut Output) {
-        if command::is_query(command) && !self.expect(e) {
-            self.refuse(GcsErrorCode::TooManyQueries);
-            return;
-        }
-        self.forward(line, out);
+        self.process_line(c, line, out);
     }
 
     /// The proxy's own answer to `ERR?`, after every reply still due.
@@ -746,25 +878,33 @@ impl ProxyState {
         let Some(code) = self.pending_error.take() else {
             return;
         };
-        let a = queue::Answer::new(prefix, code);
+        let a = Answer::new(prefix, code);
         // in turn after the replies still due; at once when none is (or none fits the queue)
         let now = self.queue.is_empty() && !self.rx.active();
-        if now || !self.queue.push(Expect::Answer(a)) {
+        if now || !self.queue.push(Entry::new(Expect::Answer(a), false, false)) {
             a.write(&mut out.to_host);
         }
     }
 
-    /// Send the proxy's own answers that are due (nothing in flight before them).
-    fn emit_answers(&mut self, out: &mut Output) {
+    /// Send the proxy's own answers that are due (nothing in flight before them). False when
+    /// one is due and does not fit `out`.
+    fn emit_answers(&mut self, out: &mut Output) -> bool {
         while !self.rx.active() {
             match self.queue.front() {
-                Some(Expect::Answer(a)) if out.to_host.room() >= 24 => {
+                Some(Entry {
+                    e: Expect::Answer(a),
+                    ..
+                }) => {
+                    if out.to_host.room() < 24 {
+                        return false;
+                    }
                     a.write(&mut out.to_host);
                     self.queue.pop();
                 }
                 _ => break,
             }
         }
+        true
     }
 
     /// Does a command refused on model axes name one (or name no axis, meaning all)?
@@ -836,73 +976,74 @@ impl ProxyState {
             self.refuse(GcsErrorCode::NoModel);
             return;
         };
+        out.to_stage.clear();
+        if self.held_runs >= MAX_HOLDS {
+            self.reseed = Reseed::None;
+            self.held_runs = 0;
+            self.refuse(GcsErrorCode::NoAnswer);
+            return;
+        }
         let n = c.axes().min(MAP_AXES);
         let mut held = Held::new();
         if held.extend(line).is_err() {
             self.refuse(GcsErrorCode::LineTooLong);
             return;
         }
-        out.to_stage.clear();
         let mut ok = true;
-        if needs.units {
-            if self.ctrl.version == Version::Unknown
-                && self.queue.count_internal(Info::Version) == 0
-            {
-                ok &= self.internal(Info::Version, b"CSV?", 0, out);
-            }
-            if self.queue.count_internal(Info::Units) == 0 {
-                ok &= self.internal(Info::Units, b"PUN?", n, out);
-            }
+        if needs.learn {
+            ok &= self.learn(n, out);
         }
-        if needs.targets && self.queue.count_internal(Info::Targets) == 0 {
-            ok &= self.internal(Info::Targets, b"MOV?", n, out);
-        }
-        if needs.axes && self.queue.count_internal(Info::Axes) == 0 {
-            ok &= self.internal(Info::Axes, b"SAI?", 0, out);
+        if needs.targets && self.reseed == Reseed::None {
+            self.reseed_gen = self.reseed_gen.wrapping_add(1);
+            // certain when every model axis is one of the controller's, else with a marker
+            let maybe = match self.ctrl.axes.known() {
+                Some(axes) => (0..n).any(|a| axes.find(self.map.id(a).unwrap_or(b"")).is_err()),
+                None => true,
+            };
+            ok &= self.ask(Info::Targets(self.reseed_gen), b"MOV?", n, maybe, out);
+            self.reseed = Reseed::Asked;
         }
         if ok {
+            self.held_runs += 1;
             self.held = Some(held);
         } else {
+            self.reseed = Reseed::None;
             self.refuse(GcsErrorCode::TooManyQueries);
         }
     }
 
-    /// Send the proxy's own query `word` (with the first `axes` model axis identifiers).
-    fn internal(&mut self, info: Info, word: &[u8], axes: usize, out: &mut Output) -> bool {
-        if !self.expect(Expect::Internal(info)) {
-            return false;
-        }
-        let _ = out.to_stage.extend(word);
-        for a in 0..axes {
-            let _ = out.to_stage.push(b' ');
-            let _ = out.to_stage.extend(self.map.id(a).unwrap_or(b"?"));
-        }
-        let _ = out.to_stage.push(b'\n');
-        true
-    }
-
     /// Run the held line again once no answer it waits for is outstanding.
     fn try_release<C: Corrector>(&mut self, c: Option<&C>, out: &mut Output) {
-        if self.held.is_none() || self.rx.internal() {
+        if self.held.is_none() {
             return;
         }
-        let waiting = [Info::Version, Info::Units, Info::Targets, Info::Axes]
-            .iter()
-            .any(|&i| self.queue.count_internal(i) > 0);
-        if waiting {
+        if self.held_lost {
+            // the controller went silent while the line waited
+            self.held = None;
+            self.held_lost = false;
+            self.held_runs = 0;
+            self.reseed = Reseed::None;
+            self.refuse(GcsErrorCode::NoAnswer);
+            return;
+        }
+        if self.learning() || self.reseed == Reseed::Asked {
             return;
         }
         if let Some(line) = self.held.take() {
-            self.process_line(c, line.as_bytes(), out, false);
-            self.reseed = Targets::default();
+            self.process_line(c, line.as_bytes(), out);
+            if self.held.is_none() {
+                // done with it: the next held line starts afresh
+                self.reseed = Reseed::None;
+                self.held_runs = 0;
+            }
         }
     }
 
     fn poll<C: Corrector>(&mut self, c: Option<&C>, now_ms: u32, out: &mut Output) {
         out.clear();
         self.now_ms = now_ms;
-        if self.resync {
-            self.try_end_resync(c, out);
+        if self.link_lost {
+            self.try_end_link_loss(c, out);
             return;
         }
         self.emit_answers(out);
@@ -912,7 +1053,13 @@ impl ProxyState {
         if !(waiting && quiet) {
             return;
         }
-        self.give_up_replies(c, out);
+        // the controller stopped answering: what is in flight will not come
+        self.last_tx_ms = now_ms;
+        if self.ctrl.marker_reply().is_some() {
+            self.resync(c, out);
+        } else {
+            self.give_up(c, out);
+        }
         self.try_release(c, out);
     }
 }
@@ -942,7 +1089,9 @@ impl fmt::Debug for Proxy {
             .field("pending_error", &st.pending_error)
             .field("bypass", &st.bypass)
             .field("gate", &st.gate)
-            .field("in_flight", &st.in_flight())
+            .field("queue", &st.queue)
+            .field("receiving", &st.rx.kind())
+            .field("resyncing", &st.resyncing)
             .field("holding", &st.holding())
             .finish()
     }

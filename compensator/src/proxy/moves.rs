@@ -3,62 +3,55 @@
 //! This is the path of every move the host sends, so it is written for the microcontroller:
 //! targets are integers (micros) in plain arrays with a bit mask of the known ones, arguments
 //! are read in one pass, and the forwarded line is printed straight into the output buffer.
+//!
+//! A target the command does not give — the base of an `MVR`, the other axes of a coupled
+//! model — is always read from the controller (`MOV?`, the line waits for the answer): the
+//! base is what the controller did, never what the proxy asked for (the controller may have
+//! refused that move, or stopped).
 
-use super::{Corrector, Gate, GcsErrorCode, Output, ProxyState, Targets, Units, Version};
+use super::controller::NotReady;
+use super::travel::{self, Edge, Limit};
+use super::{Corrector, Gate, GcsErrorCode, Output, ProxyState, Reseed, Targets};
 use crate::command::MoveKind;
 use crate::gcs::{self, GcsError, Split, MAP_AXES};
 
 /// What a move waits for before it can be corrected.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub(crate) struct Needs {
-    /// The controller's position unit (and syntax version).
-    pub units: bool,
-    /// A target of a model axis the move does not set (re-seeded from `MOV?`).
+    /// The controller's identity, version, axes, unit and travel.
+    pub learn: bool,
+    /// The controller's targets of the model axes (`MOV?`): the bases of the move.
     pub targets: bool,
-    /// The controller's axis identifiers (`GOH` of all axes).
-    pub axes: bool,
 }
 
 /// Why a move was not forwarded now.
 pub(crate) enum Stop {
-    /// Refused with this GCS error.
+    /// Refused with this GCS error code.
     Refuse(GcsErrorCode),
     /// Waits for the controller's answer to the proxy's own queries.
     Hold(Needs),
 }
 
 impl ProxyState {
-    /// Correct a move and write it to `out.to_stage`. `fresh`: the line has not waited yet (it
-    /// may wait for the controller now).
+    /// Correct a move and write it to `out.to_stage`.
     pub(super) fn rewrite_move<C: Corrector>(
         &mut self,
         c: Option<&C>,
         s: &Split<'_>,
         kind: MoveKind,
         out: &mut Output,
-        fresh: bool,
     ) -> Result<(), Stop> {
         let c = c.ok_or(Stop::Refuse(GcsErrorCode::NoModel))?;
-        if self.ctrl.version == Version::Gcs3 {
-            return Err(Stop::Refuse(GcsErrorCode::Gcs3));
-        }
         if self.gate != Gate::Open {
             return Err(Stop::Refuse(GcsErrorCode::SensorFault));
         }
         let n = c.axes().min(MAP_AXES);
         let all = (1u8 << n) - 1;
-        // the arguments, in one pass: new targets `x` (micros) of the model axes in `set`, the
-        // model axes `named`, how many arguments name `others`
-        // the bases: the targets the proxy knows, else those just re-seeded for this line
-        let merged;
-        let base = if self.reseed.known == 0 {
-            &self.targets
-        } else {
-            merged = self.targets.merged(&self.reseed);
-            &merged
-        };
-        let mut x = base.x;
-        let (mut named, mut set, mut others, mut any) = (0u8, 0u8, 0usize, false);
+        // the arguments, in one pass: absolute targets `x` (micros) of the model axes in `set`,
+        // relative distances (in `x` too) of those in `rel`, the model axes `named`, how many
+        // arguments name `others` (`x` starts as a copy: cheaper than zeroing it)
+        let mut x = self.targets.x;
+        let (mut named, mut set, mut rel, mut others, mut any) = (0u8, 0u8, 0u8, 0usize, false);
         let mut toks = gcs::tokens(s.args);
         while let Some(id) = toks.next() {
             any = true;
@@ -78,11 +71,10 @@ impl ProxyState {
                         return Err(Stop::Refuse(GcsErrorCode::InvalidAxis));
                     }
                     named |= 1 << a;
-                    if kind != MoveKind::Relative {
-                        x[a] = v;
-                        set |= 1 << a;
-                    } else if base.known >> a & 1 != 0 {
-                        x[a] = x[a].saturating_add(v);
+                    x[a] = v;
+                    if kind == MoveKind::Relative {
+                        rel |= 1 << a;
+                    } else {
                         set |= 1 << a;
                     }
                 }
@@ -103,37 +95,48 @@ impl ProxyState {
             forward_untouched(s, out);
             return Ok(());
         }
-        // the axes the command does not set keep their targets (already in `x`)
-        let keep = all & !set & base.known;
 
-        let units_ok = match self.ctrl.units {
-            Units::Micrometre(k) => k == n,
-            Units::Mismatch | Units::Unanswered => {
-                return Err(Stop::Refuse(GcsErrorCode::UnitMismatch))
+        // what the controller must have told first: its facts, and the bases of the axes the
+        // command does not set (relative moves, a coupled model's other axes)
+        let mut needs = Needs::default();
+        match self.controller_ready(n) {
+            Ok(()) => {}
+            Err(NotReady::Learn) => needs.learn = true,
+            Err(NotReady::Refuse(code)) => return Err(Stop::Refuse(code)),
+        }
+        let need_base = all & !set;
+        let mut dir = self.dir;
+        if need_base != 0 {
+            match self.reseed {
+                Reseed::Got(base) => {
+                    for a in 0..n {
+                        if rel >> a & 1 != 0 {
+                            // a relative move goes the way of its distance
+                            dir[a] = match x[a] {
+                                0 => dir[a],
+                                v if v > 0 => 1,
+                                _ => -1,
+                            };
+                            // saturating: an absurd distance stays absurd
+                            x[a] = base.x[a].saturating_add(x[a]);
+                        } else if need_base >> a & 1 != 0 {
+                            x[a] = base.x[a];
+                        }
+                    }
+                }
+                Reseed::Failed => return Err(Stop::Refuse(GcsErrorCode::TargetUnknown)),
+                Reseed::None | Reseed::Asked => needs.targets = true,
             }
-            Units::Unknown => false,
-        };
-        let needs = Needs {
-            units: !units_ok,
-            targets: (set | keep) != all,
-            axes: home_all && self.ctrl.axes.is_none(),
-        };
-        if needs.units || needs.targets || needs.axes {
-            return Err(if fresh {
-                Stop::Hold(needs)
-            } else if needs.units {
-                Stop::Refuse(GcsErrorCode::UnitMismatch)
-            } else {
-                Stop::Refuse(GcsErrorCode::TargetUnknown)
-            });
+        }
+        if needs.learn || needs.targets {
+            return Err(Stop::Hold(needs));
         }
 
         // correct every model axis (a coupled model needs them all)
         let mut xf = [0f32; MAP_AXES];
-        let mut dir = self.dir;
         for a in 0..n {
             xf[a] = gcs::micros_to_f32(x[a]);
-            if self.targets.known >> a & 1 != 0 {
+            if rel >> a & 1 == 0 && self.targets.known >> a & 1 != 0 {
                 let old = self.targets.x[a];
                 if x[a] > old {
                     dir[a] = 1;
@@ -149,19 +152,33 @@ impl ProxyState {
         if r.outside_envelope & all != 0 || r.fast_outside {
             return Err(Stop::Refuse(GcsErrorCode::OutsideEnvelope));
         }
-        // the command is the exact target plus δ, in micros; inside the stage travel
+        // the command is the exact target plus δ, in micros; inside the stage travel (see
+        // `travel`: clamped within 0.1 µm of an end, refused beyond)
         let mut q = x;
+        let mut clamped = 0u8;
         for a in 0..n {
             let (lo, hi) = c.travel_um(a);
             let qa = r.q_um[a];
-            if !(qa >= lo && qa <= hi) {
-                return Err(Stop::Refuse(GcsErrorCode::PosOutOfLimits));
-            }
+            let (clo, chi) = (self.ctrl.fast_lo[a], self.ctrl.fast_hi[a]);
             // |x| ≤ 10¹⁸ (parse_micros), |d| < 2⁶² (f32_to_micros): no overflow
-            let d = gcs::f32_to_micros(r.delta_um[a])
+            let dq = gcs::f32_to_micros(r.delta_um[a])
                 .ok_or(Stop::Refuse(GcsErrorCode::PosOutOfLimits))?;
-            q[a] = x[a] + d;
+            q[a] = x[a] + dq;
+            // (the model's travel is the blob's statement, compared in f32 as the fold holds
+            // it; the controller's limits, which it enforces to the last digit, with a margin)
+            let inside = qa >= lo && qa <= hi && qa >= clo && qa <= chi;
+            if !inside {
+                q[a] = self.at_edge(c, a, q[a], &mut clamped)?;
+            }
         }
+        let x_sent = if clamped != 0 {
+            // the stage goes to the clamped command: record where that is in calibrated
+            // coordinates
+            self.clamped_target(c, &q, &xf, &dir, n)
+                .ok_or(Stop::Refuse(GcsErrorCode::OutsideControllerTravel))?
+        } else {
+            x
+        };
 
         let mut written = self.format_move(s.prefix, kind, named, &q, n, out);
         if written.is_ok() && (others > 0 || home_all) {
@@ -174,14 +191,69 @@ impl ProxyState {
         // (every model axis; the slots of other axes are never read), and the hysteresis
         // memory follows it
         self.targets = Targets {
-            x,
+            x: x_sent,
             q,
             known: self.targets.known | all,
         };
+        if clamped != 0 {
+            for a in 0..n {
+                xf[a] = gcs::micros_to_f32(x_sent[a]);
+            }
+        }
         c.sent(&xf, &mut self.hyst);
         self.dir = dir;
         self.counters.moves = self.counters.moves.wrapping_add(1);
         Ok(())
+    }
+
+    /// A command near or outside an end of the travel: its exact check (see `travel`). The
+    /// command to send, or the refusal.
+    #[cold]
+    #[inline(never)]
+    fn at_edge<C: Corrector>(
+        &self,
+        c: &C,
+        a: usize,
+        q: i64,
+        clamped: &mut u8,
+    ) -> Result<i64, Stop> {
+        let (lo, hi) = c.travel_um(a);
+        let model = travel::model_travel_micros(lo, hi);
+        match travel::edge(q, model, self.controller_travel(a)) {
+            Edge::Inside => Ok(q),
+            Edge::Clamped(limit) => {
+                *clamped |= 1 << a;
+                Ok(limit)
+            }
+            Edge::Outside(Limit::Model) => Err(Stop::Refuse(GcsErrorCode::PosOutOfLimits)),
+            Edge::Outside(Limit::Controller) => {
+                Err(Stop::Refuse(GcsErrorCode::OutsideControllerTravel))
+            }
+        }
+    }
+
+    /// The calibrated position of commands `q` (one or more clamped to the travel), started
+    /// at the targets asked for `x`.
+    #[cold]
+    #[inline(never)]
+    fn clamped_target<C: Corrector>(
+        &self,
+        c: &C,
+        q: &[i64; MAP_AXES],
+        x: &[f32; MAP_AXES],
+        dir: &[i8; MAP_AXES],
+        n: usize,
+    ) -> Option<[i64; MAP_AXES]> {
+        let mut qf = [0f32; MAP_AXES];
+        for a in 0..n {
+            qf[a] = gcs::micros_to_f32(q[a]);
+        }
+        let (_, delta) = c.inverse(&qf, dir, &self.hyst, Some(x))?;
+        let mut xs = [0i64; MAP_AXES];
+        for a in 0..n {
+            xs[a] = q[a].saturating_sub(gcs::f32_to_micros(delta[a])?);
+        }
+        Some(xs)
     }
 
     /// The forwarded line(s): one `MOV` (`MVE`) with every model axis that was named or whose
@@ -255,8 +327,8 @@ impl ProxyState {
                 let _ = list.extend(id);
             }
             if home_all {
-                if let Some((ids, k)) = &self.ctrl.axes {
-                    for id in ids[..*k].iter().flatten() {
+                if let Some(axes) = self.ctrl.axes.known() {
+                    for id in axes.ids[..axes.k].iter().flatten() {
                         if !is_model(id.as_bytes()) {
                             let _ = list.push(b' ');
                             let _ = list.extend(id.as_bytes());

@@ -5,24 +5,45 @@
 //! `ERR?` appended to a command) and each reply belongs to the oldest query not yet answered.
 //! The proxy's own answers (`ERR?` with an error of its own) are queued among them, so the host
 //! reads every answer in the order it asked.
+//!
+//! A controller answers nothing to a query it rejects — an unknown command, an axis it does not
+//! have, a bad argument: it only sets its error code (PI's controllers as PIPython and the
+//! simulators of PI's own and Odemis's drivers know them). The proxy knows which queries are
+//! always answered (`ERR?`, `*IDN?`, `SAI?`, and the position queries whose axes are all
+//! among the controller's, checked against `SAI?`). Every other query may go unanswered: it is
+//! marked `maybe` and followed by a *marker*, the proxy's own `*IDN?`, whose reply the proxy
+//! knows byte for byte (read once per controller). The first reply after a `maybe` query is
+//! either its reply or the marker's — the proxy tells them apart by content, so pairing never
+//! depends on time.
 
 use crate::gcs::LineBuf;
 use nanocal_interface::GcsErrorCode;
 
-/// Queries the proxy keeps track of at once.
+/// Host queries the proxy keeps track of at once.
 pub const MAX_IN_FLIGHT: usize = 16;
+
+/// Entries of the queue: every host query may bring its marker, and the proxy's own queries
+/// (the controller's identity, version, axes, units, travel, the targets a move needs, each
+/// with its marker) need room of their own.
+pub(crate) const QUEUE_LEN: usize = 2 * MAX_IN_FLIGHT + 16;
 
 /// What the proxy reads from a reply for itself.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Info {
+    /// `*IDN?`: the controller's identification line, the reply a marker is recognised by.
+    Idn,
     /// `CSV?`: the GCS syntax version.
     Version,
-    /// `PUN?`: the position unit of every model axis.
+    /// `PUN?` of the model axes: the position unit of each.
     Units,
     /// `SAI?`: the controller's axis identifiers.
     Axes,
-    /// `MOV?` of the model axes: targets to re-seed from.
-    Targets,
+    /// `TMN?` of the model axes: the lower travel limits.
+    TravelMin,
+    /// `TMX?` of the model axes: the upper travel limits.
+    TravelMax,
+    /// `MOV?` of the model axes for the line held under this generation: the bases of its move.
+    Targets(u8),
     /// The host's `ERR?` answered by the controller: a non-zero code may mean the controller
     /// refused a move the proxy forwarded, so the proxy forgets its targets.
     Error,
@@ -80,25 +101,51 @@ pub(crate) enum Expect {
     Internal(Info),
     /// The proxy's own answer to the host's `ERR?`.
     Answer(Answer),
-    /// A reply that belongs to nobody any more (its host session ended): read to its end and
-    /// dropped, so that it pairs with no later query ([`super::Proxy::end_host_session`]).
+    /// The proxy's marker (`*IDN?`): its reply must be the controller's identification line;
+    /// it is dropped.
+    Marker,
+    /// A reply nobody waits for any more (the query of a host session that ended, a re-seed a
+    /// stop cancelled): read and dropped.
     Discard,
+    /// Bytes no query asked for (none was in flight, or the rest of a reply the pairing was
+    /// lost in): read and dropped; never waited for.
+    Unsolicited,
 }
 
-/// A fixed-capacity ring of [`Expect`].
+/// One query in flight.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Entry {
+    /// What its reply is for.
+    pub e: Expect,
+    /// The controller may leave it unanswered: a marker follows it.
+    pub maybe: bool,
+    /// The host asked it (counted against [`MAX_IN_FLIGHT`]).
+    pub host: bool,
+}
+
+impl Entry {
+    pub(crate) const fn new(e: Expect, maybe: bool, host: bool) -> Self {
+        Self { e, maybe, host }
+    }
+}
+
+/// A fixed-capacity ring of [`Entry`].
+#[derive(Clone)]
 pub(crate) struct Queue {
-    items: [Expect; MAX_IN_FLIGHT],
+    items: [Entry; QUEUE_LEN],
     head: usize,
     len: usize,
+    host: usize,
 }
 
 impl Queue {
     pub(crate) const fn new() -> Self {
-        const RELAY: Expect = Expect::Relay;
+        const NONE: Entry = Entry::new(Expect::Discard, false, false);
         Self {
-            items: [RELAY; MAX_IN_FLIGHT],
+            items: [NONE; QUEUE_LEN],
             head: 0,
             len: 0,
+            host: 0,
         }
     }
     pub(crate) fn len(&self) -> usize {
@@ -107,46 +154,80 @@ impl Queue {
     pub(crate) fn is_empty(&self) -> bool {
         self.len == 0
     }
-    pub(crate) fn is_full(&self) -> bool {
-        self.len == MAX_IN_FLIGHT
+    /// Room for `n` more entries.
+    pub(crate) fn room(&self) -> usize {
+        QUEUE_LEN - self.len
+    }
+    /// Host queries in flight.
+    pub(crate) fn host_queries(&self) -> usize {
+        self.host
     }
     /// Append; `false` (nothing stored) when full.
-    pub(crate) fn push(&mut self, e: Expect) -> bool {
-        if self.is_full() {
+    pub(crate) fn push(&mut self, en: Entry) -> bool {
+        if self.len == QUEUE_LEN {
             return false;
         }
-        self.items[(self.head + self.len) % MAX_IN_FLIGHT] = e;
+        self.items[(self.head + self.len) % QUEUE_LEN] = en;
         self.len += 1;
+        self.host += usize::from(en.host);
         true
     }
-    pub(crate) fn front(&self) -> Option<&Expect> {
+    /// Put an entry back at the front (its reply is still to come).
+    pub(crate) fn push_front(&mut self, en: Entry) -> bool {
+        if self.len == QUEUE_LEN {
+            return false;
+        }
+        self.head = (self.head + QUEUE_LEN - 1) % QUEUE_LEN;
+        self.items[self.head] = en;
+        self.len += 1;
+        self.host += usize::from(en.host);
+        true
+    }
+    pub(crate) fn front(&self) -> Option<&Entry> {
         (self.len > 0).then(|| &self.items[self.head])
     }
-    pub(crate) fn pop(&mut self) -> Option<Expect> {
+    pub(crate) fn pop(&mut self) -> Option<Entry> {
         if self.len == 0 {
             return None;
         }
-        let e = self.items[self.head];
-        self.head = (self.head + 1) % MAX_IN_FLIGHT;
+        let en = self.items[self.head];
+        self.head = (self.head + 1) % QUEUE_LEN;
         self.len -= 1;
-        Some(e)
+        self.host -= usize::from(en.host);
+        Some(en)
     }
-    /// Every entry still expecting a reply becomes [`Expect::Discard`]; the proxy's own answers
-    /// (no reply of the controller's) are dropped.
-    pub(crate) fn discard_all(&mut self) {
-        let mut kept = Self::new();
-        while let Some(e) = self.pop() {
-            if !matches!(e, Expect::Answer(_)) {
-                kept.push(Expect::Discard);
+    /// Change every entry in place (`f` returns the new expectation), keeping the order: the
+    /// replies still come, only what they are for changes.
+    pub(crate) fn retag(&mut self, mut f: impl FnMut(&Entry) -> Expect) {
+        for k in 0..self.len {
+            let en = &mut self.items[(self.head + k) % QUEUE_LEN];
+            en.e = f(en);
+            if en.host && matches!(en.e, Expect::Discard) {
+                en.host = false;
+                self.host -= 1;
             }
         }
-        *self = kept;
+    }
+    /// Remove the proxy's own answers (nobody will read them any more).
+    pub(crate) fn drop_answers(&mut self) {
+        let n = self.len;
+        for _ in 0..n {
+            if let Some(en) = self.pop() {
+                if !matches!(en.e, Expect::Answer(_)) {
+                    self.push(en);
+                }
+            }
+        }
     }
 
-    /// How many of the entries are the proxy's own queries for `info`.
-    pub(crate) fn count_internal(&self, info: Info) -> usize {
-        (0..self.len)
-            .filter(|k| self.items[(self.head + k) % MAX_IN_FLIGHT] == Expect::Internal(info))
-            .count()
+    /// The entries, oldest first.
+    pub(crate) fn iter(&self) -> impl Iterator<Item = &Entry> {
+        (0..self.len).map(|k| &self.items[(self.head + k) % QUEUE_LEN])
+    }
+}
+
+impl core::fmt::Debug for Queue {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_list().entries(self.iter()).finish()
     }
 }

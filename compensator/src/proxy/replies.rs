@@ -7,13 +7,22 @@
 //! calibrated counterpart. A position reply too long to hold (many axes) is mapped in chunks,
 //! and a line too long to be a position passes unmapped. The proxy's own queries are read and
 //! not relayed.
+//!
+//! Once the controller's identification line is known, the first line of every reply is first
+//! compared with it (`decide`): the identification line is what the proxy's markers bring back
+//! (see `queue`). After a query that may go unanswered it tells the query's own reply from its
+//! marker's; anywhere else it is a marker's reply that arrived late (after the proxy gave up
+//! waiting, see `resync`) and is dropped. A marker whose reply is something else means the
+//! pairing was lost: the proxy resynchronises. Bytes nobody asked for are dropped.
 
-use super::queue::{Expect, Info};
-use super::{Corrector, Output, ProxyState, Targets, Units, Version, MAX_CONTROLLER_AXES};
-use crate::gcs::{self, AxisId, LineBuf, MAP_AXES};
+use super::controller::{lines_of, Fact};
+use super::queue::{Entry, Expect, Info};
+use super::{Corrector, Output, ProxyState, Reseed, Targets};
+use crate::gcs::{self, LineBuf, MAP_AXES};
 
 /// Longest reply line the proxy parses.
 const RX_LINE: usize = 256;
+const _: () = assert!(RX_LINE > super::controller::IDN_LEN);
 /// Reply lines held for mapping at once (bytes).
 const RX_CHUNK: usize = 384;
 /// Reply lines held for mapping at once (lines): bounds the growth when values are rewritten.
@@ -49,17 +58,25 @@ const NO_LINE: LineInfo = LineInfo {
 
 /// The reply being received.
 pub(crate) struct ReplyRx {
-    kind: Option<Expect>,
+    /// The query it answers.
+    entry: Option<Entry>,
+    /// The first line is still being compared with the controller's identification line.
+    deciding: bool,
     /// Last byte of the reply so far (LF at its start).
     prev: u8,
-    /// The line being received (parsed kinds).
+    /// The line being received (parsed kinds, and the first line while deciding).
     line: LineBuf<RX_LINE>,
-    /// The current line is longer than [`RX_LINE`]: passed through unmapped.
+    /// The current line is longer than [`RX_LINE`]: passed through unmapped (a position reply)
+    /// or not read (the proxy's own query).
     line_over: bool,
+    /// A line of the proxy's own query's reply was too long to read whole.
+    truncated: bool,
     /// Complete lines held (parsed kinds), each followed by LF.
     lines: LineBuf<RX_CHUNK>,
     infos: [LineInfo; RX_CHUNK_LINES],
     n_lines: usize,
+    /// Lines of the reply so far (for the proxy's own queries).
+    total_lines: usize,
     /// Values of model axes seen so far in this reply (micros), bit a of `seen` set.
     values: [i64; MAP_AXES],
     seen: u8,
@@ -70,13 +87,16 @@ pub(crate) struct ReplyRx {
 impl ReplyRx {
     pub(crate) const fn new() -> Self {
         Self {
-            kind: None,
+            entry: None,
+            deciding: false,
             prev: b'\n',
             line: LineBuf::new(),
             line_over: false,
+            truncated: false,
             lines: LineBuf::new(),
             infos: [NO_LINE; RX_CHUNK_LINES],
             n_lines: 0,
+            total_lines: 0,
             values: [0; MAP_AXES],
             seen: 0,
             here: 0,
@@ -85,30 +105,51 @@ impl ReplyRx {
 
     /// A reply is being received.
     pub(crate) fn active(&self) -> bool {
-        self.kind.is_some()
+        self.entry.is_some()
     }
 
-    /// The reply being received answers one of the proxy's own queries.
-    pub(crate) fn internal(&self) -> bool {
-        matches!(self.kind, Some(Expect::Internal(_)))
+    /// What the reply being received is for.
+    pub(crate) fn kind(&self) -> Option<Expect> {
+        self.entry.map(|e| e.e)
     }
 
-    /// Go on receiving `old`'s reply (a session ended in the middle of it) as one to drop.
-    pub(crate) fn continue_as_discard(&mut self, old: &ReplyRx) {
-        self.begin(Expect::Discard);
-        self.prev = old.prev;
+    /// The reply being received is no longer wanted by anyone (a host session ended, a stop
+    /// cancelled the line that waited for it): the rest of it is dropped.
+    pub(crate) fn discard(&mut self) {
+        if let Some(en) = &mut self.entry {
+            if !matches!(
+                en.e,
+                Expect::Marker | Expect::Internal(_) | Expect::Unsolicited
+            ) {
+                en.e = Expect::Discard;
+                en.host = false;
+            }
+        }
     }
 
-    fn begin(&mut self, e: Expect) {
-        self.kind = Some(e);
+    fn begin(&mut self, en: Entry, deciding: bool) {
+        self.entry = Some(en);
+        self.deciding = deciding;
         self.prev = b'\n';
         self.line.clear();
         self.line_over = false;
+        self.truncated = false;
         self.lines.clear();
         self.n_lines = 0;
+        self.total_lines = 0;
         self.seen = 0;
         self.here = 0;
     }
+}
+
+/// What a reply's first line turned out to be.
+enum Decision {
+    /// Not decided yet: more bytes are needed.
+    Pending,
+    /// The reply is its query's own (continue as the query's kind).
+    Own,
+    /// The controller's identification line, consumed: the reply ended.
+    Marker,
 }
 
 impl ProxyState {
@@ -124,38 +165,67 @@ impl ProxyState {
         if !input.is_empty() {
             self.last_rx_ms = now_ms;
         }
-        if self.resync {
+        if self.link_lost {
             // bytes were lost: nothing that arrives can be paired until the line is quiet
             return input.len();
         }
-        if !self.queue.is_empty() {
-            self.emit_answers(out);
-        }
         let mut i = 0;
         while i < input.len() {
-            let kind = match self.rx.kind {
-                Some(k) => k,
-                None => {
-                    let e = self.queue.pop().unwrap_or(Expect::Relay);
-                    self.rx.begin(e);
-                    e
-                }
-            };
-            let rest = &input[i..];
-            let lf = rest.iter().position(|&b| b == b'\n');
-            if matches!(kind, Expect::Relay | Expect::Snoop(_) | Expect::Discard) {
-                let discard = kind == Expect::Discard;
-                let room = if discard {
-                    usize::MAX
-                } else {
-                    out.to_host.room()
-                };
-                if room == 0 {
+            if self.rx.entry.is_none() {
+                // the proxy's own answers due before the next reply go first
+                if !self.emit_answers(out) {
                     break;
                 }
-                let n = lf.map_or(rest.len(), |p| p + 1).min(room);
+                let en = self.queue.pop().unwrap_or_else(|| {
+                    // bytes no query asked for: dropped
+                    self.counters.unsolicited = self.counters.unsolicited.wrapping_add(1);
+                    Entry::new(Expect::Unsolicited, false, false)
+                });
+                // the identification line is an own query's and the host's `*IDN?` reply,
+                // and a marker's anywhere else (the reply to an addressed `*IDN?`, the only
+                // kind that may go unanswered, starts with the address)
+                let deciding = self.ctrl.marker_reply().is_some()
+                    && (en.maybe
+                        || !matches!(en.e, Expect::Snoop(Info::Idn) | Expect::Internal(Info::Idn)));
+                self.rx.begin(en, deciding);
+            }
+            let rest = &input[i..];
+            if self.rx.deciding {
+                if out.to_host.room() < LF_ROOM {
+                    break;
+                }
+                let (n, d) = self.decide(rest, out);
+                i += n;
+                match d {
+                    Decision::Pending | Decision::Own => continue,
+                    Decision::Marker => {
+                        self.after_reply(c, out);
+                        if !out.to_stage.is_empty() {
+                            return i;
+                        }
+                        continue;
+                    }
+                }
+            }
+            let Some(kind) = self.rx.kind() else {
+                continue;
+            };
+            let lf = rest.iter().position(|&b| b == b'\n');
+            if matches!(
+                kind,
+                Expect::Relay | Expect::Snoop(_) | Expect::Discard | Expect::Unsolicited
+            ) {
+                let relay = !matches!(kind, Expect::Discard | Expect::Unsolicited);
+                let room = out.to_host.room();
+                if relay && room == 0 {
+                    break;
+                }
+                let mut n = lf.map_or(rest.len(), |p| p + 1);
+                if relay {
+                    n = n.min(room);
+                }
                 let chunk = &rest[..n];
-                if !discard {
+                if relay {
                     let _ = out.to_host.extend(chunk);
                 }
                 i += n;
@@ -190,8 +260,12 @@ impl ProxyState {
             let end = self.rx.prev != b' ';
             self.rx.prev = b'\n';
             if self.rx.line_over {
-                let _ = out.to_host.push(b'\n');
+                if is_map {
+                    let _ = out.to_host.push(b'\n');
+                }
                 self.rx.line_over = false;
+                self.rx.line.clear();
+                self.rx.total_lines += 1;
             } else {
                 self.end_line(c, is_map, out);
             }
@@ -201,6 +275,101 @@ impl ProxyState {
             }
         }
         i
+    }
+
+    /// Compare the reply's first line with the controller's identification line, as its
+    /// bytes arrive (held in `rx.line` meanwhile). Returns the bytes of `rest` consumed.
+    fn decide(&mut self, rest: &[u8], out: &mut Output) -> (usize, Decision) {
+        let idn_len = self.ctrl.idn_line.len();
+        let lf = rest.iter().position(|&b| b == b'\n');
+        let upto = lf.unwrap_or(rest.len());
+        let want = (idn_len + 1).saturating_sub(self.rx.line.len());
+        let n = upto.min(want);
+        let _ = self.rx.line.extend(&rest[..n]);
+        let l = self.rx.line.as_bytes();
+        let idn = self.ctrl.idn_line.as_bytes();
+        let prefix = l.len() <= idn.len() && idn[..l.len()] == *l;
+        if prefix && lf.is_some() && n == upto && l.len() == idn.len() {
+            self.rx.line.clear();
+            self.marker_seen();
+            return (n + 1, Decision::Marker);
+        }
+        if prefix && lf.is_none() {
+            return (n, Decision::Pending);
+        }
+        // the reply is its query's own
+        self.rx.deciding = false;
+        let Some(en) = self.rx.entry else {
+            return (n, Decision::Own);
+        };
+        match en.e {
+            Expect::Marker => {
+                // a marker brought back something else: the pairing is lost
+                self.rx.line.clear();
+                if self.resyncing {
+                    // still waiting for the resynchronising marker's reply
+                    let _ = self.queue.push_front(en);
+                } else {
+                    self.rx.entry = None;
+                    self.resync(None::<&super::FoldCorrector>, out);
+                }
+                // the rest of this reply is dropped
+                self.rx.entry = Some(Entry::new(Expect::Unsolicited, false, false));
+            }
+            Expect::Relay | Expect::Snoop(_) | Expect::Discard | Expect::Unsolicited => {
+                // the bytes held while deciding go their way, the rest streams after them
+                let held = self.rx.line.clone();
+                self.rx.line.clear();
+                let held = held.as_bytes();
+                if let Some(&last) = held.last() {
+                    self.rx.prev = last;
+                }
+                if !matches!(en.e, Expect::Discard | Expect::Unsolicited) {
+                    let _ = out.to_host.extend(held);
+                }
+                if matches!(en.e, Expect::Snoop(_)) {
+                    self.collect(held);
+                }
+            }
+            _ => {
+                // parsed kinds: the held bytes are the line's beginning
+                if let Some(&last) = self.rx.line.as_bytes().last() {
+                    self.rx.prev = last;
+                }
+            }
+        }
+        (n, Decision::Own)
+    }
+
+    /// The reply was the controller's identification line, the answer to a marker.
+    fn marker_seen(&mut self) {
+        let Some(en) = self.rx.entry.take() else {
+            return;
+        };
+        match en.e {
+            // the marker's own reply: replies and queries are paired
+            Expect::Marker => self.resyncing = false,
+            _ if en.maybe => {
+                // the query went unanswered; this was the reply to the marker that follows it
+                self.unanswered(en);
+                if self.queue.front().is_some_and(|f| f.e == Expect::Marker) {
+                    self.queue.pop();
+                }
+            }
+            // a marker's reply that came after the proxy stopped waiting for it
+            Expect::Unsolicited => {}
+            _ => {
+                // (the query's own reply is still to come)
+                self.counters.unsolicited = self.counters.unsolicited.wrapping_add(1);
+                let _ = self.queue.push_front(en);
+            }
+        }
+    }
+
+    /// A reply is complete (or was a marker's): the answers due and a held line go on.
+    fn after_reply<C: Corrector>(&mut self, c: Option<&C>, out: &mut Output) {
+        self.emit_answers(out);
+        self.try_release(c, out);
     }
 
     /// Bytes of a parsed reply's line (no LF). `false` when `out` has no room for what a line
@@ -216,17 +385,23 @@ impl ProxyState {
             return true;
         }
         if self.rx.line_over {
-            let n = bytes.len().min(out.to_host.room());
-            let _ = out.to_host.extend(&bytes[..n]);
-            self.rx.prev = bytes[n.max(1) - 1];
-            return n == bytes.len();
+            if is_map {
+                let n = bytes.len().min(out.to_host.room());
+                let _ = out.to_host.extend(&bytes[..n]);
+                self.rx.prev = bytes[n.max(1) - 1];
+                return n == bytes.len();
+            }
+            self.rx.prev = bytes[bytes.len() - 1];
+            return true;
         }
         if self.rx.line.extend(bytes).is_ok() {
             self.rx.prev = bytes[bytes.len() - 1];
             return true;
         }
         if !is_map {
-            // the proxy's own query: the rest of an overlong line carries nothing it reads
+            // the proxy's own query: an overlong line is not read
+            self.rx.truncated = true;
+            self.rx.line_over = true;
             self.rx.prev = bytes[bytes.len() - 1];
             return true;
         }
@@ -248,6 +423,7 @@ impl ProxyState {
                 let _ = self.rx.lines.extend(self.rx.line.as_bytes());
                 let _ = self.rx.lines.push(b'\n');
                 self.rx.line.clear();
+                self.rx.total_lines += 1;
             } else {
                 let _ = self.rx.line.push(b);
             }
@@ -256,11 +432,13 @@ impl ProxyState {
 
     /// A line of a parsed reply is complete (in `rx.line`): parsed once, held.
     fn end_line<C: Corrector>(&mut self, c: Option<&C>, is_map: bool, out: &mut Output) {
+        self.rx.total_lines += 1;
         let full =
             self.rx.lines.room() < self.rx.line.len() + 1 || self.rx.n_lines == RX_CHUNK_LINES;
         if full {
             if !is_map {
-                // own query with a long reply: the rest is not needed
+                // own query with a long reply: the rest is not read
+                self.rx.truncated = true;
                 self.rx.line.clear();
                 return;
             }
@@ -298,7 +476,7 @@ impl ProxyState {
 
     /// Map and send the lines held so far (`c` None: relayed as they are).
     fn map_chunk<C: Corrector>(&mut self, c: Option<&C>, out: &mut Output) {
-        let target = matches!(self.rx.kind, Some(Expect::Map { target: true }));
+        let target = matches!(self.rx.kind(), Some(Expect::Map { target: true }));
         let x = match c {
             Some(c) if self.rx.here != 0 => {
                 let x = self.map_values(c, target);
@@ -389,57 +567,38 @@ impl ProxyState {
 
     /// The reply is complete.
     fn finish_reply<C: Corrector>(&mut self, c: Option<&C>, out: &mut Output) {
-        match self.rx.kind {
+        let en = self.rx.entry;
+        match en.map(|e| e.e) {
             Some(Expect::Map { .. }) => self.map_chunk(c, out),
-            Some(Expect::Snoop(info) | Expect::Internal(info)) => self.read_info(c, info),
+            Some(Expect::Snoop(info)) => self.read_snoop(c, info),
+            Some(Expect::Internal(info)) => {
+                let lines = self.rx.lines.clone();
+                if let Info::Targets(generation) = info {
+                    self.reseed(c, lines.as_bytes(), generation);
+                } else if self.rx.truncated && info == Info::Idn {
+                    // an identification line too long to hold: no usable marker
+                    self.ctrl.idn = Fact::Unanswered;
+                } else {
+                    let n_lines = self.rx.total_lines;
+                    self.read_fact(info, lines.as_bytes(), n_lines);
+                }
+            }
             _ => {}
         }
-        self.rx.kind = None;
-        if !self.queue.is_empty() {
-            self.emit_answers(out);
-        }
-        self.try_release(c, out);
+        self.rx.entry = None;
+        self.after_reply(c, out);
     }
 
-    /// Read what the proxy wants to know from a complete reply (in `rx.lines`).
-    fn read_info<C: Corrector>(&mut self, c: Option<&C>, info: Info) {
+    /// What the proxy reads from the reply to a host query it relayed.
+    fn read_snoop<C: Corrector>(&mut self, c: Option<&C>, info: Info) {
+        let _ = c;
         let lines = self.rx.lines.clone();
         let lines = lines.as_bytes();
         match info {
-            Info::Version => {
-                let v = lines_of(lines)
-                    .next()
-                    .map(trim)
-                    .and_then(|t| gcs::parse_f64(t).ok());
-                match v {
-                    // PIPython's own test (`isgcs30_by_qcsv`): a version above 2.0 is GCS 3.0
-                    Some(v) if v > 2.0 => self.ctrl.version = Version::Gcs3,
-                    Some(_) => self.ctrl.version = Version::Gcs2,
-                    None => {
-                        // not a version: the controller did not answer CSV? and this is the
-                        // reply to the next query (the proxy's PUN?)
-                        if self.queue.front() == Some(&Expect::Internal(Info::Units)) {
-                            self.queue.pop();
-                            self.ctrl.version = Version::Gcs2;
-                            self.read_units(c, lines);
-                        }
-                    }
-                }
+            Info::Idn if !matches!(self.ctrl.idn, Fact::Known(())) => {
+                self.read_fact(Info::Idn, lines, self.rx.total_lines)
             }
-            Info::Units => self.read_units(c, lines),
-            Info::Axes => {
-                let mut ids = [None; MAX_CONTROLLER_AXES];
-                let mut k = 0;
-                for l in lines_of(lines) {
-                    let t = trim(l);
-                    if !t.is_empty() && k < MAX_CONTROLLER_AXES {
-                        ids[k] = AxisId::new(t);
-                        k += 1;
-                    }
-                }
-                self.ctrl.axes = Some((ids, k));
-            }
-            Info::Targets => self.reseed(c, lines),
+            Info::Version | Info::Axes => self.read_fact(info, lines, self.rx.total_lines),
             Info::Error => {
                 // (after an address prefix, if any)
                 let code = lines_of(lines)
@@ -452,31 +611,22 @@ impl ProxyState {
                     self.forget(None);
                 }
             }
+            _ => {}
         }
     }
 
-    /// `PUN?` reply: every model axis must be in µm.
-    fn read_units<C: Corrector>(&mut self, c: Option<&C>, lines: &[u8]) {
-        let n = c.map_or(MAP_AXES, |c| c.axes()).min(MAP_AXES);
-        let mut ok = [false; MAP_AXES];
-        for l in lines_of(lines) {
-            if let Some(av) = gcs::parse_axis_value(l) {
-                if let Some(a) = self.map.index(av.axis).filter(|&a| a < n) {
-                    ok[a] = is_micrometre(av.value);
-                }
-            }
+    /// `MOV?` reply to the proxy's own query for the line held under `generation`: the
+    /// targets the controller holds, as calibrated positions, for every model axis (the bases
+    /// of that line's move). Where the controller holds exactly the command the proxy sent,
+    /// the base is the target the host asked for; elsewhere the controller did something else
+    /// (refused the move, stopped, referenced), the proxy forgets its record of that axis and
+    /// the base is the calibrated position of the controller's target.
+    fn reseed<C: Corrector>(&mut self, c: Option<&C>, lines: &[u8], generation: u8) {
+        if self.reseed != Reseed::Asked || generation != self.reseed_gen {
+            // a reply for a line that no longer waits (a stop cancelled it): never used
+            return;
         }
-        self.ctrl.units = if ok[..n].iter().all(|&o| o) {
-            Units::Micrometre(n)
-        } else {
-            Units::Mismatch
-        };
-    }
-
-    /// `MOV?` reply to the proxy's own query: the targets the controller holds, mapped back
-    /// (the whole vector: a coupled model needs every axis), for the axes whose targets the
-    /// proxy forgot.
-    fn reseed<C: Corrector>(&mut self, c: Option<&C>, lines: &[u8]) {
+        self.reseed = Reseed::Failed;
         let Some(c) = c else { return };
         let n = c.axes().min(MAP_AXES);
         let mut q: [Option<i64>; MAP_AXES] = [None; MAP_AXES];
@@ -489,81 +639,111 @@ impl ProxyState {
         }
         let mut qf = [0f32; MAP_AXES];
         for a in 0..n {
-            match q[a].or(self.targets.q(a)) {
-                Some(v) => {
-                    q[a] = Some(v);
-                    qf[a] = gcs::micros_to_f32(v);
-                }
+            match q[a] {
+                Some(v) => qf[a] = gcs::micros_to_f32(v),
                 None => return,
             }
         }
-        let Some((_, delta)) = c.inverse(&qf, &self.dir, &self.hyst, None) else {
-            self.counters.inverse_failures = self.counters.inverse_failures.wrapping_add(1);
-            return;
-        };
-        // the axes whose targets were forgotten take the calibrated position of the
-        // controller's targets (for the held line; kept if its move goes out); the others keep
-        // the targets the host set
+        // where the controller holds the command sent, its base is the target the host asked
+        // for; elsewhere the calibrated position of the controller's targets
+        let mut base = Targets::default();
+        let mut differ = 0u8;
         for a in 0..n {
-            if self.targets.known >> a & 1 != 0 {
-                continue;
+            match (self.targets.q(a), q[a]) {
+                (Some(sent), Some(held)) if sent == held => {
+                    base.set(a, self.targets.x[a], sent);
+                }
+                _ => differ |= 1 << a,
             }
-            if let (Some(d), Some(qa)) = (gcs::f32_to_micros(delta[a]), q[a]) {
-                self.reseed.set(a, qa.saturating_sub(d), qa);
+        }
+        if differ != 0 {
+            for a in 0..n {
+                if differ >> a & 1 != 0 {
+                    self.forget(Some(a));
+                }
             }
+            let Some((_, delta)) = c.inverse(&qf, &self.dir, &self.hyst, None) else {
+                self.counters.inverse_failures = self.counters.inverse_failures.wrapping_add(1);
+                return;
+            };
+            for a in 0..n {
+                if differ >> a & 1 == 0 {
+                    continue;
+                }
+                let (Some(d), Some(qa)) = (gcs::f32_to_micros(delta[a]), q[a]) else {
+                    return;
+                };
+                base.set(a, qa.saturating_sub(d), qa);
+            }
+        }
+        self.reseed = Reseed::Got(base);
+    }
+
+    /// A query the controller left unanswered (its marker came back alone).
+    fn unanswered(&mut self, en: Entry) {
+        self.counters.unanswered = self.counters.unanswered.wrapping_add(1);
+        match en.e {
+            Expect::Internal(Info::Targets(g))
+                if self.reseed == Reseed::Asked && g == self.reseed_gen =>
+            {
+                self.reseed = Reseed::Failed;
+            }
+            Expect::Internal(Info::Targets(_)) => {}
+            Expect::Internal(info) => self.fact_unanswered(info),
+            Expect::Snoop(Info::Version) if !self.ctrl.version.settled() => {
+                self.fact_unanswered(Info::Version)
+            }
+            _ => {}
         }
     }
 
-    /// The controller answers no more: give up the queries in flight.
-    pub(super) fn give_up_replies<C: Corrector>(&mut self, c: Option<&C>, out: &mut Output) {
-        match self.rx.kind {
-            Some(Expect::Map { .. }) => self.map_chunk(c, out),
-            Some(Expect::Internal(info)) => self.unanswered(info),
-            _ => {}
+    /// The controller answers no more: every query in flight is given up (the proxy's own
+    /// answers still go out), facts asked are asked again later, a held line is refused.
+    pub(super) fn give_up<C: Corrector>(&mut self, c: Option<&C>, out: &mut Output) {
+        if let Some(en) = self.rx.entry.take() {
+            if matches!(en.e, Expect::Map { .. }) {
+                self.map_chunk(c, out);
+            }
+            if !matches!(en.e, Expect::Marker | Expect::Discard | Expect::Unsolicited) {
+                self.counters.unanswered = self.counters.unanswered.wrapping_add(1);
+            }
         }
-        if self.rx.kind.take().is_some() {
-            self.counters.unanswered = self.counters.unanswered.wrapping_add(1);
-        }
-        while let Some(e) = self.queue.pop() {
-            match e {
+        self.rx.deciding = false;
+        while let Some(en) = self.queue.pop() {
+            match en.e {
                 Expect::Answer(a) => {
                     a.write(&mut out.to_host);
                 }
-                Expect::Internal(info) => {
-                    self.unanswered(info);
-                    self.counters.unanswered = self.counters.unanswered.wrapping_add(1);
-                }
+                Expect::Marker | Expect::Discard | Expect::Unsolicited => {}
                 _ => self.counters.unanswered = self.counters.unanswered.wrapping_add(1),
             }
         }
-    }
-
-    fn unanswered(&mut self, info: Info) {
-        match info {
-            // an older GCS 2 controller without CSV?
-            Info::Version => self.ctrl.version = Version::Gcs2,
-            Info::Units => self.ctrl.units = Units::Unanswered,
-            Info::Axes | Info::Targets | Info::Error => {}
+        self.ctrl.lost_answers();
+        self.counters.resyncs = self.counters.resyncs.wrapping_add(1);
+        if self.reseed == Reseed::Asked {
+            self.reseed = Reseed::Failed;
+        }
+        if self.held.is_some() {
+            self.held_lost = true;
         }
     }
-}
 
-/// The lines of LF-terminated text (LF removed).
-fn lines_of(text: &[u8]) -> impl Iterator<Item = &[u8]> {
-    text.split(|&b| b == b'\n').filter(|l| !l.is_empty())
-}
-
-fn trim(s: &[u8]) -> &[u8] {
-    let s = s.strip_suffix(b"\r").unwrap_or(s);
-    let start = s.iter().position(|&b| b != b' ').unwrap_or(s.len());
-    let end = s.iter().rposition(|&b| b != b' ').map_or(start, |e| e + 1);
-    &s[start..end.max(start)]
+    /// The pairing of replies is lost (a marker brought back something else) or the controller
+    /// went silent: give up what is in flight and send a marker; every reply before the
+    /// marker's is dropped.
+    pub(super) fn resync<C: Corrector>(&mut self, c: Option<&C>, out: &mut Output) {
+        self.give_up(c, out);
+        if self.ctrl.marker_reply().is_some() && self.queue.room() > 0 {
+            self.resyncing = true;
+            self.send_marker(out);
+        }
+    }
 }
 
 /// True for the spellings of µm a controller may report (`PUN?`): `µm` (cp1252 `B5 6D`, or
 /// UTF-8), `um`, `micron`, `micrometer`, `micrometre`, in any case.
 pub(crate) fn is_micrometre(unit: &[u8]) -> bool {
-    let u = trim(unit);
+    let u = super::controller::trim(unit);
     let mut up = [0u8; 12];
     if u.len() > up.len() {
         return false;

@@ -289,6 +289,8 @@ impl VirtualBench {
     /// The compensator's GCS port (a counted stream).
     pub fn gcs(&mut self) -> Box<dyn Port> {
         let s = self.qemu.connect(0);
+        // the host opens the port: a new session on the board
+        self.qemu.set_dtr(true);
         s.set_read_timeout(Some(PORT_READ_TIMEOUT)).ok();
         counted(s, &self.sent[0])
     }
@@ -306,12 +308,15 @@ impl VirtualBench {
         let path = self.mgmt_path();
         let gcs_port = self.qemu.serial_port(0);
         let sent = self.sent.clone();
+        let link = self.link.clone();
         Box::new(move || {
             let m = std::os::unix::net::UnixStream::connect(&path)?;
             m.set_read_timeout(Some(PORT_READ_TIMEOUT))?;
             let g = TcpStream::connect(("127.0.0.1", gcs_port))?;
             g.set_nodelay(true)?;
             g.set_read_timeout(Some(PORT_READ_TIMEOUT))?;
+            // the host opens the port again: a new session on the board
+            super::qemu::apply_line_state(&link, nanocal_interface::bench_link::LINE_HOST, true);
             Ok((counted(m, &sent[1]), counted(g, &sent[0])))
         })
     }

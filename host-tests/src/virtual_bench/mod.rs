@@ -13,8 +13,8 @@ pub mod sensors;
 pub mod twin_stage;
 
 pub use controller::{
-    AxisConfig, Clock, Config, Controller, Event, IdealPlant, ManualClock, Plant, StageSim,
-    SystemClock,
+    AxisConfig, Clock, Config, Controller, Event, IdealPlant, ManualClock, Plant, Processed,
+    StageSim, SystemClock,
 };
 pub use link::{BenchClock, BenchLink};
 pub use qemu::{bench_elf, have_qemu, qemu_elf, repo_root, Elf, GcsHost, Qemu, HANG};

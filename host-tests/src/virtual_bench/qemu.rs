@@ -4,12 +4,13 @@
 
 use super::link::{BenchClock, BenchLink, Page, RAM_FILE_LEN};
 use crate::device::Client;
-use nanocal_interface::bench_link;
+use nanocal_interface::bench_link as bl;
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
@@ -166,6 +167,9 @@ pub struct Qemu {
     streams: [Option<TcpStream>; 3],
     link: Arc<BenchLink>,
     log: PathBuf,
+    /// Bytes the test's GCS hosts wrote to serial0 (the board has read them all before the
+    /// port is closed: a new session starts clean).
+    gcs_sent: Arc<AtomicU64>,
 }
 
 /// Where the file behind the board's RAM goes: tmpfs when there is one.
@@ -254,6 +258,7 @@ impl Qemu {
             streams: [None, None, None],
             link,
             log,
+            gcs_sent: Arc::new(AtomicU64::new(0)),
         };
         for i in [0, 1] {
             q.streams[i] = Some(q.dial(i));
@@ -263,17 +268,34 @@ impl Qemu {
 
     /// The host opens (`true`) or closes (`false`) the GCS port: the line state a USB host
     /// sends with CDC SET_CONTROL_LINE_STATE (DTR, bit 0), carried to the board on serial4.
-    pub fn set_dtr(&mut self, on: bool) {
-        let dtr = if on { bench_link::LINE_DTR } else { 0 };
-        self.link.send_line_state(bench_link::LINE_HOST | dtr);
+    /// Returns once the board has applied it (it counts them in the bench's page), so nothing
+    /// sent afterwards can overtake it; false if it did not within 10 s.
+    pub fn set_dtr(&mut self, on: bool) -> bool {
+        apply_line_state(&self.link, bl::LINE_HOST, on)
+    }
+
+    /// Wait until the board has read every byte the test's GCS hosts wrote (up to 10 s).
+    fn wait_gcs_drained(&self) {
+        let sent = self.gcs_sent.load(Ordering::Relaxed) as u32;
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while self.link.rx_bytes(0) != sent {
+            if Instant::now() > deadline {
+                eprintln!(
+                    "qemu: the board read {} of the {sent} GCS bytes sent",
+                    self.link.rx_bytes(0)
+                );
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
     }
 
     /// The management client opens (`true`) or closes (`false`) the management port: its line
-    /// state (DTR), as [`Self::set_dtr`]'s for the GCS port. The board drops a management frame
-    /// still arriving when the port closes.
-    pub fn set_mgmt_dtr(&mut self, on: bool) {
-        let dtr = if on { bench_link::LINE_DTR } else { 0 };
-        self.link.send_line_state(bench_link::LINE_MGMT | dtr);
+    /// state (DTR), as [`Self::set_dtr`]'s for the GCS port, and returns once the board has
+    /// applied it (false if not within 10 s). The board drops a management frame still
+    /// arriving when the port closes.
+    pub fn set_mgmt_dtr(&mut self, on: bool) -> bool {
+        apply_line_state(&self.link, bl::LINE_MGMT, on)
     }
 
     /// Process id of QEMU.
@@ -327,20 +349,37 @@ impl Qemu {
         self.streams[i].take().expect("serial port taken once")
     }
 
-    /// The GCS host side (serial0).
+    /// The GCS host side (serial0): the port opened (DTR raised, a new host session).
     pub fn gcs_host(&mut self) -> GcsHost {
-        GcsHost::new(self.connect(0))
+        let s = self.connect(0);
+        self.set_dtr(true);
+        GcsHost::new(s, self.gcs_sent.clone())
     }
 
-    /// A new GCS host connection on serial0 (after the previous one was dropped).
+    /// Close the GCS port as a host does: the connection ends once the board has read what
+    /// was sent on it, then DTR falls (the host session ends).
+    pub fn close_gcs(&mut self, host: GcsHost) {
+        drop(host);
+        self.wait_gcs_drained();
+        self.set_dtr(false);
+    }
+
+    /// A new GCS host connection on serial0 (after the previous one was dropped): the old
+    /// session ends (DTR falls once the board has read its bytes), the new one starts (DTR
+    /// rises before anything is sent on it).
     pub fn reconnect_gcs(&mut self) -> GcsHost {
-        GcsHost::new(self.dial(0))
+        self.wait_gcs_drained();
+        self.set_dtr(false);
+        let s = self.dial(0);
+        self.set_dtr(true);
+        GcsHost::new(s, self.gcs_sent.clone())
     }
 
     /// Give up the test's own connection to serial0 and return its port, for an external GCS
-    /// client (QEMU serves one client per port at a time).
+    /// client (QEMU serves one client per port at a time); the port is opened for it (DTR).
     pub fn gcs_port(&mut self) -> u16 {
         self.streams[0] = None;
+        self.set_dtr(true);
         self.ports[0]
     }
 
@@ -383,6 +422,25 @@ impl Qemu {
         c.timeout = HANG;
         c
     }
+}
+
+/// Send a port's line state (`port`: [`bl::LINE_HOST`] or [`bl::LINE_MGMT`]; DTR `on`) on
+/// serial4 and wait (up to 10 s) until the board has applied it (it counts them in the bench's
+/// page); false if it did not.
+pub fn apply_line_state(link: &BenchLink, port: u8, on: bool) -> bool {
+    let page = link.page();
+    let before = page.u32(bl::LINE_STATES);
+    let dtr = if on { bl::LINE_DTR } else { 0 };
+    link.send_line_state(port | dtr);
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while page.u32(bl::LINE_STATES) == before {
+        if Instant::now() > deadline {
+            eprintln!("qemu: the board did not apply line state {port:#04x} DTR={on} within 10 s");
+            return false;
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    true
 }
 
 fn dial_unix(child: &mut Child, path: &Path, i: usize, log: &Path) -> UnixStream {
@@ -437,21 +495,45 @@ impl Drop for Qemu {
 pub struct GcsHost {
     s: TcpStream,
     buf: Vec<u8>,
+    sent: Arc<AtomicU64>,
 }
 
 impl GcsHost {
-    fn new(s: TcpStream) -> Self {
-        Self { s, buf: vec![] }
+    fn new(s: TcpStream, sent: Arc<AtomicU64>) -> Self {
+        Self {
+            s,
+            buf: vec![],
+            sent,
+        }
     }
 
     /// Send one line.
     pub fn send(&mut self, line: &str) {
-        self.s.write_all(format!("{line}\n").as_bytes()).unwrap();
+        self.send_raw(format!("{line}\n").as_bytes());
     }
 
     /// Send raw bytes.
     pub fn send_raw(&mut self, b: &[u8]) {
         self.s.write_all(b).unwrap();
+        self.sent.fetch_add(b.len() as u64, Ordering::Relaxed);
+    }
+
+    /// Read what arrived within `wait` (for checking that nothing did).
+    pub fn read_for(&mut self, wait: Duration) -> Vec<u8> {
+        let deadline = Instant::now() + wait;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return std::mem::take(&mut self.buf);
+            }
+            self.s.set_read_timeout(Some(left)).unwrap();
+            let mut b = [0u8; 256];
+            match self.s.read(&mut b) {
+                Ok(0) => return std::mem::take(&mut self.buf),
+                Ok(n) => self.buf.extend_from_slice(&b[..n]),
+                Err(_) => {}
+            }
+        }
     }
 
     /// Read one line (LF removed, trailing space kept).

@@ -53,16 +53,36 @@ pub fn stage_value(line: &str, axis: &str) -> f64 {
     t[i + 1].parse().unwrap()
 }
 
-/// The next `MOV` the controller receives (the first move's `CSV?`/`PUN?` queries skipped).
+/// True for a line the compensator sends of its own: what it reads of the controller before
+/// the first move (`*IDN?`, `CSV?`, `SAI?`, `PUN?`, `TMN?`, `TMX?`), the bases of a move
+/// (`MOV?`) and its markers (`*IDN?`).
+pub fn own_query(line: &str) -> bool {
+    ["*IDN?", "CSV?", "SAI?"].contains(&line)
+        || ["PUN? ", "TMN? ", "TMX? ", "MOV? "]
+            .iter()
+            .any(|p| line.starts_with(p))
+}
+
+/// The next `MOV` the controller receives (the compensator's own queries before it skipped).
 pub fn next_move(stage: &StageSim) -> String {
     loop {
         let line = stage.next_line(HANG);
-        if line.starts_with("MOV") {
+        if line.starts_with("MOV ") {
             return line;
         }
         assert!(
-            line == "CSV?" || line.starts_with("PUN?"),
+            own_query(&line),
             "unexpected line before the move: {line:?}"
         );
+    }
+}
+
+/// The next line the controller receives that is not one of the compensator's own queries.
+pub fn next_host_line(stage: &StageSim) -> String {
+    loop {
+        let line = stage.next_line(HANG);
+        if !own_query(&line) {
+            return line;
+        }
     }
 }

@@ -229,11 +229,12 @@ pub fn check(stdout: &str, model: &Model, events: Vec<Event>, seen: Vec<String>)
         assert!(by == "MOV" || by == "MVE", "{by}");
     }
     assert_eq!(targets[2].1, "MVE", "a vector move stays one");
-    // the controller saw the script's three MOV? and the proxy's own, which re-seeded the
-    // target after HLT; never the lower-case line raw, never a refused command
+    // the controller saw the script's three MOV? and the proxy's own before each of the two
+    // MVR (the base of a relative move is the controller's target, after HLT as always);
+    // never the lower-case line raw, never a refused command
     assert_eq!(
         seen.iter().filter(|s| *s == "MOV? 1").count(),
-        4,
+        5,
         "{seen:?}"
     );
     assert!(!seen.iter().any(|s| s == "mov 1 42"), "{seen:?}");

@@ -194,6 +194,20 @@ struct Axis {
     unit: String,
 }
 
+/// One command the controller processed (recorded when [`Controller::record`] is on): what a
+/// checker needs to judge what the compensator sent and relayed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Processed {
+    /// The command line (LF removed), or `#n` for a single-character command.
+    pub line: String,
+    /// Its reply (empty: none — a rejected query is not answered).
+    pub reply: Vec<u8>,
+    /// The axes' targets before the command.
+    pub before: Vec<f64>,
+    /// The error code the command set (`None`: it succeeded or set none).
+    pub failed: Option<i32>,
+}
+
 /// The controller: feed it the bytes the host (or the compensator) sends, get its replies.
 pub struct Controller {
     cfg: Config,
@@ -206,6 +220,10 @@ pub struct Controller {
     received: VecDeque<String>,
     /// Command level (`CCL 1 advanced` unlocks `PUN`).
     level: u8,
+    /// Every command processed, when recording.
+    processed: Option<Vec<Processed>>,
+    /// The error the command being processed set.
+    failure: Option<i32>,
 }
 
 /// What [`Controller::input`] produced.
@@ -237,7 +255,27 @@ impl Controller {
             events: vec![],
             received: VecDeque::new(),
             level: 0,
+            processed: None,
+            failure: None,
         }
+    }
+
+    /// Record every command processed from now on ([`Self::take_processed`]).
+    pub fn record(&mut self) {
+        self.processed.get_or_insert_with(Vec::new);
+    }
+
+    /// The commands processed since the last [`Self::take_processed`] (recording on).
+    pub fn peek_processed(&self) -> &[Processed] {
+        self.processed.as_deref().unwrap_or(&[])
+    }
+
+    /// The commands processed since the last call (recording on).
+    pub fn take_processed(&mut self) -> Vec<Processed> {
+        self.processed
+            .as_mut()
+            .map(std::mem::take)
+            .unwrap_or_default()
     }
 
     /// The configuration.
@@ -275,18 +313,44 @@ impl Controller {
         for &b in bytes {
             if is_single(b) {
                 // single-character commands act at once, even inside a line
-                self.received.push_back(format!("#{b}"));
-                self.single(b, &mut out);
+                let text = format!("#{b}");
+                self.received.push_back(text.clone());
+                self.processing(text, &mut out, |c, out| c.single(b, out));
             } else if b == b'\n' {
                 let line = std::mem::take(&mut self.line);
                 let text: String = line.iter().map(|&c| c as char).collect();
                 self.received.push_back(text.clone());
-                self.command(&text, &mut out);
+                self.processing(text.clone(), &mut out, |c, out| c.command(&text, out));
             } else {
                 self.line.push(b);
             }
         }
         out
+    }
+
+    /// Run one command, recording it when recording is on.
+    fn processing(
+        &mut self,
+        line: String,
+        out: &mut Vec<u8>,
+        f: impl FnOnce(&mut Self, &mut Vec<u8>),
+    ) {
+        if self.processed.is_none() {
+            return f(self, out);
+        }
+        let before = self.axes.iter().map(|a| a.target).collect();
+        let start = out.len();
+        self.failure = None;
+        f(self, out);
+        let p = Processed {
+            line,
+            reply: out[start..].to_vec(),
+            before,
+            failed: self.failure.take(),
+        };
+        if let Some(log) = &mut self.processed {
+            log.push(p);
+        }
     }
 
     /// Finish referencing moves whose time has come.
@@ -314,6 +378,10 @@ impl Controller {
     }
 
     fn single(&mut self, b: u8, out: &mut Vec<u8>) {
+        if !self.cfg.commands.iter().any(|c| *c == format!("#{b}")) {
+            // a single-character command this controller does not know: ignored
+            return;
+        }
         let t = self.clock.now_s();
         self.update(t);
         let bits = |f: &dyn Fn(usize) -> bool| {
@@ -344,10 +412,16 @@ impl Controller {
             0x18 | 0x1B => {
                 // #24 stop all (error 10), #27 system abort (stops too)
                 self.stop_all(t, "#24");
-                self.error = if b == 0x18 { 10 } else { 716 };
+                self.fail(if b == 0x18 { 10 } else { 716 });
             }
             _ => {}
         }
+    }
+
+    /// A command failed with `code` (the controller keeps the last error).
+    fn fail(&mut self, code: i32) {
+        self.error = code;
+        self.failure = Some(code);
     }
 
     fn stop_all(&mut self, t: f64, by: &str) {
@@ -391,7 +465,7 @@ impl Controller {
         }
         if k == toks.len() {
             if !toks.is_empty() {
-                self.error = 2;
+                self.fail(2);
             }
             return;
         }
@@ -415,7 +489,7 @@ impl Controller {
         }
         let base = mnemonic.split(' ').next().unwrap_or("").to_string();
         if !self.cfg.commands.contains(&base.as_str()) {
-            self.error = 2;
+            self.fail(2);
             return;
         }
         match self.execute(&mnemonic, &args, t, line) {
@@ -427,7 +501,7 @@ impl Controller {
                 }
             }
             Ok(None) => {}
-            Err(code) => self.error = code,
+            Err(code) => self.fail(code),
         }
     }
 

@@ -103,6 +103,20 @@ impl StageSim {
             .expect("the controller received nothing in time")
     }
 
+    /// Lines received up to and including the first one `last` accepts (each within
+    /// `timeout`).
+    pub fn drain_until(&self, last: impl Fn(&str) -> bool, timeout: Duration) -> Vec<String> {
+        let mut v = vec![];
+        loop {
+            let l = self.next_line(timeout);
+            let done = last(&l);
+            v.push(l);
+            if done {
+                return v;
+            }
+        }
+    }
+
     /// Lines received so far, without waiting.
     pub fn drain(&self) -> Vec<String> {
         self.lines.try_iter().collect()

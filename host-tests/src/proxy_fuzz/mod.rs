@@ -1,0 +1,484 @@
+//! A stateful fuzz of the compensator's GCS proxy (issue 21): random interleavings of valid,
+//! mutated and hostile host lines, control bytes, replies cut anywhere, time passing, host
+//! connections dropped and a controller that goes silent, against the simulated PI controller
+//! ([`crate::virtual_bench::Controller`]: silent on rejected queries, error codes, refused
+//! out-of-range targets, `HLT`/`STP`/`#24` semantics), with the proxy's promises checked after
+//! every step by an oracle that knows only GCS and the model ([`oracle`]):
+//!
+//! 1. every move the controller receives on a model axis is the model's correction of a
+//!    target a host line asked for — absolute, or relative to (or keeping) the target the
+//!    controller itself held when the move arrived — clamped to the travel within 0.1 µm;
+//! 2. no reply reaches the host unmapped or out of order: the host's replies are, in order,
+//!    the controller's replies to the host's own queries (position replies mapped back to
+//!    calibrated coordinates) or the proxy's answer to an `ERR?`; the proxy's own queries and
+//!    their replies never reach the host;
+//! 3. nothing the proxy should not forward reaches the controller: every line it receives is
+//!    the proxy's own query, a corrected move, or a clean host line, in the host's order;
+//!    no open-loop/raw motion of a model axis; no corrected move the controller refuses for
+//!    its travel.
+//!
+//! Deterministic: a run is a seed ([`run`]). `tests/proxy_fuzz.rs` runs bounded seeds in CI;
+//! its ignored benchmark runs ≥ 10 million steps (BENCHMARKS.md).
+
+mod gen;
+mod oracle;
+
+use crate::published::{coupled_2dof, published_1dof};
+use crate::virtual_bench::{Config, Controller, IdealPlant, ManualClock};
+use nanocal_compensator::proxy::{FoldCorrector, Output, Proxy, REPLY_TIMEOUT_MS};
+use nanocal_model::{Model, SlowInputs, MAX_AXES};
+use oracle::Oracle;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::collections::VecDeque;
+use std::fmt;
+use std::sync::Arc;
+
+/// Temperatures of the fold.
+pub const TEMPS_C: [f64; 4] = [22.0, 22.1, 21.9, 22.3];
+
+/// A model and the controller it runs against.
+#[derive(Clone)]
+pub struct Setup {
+    /// Name in reports.
+    pub name: &'static str,
+    /// The model the proxy corrects with.
+    pub model: Model,
+    /// The controller.
+    pub controller: Config,
+}
+
+impl fmt::Debug for Setup {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name)
+    }
+}
+
+/// The setups the fuzz runs: the published 1-DoF model on a three-axis controller whose
+/// travel is 0…500 µm (the model's correction at 0 is −0.05 µm: the edge is exercised), the
+/// coupled 2-DoF model, and the 1-DoF model on a controller that knows fewer commands (no
+/// `CSV?`, `ONT?`, `#8`, `#9`, `#11`: more queries go unanswered).
+pub fn setups() -> Vec<Setup> {
+    let base = |axes: usize| {
+        let mut cfg = Config::c867(axes, "µm").ready();
+        for c in Config::e727(axes).commands {
+            if !cfg.commands.contains(&c) {
+                cfg.commands.push(c);
+            }
+        }
+        for c in ["MVE", "WAV", "WTR", "MAC"] {
+            if !cfg.commands.contains(&c) {
+                cfg.commands.push(c);
+            }
+        }
+        for a in &mut cfg.axes {
+            // moves take a little time: a stop can land half-way
+            a.velocity = 2_000.0;
+            a.min = 0.0;
+            a.max = 500.0;
+            a.reference = Some(250.0);
+            a.start = 250.0;
+        }
+        cfg
+    };
+    let m1 = published_1dof().expect("published model");
+    let m2 = coupled_2dof().expect("coupled model");
+    let mut coupled = base(3);
+    // the coupled model's commands for 0…80 µm lie within −10…100 µm
+    let q0 = m2.eval_f64(&[40.0, 40.0, 0.0], &[0; MAX_AXES], &slow());
+    for (a, ax) in coupled.axes.iter_mut().enumerate() {
+        ax.min = -10.0;
+        ax.max = 100.0;
+        if a < 2 {
+            ax.reference = Some(q0[a]);
+            ax.start = q0[a];
+        } else {
+            ax.reference = Some(50.0);
+            ax.start = 50.0;
+        }
+    }
+    let mut sparse = base(3);
+    sparse
+        .commands
+        .retain(|c| !["CSV?", "ONT?", "#8", "#9", "#11"].contains(c));
+    vec![
+        Setup {
+            name: "published 1-DoF, travel 0…500 µm",
+            model: m1.clone(),
+            controller: base(3),
+        },
+        Setup {
+            name: "coupled 2-DoF",
+            model: m2,
+            controller: coupled,
+        },
+        Setup {
+            name: "published 1-DoF, a controller without CSV?, ONT?, #8, #9, #11",
+            model: m1,
+            controller: sparse,
+        },
+    ]
+}
+
+/// The slow inputs of the fold.
+pub fn slow() -> SlowInputs {
+    let mut s = SlowInputs::default();
+    s.temps_c[..TEMPS_C.len()].copy_from_slice(&TEMPS_C);
+    s
+}
+
+/// What a run did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Stats {
+    /// Steps run.
+    pub steps: u64,
+    /// Host lines and single characters sent.
+    pub host_items: u64,
+    /// Corrected moves the controller received, each checked against the oracle.
+    pub moves_checked: u64,
+    /// Host replies checked (mapped or byte for byte).
+    pub replies_checked: u64,
+    /// Position values in them checked against the f64 inverse.
+    pub positions_checked: u64,
+    /// Controller lines checked against the host's lines.
+    pub lines_checked: u64,
+    /// Host connections dropped.
+    pub drops: u64,
+    /// Controller blackouts (it ignored its input for a while, as while it reboots).
+    pub blackouts: u64,
+    /// Times the proxy gave up waiting and resynchronised.
+    pub resyncs: u64,
+    /// Queries the proxy found unanswered.
+    pub unanswered: u64,
+    /// Host commands the proxy refused.
+    pub refused: u64,
+}
+
+impl std::ops::AddAssign for Stats {
+    fn add_assign(&mut self, o: Stats) {
+        self.steps += o.steps;
+        self.host_items += o.host_items;
+        self.moves_checked += o.moves_checked;
+        self.replies_checked += o.replies_checked;
+        self.positions_checked += o.positions_checked;
+        self.lines_checked += o.lines_checked;
+        self.drops += o.drops;
+        self.blackouts += o.blackouts;
+        self.resyncs += o.resyncs;
+        self.unanswered += o.unanswered;
+        self.refused += o.refused;
+    }
+}
+
+/// An invariant that did not hold.
+#[derive(Debug, Clone)]
+pub struct Violation {
+    /// The setup.
+    pub setup: &'static str,
+    /// The seed of the run.
+    pub seed: u64,
+    /// The step at which it was seen.
+    pub step: u64,
+    /// What was wrong.
+    pub what: String,
+    /// The last actions before it.
+    pub trace: Vec<String>,
+}
+
+impl fmt::Display for Violation {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(
+            f,
+            "{} (seed {}, step {}): {}",
+            self.setup, self.seed, self.step, self.what
+        )?;
+        writeln!(f, "last actions:")?;
+        for t in &self.trace {
+            writeln!(f, "  {t}")?;
+        }
+        Ok(())
+    }
+}
+
+impl std::error::Error for Violation {}
+
+/// The proxy between a host and the simulated controller, on a hand-driven clock.
+struct Rig {
+    proxy: Proxy,
+    comp: FoldCorrector,
+    ctl: Controller,
+    clock: ManualClock,
+    now_ms: u32,
+    out: Output,
+    /// Host bytes written, not yet taken by the proxy.
+    host_tx: VecDeque<u8>,
+    /// Controller bytes not yet given to the proxy, and when the oldest was sent.
+    stage_rx: VecDeque<u8>,
+    stage_since_ms: u32,
+    /// The controller ignores its input until then (ms).
+    blackout_until_ms: u32,
+    /// Bytes the host received.
+    host_rx: Vec<u8>,
+}
+
+impl Rig {
+    fn new(setup: &Setup) -> Self {
+        let clock = ManualClock::new();
+        let start: Vec<f64> = setup.controller.axes.iter().map(|a| a.start).collect();
+        let mut ctl = Controller::new(
+            setup.controller.clone(),
+            Box::new(IdealPlant::new(&start)),
+            Arc::new(clock.clone()),
+        );
+        ctl.record();
+        Self {
+            proxy: Proxy::default(),
+            comp: FoldCorrector::new(&setup.model, &slow()),
+            ctl,
+            clock,
+            now_ms: 1,
+            out: Output::new(),
+            host_tx: VecDeque::new(),
+            stage_rx: VecDeque::new(),
+            stage_since_ms: 0,
+            blackout_until_ms: 0,
+            host_rx: Vec::new(),
+        }
+    }
+
+    /// What the proxy produced goes its way (the controller answers at once, unless it is
+    /// blacked out).
+    fn route(&mut self) {
+        self.host_rx.extend_from_slice(self.out.to_host.as_bytes());
+        let to_stage = self.out.to_stage.as_bytes();
+        if !to_stage.is_empty() && self.now_ms >= self.blackout_until_ms {
+            let reply = self.ctl.input(to_stage);
+            if self.stage_rx.is_empty() {
+                self.stage_since_ms = self.now_ms;
+            }
+            self.stage_rx.extend(reply);
+        }
+        self.out.clear();
+    }
+
+    /// Hand the proxy up to `n` host bytes; then whatever it can do with bytes it holds.
+    fn feed_host(&mut self, n: usize) {
+        let mut budget = n;
+        while budget > 0 && !self.host_tx.is_empty() {
+            let chunk: Vec<u8> = self.host_tx.iter().take(budget).copied().collect();
+            let used = self
+                .proxy
+                .host_bytes(Some(&self.comp), &chunk, self.now_ms, &mut self.out);
+            let produced = !self.out.is_empty();
+            self.route();
+            self.host_tx.drain(..used);
+            budget -= used.min(budget);
+            if used == 0 && !produced {
+                break; // the proxy waits (a held line fills its input)
+            }
+        }
+        self.resume();
+    }
+
+    /// Lines the proxy received earlier that it can process now, and its own answers due.
+    fn resume(&mut self) {
+        for _ in 0..1_000 {
+            if !self.proxy.has_work() {
+                return;
+            }
+            self.proxy
+                .host_bytes(Some(&self.comp), &[], self.now_ms, &mut self.out);
+            self.route();
+        }
+        panic!("the proxy had work that never ended");
+    }
+
+    /// Give the proxy up to `n` controller bytes.
+    fn deliver(&mut self, n: usize) {
+        let mut budget = n;
+        while budget > 0 && !self.stage_rx.is_empty() {
+            let chunk: Vec<u8> = self.stage_rx.iter().take(budget).copied().collect();
+            let used = self
+                .proxy
+                .stage_bytes(Some(&self.comp), &chunk, self.now_ms, &mut self.out);
+            self.stage_rx.drain(..used);
+            self.stage_since_ms = self.now_ms;
+            budget -= used.min(budget);
+            self.route();
+            self.resume();
+            if used == 0 {
+                break;
+            }
+        }
+    }
+
+    /// Let `ms` pass (the stage moves, the proxy polls).
+    fn wait(&mut self, ms: u32) {
+        self.now_ms = self.now_ms.wrapping_add(ms);
+        self.clock.advance(f64::from(ms) * 1e-3);
+        self.proxy
+            .poll(Some(&self.comp), self.now_ms, &mut self.out);
+        self.route();
+        self.resume();
+    }
+
+    /// Nothing in flight anywhere: every host line taken and processed, every reply given.
+    fn quiet(&self) -> bool {
+        self.host_tx.is_empty()
+            && self.stage_rx.is_empty()
+            && self.proxy.in_flight() == 0
+            && !self.proxy.holding()
+            && !self.proxy.has_work()
+    }
+}
+
+/// Run `steps` steps of seed `seed` on `setup`; the first violation stops it.
+pub fn run(setup: &Setup, seed: u64, steps: u64) -> Result<Stats, Box<Violation>> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut rig = Rig::new(setup);
+    let mut oracle = Oracle::new(setup);
+    let mut gen = gen::Gen::new(setup.model.axes());
+    let mut stats = Stats::default();
+    let mut trace: VecDeque<String> = VecDeque::new();
+    let mut resyncs = 0u32;
+    for step in 0..steps {
+        let action = rng.gen_range(0..1000u32);
+        let note = match action {
+            0..=399 => {
+                if oracle.host_queries_pending() >= 12 {
+                    // room for every query's reply in the proxy (16 host queries in flight)
+                    let n = rng.gen_range(1..64);
+                    rig.feed_host(n);
+                    format!("feed {n}")
+                } else {
+                    let item = oracle.prepare(gen.item(&mut rng));
+                    stats.host_items += 1;
+                    oracle.host_sent(&item);
+                    let shown = format!("host {:?}", item.escape_ascii().to_string());
+                    rig.host_tx.extend(item);
+                    let n = rng.gen_range(0..96);
+                    rig.feed_host(n);
+                    shown
+                }
+            }
+            400..=599 => {
+                let n = rng.gen_range(1..64);
+                rig.feed_host(n);
+                format!("feed {n}")
+            }
+            600..=849 => {
+                let n = rng.gen_range(1..48);
+                rig.deliver(n);
+                format!("deliver {n}")
+            }
+            850..=989 => {
+                // the controller's replies are never late by more than a link's buffering,
+                // unless it is silent (a blackout)
+                if rig.now_ms.wrapping_sub(rig.stage_since_ms) > 500 || rng.gen_bool(0.8) {
+                    rig.deliver(usize::MAX);
+                }
+                let ms = if rng.gen_bool(0.03) {
+                    REPLY_TIMEOUT_MS + rng.gen_range(1..300)
+                } else {
+                    rng.gen_range(1..60)
+                };
+                rig.wait(ms);
+                format!("wait {ms} ms")
+            }
+            990..=994 => {
+                // the host closes the port (DTR falls) and opens it again; what happened
+                // before is checked first
+                rig.deliver(rng.gen_range(0..16));
+                let k = oracle
+                    .check(&mut rig.ctl, &mut rig.host_rx, false)
+                    .map_err(|what| {
+                        Box::new(Violation {
+                            setup: setup.name,
+                            seed,
+                            step,
+                            what,
+                            trace: trace.iter().cloned().collect(),
+                        })
+                    })?;
+                stats.moves_checked += k.moves;
+                stats.replies_checked += k.replies;
+                stats.positions_checked += k.positions;
+                stats.lines_checked += k.lines;
+                rig.host_tx.clear();
+                rig.proxy.new_session();
+                oracle.new_session();
+                gen.new_session();
+                rig.host_rx.clear();
+                stats.drops += 1;
+                "connection dropped".to_string()
+            }
+            _ => {
+                // the controller goes silent for a while (it reboots, a cable is pulled)
+                let ms = rng.gen_range(100..3_000);
+                rig.blackout_until_ms = rig.now_ms.wrapping_add(ms);
+                rig.stage_rx.clear();
+                stats.blackouts += 1;
+                format!("controller silent for {ms} ms")
+            }
+        };
+        if std::env::var_os("NANOCAL_FUZZ_TRACE").is_some() {
+            eprintln!(
+                "{step}: {note} | {:?} | host_rx {:?} | processed {:?}",
+                rig.proxy,
+                String::from_utf8_lossy(&rig.host_rx),
+                rig.ctl
+                    .peek_processed()
+                    .iter()
+                    .map(|p| (
+                        p.line.clone(),
+                        String::from_utf8_lossy(&p.reply).into_owned()
+                    ))
+                    .collect::<Vec<_>>()
+            );
+        }
+        trace.push_back(note);
+        if trace.len() > 40 {
+            trace.pop_front();
+        }
+        if rig.proxy.counters.resyncs != resyncs {
+            resyncs = rig.proxy.counters.resyncs;
+            // what was in flight was given up: those replies may be lost
+            oracle.replies_may_be_lost();
+        }
+        let quiet = rig.quiet();
+        let checked = oracle
+            .check(&mut rig.ctl, &mut rig.host_rx, quiet)
+            .map_err(|what| {
+                Box::new(Violation {
+                    setup: setup.name,
+                    seed,
+                    step,
+                    what,
+                    trace: trace.iter().cloned().collect(),
+                })
+            })?;
+        stats.moves_checked += checked.moves;
+        stats.replies_checked += checked.replies;
+        stats.positions_checked += checked.positions;
+        stats.lines_checked += checked.lines;
+        stats.steps += 1;
+    }
+    stats.resyncs = u64::from(rig.proxy.counters.resyncs);
+    stats.unanswered = u64::from(rig.proxy.counters.unanswered);
+    stats.refused = u64::from(rig.proxy.counters.refused);
+    Ok(stats)
+}
+
+/// Run every setup for `steps` steps from each of `seeds`.
+pub fn run_all(
+    seeds: impl Iterator<Item = u64> + Clone,
+    steps: u64,
+) -> Result<Stats, Box<Violation>> {
+    let mut total = Stats::default();
+    for setup in setups() {
+        for seed in seeds.clone() {
+            total += run(&setup, seed, steps)?;
+        }
+    }
+    Ok(total)
+}

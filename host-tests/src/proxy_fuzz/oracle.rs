@@ -1,0 +1,752 @@
+//! The fuzz's oracle: what the proxy may do, from GCS and the model alone (it never asks the
+//! proxy what it decided). It reads the host's bytes as a PI controller does (lines at LF,
+//! single characters at once), what the simulated controller processed (with the targets it
+//! held before each command and the reply it gave), and what the host received.
+
+use super::Setup;
+use crate::virtual_bench::{Controller, Event, Processed};
+use nanocal_compensator::proxy::travel::CLAMP_UM;
+use nanocal_model::{Input, Model, SlowInputs, MAX_AXES};
+use std::collections::VecDeque;
+
+/// Tolerance of a command or a mapped position against the f64 reference, µm (the device
+/// evaluates in f32).
+const TOL_UM: f64 = 1e-3;
+
+/// What one check saw.
+#[derive(Debug, Default, Clone, Copy)]
+pub(super) struct Checked {
+    pub moves: u64,
+    pub replies: u64,
+    pub positions: u64,
+    pub lines: u64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum MoveKind {
+    Mov,
+    Mvr,
+    Mve,
+    Goh,
+}
+
+/// A host move line: what it asks of the model axes.
+#[derive(Debug, Clone)]
+struct HostMove {
+    kind: MoveKind,
+    /// (model axis, value) as written.
+    pairs: Vec<(usize, f64)>,
+    /// `GOH` without axes: every axis home.
+    home_all: bool,
+    text: String,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum QKind {
+    /// `POS?`, `MOV?`, `#3`: positions mapped back.
+    Map,
+    /// `ERR?`: the controller's code or the proxy's own.
+    Err,
+    /// Relayed byte for byte.
+    Other,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+enum QState {
+    /// Not seen at the controller yet.
+    Pending,
+    /// The controller processed it, with this reply (empty: none).
+    Reached(Vec<u8>),
+    /// A later host line reached the controller first: the proxy did not forward it.
+    Dropped,
+}
+
+#[derive(Debug, Clone)]
+struct HostQuery {
+    id: u64,
+    text: String,
+    kind: QKind,
+    state: QState,
+    /// The proxy gave up waiting while it was in flight: its reply may be lost.
+    lossy: bool,
+}
+
+/// A clean host line or single character, in the order a controller takes them.
+#[derive(Debug, Clone)]
+struct HostLine {
+    id: u64,
+    text: String,
+}
+
+pub(super) struct Oracle {
+    model: Model,
+    n: usize,
+    slow: SlowInputs,
+    /// Per model axis: the travel a command must lie in (model's ∩ controller's).
+    travel: Vec<(f64, f64)>,
+    /// Per model axis: the training envelope.
+    envelope: Vec<(f64, f64)>,
+    /// The proxy's own queries, as it spells them.
+    own: Vec<String>,
+    partial: Vec<u8>,
+    /// Dropping the rest of a line a stop cut.
+    discarding: bool,
+    next_id: u64,
+    lines: VecDeque<HostLine>,
+    queries: VecDeque<HostQuery>,
+    moves: VecDeque<HostMove>,
+}
+
+impl Oracle {
+    pub(super) fn new(setup: &Setup) -> Self {
+        let model = setup.model.clone();
+        let n = model.axes();
+        let travel = (0..n)
+            .map(|a| {
+                let (lo, hi) = model.travel_um(a);
+                let c = &setup.controller.axes[a];
+                (lo.max(c.min), hi.min(c.max))
+            })
+            .collect();
+        let envelope = (0..n)
+            .map(|a| model.envelope(Input::Axis(a as u8)))
+            .collect();
+        let ids = (1..=n).map(|a| a.to_string()).collect::<Vec<_>>().join(" ");
+        let own = ["*IDN?".to_string(), "CSV?".into(), "SAI?".into()]
+            .into_iter()
+            .chain(["PUN?", "TMN?", "TMX?", "MOV?"].map(|q| format!("{q} {ids}")))
+            .collect();
+        Self {
+            model,
+            n,
+            slow: super::slow(),
+            travel,
+            envelope,
+            own,
+            partial: Vec::new(),
+            discarding: false,
+            next_id: 0,
+            lines: VecDeque::new(),
+            queries: VecDeque::new(),
+            moves: VecDeque::new(),
+        }
+    }
+
+    pub(super) fn host_queries_pending(&self) -> usize {
+        self.queries.len()
+    }
+
+    /// The host dropped the connection: nothing of it is expected any more.
+    pub(super) fn new_session(&mut self) {
+        self.partial.clear();
+        self.discarding = false;
+        self.lines.clear();
+        self.queries.clear();
+        self.moves.clear();
+    }
+
+    /// The proxy gave up what was in flight.
+    pub(super) fn replies_may_be_lost(&mut self) {
+        for q in &mut self.queries {
+            q.lossy = true;
+        }
+    }
+
+    /// Make an item's query lines tell apart from each other and from the proxy's own queries
+    /// at the controller (a case changed, spaces added), so that the oracle can attribute
+    /// what the controller processed. A PI controller reads them the same.
+    pub(super) fn prepare(&self, item: Vec<u8>) -> Vec<u8> {
+        let mut out = Vec::with_capacity(item.len() + 8);
+        let mut taken: Vec<String> = self.queries.iter().map(|q| q.text.clone()).collect();
+        for seg in item.split_inclusive(|&b| b == b'\n') {
+            let Some(body) = seg.strip_suffix(b"\n") else {
+                out.extend_from_slice(seg);
+                continue;
+            };
+            // the line as the controller takes it: single characters act on their own
+            let seen: Vec<u8> = body.iter().copied().filter(|&b| !is_single(b)).collect();
+            let (text, cr) = match seen.strip_suffix(b"\r") {
+                Some(t) => (t, true),
+                None => (&seen[..], false),
+            };
+            if !text.iter().all(|&b| (0x20..0x7F).contains(&b)) {
+                out.extend_from_slice(seg);
+                continue;
+            }
+            let t = String::from_utf8_lossy(text).into_owned();
+            let mut seg = body.to_vec();
+            if self.own.contains(&t) {
+                // never the proxy's own spelling: a letter in lower case
+                if let Some(c) = seg.iter_mut().find(|c| c.is_ascii_uppercase()) {
+                    *c = c.to_ascii_lowercase();
+                }
+            }
+            if is_query(&t) {
+                let mut t = t.to_string();
+                if self.own.contains(&t) {
+                    t = String::from_utf8_lossy(
+                        &seg.iter()
+                            .copied()
+                            .filter(|&b| !is_single(b))
+                            .collect::<Vec<_>>(),
+                    )
+                    .trim_end_matches('\r')
+                    .to_string();
+                }
+                let at = seg.len() - usize::from(cr);
+                while taken.iter().any(|q| q.trim_end_matches('\r') == t) {
+                    t.push(' ');
+                    seg.insert(at, b' ');
+                }
+                taken.push(t);
+            }
+            out.extend_from_slice(&seg);
+            out.push(b'\n');
+        }
+        out
+    }
+
+    /// The host sent `bytes`: take them as a controller does.
+    pub(super) fn host_sent(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            if is_single(b) {
+                if b == 0x18 || b == 0x1B {
+                    // a stop drops the line it cuts, to its end
+                    self.discarding |= !self.partial.is_empty();
+                    self.partial.clear();
+                }
+                self.single(b);
+            } else if b == b'\n' {
+                let line = std::mem::take(&mut self.partial);
+                if !std::mem::replace(&mut self.discarding, false) {
+                    self.line(&line);
+                }
+            } else if !self.discarding {
+                self.partial.push(b);
+            }
+        }
+    }
+
+    fn id(&mut self) -> u64 {
+        self.next_id += 1;
+        self.next_id
+    }
+
+    fn single(&mut self, b: u8) {
+        let id = self.id();
+        let text = format!("#{b}");
+        self.lines.push_back(HostLine {
+            id,
+            text: text.clone(),
+        });
+        if b != 0x18 && b != 0x1B {
+            self.queries.push_back(HostQuery {
+                id,
+                text,
+                kind: if b == 3 { QKind::Map } else { QKind::Other },
+                state: QState::Pending,
+                lossy: false,
+            });
+        }
+    }
+
+    fn line(&mut self, bytes: &[u8]) {
+        let body = bytes.strip_suffix(b"\r").unwrap_or(bytes);
+        if !body.iter().all(|&b| (0x20..0x7F).contains(&b)) || bytes.len() > 512 {
+            // the proxy cannot classify it (or hold it whole): refused, never forwarded
+            return;
+        }
+        let text: String = bytes.iter().map(|&c| c as char).collect();
+        let body_text: String = body.iter().map(|&c| c as char).collect();
+        let id = self.id();
+        self.lines.push_back(HostLine {
+            id,
+            text: text.clone(),
+        });
+        let (_, word, args) = split(&body_text);
+        let word = word.to_ascii_uppercase();
+        if is_query(&body_text) {
+            let kind = match word.as_str() {
+                "POS?" | "MOV?" => QKind::Map,
+                "ERR?" => QKind::Err,
+                _ => QKind::Other,
+            };
+            self.queries.push_back(HostQuery {
+                id,
+                text,
+                kind,
+                state: QState::Pending,
+                lossy: false,
+            });
+            return;
+        }
+        if bytes.len() > 256 {
+            return;
+        }
+        let kind = match word.as_str() {
+            "MOV" => MoveKind::Mov,
+            "MVR" => MoveKind::Mvr,
+            "MVE" => MoveKind::Mve,
+            "GOH" => MoveKind::Goh,
+            _ => return,
+        };
+        let toks: Vec<&str> = args.split(' ').filter(|t| !t.is_empty()).collect();
+        let mut pairs = Vec::new();
+        if kind == MoveKind::Goh {
+            for t in &toks {
+                if let Some(a) = self.model_axis(t) {
+                    pairs.push((a, 0.0));
+                }
+            }
+        } else {
+            if !toks.len().is_multiple_of(2) {
+                return; // a value missing: refused
+            }
+            for c in toks.chunks(2) {
+                let Ok(v) = c[1].parse::<f64>() else {
+                    return; // not a number: refused
+                };
+                if let Some(a) = self.model_axis(c[0]) {
+                    pairs.push((a, v));
+                }
+            }
+        }
+        let home_all = kind == MoveKind::Goh && toks.is_empty();
+        let mut seen = [false; MAX_AXES];
+        for &(a, _) in &pairs {
+            if std::mem::replace(&mut seen[a], true) {
+                return; // an axis named twice: refused
+            }
+        }
+        if pairs.is_empty() && !home_all {
+            return; // no model axis: forwarded untouched
+        }
+        self.moves.push_back(HostMove {
+            kind,
+            pairs,
+            home_all,
+            text: body_text,
+        });
+    }
+
+    fn model_axis(&self, id: &str) -> Option<usize> {
+        id.parse::<usize>()
+            .ok()
+            .filter(|&k| k >= 1 && k <= self.n && id == k.to_string())
+            .map(|k| k - 1)
+    }
+
+    /// Check what happened since the last check. `quiet`: nothing is in flight anywhere.
+    pub(super) fn check(
+        &mut self,
+        ctl: &mut Controller,
+        host_rx: &mut Vec<u8>,
+        quiet: bool,
+    ) -> Result<Checked, String> {
+        let mut k = Checked::default();
+        for e in ctl.take_events() {
+            if let Event::RawMotion { command, axes } = e {
+                if axes.is_empty() || axes.iter().any(|&a| a < self.n) {
+                    return Err(format!(
+                        "{command:?} reached the controller: raw motion of a model axis"
+                    ));
+                }
+            }
+        }
+        for p in ctl.take_processed() {
+            self.processed(&p, &mut k)?;
+        }
+        self.replies(host_rx, &mut k)?;
+        if quiet {
+            for q in &self.queries {
+                if let QState::Reached(r) = &q.state {
+                    if !r.is_empty() && !q.lossy {
+                        return Err(format!(
+                            "the reply to {:?} ({:?}) never reached the host",
+                            q.text,
+                            String::from_utf8_lossy(r)
+                        ));
+                    }
+                }
+            }
+            self.lines.clear();
+            self.queries.clear();
+            self.moves.clear();
+        }
+        Ok(k)
+    }
+
+    /// One command the controller processed.
+    fn processed(&mut self, p: &Processed, k: &mut Checked) -> Result<(), String> {
+        if self.own.contains(&p.line) {
+            return Ok(());
+        }
+        let (_, word, args) = split(p.line.trim_end_matches('\r'));
+        let word = word.to_ascii_uppercase();
+        if matches!(word.as_str(), "MOV" | "MVE" | "MVR" | "GOH") {
+            return self.controller_move(p, &word, &args, k);
+        }
+        // a host line as it was sent, in the host's order
+        let Some(pos) = self.lines.iter().position(|l| l.text == p.line) else {
+            return Err(format!(
+                "the controller received {:?}, which the host did not send (or not in this order)",
+                p.line
+            ));
+        };
+        // the lines before it were not forwarded (refused, or a move the proxy rewrote)
+        let drained: Vec<HostLine> = self.lines.drain(..=pos).collect();
+        let (reached, dropped) = drained.split_last().expect("one at least");
+        for q in &mut self.queries {
+            if q.state != QState::Pending {
+                continue;
+            }
+            if q.id == reached.id {
+                q.state = QState::Reached(p.reply.clone());
+            } else if q.id < reached.id || dropped.iter().any(|l| l.id == q.id) {
+                q.state = QState::Dropped;
+            }
+        }
+        k.lines += 1;
+        Ok(())
+    }
+
+    /// A move line the controller processed: it must be the correction of a host move.
+    fn controller_move(
+        &mut self,
+        p: &Processed,
+        word: &str,
+        args: &str,
+        k: &mut Checked,
+    ) -> Result<(), String> {
+        let toks: Vec<&str> = args.split(' ').filter(|t| !t.is_empty()).collect();
+        let mut got: Vec<(usize, f64)> = Vec::new();
+        match word {
+            "GOH" => {
+                if toks.is_empty() || toks.iter().any(|t| self.model_axis(t).is_some()) {
+                    return Err(format!("{:?}: a model axis sent home raw", p.line));
+                }
+                return Ok(());
+            }
+            "MVR" => {
+                if toks.iter().step_by(2).any(|t| self.model_axis(t).is_some()) {
+                    return Err(format!("{:?}: a relative move of a model axis", p.line));
+                }
+                return Ok(());
+            }
+            _ => {
+                for c in toks.chunks(2) {
+                    if let (Some(a), Some(v)) = (self.model_axis(c[0]), c.get(1)) {
+                        let v: f64 = v
+                            .parse()
+                            .map_err(|_| format!("{:?}: a value that is no number", p.line))?;
+                        got.push((a, v));
+                    }
+                }
+            }
+        }
+        if got.is_empty() {
+            return Ok(()); // other axes only: forwarded untouched
+        }
+        if p.failed == Some(7) {
+            return Err(format!(
+                "{:?}: the controller refused it (7, outside its travel); the proxy knows its \
+                 travel",
+                p.line
+            ));
+        }
+        let before: Vec<f64> = p.before[..self.n].to_vec();
+        let xb = self.inverse(&before);
+        let mut first_miss = None;
+        for (i, h) in self.moves.iter().enumerate() {
+            if (h.kind == MoveKind::Mve) != (word == "MVE") {
+                continue;
+            }
+            match self.expected(h, &xb) {
+                Ok((x, q)) => {
+                    let ok = got.iter().all(|&(a, v)| (v - q[a]).abs() <= TOL_UM);
+                    if ok {
+                        self.moves.drain(..=i);
+                        k.moves += 1;
+                        return Ok(());
+                    }
+                    first_miss.get_or_insert((h.text.clone(), x, q));
+                }
+                Err(_) => continue,
+            }
+        }
+        Err(match first_miss {
+            Some((text, x, q)) => format!(
+                "{:?} (controller targets before: {before:?}): no host move asked for it; \
+                 {text:?} means x = {:?}, corrected {:?}",
+                p.line,
+                &x[..self.n],
+                &q[..self.n]
+            ),
+            None => format!(
+                "{:?} (controller targets before: {before:?}): no host move was pending",
+                p.line
+            ),
+        })
+    }
+
+    /// The calibrated targets a host move asks for, when the controller held targets whose
+    /// calibrated position is `xb`, and their commands as the proxy must send them (clamped
+    /// within 0.1 µm of the travel); `Err` when the proxy must refuse it.
+    #[allow(clippy::needless_range_loop)] // axes index several arrays at once
+    fn expected(
+        &self,
+        h: &HostMove,
+        xb: &[f64; MAX_AXES],
+    ) -> Result<([f64; MAX_AXES], [f64; MAX_AXES]), ()> {
+        let mut x = *xb;
+        if h.home_all {
+            x[..self.n].fill(0.0);
+        }
+        for &(a, v) in &h.pairs {
+            x[a] = match h.kind {
+                MoveKind::Mvr => xb[a] + v,
+                MoveKind::Goh => 0.0,
+                _ => v,
+            };
+        }
+        for a in 0..self.n {
+            let (lo, hi) = self.envelope[a];
+            if x[a] < lo - TOL_UM || x[a] > hi + TOL_UM {
+                return Err(());
+            }
+        }
+        let mut q = self.command(&x);
+        for a in 0..self.n {
+            let (lo, hi) = self.travel[a];
+            let c = q[a].clamp(lo, hi);
+            if (c - q[a]).abs() > CLAMP_UM + TOL_UM {
+                return Err(());
+            }
+            q[a] = c;
+        }
+        Ok((x, q))
+    }
+
+    /// The host's complete replies since the last check, against the queries it asked.
+    fn replies(&mut self, host_rx: &mut Vec<u8>, k: &mut Checked) -> Result<(), String> {
+        loop {
+            let Some(end) = reply_end(host_rx) else {
+                return Ok(());
+            };
+            let reply: Vec<u8> = host_rx.drain(..=end).collect();
+            self.one_reply(&reply, k)?;
+            k.replies += 1;
+        }
+    }
+
+    fn one_reply(&mut self, reply: &[u8], k: &mut Checked) -> Result<(), String> {
+        loop {
+            let Some(q) = self.queries.front().cloned() else {
+                return Err(format!(
+                    "the host received {:?}, which answers none of its queries",
+                    String::from_utf8_lossy(reply)
+                ));
+            };
+            match &q.state {
+                QState::Reached(r) if r.is_empty() => {
+                    self.queries.pop_front();
+                }
+                QState::Reached(r) => match self.same_reply(&q, r, reply, k) {
+                    Ok(()) => {
+                        self.queries.pop_front();
+                        return Ok(());
+                    }
+                    Err(_) if q.lossy => {
+                        self.queries.pop_front();
+                    }
+                    Err(e) => return Err(e),
+                },
+                QState::Dropped | QState::Pending => {
+                    self.queries.pop_front();
+                    if q.kind == QKind::Err && is_error_answer(reply) {
+                        // the proxy's own answer to an ERR?
+                        return Ok(());
+                    }
+                }
+            }
+        }
+    }
+
+    /// `got` is the controller's reply `r` to `q`, position values mapped back.
+    fn same_reply(
+        &self,
+        q: &HostQuery,
+        r: &[u8],
+        got: &[u8],
+        k: &mut Checked,
+    ) -> Result<(), String> {
+        let mismatch = || {
+            format!(
+                "the host received {:?} for {:?}; the controller answered {:?}",
+                String::from_utf8_lossy(got),
+                q.text,
+                String::from_utf8_lossy(r)
+            )
+        };
+        if q.kind != QKind::Map {
+            return if r == got { Ok(()) } else { Err(mismatch()) };
+        }
+        let rl: Vec<&[u8]> = r.split_inclusive(|&b| b == b'\n').collect();
+        let gl: Vec<&[u8]> = got.split_inclusive(|&b| b == b'\n').collect();
+        if rl.len() != gl.len() {
+            return Err(mismatch());
+        }
+        // the model axes' values the controller reported
+        let mut qv = [f64::NAN; MAX_AXES];
+        let mut parsed = Vec::new();
+        for l in &rl {
+            let p = axis_value(l).and_then(|(pre, axis, v)| {
+                let a = self.model_axis(axis)?;
+                let v: f64 = v.trim().parse().ok()?;
+                Some((pre, a, v))
+            });
+            if let Some((_, a, v)) = p {
+                qv[a] = v;
+            }
+            parsed.push(p);
+        }
+        let all = qv[..self.n].iter().all(|v| v.is_finite());
+        let x = all.then(|| self.inverse(&qv[..self.n]));
+        for ((rline, gline), p) in rl.iter().zip(&gl).zip(&parsed) {
+            match p {
+                None => {
+                    if rline != gline {
+                        return Err(mismatch());
+                    }
+                }
+                Some((pre, a, _)) => {
+                    let Some((gpre, gaxis, gv)) = axis_value(gline) else {
+                        return Err(mismatch());
+                    };
+                    let gv: f64 = gv.trim().parse().map_err(|_| mismatch())?;
+                    let cont = |l: &[u8]| l.ends_with(b" \n");
+                    if gpre != *pre
+                        || self.model_axis(gaxis) != Some(*a)
+                        || cont(rline) != cont(gline)
+                    {
+                        return Err(mismatch());
+                    }
+                    if let Some(x) = x {
+                        if (gv - x[*a]).abs() > TOL_UM {
+                            return Err(format!(
+                                "{}: axis {} maps to {}, the f64 inverse is {}",
+                                mismatch(),
+                                a + 1,
+                                gv,
+                                x[*a]
+                            ));
+                        }
+                        k.positions += 1;
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The reference model's commands for calibrated targets `x`.
+    fn command(&self, x: &[f64; MAX_AXES]) -> [f64; MAX_AXES] {
+        self.model.eval_f64(x, &[0; MAX_AXES], &self.slow)
+    }
+
+    /// Calibrated targets for controller positions `q` (model axes): Newton's method in f64
+    /// with a finite-difference Jacobian — independent of the proxy's f32 chord method.
+    fn inverse(&self, q: &[f64]) -> [f64; MAX_AXES] {
+        let n = self.n;
+        let mut x = [0.0; MAX_AXES];
+        x[..n].copy_from_slice(&q[..n]);
+        for _ in 0..60 {
+            let f = self.command(&x);
+            let mut j = [[0.0; 2]; 2];
+            for b in 0..n {
+                let mut xh = x;
+                xh[b] += 1e-3;
+                let fh = self.command(&xh);
+                for a in 0..n {
+                    j[a][b] = (fh[a] - f[a]) / 1e-3;
+                }
+            }
+            let r: Vec<f64> = (0..n).map(|a| f[a] - q[a]).collect();
+            let step = if n == 1 {
+                [r[0] / j[0][0], 0.0]
+            } else {
+                let det = j[0][0] * j[1][1] - j[0][1] * j[1][0];
+                [
+                    (j[1][1] * r[0] - j[0][1] * r[1]) / det,
+                    (j[0][0] * r[1] - j[1][0] * r[0]) / det,
+                ]
+            };
+            for a in 0..n {
+                x[a] -= step[a];
+            }
+            if step.iter().all(|s| s.abs() < 1e-11) {
+                break;
+            }
+        }
+        x
+    }
+}
+
+/// True for a GCS query (command word ends with `?`).
+fn is_query(line: &str) -> bool {
+    let (_, word, _) = split(line.trim_end_matches('\r'));
+    word.ends_with('?')
+}
+
+fn is_single(b: u8) -> bool {
+    matches!(b, 0x03..=0x09 | 0x0B | 0x18 | 0x1B)
+}
+
+/// `[target [sender]] WORD args`: the address prefix, the command word and its arguments,
+/// as GCS defines them (a prefix is one or two numbers before a word that starts with a
+/// letter or `*`).
+fn split(line: &str) -> (String, String, String) {
+    let toks: Vec<&str> = line.split(' ').filter(|t| !t.is_empty()).collect();
+    let digits = |t: &str| !t.is_empty() && t.bytes().all(|b| b.is_ascii_digit());
+    let word_start = |t: &str| {
+        t.bytes()
+            .next()
+            .is_some_and(|b| b.is_ascii_alphabetic() || b == b'*')
+    };
+    let mut k = 0;
+    if toks.len() >= 2 && digits(toks[0]) && word_start(toks[1]) {
+        k = 1;
+    } else if toks.len() >= 3 && digits(toks[0]) && digits(toks[1]) && word_start(toks[2]) {
+        k = 2;
+    }
+    let word = toks.get(k).copied().unwrap_or("").to_string();
+    let args = toks.get(k + 1..).map(|t| t.join(" ")).unwrap_or_default();
+    (toks[..k].join(" "), word, args)
+}
+
+/// End (index of the LF) of the first complete reply: an LF not after a space.
+fn reply_end(b: &[u8]) -> Option<usize> {
+    (0..b.len()).find(|&i| b[i] == b'\n' && (i == 0 || b[i - 1] != b' '))
+}
+
+/// One line `prefix axis=value`: (prefix, axis, value).
+fn axis_value(line: &[u8]) -> Option<(&str, &str, &str)> {
+    let s = std::str::from_utf8(line).ok()?;
+    let s = s.trim_end_matches('\n').trim_end_matches(' ');
+    let (left, v) = s.split_once('=')?;
+    let (pre, axis) = match left.rfind(' ') {
+        Some(i) => (&left[..=i], &left[i + 1..]),
+        None => ("", left),
+    };
+    Some((pre, axis, v))
+}
+
+/// An `ERR?` answer: one line whose last token is an integer.
+fn is_error_answer(r: &[u8]) -> bool {
+    let s = String::from_utf8_lossy(r);
+    s.lines().count() == 1
+        && s.trim()
+            .split(' ')
+            .next_back()
+            .is_some_and(|t| t.parse::<i32>().is_ok())
+}

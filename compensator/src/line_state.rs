@@ -68,12 +68,10 @@ impl LineSeen {
         let mut apply = heapless::Vec::new();
         if watch.falls != self.falls {
             self.falls = watch.falls;
-            if self.dtr {
-                let _ = apply.push(false);
-            }
-            // closed and opened again before this look: the close is applied even when DTR was
-            // already seen low (a fall implies a rise we did not see)
-            else if watch.dtr {
+            // the close is applied when the port was seen open, and also when it was seen
+            // closed but is open now (a fall implies a rise not seen: it was opened, closed
+            // and opened again between two looks)
+            if self.dtr || watch.dtr {
                 let _ = apply.push(false);
             }
             self.dtr = false;

@@ -278,4 +278,6 @@ fn e2e_stm32_upload_sensors_and_corrected_moves() {
     let st = b.status();
     assert_eq!(st.boots.len(), 2, "no other reset: {:?}", st.log);
     assert_eq!(st.uart_overruns, 0, "no stage-link byte lost");
+    // errata ES0250: no read returned a line the data cache kept across a program or erase
+    assert_eq!(st.stale_cache_reads, 0, "stale data-cache reads");
 }

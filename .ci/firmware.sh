@@ -45,3 +45,10 @@ size -A "$elf" | awk '
         printf "STM32 image: flash %d B (%.1f KiB of 256), static RAM %d B (%.1f KiB of 64)\n", flash, flash / 1024, ram, ram / 1024
         if (flash > 262144 || ram > 65536) { print "STM32 image over budget" > "/dev/stderr"; exit 1 }
     }'
+
+# The image as a raw binary for the ST-LINK's mass-storage drive (src/README.md, Flash): an
+# ARM-capable objcopy first (GNU binutils' objcopy does not read ARM ELFs).
+if ! command -v llvm-objcopy >/dev/null && ! command -v arm-none-eabi-objcopy >/dev/null; then
+    apt_install binutils-arm-none-eabi
+fi
+bash tools/stm32-bin.sh

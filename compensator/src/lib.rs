@@ -12,7 +12,8 @@
 //! - [`slow_average`]: the slow path's clock: readings averaged over the fold period;
 //! - [`upload`]: the chunked upload's state machine;
 //! - [`store`], [`l4flash`]: the persistent store on the L4's flash (and its simulation);
-//! - [`clock`], [`lps22hb`]: clock rules, the barometer.
+//! - [`clock`], [`lps22hb`]: clock rules, the barometer;
+//! - [`line_state`]: a USB CDC port's DTR as the application must see it (falls counted).
 //!
 //! What the device and the host must agree on — management frames, status, settings layout,
 //! GCS error codes, the QEMU board's bus and bench page — is `nanocal-interface`'s.
@@ -32,6 +33,7 @@ pub mod fault;
 pub mod gcs;
 pub mod inputs;
 pub mod l4flash;
+pub mod line_state;
 pub mod lps22hb;
 pub mod proxy;
 pub mod sensor;

@@ -1,7 +1,8 @@
 //! Faults on the emulated B-L475E-IOT01A and what the shipped image does about them (issue 16,
-//! defects 3, 7, 8, 9): a double ECC error in its own flash, torn double words in the store, a
-//! panic, a wedged stage link, an SPI transfer that never ends, a baud rate UART4 cannot make.
-//! Every bound is board time.
+//! defects 3, 5, 6, 7, 8, 9): a double ECC error in its own flash, torn double words in the
+//! store, a stage-link byte lost to an overrun, a GCS port closed with replies on their way or
+//! closed and opened again at once, a panic, a wedged stage link, an SPI transfer that never
+//! ends, a baud rate UART4 cannot make. Every bound is board time.
 
 mod stm32_sim;
 
@@ -14,10 +15,13 @@ use nanocal_interface::identity::ResetCause;
 use nanocal_interface::mgmt::{Refusal, Request};
 use nanocal_interface::settings::Settings;
 use nanocal_interface::status::ChannelStatus;
-use nanocal_model::blob;
+use nanocal_interface::status::Flags;
+use nanocal_model::{blob, SlowInputs, MAX_AXES};
 use nanocal_stm32_board::flash::StoreFlash;
 use nanocal_stm32_board::ResetKind;
-use stm32_sim::{default_buses, e727, panic_location, section, symbol_containing, Stm32};
+use stm32_sim::{
+    default_buses, e727, panic_location, section, stage_value, symbol_containing, Stm32, FOLD_S,
+};
 
 const TEMPS_C: [f32; 4] = [22.0, 22.125, 21.875, 22.25];
 
@@ -135,11 +139,19 @@ fn stm32_panic_is_reported_with_its_site() {
 /// the stage link's write waits for ever, the host link behind it too; the supervisor sees
 /// the stage link busy past its limit, stops petting the IWDG, and the board resets with
 /// RCC_CSR saying so (it stayed wedged, moves never reaching the controller, the watchdog fed
-/// by a healthy sensor task).
+/// by a healthy sensor task). End to end: the starved IWDG resets the emulated chip, the boot
+/// runs again, reads IWDGRSTF in RCC_CSR and reports a watchdog reset; the stored settings are
+/// kept.
 #[test]
 fn stm32_wedged_stage_link_resets_through_the_watchdog() {
     let b = Stm32::start(default_buses(&TEMPS_C));
     b.usb.attach();
+    let mut c = b.mgmt();
+    let mut settings: Settings = c.config().unwrap();
+    settings.fold_period_ms = 2_000;
+    settings.sample_period_ms = 250;
+    c.set_config(&settings).unwrap();
+    drop(c);
     let mut host = b.gcs();
     host.send("*IDN?");
     assert!(host.read_line().contains("E-727"));
@@ -152,8 +164,14 @@ fn stm32_wedged_stage_link_resets_through_the_watchdog() {
     });
     assert_eq!(s.boots[1].kind, ResetKind::Watchdog, "{:?}", s.log);
     drop(host);
-    let h = b.mgmt().identify().unwrap();
+    let mut c = b.mgmt();
+    let h = c.identify().unwrap();
     assert_eq!(h.reset_cause, ResetCause::Watchdog);
+    assert_eq!(
+        c.config().unwrap(),
+        settings,
+        "settings kept over the reset"
+    );
     // and the link works again after the reset
     let mut host = b.gcs();
     assert!(host.ask("*IDN?").contains("E-727"));
@@ -218,4 +236,159 @@ fn stm32_stage_baud_rates_the_uart_cannot_make_are_refused() {
     assert!(host.ask("*IDN?").contains("E-727"));
     let baud = b.status().stage_baud;
     assert!((2376..=2424).contains(&baud), "UART4 at {baud} Bd");
+}
+
+/// The published 1-DOF model uploaded and folded with the sensors' first conversions.
+fn with_model(b: &Stm32) -> nanocal_model::Model {
+    let model = published_1dof().unwrap();
+    let mut bytes = vec![0u8; blob::MAX_BLOB_LEN];
+    let n = blob::encode(&model, &mut bytes).unwrap();
+    let mut c = b.mgmt();
+    c.upload(&bytes[..n]).expect("model accepted");
+    b.status_until(&mut c, "sensors read and model folded", 5.0 + FOLD_S, |s| {
+        s.flags.contains(Flags::MODEL) && !s.flags.contains(Flags::SENSOR_BLOCK) && s.folds >= 2
+    });
+    model
+}
+
+/// The corrected command the f64 reference gives for target `x_um` approached in `dir`.
+fn corrected(model: &nanocal_model::Model, x_um: f64, dir: i8) -> f64 {
+    let mut s = SlowInputs::default();
+    for (i, t) in TEMPS_C.iter().enumerate() {
+        s.temps_c[i] = f64::from(*t);
+    }
+    let mut d = [0; MAX_AXES];
+    d[0] = dir;
+    model.eval_f64(&[x_um, 0.0, 0.0], &d, &s)[0]
+}
+
+/// The next `MOV` the controller receives (the first move's queries of the controller's facts
+/// and their markers skipped).
+fn next_move(b: &Stm32) -> String {
+    loop {
+        let line = b.stage_line(1.0);
+        if line.starts_with("MOV ") {
+            return line;
+        }
+        assert!(
+            ["*IDN?", "CSV?", "SAI?"].contains(&line.as_str())
+                || ["PUN? ", "TMN? ", "TMX? "]
+                    .iter()
+                    .any(|q| line.starts_with(q)),
+            "unexpected {line:?}"
+        );
+    }
+}
+
+/// Defect 5: a stage-link byte lost to a UART overrun (RDR not read in time, RM0351 §40.5.5
+/// ORE) in the reply to the proxy's own `MOV?` — the one an `MVR` takes its base from. Read as
+/// it arrives, "1=100.00…" without its third byte is "1=00.00…": the move would go out from a
+/// base of 0 µm (the overrun was only logged). The loss must be seen: the proxy lets the line
+/// go quiet, asks `MOV?` afresh, moves from the controller's real target, and the host's next
+/// `ERR?` says 9010 (LinkLost).
+#[test]
+fn stm32_stage_byte_lost_to_an_overrun_never_moves_from_a_wrong_base() {
+    let b = Stm32::start(default_buses(&TEMPS_C));
+    b.usb.attach();
+    let model = with_model(&b);
+    let mut host = b.gcs();
+    host.send("MOV 1 100");
+    let first = stage_value(&next_move(&b), "1");
+    assert!((first - corrected(&model, 100.0, 0)).abs() <= 1e-4);
+    // a new host session forgets the targets the old one set: the MVR asks for its base
+    drop(host);
+    let mut host = b.gcs();
+    b.stage.drain();
+    b.inject(|i| i.uart_lose_byte = Some(2));
+    host.send("MVR 1 12.5");
+    assert_eq!(b.stage_line(1.0), "MOV? 1");
+    // the reply lost a byte: the proxy waits for the line to go quiet, forgets what it asked
+    // and asks again — the move goes out from the controller's real target or not at all
+    let mut after = vec![];
+    while after.last().is_none_or(|l: &String| !l.starts_with("MOV ")) {
+        after.push(b.stage_line(1.0));
+    }
+    assert_eq!(after[..after.len() - 1], ["MOV? 1"], "{after:?}");
+    let got = stage_value(after.last().unwrap(), "1");
+    let want = corrected(&model, 112.5, 1);
+    assert!(
+        (got - want).abs() <= 1e-4,
+        "MVR from 100 µm: forwarded {got}, f64 {want}"
+    );
+    let st = b.status();
+    assert_eq!(st.uart_overruns, 1, "{:?}", st.log);
+    // the host is told the link lost bytes
+    assert_eq!(host.ask("ERR?"), "9010");
+    assert_eq!(host.ask("ERR?"), "0");
+    assert_eq!(b.status().boots.len(), 1);
+}
+
+/// Defect 6: the host closes and opens the GCS port at once (DTR 1 → 0 → 1 in two requests
+/// back to back). The new connection starts clean: the half line the old one sent is gone.
+/// (DTR was sampled as a level when told it changed: both requests came in before the
+/// firmware looked, it saw 1 and 1, and the half line prefixed the new session's first.)
+#[test]
+fn stm32_quick_close_and_reopen_of_the_gcs_port_starts_a_new_session() {
+    let b = Stm32::start(default_buses(&TEMPS_C));
+    b.usb.attach();
+    let mut host = b.gcs();
+    assert!(host.ask("*IDN?").contains("E-727"));
+    b.stage.drain();
+    host.send_raw(b"SVO 1 0");
+    b.run_for(0.01);
+    let before = b.usb.line_states(0);
+    b.usb.toggle_dtr(0);
+    let usb = b.usb.clone();
+    b.run_until("the close and the open", 1.0, move |_| {
+        usb.line_states(0) >= before + 2
+    });
+    assert!(host.ask("*IDN?").contains("E-727"));
+    assert_eq!(b.stage.drain(), ["*IDN?"], "the half line was dropped");
+}
+
+/// Defect 6: a reply the device queued on the GCS port's IN endpoint while the host was not
+/// reading is the old connection's: after a close and a reopen the new connection's first
+/// query gets its own reply, not the old one (the packet stayed in the endpoint's FIFO).
+#[test]
+fn stm32_reply_queued_at_close_is_not_read_after_reopen() {
+    let b = Stm32::start(default_buses(&TEMPS_C));
+    b.usb.attach();
+    let mut host = b.gcs();
+    assert!(host.ask("*IDN?").contains("E-727"));
+    b.stage.drain();
+    b.usb.set_reading(0, false);
+    host.send("POS? 1");
+    assert_eq!(b.stage_line(1.0), "POS? 1");
+    b.run_for(0.05);
+    drop(host);
+    b.usb.set_reading(0, true);
+    let mut host = b.gcs();
+    let reply = host.ask("*IDN?");
+    assert!(
+        reply.contains("E-727"),
+        "first reply after reopen: {reply:?}"
+    );
+}
+
+/// Defect 6: the controller's reply to a query of the old connection, still on its way when
+/// the host closes the port, is not the answer to the new connection's first query.
+#[test]
+fn stm32_reply_in_flight_at_close_is_not_paired_with_the_next_session() {
+    let b = Stm32::start(default_buses(&TEMPS_C));
+    b.usb.attach();
+    let mut host = b.gcs();
+    assert!(host.ask("*IDN?").contains("E-727"));
+    host.send("POS? 1");
+    // close as soon as the query has reached the controller: its reply is on the wire
+    while !b.stage.all().iter().any(|l| l == "POS? 1") {
+        b.run_for(0.0001);
+    }
+    drop(host);
+    let mut host = b.gcs();
+    let reply = host.ask("*IDN?");
+    assert!(
+        reply.contains("E-727"),
+        "first reply after reopen: {reply:?}"
+    );
+    assert_eq!(host.ask("ERR?"), "0");
 }

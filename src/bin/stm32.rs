@@ -21,17 +21,18 @@ use embassy_stm32::usart::{self, BufferedUart, BufferedUartTx};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, dma, usb, Config};
 use embassy_time::{Duration, Timer};
-use embassy_usb::class::cdc_acm::{CdcAcmClass, ControlChanged, State};
+use embassy_usb::class::cdc_acm::{CdcAcmClass, State};
 use embassy_usb::UsbDevice;
 use nanocal_compensator::clock;
 use nanocal_compensator::l4flash::L4Nor;
+use nanocal_compensator::line_state::LineSeen;
 use nanocal_compensator::store::Store;
 use nanocal_fw::app::{self, Identity, Shared};
 use nanocal_fw::stm32::buses::{Buses, I2C_TIMEOUT};
 use nanocal_fw::stm32::crash;
 use nanocal_fw::stm32::flash::{self, L4Flash, ERASE};
 use nanocal_fw::stm32::stage::{StageRx, StageRxWatch, RX_RING};
-use nanocal_fw::stm32::usb::{LineWatch, UsbDriver, UsbRx, UsbTx, USB_PACKET};
+use nanocal_fw::stm32::usb::{LineWatch, UsbDriver, UsbRx, UsbTx, GCS_PORT, PORTS, USB_PACKET};
 use nanocal_interface::identity::{self, ResetCause, Site};
 use nanocal_interface::settings::{Settings, MAX_STAGE_BAUD, MIN_STAGE_BAUD};
 use static_cell::StaticCell;
@@ -67,28 +68,22 @@ async fn usb_task(mut dev: UsbDevice<'static, UsbDriver>) {
     dev.run().await
 }
 
-/// The GCS port's line state: a DTR fall ends the host session — also a fall and rise that
-/// came in between two looks (counted by [`LineWatch`]).
+/// Both CDC ports' line states, as the QEMU board's one line-state task: a DTR fall of the GCS
+/// port ends the host session, of the management port drops a frame still arriving — also a
+/// fall and rise that came in between two looks (counted by [`LineWatch`]).
 #[embassy_executor::task]
 async fn line_state_task(sh: &'static Shared) {
-    let mut falls_seen = 0;
+    let mut seen = [LineSeen::new(); PORTS];
     loop {
-        let (falls, dtr) = LineWatch::state();
-        if falls != falls_seen {
-            falls_seen = falls;
-            app::host_line_state(sh, false);
+        for (port, seen) in seen.iter_mut().enumerate() {
+            for &dtr in seen.look(LineWatch::state(port)).iter() {
+                match port {
+                    GCS_PORT => app::host_line_state(sh, dtr),
+                    _ => app::mgmt_line_state(sh, dtr),
+                }
+            }
         }
-        app::host_line_state(sh, dtr);
         LineWatch::changed().await;
-    }
-}
-
-/// The management port's line state: a DTR fall drops a management frame still arriving.
-#[embassy_executor::task]
-async fn mgmt_line_state_task(ctl: ControlChanged<'static>, sh: &'static Shared) {
-    loop {
-        app::mgmt_line_state(sh, ctl.dtr());
-        ctl.control_changed().await;
     }
 }
 
@@ -282,13 +277,13 @@ async fn main(spawner: Spawner) {
         MSOS_DESC.init([]),
         CONTROL.init([0; 64]),
     );
-    // before the CDC functions: it sees the GCS port's line state requests first
-    builder.handler(LINE_WATCH.init(LineWatch::new()));
+    // before the CDC functions: it sees both ports' line state requests first
+    builder.handler(LINE_WATCH.init(LineWatch));
     let gcs = CdcAcmClass::new(&mut builder, GCS_STATE.init(State::new()), USB_PACKET);
     let mgmt = CdcAcmClass::new(&mut builder, MGMT_STATE.init(State::new()), USB_PACKET);
     let usb = builder.build();
     let (gcs_tx, gcs_rx) = gcs.split();
-    let (mgmt_tx, mgmt_rx, mgmt_ctl) = mgmt.split_with_control();
+    let (mgmt_tx, mgmt_rx) = mgmt.split();
 
     // Stage link at the configured baud rate.
     static UART_TX: StaticCell<[u8; 256]> = StaticCell::new();
@@ -357,7 +352,6 @@ async fn main(spawner: Spawner) {
     spawner.spawn(supervisor_task(Stm32Board { led, wdg }, sh).expect("task pool"));
     spawner.spawn(usb_task(usb).expect("task pool"));
     spawner.spawn(line_state_task(sh).expect("task pool"));
-    spawner.spawn(mgmt_line_state_task(mgmt_ctl, sh).expect("task pool"));
     spawner.spawn(management_task(mgmt_rx, UsbTx(mgmt_tx), store, sh).expect("task pool"));
     spawner.spawn(sensor_task(bus, sh).expect("task pool"));
     spawner.spawn(stage_link_task(stage_rx, stage_tx, sh).expect("task pool"));

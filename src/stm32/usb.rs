@@ -1,14 +1,16 @@
 //! The host side of the board: two CDC-ACM functions on USB OTG FS (the GCS port, interface 0;
-//! management, interface 2), and the GCS port's line state.
+//! management, interface 2), and both ports' line state.
 
+use core::cell::RefCell;
 use core::ptr::{read_volatile, write_volatile};
-use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use embassy_stm32::peripherals::USB_OTG_FS;
 use embassy_stm32::usb;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::signal::Signal;
 use embassy_usb::class::cdc_acm::{BufferedReceiver, Sender};
 use embassy_usb::control::{OutResponse, Recipient, Request, RequestType};
+pub use nanocal_compensator::line_state::LineWatch as Watch;
 
 /// USB packet size of the CDC-ACM endpoints.
 pub const USB_PACKET: u16 = 64;
@@ -103,45 +105,50 @@ fn flush_gcs_in() {
     }
 }
 
-/// The GCS port's line state as the host sets it. embassy-usb's CDC-ACM keeps DTR as a level
-/// that the application samples when told it changed: a quick close and open (DTR 1 → 0 → 1)
-/// between two samples never ended the session. This handler, registered before the CDC
-/// functions, sees every SET_CONTROL_LINE_STATE of interface 0 first (and leaves the answer to
-/// the CDC function): it counts the falls and flushes the IN endpoint at each.
-pub struct LineWatch {
-    dtr: bool,
-}
+/// The CDC ports (in the order their functions are built).
+pub const PORTS: usize = 2;
+/// The GCS port (the host link).
+pub const GCS_PORT: usize = 0;
+/// The management port.
+pub const MGMT_PORT: usize = 1;
 
-/// DTR falls seen on the GCS port.
-static DTR_FALLS: AtomicU32 = AtomicU32::new(0);
-/// DTR now.
-static DTR: AtomicBool = AtomicBool::new(false);
-/// The line state changed.
+/// Each port's communication interface: the GCS port's function is built first (interfaces 0
+/// and 1), the management port's second (2 and 3).
+const COMM_INTERFACES: [u16; PORTS] = [GCS_COMM_INTERFACE, 2];
+
+/// Both ports' line state as the host sets it
+/// ([`nanocal_compensator::line_state::LineWatch`]: falls counted). embassy-usb's CDC-ACM keeps
+/// DTR as a level that the application samples when told it changed: a quick close and open
+/// (DTR 1 → 0 → 1) between two samples never ended the session. This handler, registered
+/// before the CDC functions, sees every SET_CONTROL_LINE_STATE first (and leaves the answer to
+/// the CDC function); at a fall of the GCS port it also flushes that port's IN endpoint.
+pub struct LineWatch;
+
+/// The ports' line states, as the requests set them.
+static WATCH: Mutex<CriticalSectionRawMutex, RefCell<[Watch; PORTS]>> =
+    Mutex::new(RefCell::new([Watch::new(); PORTS]));
+/// A line state changed.
 static CHANGED: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 
 impl LineWatch {
-    /// A watch with DTR low.
-    pub const fn new() -> Self {
-        Self { dtr: false }
+    /// The line state of `port` ([`GCS_PORT`], [`MGMT_PORT`]) now.
+    pub fn state(port: usize) -> Watch {
+        WATCH.lock(|w| w.borrow()[port])
     }
 
-    /// DTR falls so far, and DTR now.
-    pub fn state() -> (u32, bool) {
-        (
-            DTR_FALLS.load(Ordering::Acquire),
-            DTR.load(Ordering::Acquire),
-        )
-    }
-
-    /// Wait for the next SET_CONTROL_LINE_STATE.
+    /// Wait for the next SET_CONTROL_LINE_STATE or bus reset.
     pub async fn changed() {
         CHANGED.wait().await
     }
-}
 
-impl Default for LineWatch {
-    fn default() -> Self {
-        Self::new()
+    /// Change the line states with `f` (true when the GCS port's DTR fell), then flush and
+    /// signal.
+    fn apply(f: impl FnOnce(&mut [Watch; PORTS]) -> bool) {
+        let gcs_fell = WATCH.lock(|w| f(&mut w.borrow_mut()));
+        if gcs_fell {
+            flush_gcs_in();
+        }
+        CHANGED.signal(());
     }
 }
 
@@ -150,27 +157,23 @@ impl embassy_usb::Handler for LineWatch {
         if req.request_type == RequestType::Class
             && req.recipient == Recipient::Interface
             && req.request == SET_CONTROL_LINE_STATE
-            && req.index == GCS_COMM_INTERFACE
         {
-            let dtr = req.value & 1 != 0;
-            if self.dtr && !dtr {
-                flush_gcs_in();
-                DTR_FALLS.fetch_add(1, Ordering::AcqRel);
+            if let Some(port) = COMM_INTERFACES.iter().position(|&i| i == req.index) {
+                let dtr = req.value & 1 != 0;
+                Self::apply(|w| w[port].request(dtr) && port == GCS_PORT);
             }
-            self.dtr = dtr;
-            DTR.store(dtr, Ordering::Release);
-            CHANGED.signal(());
         }
         // the CDC-ACM function answers
         None
     }
 
     fn reset(&mut self) {
-        if self.dtr {
-            DTR_FALLS.fetch_add(1, Ordering::AcqRel);
-        }
-        self.dtr = false;
-        DTR.store(false, Ordering::Release);
-        CHANGED.signal(());
+        Self::apply(|w| {
+            let mut fell = [false; PORTS];
+            for (k, port) in w.iter_mut().enumerate() {
+                fell[k] = port.bus_reset();
+            }
+            fell[GCS_PORT]
+        });
     }
 }

@@ -13,89 +13,158 @@
 //!
 //! - TCP ports (serial 0–2): the receive queue of QEMU's accepted socket, from `/proc/net/tcp`
 //!   (the sender's own queue empties as soon as the loopback peer's kernel has the bytes).
-//! - Unix sockets (serial 3): `SIOCOUTQ` on the test's end, which for a unix stream socket counts
-//!   bytes written and not yet read by the peer (unix(7)). The test owns the socket, so the
-//!   watch keeps only the descriptor number and the socket's inode, and forgets the entry as
-//!   soon as that descriptor no longer names the same socket (closed, or reused).
+//! - Unix sockets (serial 3, the management port): the receive queue (`FIONREAD`, unix(7)) of
+//!   QEMU's accepted sockets on that path, whoever the client is (a test's own client, or the
+//!   `nanocal` CLI in another process). `/proc/net/unix` names the sockets bound to the path (an
+//!   accepted socket carries its listener's path) by inode; the watch takes a duplicate of
+//!   QEMU's descriptor for each (`pidfd_getfd(2)`: QEMU is this process's child) and reads its
+//!   queue.
 
-use std::os::fd::{AsRawFd, RawFd};
-use std::os::unix::net::UnixStream;
+use std::collections::HashMap;
+use std::os::fd::{AsRawFd, FromRawFd, OwnedFd, RawFd};
+use std::path::{Path, PathBuf};
 use std::sync::Mutex;
-
-/// One watched way into the board.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Way {
-    /// QEMU listens on this loopback TCP port.
-    TcpPort(u16),
-    /// The test's end of a unix stream socket: descriptor and inode.
-    Unix { fd: RawFd, inode: u64 },
-}
 
 /// The ways into the board the bench watches for input in flight.
 #[derive(Default)]
 pub struct InputWatch {
-    ways: Mutex<Vec<Way>>,
+    tcp_ports: Mutex<Vec<u16>>,
+    unix: Mutex<Option<UnixWatch>>,
+}
+
+/// QEMU's accepted sockets on one unix path.
+struct UnixWatch {
+    /// QEMU (the process that accepted the connections).
+    pid: u32,
+    path: PathBuf,
+    /// A pidfd of QEMU, opened on first use.
+    pidfd: Option<OwnedFd>,
+    /// QEMU's descriptor number of each socket, by inode (checked before each use).
+    fd_of: HashMap<u64, i32>,
 }
 
 impl InputWatch {
     /// Watch the loopback TCP port QEMU listens on for a serial port.
     pub fn watch_tcp_port(&self, port: u16) {
-        self.ways.lock().unwrap().push(Way::TcpPort(port));
+        self.tcp_ports.lock().unwrap().push(port);
     }
 
-    /// Watch the test's end of a unix socket connected to a serial port (not owned: the entry
-    /// lapses when the test closes it).
-    pub fn watch_unix(&self, s: &UnixStream) {
-        let fd = s.as_raw_fd();
-        if let Some(inode) = inode_of(fd) {
-            let mut w = self.ways.lock().unwrap();
-            w.retain(|x| !matches!(x, Way::Unix { fd: f, .. } if *f == fd));
-            w.push(Way::Unix { fd, inode });
-        }
+    /// Watch the connections QEMU (process `pid`, a child of this one) accepts on the unix
+    /// socket at `path`.
+    pub fn watch_unix_path(&self, pid: u32, path: &Path) {
+        *self.unix.lock().unwrap() = Some(UnixWatch {
+            pid,
+            path: path.to_path_buf(),
+            pidfd: None,
+            fd_of: HashMap::new(),
+        });
     }
 
     /// Bytes written towards the board and not yet taken by it (summed over every watched way).
     pub fn pending_bytes(&self) -> u64 {
-        let mut ways = self.ways.lock().unwrap();
         let mut total = 0u64;
-        ways.retain(|w| match *w {
-            Way::Unix { fd, inode } => match inode_of(fd) {
-                Some(i) if i == inode => {
-                    total += unix_unread(fd);
-                    true
-                }
-                _ => false,
-            },
-            Way::TcpPort(_) => true,
-        });
-        let ports: Vec<u16> = ways
-            .iter()
-            .filter_map(|w| match w {
-                Way::TcpPort(p) => Some(*p),
-                _ => None,
-            })
-            .collect();
+        let ports = self.tcp_ports.lock().unwrap().clone();
         if !ports.is_empty() {
             if let Ok(table) = std::fs::read_to_string("/proc/net/tcp") {
                 total += tcp_unread(&table, &ports);
             }
         }
+        if let Some(w) = self.unix.lock().unwrap().as_mut() {
+            total += w.unread();
+        }
         total
     }
 }
 
-fn inode_of(fd: RawFd) -> Option<u64> {
-    // SAFETY: fstat writes into the zeroed struct we own; an invalid fd is an error return.
-    let mut st: libc::stat = unsafe { std::mem::zeroed() };
-    let r = unsafe { libc::fstat(fd, &mut st) };
-    (r == 0 && (st.st_mode & libc::S_IFMT) == libc::S_IFSOCK).then_some(st.st_ino)
+impl UnixWatch {
+    /// Bytes queued towards QEMU on its connections at the path. Each look takes a duplicate of
+    /// QEMU's descriptor and closes it again: holding one would keep the connection open after
+    /// QEMU closed it (its client would never see the end).
+    fn unread(&mut self) -> u64 {
+        let Ok(table) = std::fs::read_to_string("/proc/net/unix") else {
+            return 0;
+        };
+        let inodes = unix_connected_inodes(&table, &self.path);
+        self.fd_of.retain(|i, _| inodes.contains(i));
+        let mut total = 0;
+        for inode in inodes {
+            let theirs = match self.fd_of.get(&inode) {
+                Some(&n) if fd_names(self.pid, n, inode) => n,
+                _ => match self.find_fd(inode) {
+                    Some(n) => n,
+                    None => continue,
+                },
+            };
+            if let Some(fd) = self.duplicate(theirs) {
+                total += queued(fd.as_raw_fd());
+            }
+        }
+        total
+    }
+
+    /// QEMU's descriptor number of socket `inode`.
+    fn find_fd(&mut self, inode: u64) -> Option<i32> {
+        let dir = std::fs::read_dir(format!("/proc/{}/fd", self.pid)).ok()?;
+        for e in dir.flatten() {
+            let Some(n) = e.file_name().to_str().and_then(|n| n.parse::<i32>().ok()) else {
+                continue;
+            };
+            if fd_names(self.pid, n, inode) {
+                self.fd_of.insert(inode, n);
+                return Some(n);
+            }
+        }
+        None
+    }
+
+    /// A duplicate of QEMU's descriptor `theirs` (pidfd_getfd(2): QEMU is our child).
+    fn duplicate(&mut self, theirs: i32) -> Option<OwnedFd> {
+        if self.pidfd.is_none() {
+            // SAFETY: a plain syscall with integer arguments; a failure is a negative return.
+            let r = unsafe { libc::syscall(libc::SYS_pidfd_open, self.pid as libc::pid_t, 0) };
+            if r < 0 {
+                return None;
+            }
+            // SAFETY: pidfd_open returned a new descriptor that we own.
+            self.pidfd = Some(unsafe { OwnedFd::from_raw_fd(r as RawFd) });
+        }
+        let pidfd = self.pidfd.as_ref()?.as_raw_fd();
+        // SAFETY: as above; on success the result is a new descriptor that we own.
+        let r = unsafe { libc::syscall(libc::SYS_pidfd_getfd, pidfd, theirs, 0) };
+        // SAFETY: pidfd_getfd returned a new descriptor.
+        (r >= 0).then(|| unsafe { OwnedFd::from_raw_fd(r as RawFd) })
+    }
 }
 
-fn unix_unread(fd: RawFd) -> u64 {
+/// True when descriptor `n` of process `pid` is socket `inode`.
+fn fd_names(pid: u32, n: i32, inode: u64) -> bool {
+    std::fs::read_link(format!("/proc/{pid}/fd/{n}"))
+        .ok()
+        .and_then(|t| t.to_str().map(|t| t == format!("socket:[{inode}]")))
+        .unwrap_or(false)
+}
+
+/// Inodes of the connected sockets bound to `path` in the text of `/proc/net/unix` (proc(5):
+/// `Num RefCount Protocol Flags Type St Inode Path`; St 03 = connected).
+fn unix_connected_inodes(table: &str, path: &Path) -> Vec<u64> {
+    let want = path.to_string_lossy();
+    table
+        .lines()
+        .skip(1)
+        .filter_map(|line| {
+            let f: Vec<&str> = line.split_whitespace().collect();
+            (f.len() >= 8 && f[5] == "03" && f[7] == want)
+                .then(|| f[6].parse().ok())
+                .flatten()
+        })
+        .collect()
+}
+
+/// Bytes in a socket's receive queue (`FIONREAD`; 0 on a listening socket or an error).
+fn queued(fd: RawFd) -> u64 {
     let mut n: libc::c_int = 0;
-    // SAFETY: SIOCOUTQ (the same request number as TIOCOUTQ on Linux) writes one int; `fd` was
-    // just checked to be a socket.
-    let r = unsafe { libc::ioctl(fd, libc::TIOCOUTQ, &mut n) };
+    // SAFETY: FIONREAD writes one int into `n`.
+    let r = unsafe { libc::ioctl(fd, libc::FIONREAD, &mut n) };
     if r == 0 && n > 0 {
         n as u64
     } else {
@@ -141,20 +210,34 @@ mod tests {
     use std::io::{Read, Write};
 
     #[test]
-    fn unix_bytes_count_until_the_peer_reads_them() {
-        let (a, mut b) = UnixStream::pair().unwrap();
+    fn unix_bytes_count_until_the_listener_side_reads_them_whoever_sent_them() {
+        use std::os::unix::net::{UnixListener, UnixStream};
+        let dir = std::env::temp_dir().join(format!("nanocal-watch-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("s3");
+        let _ = std::fs::remove_file(&path);
+        let l = UnixListener::bind(&path).unwrap();
         let w = InputWatch::default();
-        w.watch_unix(&a);
+        // this process plays QEMU: it holds the accepted end
+        w.watch_unix_path(std::process::id(), &path);
+        let mut a = UnixStream::connect(&path).unwrap();
+        let (mut b, _) = l.accept().unwrap();
         assert_eq!(w.pending_bytes(), 0);
-        (&a).write_all(b"HELLO").unwrap();
-        assert!(w.pending_bytes() >= 5, "{}", w.pending_bytes());
-        let mut buf = [0u8; 5];
+        a.write_all(b"HELLO").unwrap();
+        assert_eq!(w.pending_bytes(), 5);
+        let mut buf = [0u8; 3];
         b.read_exact(&mut buf).unwrap();
-        assert_eq!(w.pending_bytes(), 0);
-        (&a).write_all(b"x").unwrap();
-        drop(a);
-        // the test closed its end: the entry lapses, whatever the peer left unread
-        assert_eq!(w.pending_bytes(), 0);
+        assert_eq!(w.pending_bytes(), 2);
+        // a second client (another session) counts too
+        let mut c = UnixStream::connect(&path).unwrap();
+        let (d, _) = l.accept().unwrap();
+        c.write_all(b"xyz").unwrap();
+        assert_eq!(w.pending_bytes(), 5);
+        // the accepted end closed: its queue is gone with it
+        drop(d);
+        drop(c);
+        assert_eq!(w.pending_bytes(), 2);
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

@@ -248,10 +248,13 @@ impl Qemu {
         let mut child = child;
         let line = dial_unix(&mut child, &sockets.join("s4"), 4, &log);
         let link = BenchLink::start(page, line);
-        // serial 0-2 (TCP); the management port's sockets are watched as they are opened
+        // input in flight holds the free-running clock: serial 0-2 (TCP) and the management
+        // port (serial 3), not the bench's own doorbells (serial 4)
         for p in &ports[..3] {
             link.inputs().watch_tcp_port(*p);
         }
+        link.inputs()
+            .watch_unix_path(child.id(), &sockets.join("s3"));
         let mut q = Self {
             child,
             ports,
@@ -391,14 +394,12 @@ impl Qemu {
     /// A raw connection to the management port (serial3), for tests that send bytes no client
     /// would (a frame cut off); one connection at a time, as [`Self::client`]'s.
     pub fn mgmt_stream(&mut self) -> UnixStream {
-        let s = dial_unix(
+        dial_unix(
             &mut self.child,
             &self.log.with_extension("d").join("s3"),
             3,
             &self.log,
-        );
-        self.link.inputs().watch_unix(&s);
-        s
+        )
     }
 
     /// A management client (serial3); one at a time.
@@ -410,7 +411,6 @@ impl Qemu {
             &self.log,
         );
         s.set_read_timeout(Some(Duration::from_millis(50))).ok();
-        self.link.inputs().watch_unix(&s);
         let mut c = Client::new(Box::new(s), &self.mgmt_spec(), HANG);
         // QEMU may still be handing over from a previous client, the board may be resetting:
         // retry the first request

@@ -225,7 +225,8 @@ pub fn fit_dwells(d: &Dwells, opts: &FitOptions) -> Result<FitReport, FitError> 
         builder = builder.offset_um(a, fit.offset_um);
         axes.push(fit);
     }
-    let model = builder.build().map_err(FitError::Model)?;
+    let mut model = builder.build().map_err(FitError::Model)?;
+    let mut bounds = Vec::with_capacity(axes.len());
     for (a, fit) in axes.iter_mut().enumerate() {
         let rows: Vec<Vec<f64>> = inputs
             .iter()
@@ -248,6 +249,10 @@ pub fn fit_dwells(d: &Dwells, opts: &FitOptions) -> Result<FitReport, FitError> 
                 fit.pi95_training_um = (hw[0], hw[hw.len() / 2], hw[hw.len() - 1]);
             }
         }
+        bounds.push(fit.band.as_ref().ok().and_then(device_bound));
+    }
+    for (a, bound) in bounds.into_iter().enumerate() {
+        model.set_bound(a, bound).map_err(FitError::Model)?;
     }
     let temp_cols: Vec<&[f64]> = frame.temps.iter().filter_map(|n| d.channel(n)).collect();
     let temp_vif = variance_inflation(&frame.temps, &temp_cols);
@@ -346,6 +351,30 @@ pub fn held_out_accuracy(
         .iter()
         .map(|e| HeldOut::from_block_errors(e))
         .collect())
+}
+
+/// What the device needs of `band` to bound the prediction interval ([`nanocal_model::bound`]),
+/// in f32; `None` when the band has more regressors than a bound holds
+/// ([`nanocal_model::MAX_BOUND_TERMS`]) or its numbers do not fit in f32.
+pub fn device_bound(band: &PredictionBand) -> Option<nanocal_model::AxisBound> {
+    let p = band.regressors();
+    if p > nanocal_model::MAX_BOUND_TERMS {
+        return None;
+    }
+    let t95 = crate::uncertainty::t_quantile(0.975, band.dfe as f64);
+    let f32s = |v: &[f64]| v.iter().map(|x| *x as f32).collect::<Vec<f32>>();
+    let r_packed: Vec<f32> = (0..=p)
+        .flat_map(|i| (i..=p).map(move |j| (i, j)))
+        .map(|(i, j)| band.r[i][j] as f32)
+        .collect();
+    nanocal_model::AxisBound::new(
+        band.s as f32,
+        t95 as f32,
+        &f32s(&band.mean),
+        &f32s(&band.scale),
+        &r_packed,
+    )
+    .ok()
 }
 
 /// Writes a model as a blob file.

@@ -1,11 +1,12 @@
-//! The blob's bytes: golden bytes for format versions 2 and 1, round trips, CRC check value.
+//! The blob's bytes: golden bytes for format versions 3, 2 and 1, round trips, CRC check value.
 
 use nanocal::published::{coupled_2dof, published_1dof};
 use nanocal_model::blob::{self, BlobError, FORMAT_VERSION, MAX_BLOB_LEN};
+use nanocal_model::bound::packed_len;
 use nanocal_model::reference::delta_robot_78;
 use nanocal_model::{
-    AuxKind, AuxSpec, Factor, Input, Model, ModelBuilder, Scaling, Term, MAX_AUX, MAX_LAGS,
-    MAX_PLAY, MAX_TEMPS,
+    AuxKind, AuxSpec, AxisBound, Factor, Input, Model, ModelBuilder, Scaling, Term, MAX_AUX,
+    MAX_BOUND_TERMS, MAX_LAGS, MAX_PLAY, MAX_TEMPS,
 };
 
 /// A small model with one of everything version 1 could hold, on round binary numbers so the
@@ -117,7 +118,89 @@ fn golden_model_v2() -> Model {
     b.build().unwrap()
 }
 
-/// Format version 2, byte for byte. Changing these bytes needs a FORMAT_VERSION bump. The CRC
+/// The version 1 golden model with a prediction bound on its axis (4 terms: 2 + 4 + 4 + 15
+/// f32), on round numbers: s 0.5 µm, t 2, R with 4 on the diagonal.
+fn golden_model_v3() -> Model {
+    let mut model = golden_model();
+    let r: Vec<f32> = (0..5)
+        .flat_map(|i| (i..5).map(move |j| (i, j)))
+        .map(|(i, j)| match (i, j) {
+            _ if i == j => 4.0,
+            (0, _) => 0.5,
+            _ => 0.25,
+        })
+        .collect();
+    let bound =
+        AxisBound::new(0.5, 2.0, &[0.0, 0.5, 0.25, 0.0], &[1.0, 2.0, 0.5, 1.0], &r).unwrap();
+    model.set_bound(0, Some(bound)).unwrap();
+    model
+}
+
+/// Format version 3, byte for byte: version 1's layout for this model (no aux inputs, no play
+/// operators), the bound mask at payload byte +11, the bound after the terms. Written by
+/// Python's `struct` and `zlib.crc32` from the version 1 bytes, not by the encoder. Changing
+/// these bytes needs a FORMAT_VERSION bump.
+const GOLDEN_V3_HEX: &str = concat!(
+    "4e43414c",
+    "0300",
+    "0000",
+    "20010000", // magic, version 3, reserved, payload 288
+    "efbeadde",
+    "01010001",
+    "0400",
+    "00",
+    "01", // id, A T X L, 4 terms, 0 play operators, bound mask: axis 0
+    "0000000000004940",
+    "0000000000004940",
+    "0000000000000000",
+    "0000000000005940", // axis 0
+    "0000000000003640",
+    "000000000000f03f",
+    "0000000000003540",
+    "0000000000003740", // temp 0
+    "00000000000014c0",
+    "0000000000405a40", // travel −5 … 105
+    "000000000000e03f",
+    "000000000000d0bf", // λ 0.5, λ_KMZ −0.25
+    "0000000000000000",
+    "0000000000c08240", // lag: sensor 0, τ 600 s
+    "0001000000000000",
+    "000000000000f83f", // 1.5·u
+    "0000000001000000",
+    "000000000000d0bf", // −0.25·T0
+    "0001000003000000",
+    "000000000000c03f", // 0.125·u·lag0
+    "0000000000000100",
+    "000000000000a03f", // 0.03125·sign(x)
+    "0000003f",
+    "00000040", // bound of axis 0 (f32): s 0.5 µm, t95 2
+    "00000000",
+    "0000003f",
+    "0000803e",
+    "00000000", // mean 0, 0.5, 0.25, 0
+    "0000803f",
+    "00000040",
+    "0000003f",
+    "0000803f", // scale 1, 2, 0.5, 1
+    "00008040",
+    "0000003f",
+    "0000003f",
+    "0000003f",
+    "0000003f", // R row 0: 4, 0.5, 0.5, 0.5, 0.5
+    "00008040",
+    "0000803e",
+    "0000803e",
+    "0000803e", // R row 1: 4, 0.25, 0.25, 0.25
+    "00008040",
+    "0000803e",
+    "0000803e", // R row 2
+    "00008040",
+    "0000803e", // R row 3
+    "00008040", // R row 4
+    "78650a63", // CRC-32/IEEE (zlib) of all bytes above
+);
+
+/// Format version 2, byte for byte, as version 2 wrote it: the decoder still reads it. The CRC
 /// was checked with an independent implementation (Python's `zlib.crc32`).
 const GOLDEN_V2_HEX: &str = concat!(
     "4e43414c",
@@ -195,9 +278,45 @@ fn crc32_matches_the_standard_check_value() {
 }
 
 #[test]
-fn golden_bytes_of_format_version_2() {
-    assert_eq!(FORMAT_VERSION, 2, "a version bump needs new golden bytes");
-    assert_eq!(hex(&encode(&golden_model_v2())), GOLDEN_V2_HEX);
+fn golden_bytes_of_format_version_3() {
+    assert_eq!(FORMAT_VERSION, 3, "a version bump needs new golden bytes");
+    assert_eq!(hex(&encode(&golden_model_v3())), GOLDEN_V3_HEX);
+    let model = blob::decode(&unhex(GOLDEN_V3_HEX)).unwrap();
+    assert_eq!(model, golden_model_v3());
+    let bound = model.bound(0).unwrap();
+    assert_eq!(
+        (bound.s_um(), bound.t95(), bound.regressors()),
+        (0.5, 2.0, 4)
+    );
+    assert_eq!(bound.r_packed().len(), packed_len(4));
+}
+
+#[test]
+fn version_2_blobs_still_decode_and_re_encode_as_version_3() {
+    let v2 = unhex(GOLDEN_V2_HEX);
+    let model = blob::decode(&v2).unwrap();
+    assert_eq!(model, golden_model_v2());
+    assert!(model.bound(0).is_none(), "version 2 carries no bound");
+    let v3 = encode(&model);
+    // A model without a bound: the same bytes but the version and the CRC.
+    assert_eq!(&v3[4..6], &3u16.to_le_bytes());
+    assert_eq!(v3.len(), v2.len());
+    assert_eq!(&v3[6..v3.len() - 4], &v2[6..v2.len() - 4]);
+    assert_eq!(blob::decode(&v3).unwrap(), model);
+}
+
+#[test]
+fn a_version_2_blob_with_a_bound_mask_is_refused() {
+    // byte +11 of the payload was reserved before version 3
+    let mut v2 = unhex(GOLDEN_V2_HEX);
+    v2[12 + 11] = 1;
+    let n = v2.len() - 4;
+    let crc = blob::crc32(&v2[..n]);
+    v2[n..].copy_from_slice(&crc.to_le_bytes());
+    assert_eq!(
+        blob::decode(&v2),
+        Err(BlobError::ReservedNotZero { offset: 12 + 11 })
+    );
 }
 
 #[test]
@@ -213,15 +332,16 @@ fn golden_bytes_decode_to_the_golden_model() {
 }
 
 #[test]
-fn version_1_blobs_still_decode_and_re_encode_as_version_2() {
+fn version_1_blobs_still_decode_and_re_encode_as_version_3() {
     let v1 = unhex(GOLDEN_V1_HEX);
     let model = blob::decode(&v1).unwrap();
     assert_eq!(model, golden_model());
     assert_eq!(model.aux_spec(0), None);
     let v2 = encode(&model);
-    assert_eq!(&v2[4..6], &2u16.to_le_bytes());
-    // Version 2 adds the play count (0) where version 1 had reserved zeros, and nothing else
-    // for a model without aux inputs or play operators: same bytes but version and CRC.
+    assert_eq!(&v2[4..6], &3u16.to_le_bytes());
+    // Versions 2 and 3 add the play count (0) and the bound mask (0) where version 1 had
+    // reserved zeros, and nothing else for a model without aux inputs, play operators or
+    // bounds: same bytes but version and CRC.
     assert_eq!(v2.len(), v1.len());
     assert_eq!(&v2[6..v2.len() - 4], &v1[6..v1.len() - 4]);
     assert_eq!(blob::decode(&v2).unwrap(), model);
@@ -234,6 +354,7 @@ fn reference_models_round_trip() {
         coupled_2dof().unwrap(),
         delta_robot_78().unwrap(),
         golden_model_v2(),
+        golden_model_v3(),
     ] {
         let bytes = encode(&model);
         assert_eq!(bytes.len(), blob::encoded_len(&model));
@@ -274,33 +395,62 @@ fn a_full_model_fits_the_largest_blob() {
             },
         );
     }
-    // Degree ≤ 6 in three axes: 84 monomials per output, so 128 terms fit the fold too.
-    let mut n = 0;
-    'outer: for px in 0..=6u8 {
+    // Degree ≤ 6 in three axes: 84 monomials. Axes 0 and 1 get the first MAX_BOUND_TERMS of
+    // them and a full bound, axis 2 all of them and temperature terms up to MAX_TERMS (the
+    // largest blob: see blob::MAX_PAYLOAD_LEN).
+    let mut monomials = Vec::new();
+    for px in 0..=6u8 {
         for py in 0..=6 - px {
             for pz in 0..=6 - px - py {
-                if px + py + pz == 0 {
-                    continue;
-                }
-                for output in 0..3 {
-                    if n == nanocal_model::MAX_TERMS {
-                        break 'outer;
-                    }
-                    let t = Term {
-                        output,
-                        powers: [px, py, pz],
-                        factor: Factor::None,
-                        direction: 0,
-                        coeff: 1e-3,
-                    };
-                    b.add_term(t).unwrap();
-                    n += 1;
+                if px + py + pz != 0 {
+                    monomials.push([px, py, pz]);
                 }
             }
         }
     }
-    let model = b.build().unwrap();
+    let mut terms = Vec::new();
+    for (i, &powers) in monomials.iter().enumerate() {
+        for output in 0..3u8 {
+            if output == 2 || i < MAX_BOUND_TERMS {
+                terms.push((output, powers, Factor::None));
+            }
+        }
+    }
+    let mut t = 0u8;
+    while terms.len() < nanocal_model::MAX_TERMS {
+        terms.push((2, [0; 3], Factor::Temp(t)));
+        t += 1;
+    }
+    for (output, powers, factor) in terms {
+        b.add_term(Term {
+            output,
+            powers,
+            factor,
+            direction: 0,
+            coeff: 1e-3,
+        })
+        .unwrap();
+    }
+    let mut model = b.build().unwrap();
     assert_eq!(model.terms().len(), nanocal_model::MAX_TERMS);
+    let p = MAX_BOUND_TERMS;
+    let r: Vec<f32> = (0..packed_len(p)).map(|k| 1.0 + k as f32).collect();
+    let bound = AxisBound::new(
+        0.1,
+        2.0,
+        &[0.0; MAX_BOUND_TERMS],
+        &[1.0; MAX_BOUND_TERMS],
+        &r,
+    )
+    .unwrap();
+    for a in 0..2 {
+        model.set_bound(a, Some(bound)).unwrap();
+    }
+    assert_eq!(
+        model.set_bound(2, Some(bound)),
+        Err(nanocal_model::ModelError::InvalidBound),
+        "axis 2 has more terms than a bound covers"
+    );
     let bytes = encode(&model);
     assert_eq!(bytes.len(), MAX_BLOB_LEN);
     assert_eq!(blob::decode(&bytes).unwrap(), model);

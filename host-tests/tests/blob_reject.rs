@@ -51,7 +51,13 @@ fn rich_model() -> Model {
         })
         .unwrap();
     }
-    b.build().unwrap()
+    // and a prediction bound on axis 0 (blob version 3), so the mutations reach its bytes too
+    let mut model = b.build().unwrap();
+    let p = model.axis_terms(0);
+    let r: Vec<f32> = (0..(p + 1) * (p + 2) / 2).map(|k| 1.0 + k as f32).collect();
+    let bound = nanocal_model::AxisBound::new(0.05, 2.0, &vec![0.1; p], &vec![0.5; p], &r).unwrap();
+    model.set_bound(0, Some(bound)).unwrap();
+    model
 }
 
 fn valid_blob(rich: bool) -> Vec<u8> {
@@ -152,10 +158,10 @@ fn each_header_fault_has_its_own_error() {
     assert_eq!(blob::decode(&bad), Err(BlobError::BadMagic));
 
     let mut bad = good.clone();
-    bad[4] = 3;
+    bad[4] = 4;
     assert_eq!(
         blob::decode(&bad),
-        Err(BlobError::UnsupportedVersion { found: 3 })
+        Err(BlobError::UnsupportedVersion { found: 4 })
     );
     let mut bad = good.clone();
     bad[4] = 0;
@@ -211,10 +217,21 @@ fn payload_faults_with_a_valid_crc_have_typed_errors() {
         Err(BlobError::InvalidModel(ModelError::TooManyInputs))
     );
     let mut bad = good.clone();
-    bad[counts + 7] = 1; // the reserved byte after the play count
+    bad[counts + 7] = 2; // the bound mask names axis 1 of a 1-axis model
     assert_eq!(
         blob::decode(&reseal(bad)),
         Err(BlobError::ReservedNotZero { offset: counts + 7 })
+    );
+    let mut bad = good.clone();
+    bad[counts + 7] = 1; // a bound for axis 0 that the payload does not hold
+    let found = good.len() - HEADER_LEN - 4;
+    let p = published_1dof().unwrap().axis_terms(0);
+    assert_eq!(
+        blob::decode(&reseal(bad)),
+        Err(BlobError::PayloadSizeMismatch {
+            expected: found + 4 * (2 + 2 * p + (p + 1) * (p + 2) / 2),
+            found
+        })
     );
 
     // First term starts after fixed part, 5 inputs × 32, travel + offsets (32), no lags.
@@ -315,7 +332,7 @@ fn errors_explain_themselves() {
     assert!(msg.contains("term 3"), "{msg}");
     let msg = BlobError::UnsupportedVersion { found: 7 }.to_string();
     assert!(
-        msg.contains('7') && msg.contains('1') && msg.contains('2'),
+        msg.contains('7') && msg.contains('1') && msg.contains('3'),
         "{msg}"
     );
     let msg = BlobError::UnknownAuxKind { aux: 1, kind: 9 }.to_string();

@@ -59,8 +59,17 @@ fn e2e_stm32_upload_sensors_and_corrected_moves() {
     host.send("MOV 1 10");
     assert_eq!(host.ask("ERR?"), "9003");
 
-    // upload over the management port
-    let model = published_1dof().unwrap();
+    // upload over the management port; the model carries a prediction bound (blob version 3),
+    // which the device must keep byte for byte: it re-encodes what it stores, and the upload
+    // checks that the CRC it reports is the blob's
+    let mut model = published_1dof().unwrap();
+    let p = model.axis_terms(0);
+    let r: Vec<f32> = (0..nanocal_model::bound::packed_len(p))
+        .map(|k| 0.5 + k as f32)
+        .collect();
+    let bound =
+        nanocal_model::AxisBound::new(0.02, 2.01, &vec![0.1; p], &vec![0.7; p], &r).unwrap();
+    model.set_bound(0, Some(bound)).unwrap();
     let mut blob_bytes = vec![0u8; blob::MAX_BLOB_LEN];
     let n = blob::encode(&model, &mut blob_bytes).unwrap();
     let committed = c.upload(&blob_bytes[..n]).expect("upload");

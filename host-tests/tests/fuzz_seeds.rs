@@ -118,6 +118,19 @@ fn seeds() -> Vec<(&'static str, &'static str, Vec<u8>)> {
     // blob: mode byte (bit 0: the harness writes the CRC), then the blob
     s.push(("blob", "published-1dof", [&[0u8][..], &b1].concat()));
     s.push(("blob", "coupled-2dof", [&[0u8][..], &blob_of(&m2)].concat()));
+    // a model with a prediction bound (blob version 3's bound section)
+    let mut bounded = m1.clone();
+    let p = bounded.axis_terms(0);
+    let r: Vec<f32> = (0..nanocal_model::bound::packed_len(p))
+        .map(|k| 1.0 + k as f32)
+        .collect();
+    let bound = nanocal_model::AxisBound::new(0.05, 2.0, &vec![0.0; p], &vec![1.0; p], &r).unwrap();
+    bounded.set_bound(0, Some(bound)).unwrap();
+    s.push((
+        "blob",
+        "published-1dof-bound",
+        [&[0u8][..], &blob_of(&bounded)].concat(),
+    ));
     s.push((
         "blob",
         "fix-crc-checks-proxy-model",

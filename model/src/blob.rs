@@ -5,7 +5,7 @@
 //! ```text
 //! offset      size  field
 //! 0           4     magic "NCAL"
-//! 4           2     format version (u16) = FORMAT_VERSION (2)
+//! 4           2     format version (u16) = FORMAT_VERSION (3)
 //! 6           2     reserved, 0
 //! 8           4     payload length N (u32)
 //! 12          N     payload
@@ -19,7 +19,8 @@
 //! +7          1     lag filters L (0..=32)
 //! +8          2     terms K (u16, 0..=128)
 //! +10         1     play operators P (0..=48)
-//! +11         1     reserved, 0
+//! +11         1     bound mask B: bit a set = output axis a carries a prediction bound
+//!                   (bits ≥ A are 0)
 //! +12         32·(A+T+X)  per input, axes then temperatures then aux:
 //!                   centre f64 | half_range f64 | envelope min f64 | envelope max f64
 //! then        16·A  per axis: travel min f64 | travel max f64 (command space, µm)
@@ -33,13 +34,20 @@
 //!                   factor kind u8 (0 none, 1 temp, 2 aux, 3 lagged, 4 play operator) |
 //!                   factor index u8 | direction u8 (0 none, 1+axis) | reserved u8, 0 |
 //!                   coefficient f64 (µm)
+//! then        per axis a with bit a of B set, in axis order, with P_a = the terms of output a
+//!             (0..=16, MAX_BOUND_TERMS), all f32 (the device's precision; see crate::bound):
+//!                   s f32 (µm) | t95 f32 | mean f32 ×P_a | scale f32 ×P_a |
+//!                   R f32 ×(P_a+1)(P_a+2)/2 (upper triangle, row-major, row i = columns i..=P_a)
 //! ```
 //!
-//! Version history: 1 had no aux descriptors (every aux input of kind "other" and slow), no
+//! Version history: 3 added the bound mask (payload byte +11, reserved before) and the
+//! prediction bounds after the terms: what a device needs to evaluate the fit's prediction
+//! interval ([`crate::bound`]). 2 had no aux descriptors (every aux input of kind "other" and slow), no
 //! play operators (payload bytes +10 and +11 reserved) and at most 8 temperatures and 8 lags.
 //! Version 2 added the aux descriptors, the play operators and factor kind 4, and widened the
-//! counts. The decoder still reads version 1 blobs (a device keeps the models it stored before
-//! an update); the encoder writes version 2 only.
+//! counts. The decoder still reads version 1 and 2 blobs (a device keeps the models it stored
+//! before an update; they carry no bound); the encoder writes version 3 only, and an upload
+//! must be version 3 (`nanocal_compensator::upload` refuses others by name).
 //!
 //! The decoder checks everything — lengths, CRC, counts, indices, finiteness, reserved bytes,
 //! the order of play operators, the monotonicity of their banks — and returns a typed
@@ -47,6 +55,7 @@
 
 use core::fmt;
 
+use crate::bound::{packed_len, AxisBound, MAX_BOUND_R_LEN, MAX_BOUND_TERMS};
 use crate::error::ModelError;
 use crate::hysteresis::PlaySpec;
 use crate::input::{AuxKind, AuxSpec, Input, Scaling};
@@ -59,8 +68,10 @@ use crate::ModelBuilder;
 /// First four bytes of every blob.
 pub const MAGIC: [u8; 4] = *b"NCAL";
 /// Version of the byte layout above; bumped whenever the bytes change.
-pub const FORMAT_VERSION: u16 = 2;
-/// The previous version, which the decoder still reads.
+pub const FORMAT_VERSION: u16 = 3;
+/// Version 2 (no prediction bounds), which the decoder still reads.
+pub const FORMAT_VERSION_2: u16 = 2;
+/// Version 1, which the decoder still reads.
 pub const FORMAT_VERSION_1: u16 = 1;
 /// Bytes before the payload.
 pub const HEADER_LEN: usize = 12;
@@ -73,6 +84,10 @@ const AUX_LEN: usize = 8;
 const LAG_LEN: usize = 16;
 const PLAY_LEN: usize = 16;
 const TERM_LEN: usize = 16;
+/// Bytes of one axis' prediction bound with `p` regressors.
+const fn bound_len(p: usize) -> usize {
+    4 * (2 + 2 * p + packed_len(p))
+}
 /// Aux flags bit: the input is fast.
 const AUX_FAST: u8 = 1;
 /// Largest payload a valid blob can have.
@@ -82,7 +97,14 @@ pub const MAX_PAYLOAD_LEN: usize = PAYLOAD_FIXED_LEN
     + AUX_LEN * MAX_AUX
     + LAG_LEN * MAX_LAGS
     + PLAY_LEN * MAX_PLAY
-    + TERM_LEN * MAX_TERMS;
+    + TERM_LEN * MAX_TERMS
+    + (MAX_AXES - 1) * bound_len(MAX_BOUND_TERMS);
+// The largest payload: all MAX_TERMS terms and a full bound on all axes but one (an axis
+// with a bound has at most MAX_BOUND_TERMS terms, so the last axis holds the rest, too many
+// for a bound; that beats fewer terms and a bound on every axis).
+const _: () = assert!(MAX_TERMS - (MAX_AXES - 1) * MAX_BOUND_TERMS > MAX_BOUND_TERMS);
+const _: () =
+    assert!(TERM_LEN * (MAX_TERMS - MAX_AXES * MAX_BOUND_TERMS) > bound_len(MAX_BOUND_TERMS));
 /// Largest valid blob, in bytes.
 pub const MAX_BLOB_LEN: usize = HEADER_LEN + MAX_PAYLOAD_LEN + TRAILER_LEN;
 
@@ -98,7 +120,7 @@ pub enum BlobError {
     },
     /// The first four bytes are not "NCAL".
     BadMagic,
-    /// A format version this build does not read (it reads 1 and 2).
+    /// A format version this build does not read (it reads 1, 2 and 3).
     UnsupportedVersion {
         /// Version found.
         found: u16,
@@ -158,7 +180,7 @@ impl fmt::Display for BlobError {
             BlobError::TooShort { len } => write!(f, "blob too short: {len} bytes"),
             BlobError::BadMagic => f.write_str("not a nanocal blob (bad magic)"),
             BlobError::UnsupportedVersion { found } => {
-                write!(f, "blob format version {found} is not supported (this build reads {FORMAT_VERSION_1} and {FORMAT_VERSION})")
+                write!(f, "blob format version {found} is not supported (this build reads {FORMAT_VERSION_1} to {FORMAT_VERSION})")
             }
             BlobError::LengthMismatch { expected, found } => {
                 write!(
@@ -260,7 +282,7 @@ impl Counts {
         }
     }
 
-    /// Payload length in format `version` (1 has no aux descriptors).
+    /// Payload length in format `version` (1 has no aux descriptors), bounds not included.
     fn payload_len(&self, version: u16) -> usize {
         let aux_descriptors = if version == FORMAT_VERSION_1 {
             0
@@ -279,7 +301,22 @@ impl Counts {
 
 /// Length of the blob `model` encodes to.
 pub fn encoded_len(model: &Model) -> usize {
-    HEADER_LEN + Counts::of(model).payload_len(FORMAT_VERSION) + TRAILER_LEN
+    HEADER_LEN + Counts::of(model).payload_len(FORMAT_VERSION) + bounds_len(model) + TRAILER_LEN
+}
+
+/// Bytes of the model's prediction bounds.
+fn bounds_len(model: &Model) -> usize {
+    (0..model.axes())
+        .filter_map(|a| model.bound(a))
+        .map(|b| bound_len(b.regressors()))
+        .sum()
+}
+
+/// The bound mask (payload byte +11).
+fn bound_mask(model: &Model) -> u8 {
+    (0..model.axes())
+        .filter(|&a| model.bound(a).is_some())
+        .fold(0, |m, a| m | 1 << a)
 }
 
 /// Writes `model` as a blob into `out`; returns the number of bytes written.
@@ -297,7 +334,7 @@ pub fn encode(model: &Model, out: &mut [u8]) -> Result<usize, BlobError> {
     w.u32(model.id());
     w.bytes(&[model.axes, model.temps, model.aux, model.lags]);
     w.u16(model.n_terms);
-    w.bytes(&[model.plays, 0]);
+    w.bytes(&[model.plays, bound_mask(model)]);
     for input in model.used_inputs() {
         let s = model.scaling(input);
         let (min, max) = model.envelope(input);
@@ -347,12 +384,19 @@ pub fn encode(model: &Model, out: &mut [u8]) -> Result<usize, BlobError> {
         ]);
         w.f64(t.coeff);
     }
+    for b in (0..model.axes()).filter_map(|a| model.bound(a)) {
+        w.f32(b.s_um());
+        w.f32(b.t95());
+        for &v in b.mean().iter().chain(b.scale()).chain(b.r_packed()) {
+            w.f32(v);
+        }
+    }
     let crc = crc32(&w.buf[..w.pos]);
     w.u32(crc);
     Ok(total)
 }
 
-/// Reads a blob (format version 2, or 1); every malformation is a typed error, never a panic.
+/// Reads a blob (format version 3, 2 or 1); every malformation is a typed error, never a panic.
 pub fn decode(bytes: &[u8]) -> Result<Model, BlobError> {
     if bytes.len() < HEADER_LEN + TRAILER_LEN {
         return Err(BlobError::TooShort { len: bytes.len() });
@@ -362,7 +406,7 @@ pub fn decode(bytes: &[u8]) -> Result<Model, BlobError> {
         return Err(BlobError::BadMagic);
     }
     let version = r.u16()?;
-    if version != FORMAT_VERSION && version != FORMAT_VERSION_1 {
+    if !(FORMAT_VERSION_1..=FORMAT_VERSION).contains(&version) {
         return Err(BlobError::UnsupportedVersion { found: version });
     }
     r.reserved_u16()?;
@@ -393,7 +437,16 @@ pub fn decode(bytes: &[u8]) -> Result<Model, BlobError> {
     let n_terms = r.u16()?;
     // Version 1 had a reserved u16 here: zero plays and a zero byte read it the same way.
     let plays = r.bytes::<1>()?[0];
-    r.reserved_u8()?;
+    let mask = if version == FORMAT_VERSION {
+        let mask = r.bytes::<1>()?[0];
+        if axes as usize <= MAX_AXES && mask >> axes != 0 {
+            return Err(BlobError::ReservedNotZero { offset: r.pos - 1 });
+        }
+        mask
+    } else {
+        r.reserved_u8()?;
+        0
+    };
     let counts = Counts {
         axes: axes as usize,
         temps: temps as usize,
@@ -418,7 +471,8 @@ pub fn decode(bytes: &[u8]) -> Result<Model, BlobError> {
         return Err(ModelError::TooManyTerms.into());
     }
     let needed = counts.payload_len(version);
-    if needed != payload {
+    // version 3's bounds follow the terms: their length is checked once the terms are read
+    if needed != payload && !(mask != 0 && needed < payload) {
         return Err(BlobError::PayloadSizeMismatch {
             expected: needed,
             found: payload,
@@ -513,7 +567,36 @@ pub fn decode(bytes: &[u8]) -> Result<Model, BlobError> {
             coeff: r.f64()?,
         };
     }
+    let mut bounds_needed = 0usize;
+    for a in (0..na).filter(|a| mask & 1 << a != 0) {
+        let p = model.axis_terms(a);
+        if p > MAX_BOUND_TERMS {
+            return Err(ModelError::InvalidBound.into());
+        }
+        bounds_needed += bound_len(p);
+    }
+    if needed + bounds_needed != payload {
+        return Err(BlobError::PayloadSizeMismatch {
+            expected: needed + bounds_needed,
+            found: payload,
+        });
+    }
     model.validate()?;
+    for a in (0..na).filter(|a| mask & 1 << a != 0) {
+        let p = model.axis_terms(a);
+        let (s_um, t95) = (r.f32()?, r.f32()?);
+        let mut mean = [0.0f32; MAX_BOUND_TERMS];
+        let mut scale = [0.0f32; MAX_BOUND_TERMS];
+        let mut rp = [0.0f32; MAX_BOUND_R_LEN];
+        for v in mean[..p].iter_mut().chain(&mut scale[..p]) {
+            *v = r.f32()?;
+        }
+        for v in rp[..packed_len(p)].iter_mut() {
+            *v = r.f32()?;
+        }
+        let bound = AxisBound::new(s_um, t95, &mean[..p], &scale[..p], &rp[..packed_len(p)])?;
+        model.set_bound(a, Some(bound))?;
+    }
     Ok(model)
 }
 
@@ -534,6 +617,9 @@ impl Writer<'_> {
         self.bytes(&v.to_le_bytes());
     }
     fn f64(&mut self, v: f64) {
+        self.bytes(&v.to_le_bytes());
+    }
+    fn f32(&mut self, v: f32) {
         self.bytes(&v.to_le_bytes());
     }
 }
@@ -563,6 +649,9 @@ impl Reader<'_> {
     }
     fn f64(&mut self) -> Result<f64, BlobError> {
         Ok(f64::from_le_bytes(self.bytes()?))
+    }
+    fn f32(&mut self) -> Result<f32, BlobError> {
+        Ok(f32::from_le_bytes(self.bytes()?))
     }
     fn reserved_u8(&mut self) -> Result<(), BlobError> {
         let offset = self.pos;

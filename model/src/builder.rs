@@ -56,6 +56,7 @@ impl ModelBuilder {
                     coeff: 0.0,
                 }; MAX_TERMS],
                 n_terms: 0,
+                bounds: [None; MAX_AXES],
             },
         })
     }

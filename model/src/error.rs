@@ -66,6 +66,9 @@ pub enum ModelError {
         /// The axis.
         axis: u8,
     },
+    /// A prediction bound has more regressors than `MAX_BOUND_TERMS`, other than one per term
+    /// of its axis, a non-positive `s`, t quantile or scale, or a zero on the diagonal of `R`.
+    InvalidBound,
 }
 
 impl fmt::Display for ModelError {
@@ -110,6 +113,10 @@ impl fmt::Display for ModelError {
                 f,
                 "the play operators of axis {axis} make a branch of q(x) flat or falling \
                  (1 + partial sum of weights below the minimum slope)"
+            ),
+            ModelError::InvalidBound => f.write_str(
+                "a prediction bound does not fit its axis' terms (count, positive s, t and \
+                 scales, non-zero diagonal of R)",
             ),
         }
     }

@@ -25,6 +25,7 @@
 extern crate std;
 
 pub mod blob;
+pub mod bound;
 mod builder;
 mod error;
 mod fold;
@@ -38,6 +39,7 @@ pub mod play;
 pub mod reference;
 mod term;
 
+pub use bound::{AxisBound, MAX_BOUND_TERMS};
 pub use builder::ModelBuilder;
 pub use error::{InverseError, ModelError};
 pub use fold::{Correction, Fold, FOLD_CAPACITY};

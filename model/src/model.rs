@@ -1,5 +1,6 @@
 //! The calibration model: terms, offsets, scalings, envelope, travel; its f64 reference evaluation.
 
+use crate::bound::{AxisBound, MAX_BOUND_TERMS};
 use crate::error::ModelError;
 use crate::fold::{FoldShape, FOLD_CAPACITY};
 use crate::hysteresis::{HysteresisState, PlaySpec, MIN_BANK_SLOPE};
@@ -40,6 +41,8 @@ pub struct Model {
     pub(crate) play_specs: [PlaySpec; MAX_PLAY],
     pub(crate) terms: [Term; MAX_TERMS],
     pub(crate) n_terms: u16,
+    /// The prediction bound of each output axis, when the fit wrote one (blob version 3).
+    pub(crate) bounds: [Option<AxisBound>; MAX_AXES],
 }
 
 /// Every input of one evaluation, already scaled, ready for [`Term::value`].
@@ -168,6 +171,68 @@ impl Model {
     pub fn kmz_offset_um(&self, axis: usize) -> f64 {
         self.kmz_offset_um[axis.min(MAX_AXES - 1)]
     }
+    /// The prediction bound of output axis `axis` ([`crate::bound`]), if the fit wrote one.
+    pub fn bound(&self, axis: usize) -> Option<&AxisBound> {
+        self.bounds.get(axis).and_then(|b| b.as_ref())
+    }
+
+    /// Terms of output axis `axis` (the regressors of its bound).
+    pub fn axis_terms(&self, axis: usize) -> usize {
+        self.terms()
+            .iter()
+            .filter(|t| t.output as usize == axis)
+            .count()
+    }
+
+    /// Attaches the prediction bound of output axis `axis` (`None` removes it). The bound must
+    /// cover exactly the axis' terms ([`ModelError::InvalidBound`]).
+    pub fn set_bound(&mut self, axis: usize, bound: Option<AxisBound>) -> Result<(), ModelError> {
+        if axis >= self.axes() {
+            return Err(ModelError::InvalidBound);
+        }
+        if let Some(b) = &bound {
+            if b.regressors() != self.axis_terms(axis) {
+                return Err(ModelError::InvalidBound);
+            }
+        }
+        self.bounds[axis] = bound;
+        Ok(())
+    }
+
+    /// The regressors of output axis `axis`'s bound at `inputs` — its term values in term
+    /// order, in f32 — into `out`; how many (0 beyond the capacity of a bound).
+    pub fn bound_regressors(
+        &self,
+        axis: usize,
+        inputs: &ScaledInputs,
+        out: &mut [f32; MAX_BOUND_TERMS],
+    ) -> usize {
+        let mut n = 0;
+        for t in self.terms().iter().filter(|t| t.output as usize == axis) {
+            if n == MAX_BOUND_TERMS {
+                return 0;
+            }
+            out[n] = t.value(inputs) as f32;
+            n += 1;
+        }
+        n
+    }
+
+    /// The half-width of the interval `k` standard errors of prediction wide of output axis
+    /// `axis` at `inputs`, µm, in f32 (`k = bound.t95()` gives the 95 % prediction interval);
+    /// `None` when the axis has no bound.
+    pub fn prediction_half_width_um(
+        &self,
+        axis: usize,
+        inputs: &ScaledInputs,
+        k: f32,
+    ) -> Option<f32> {
+        let b = self.bound(axis)?;
+        let mut x0 = [0.0f32; MAX_BOUND_TERMS];
+        let n = self.bound_regressors(axis, inputs, &mut x0);
+        Some(b.half_width_um(k, &x0[..n]))
+    }
+
     /// Sets the adaptive offset λ_KMZ of an axis (ignored for an axis the model lacks or a
     /// non-finite value).
     pub fn set_kmz_offset_um(&mut self, axis: usize, value_um: f64) {

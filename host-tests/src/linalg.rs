@@ -511,7 +511,7 @@ pub fn compress_parts(
         worker()
     } else {
         std::thread::scope(|s| {
-            let handles: Vec<_> = (0..threads).map(|_| s.spawn(&worker)).collect();
+            let handles: Vec<_> = (0..threads).map(|_| s.spawn(worker)).collect();
             handles
                 .into_iter()
                 .flat_map(|h| h.join().expect("compress worker panicked"))

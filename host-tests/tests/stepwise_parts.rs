@@ -15,7 +15,7 @@ fn design(n: usize) -> (Vec<Vec<f64>>, Vec<f64>) {
         s ^= s << 17;
         (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
     };
-    let mut x = vec![Vec::with_capacity(n); 6];
+    let mut x: Vec<Vec<f64>> = (0..6).map(|_| Vec::with_capacity(n)).collect();
     let mut y = Vec::with_capacity(n);
     for i in 0..n {
         let a = 10.0 + 3.0 * u();

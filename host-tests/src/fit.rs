@@ -239,9 +239,10 @@ pub fn fit_dwells(d: &Dwells, opts: &FitOptions) -> Result<FitReport, FitError> 
         let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
         fit.band = PredictionBand::new(&refs, fit.ss_resid_um2);
         if let Ok(band) = &fit.band {
+            let ts = band.t_times_s(0.95);
             let mut hw: Vec<f64> = rows
                 .iter()
-                .filter_map(|r| band.half_width(r, 0.95).ok())
+                .filter_map(|r| band.half_width_with(r, ts).ok())
                 .filter(|h| h.is_finite())
                 .collect();
             hw.sort_by(f64::total_cmp);

@@ -364,65 +364,17 @@ pub fn compress(
             });
         }
     }
-    let k = columns.len() + intercept as usize;
     let threads = threads.max(1).min(n / 4096 + 1);
     let chunk = n.div_ceil(threads);
-    let p_in = columns.len();
-    let work = |lo: usize, hi: usize| -> (RAccumulator, Vec<usize>, Constancy) {
-        let mut acc = RAccumulator::new(k);
-        let mut constancy = Constancy::new(p_in);
-        let mut nan_rows = Vec::new();
-        let br = block_rows(k);
-        let mut block = vec![0.0; br * k];
-        let mut start = lo;
-        while start < hi {
-            let b = br.min(hi - start);
-            let blk = &mut block[..b * k];
-            let off = intercept as usize;
-            if intercept {
-                blk[..b].fill(1.0);
-            }
-            for (j, c) in columns.iter().enumerate() {
-                blk[(j + off) * b..(j + off + 1) * b].copy_from_slice(&c[start..start + b]);
-            }
-            let any_nan = blk.iter().any(|v| v.is_nan());
-            if any_nan {
-                // compact: keep rows without NaN
-                let keep: Vec<usize> = (0..b)
-                    .filter(|&i| (0..k).all(|j| !blk[j * b + i].is_nan()))
-                    .collect();
-                for i in 0..b {
-                    if !keep.contains(&i) {
-                        nan_rows.push(start + i);
-                    }
-                }
-                let nb = keep.len();
-                let mut small = vec![0.0; nb * k];
-                for j in 0..k {
-                    for (t, &i) in keep.iter().enumerate() {
-                        small[j * nb + t] = blk[j * b + i];
-                    }
-                }
-                constancy.observe(&small, nb, off);
-                acc.push_block(&mut small, nb);
-            } else {
-                constancy.observe(blk, b, off);
-                acc.push_block(blk, b);
-            }
-            start += b;
-        }
-        (acc, nan_rows, constancy)
-    };
-    let parts: Vec<(RAccumulator, Vec<usize>, Constancy)> = if threads == 1 {
-        vec![work(0, n)]
+    let parts: Vec<CompressedPart> = if threads == 1 {
+        vec![compress_range(columns, intercept, 0, n)]
     } else {
         std::thread::scope(|s| {
             let handles: Vec<_> = (0..threads)
                 .map(|t| {
                     let lo = (t * chunk).min(n);
                     let hi = ((t + 1) * chunk).min(n);
-                    let work = &work;
-                    s.spawn(move || work(lo, hi))
+                    s.spawn(move || compress_range(columns, intercept, lo, hi))
                 })
                 .collect();
             handles
@@ -431,26 +383,183 @@ pub fn compress(
                 .collect()
         })
     };
-    let mut was_nan = vec![false; n];
-    let mut iter = parts.into_iter();
-    let (mut acc, nans, mut constancy) = iter.next().expect("at least one part");
-    for i in nans {
-        was_nan[i] = true;
+    let refs: Vec<&CompressedPart> = parts.iter().collect();
+    Ok(merge_parts(&refs, n))
+}
+
+/// The compression of one contiguous range of rows: mergeable with the compressions of other
+/// ranges of the same columns ([`merge_parts`]) into the compression of their union, so a fit
+/// that leaves one range out (held-out accuracy) costs a merge of small triangles, not another
+/// pass over the data.
+#[derive(Clone)]
+pub struct CompressedPart {
+    acc: RAccumulator,
+    /// Input rows (global indices) left out for a NaN.
+    nan_rows: Vec<usize>,
+    constancy: Constancy,
+}
+
+impl CompressedPart {
+    /// Rows absorbed (without NaN).
+    pub fn rows(&self) -> usize {
+        self.acc.rows()
     }
-    for (other, nans, other_constancy) in iter {
-        acc.merge(&other);
-        constancy.merge(&other_constancy);
-        for i in nans {
-            was_nan[i] = true;
+}
+
+/// Compresses rows `lo..hi` of the columns (one thread).
+fn compress_range(columns: &[&[f64]], intercept: bool, lo: usize, hi: usize) -> CompressedPart {
+    let k = columns.len() + intercept as usize;
+    let mut acc = RAccumulator::new(k);
+    let mut constancy = Constancy::new(columns.len());
+    let mut nan_rows = Vec::new();
+    let br = block_rows(k);
+    let mut block = vec![0.0; br * k];
+    let mut start = lo;
+    while start < hi {
+        let b = br.min(hi - start);
+        let blk = &mut block[..b * k];
+        let off = intercept as usize;
+        if intercept {
+            blk[..b].fill(1.0);
+        }
+        for (j, c) in columns.iter().enumerate() {
+            blk[(j + off) * b..(j + off + 1) * b].copy_from_slice(&c[start..start + b]);
+        }
+        let any_nan = blk.iter().any(|v| v.is_nan());
+        if any_nan {
+            // compact: keep rows without NaN
+            let keep: Vec<usize> = (0..b)
+                .filter(|&i| (0..k).all(|j| !blk[j * b + i].is_nan()))
+                .collect();
+            for i in 0..b {
+                if !keep.contains(&i) {
+                    nan_rows.push(start + i);
+                }
+            }
+            let nb = keep.len();
+            let mut small = vec![0.0; nb * k];
+            for j in 0..k {
+                for (t, &i) in keep.iter().enumerate() {
+                    small[j * nb + t] = blk[j * b + i];
+                }
+            }
+            constancy.observe(&small, nb, off);
+            acc.push_block(&mut small, nb);
+        } else {
+            constancy.observe(blk, b, off);
+            acc.push_block(blk, b);
+        }
+        start += b;
+    }
+    CompressedPart {
+        acc,
+        nan_rows,
+        constancy,
+    }
+}
+
+/// Compresses the columns (as [`compress`]) separately over the consecutive row ranges
+/// `bounds[i]..bounds[i + 1]` (`bounds` ascending, from 0 to the column length), on up to
+/// `threads` threads in all: one [`CompressedPart`] per range.
+pub fn compress_parts(
+    columns: &[&[f64]],
+    intercept: bool,
+    threads: usize,
+    bounds: &[usize],
+) -> Result<Vec<CompressedPart>, LinalgError> {
+    let n = columns.first().map_or(0, |c| c.len());
+    for (j, c) in columns.iter().enumerate() {
+        if c.len() != n {
+            return Err(LinalgError::LengthMismatch {
+                column: j,
+                expected: n,
+                found: c.len(),
+            });
         }
     }
-    let rows = acc.rows();
-    Ok(Compressed {
-        r: acc.into_r(),
+    assert!(
+        bounds.len() >= 2
+            && bounds[0] == 0
+            && bounds[bounds.len() - 1] == n
+            && bounds.windows(2).all(|w| w[0] <= w[1]),
+        "compress_parts: bounds must ascend from 0 to the column length"
+    );
+    let ranges = bounds.len() - 1;
+    // every range in as many pieces as keep the threads busy; pieces merge into their range
+    let threads = threads.max(1).min(n / 4096 + 1);
+    let pieces_per_range = threads.div_ceil(ranges).max(1);
+    let tasks: Vec<(usize, usize, usize)> = (0..ranges)
+        .flat_map(|r| {
+            let (lo, hi) = (bounds[r], bounds[r + 1]);
+            let chunk = (hi - lo).div_ceil(pieces_per_range).max(1);
+            (0..pieces_per_range)
+                .map(move |q| (r, (lo + q * chunk).min(hi), (lo + (q + 1) * chunk).min(hi)))
+        })
+        .collect();
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let worker = || {
+        let mut done = Vec::new();
+        loop {
+            let t = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            let Some(&(r, lo, hi)) = tasks.get(t) else {
+                return done;
+            };
+            done.push((t, r, compress_range(columns, intercept, lo, hi)));
+        }
+    };
+    let mut pieces: Vec<(usize, usize, CompressedPart)> = if threads == 1 {
+        worker()
+    } else {
+        std::thread::scope(|s| {
+            let handles: Vec<_> = (0..threads).map(|_| s.spawn(worker)).collect();
+            handles
+                .into_iter()
+                .flat_map(|h| h.join().expect("compress worker panicked"))
+                .collect()
+        })
+    };
+    pieces.sort_by_key(|(t, _, _)| *t);
+    let mut out: Vec<CompressedPart> = Vec::with_capacity(ranges);
+    let mut last_range = usize::MAX;
+    for (_, r, piece) in pieces {
+        if r == last_range {
+            out.last_mut()
+                .expect("a piece of this range")
+                .absorb(&piece);
+        } else {
+            out.push(piece);
+            last_range = r;
+        }
+    }
+    Ok(out)
+}
+
+impl CompressedPart {
+    fn absorb(&mut self, other: &CompressedPart) {
+        self.acc.merge(&other.acc);
+        self.constancy.merge(&other.constancy);
+        self.nan_rows.extend_from_slice(&other.nan_rows);
+    }
+}
+
+/// The compression of the union of the parts' rows (`n`: the length of the input columns).
+pub fn merge_parts(parts: &[&CompressedPart], n: usize) -> Compressed {
+    let mut iter = parts.iter();
+    let mut acc = (*iter.next().expect("at least one part")).clone();
+    for other in iter {
+        acc.absorb(other);
+    }
+    let mut was_nan = vec![false; n];
+    for &i in &acc.nan_rows {
+        was_nan[i] = true;
+    }
+    let rows = acc.acc.rows();
+    Compressed {
+        r: acc.acc.into_r(),
         rows,
         was_nan,
-        constant: constancy.constant,
-    })
+        constant: acc.constancy.constant,
+    }
 }
 
 /// Householder QR with column pivoting, `A P = Q R`, of a small dense matrix.

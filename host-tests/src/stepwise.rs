@@ -24,7 +24,7 @@
 
 #![allow(clippy::needless_range_loop)] // index loops read best in numerical kernels
 
-use crate::linalg::{compress, Mat, PivotedQr};
+use crate::linalg::{compress, Compressed, Mat, PivotedQr};
 use crate::stats::t_pvalue_two_sided;
 
 /// Errors of [`stepwise`].
@@ -66,6 +66,12 @@ pub struct StepwiseOptions {
 }
 
 impl StepwiseOptions {
+    /// Threads for the compression pass: `threads`, else the available parallelism.
+    pub fn thread_count(&self) -> usize {
+        self.threads
+            .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |t| t.get()))
+    }
+
     /// The effective `(penter, premove)` with MATLAB's defaults, validated.
     pub fn thresholds(&self) -> Result<(f64, f64), StepwiseError> {
         let (pe, pr) = match (self.penter, self.premove) {
@@ -178,7 +184,7 @@ pub fn stepwise(
     y: &[f64],
     opts: &StepwiseOptions,
 ) -> Result<StepwiseResult, StepwiseError> {
-    let (penter, premove) = opts.thresholds()?;
+    opts.thresholds()?;
     let p = x.len();
     for (j, c) in x.iter().enumerate() {
         if c.len() != y.len() {
@@ -199,10 +205,31 @@ pub fn stepwise(
     }
     let mut cols: Vec<&[f64]> = x.to_vec();
     cols.push(y);
-    let threads = opts
-        .threads
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |t| t.get()));
-    let comp = compress(&cols, true, threads).expect("lengths checked");
+    let comp = compress(&cols, true, opts.thread_count()).expect("lengths checked");
+    stepwise_compressed(comp, opts)
+}
+
+/// Stepwise regression on data already compressed: `comp` is [`compress`] (with the intercept)
+/// of the candidate columns followed by the response, e.g. [`merge_parts`] of some of the
+/// [`compress_parts`] of `[x… y]` — a fit on a subset of row ranges without another pass over
+/// the data. Same result as [`stepwise`] on those rows (up to rounding).
+///
+/// [`merge_parts`]: crate::linalg::merge_parts
+/// [`compress_parts`]: crate::linalg::compress_parts
+pub fn stepwise_compressed(
+    comp: Compressed,
+    opts: &StepwiseOptions,
+) -> Result<StepwiseResult, StepwiseError> {
+    let (penter, premove) = opts.thresholds()?;
+    let p = comp.constant.len().saturating_sub(1);
+    for (what, idx) in [("inmodel", &opts.inmodel), ("keep", &opts.keep)] {
+        if let Some(&bad) = idx.iter().find(|&&i| i >= p) {
+            return Err(StepwiseError::BadOption(format!(
+                "{what} column {} out of range: there are {p} candidate columns",
+                bad + 1
+            )));
+        }
+    }
     if comp.rows < 2 {
         return Err(StepwiseError::TooFewRows(comp.rows));
     }

@@ -219,9 +219,20 @@ impl PredictionBand {
     /// Half-width of the two-sided prediction interval at confidence `level` (e.g. 0.95) of a
     /// new observation at `x₀`.
     pub fn half_width(&self, x0: &[f64], level: f64) -> Result<f64, UncertaintyError> {
+        self.half_width_with(x0, self.t_times_s(level))
+    }
+
+    /// `t·s` of the interval at confidence `level`: the half-width is `t·s·√(1 + h)`. The t
+    /// quantile is an iterative inverse of the incomplete beta function, dearer than a
+    /// leverage: over many points, compute it once and call [`Self::half_width_with`].
+    pub fn t_times_s(&self, level: f64) -> f64 {
+        t_quantile(0.5 + level / 2.0, self.dfe as f64) * self.s
+    }
+
+    /// [`Self::half_width`] with `t_times_s` from [`Self::t_times_s`] (the same number).
+    pub fn half_width_with(&self, x0: &[f64], t_times_s: f64) -> Result<f64, UncertaintyError> {
         let h = self.leverage(x0)?;
-        let t = t_quantile(0.5 + level / 2.0, self.dfe as f64);
-        Ok(t * self.s * (1.0 + h).sqrt())
+        Ok(t_times_s * (1.0 + h).sqrt())
     }
 }
 
@@ -244,6 +255,15 @@ pub const VIF_WARN: f64 = 10.0;
 /// to be collinear with: VIF 1.
 pub fn variance_inflation(names: &[String], columns: &[&[f64]]) -> Vec<Vif> {
     let p = columns.len();
+    // each pair's correlation once (it is symmetric, bit for bit)
+    let mut corr = vec![f64::NAN; p * p];
+    for j in 0..p {
+        for i in j + 1..p {
+            let r = correlation(columns[i], columns[j]);
+            corr[i * p + j] = r;
+            corr[j * p + i] = r;
+        }
+    }
     (0..p)
         .map(|j| {
             let others: Vec<&[f64]> = (0..p).filter(|&i| i != j).map(|i| columns[i]).collect();
@@ -264,7 +284,7 @@ pub fn variance_inflation(names: &[String], columns: &[&[f64]]) -> Vec<Vif> {
             };
             let partner = (0..p)
                 .filter(|&i| i != j)
-                .map(|i| (i, correlation(columns[i], y)))
+                .map(|i| (i, corr[i * p + j]))
                 .filter(|(_, r)| r.is_finite())
                 .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
                 .map(|(i, r)| (names[i].clone(), r));
@@ -279,19 +299,22 @@ pub fn variance_inflation(names: &[String], columns: &[&[f64]]) -> Vec<Vif> {
 
 /// Pearson correlation over the rows where both are finite.
 pub fn correlation(a: &[f64], b: &[f64]) -> f64 {
-    let pairs: Vec<(f64, f64)> = a
-        .iter()
-        .zip(b)
-        .filter(|(x, y)| x.is_finite() && y.is_finite())
-        .map(|(x, y)| (*x, *y))
-        .collect();
-    let n = pairs.len() as f64;
-    let (ma, mb) = (
-        pairs.iter().map(|p| p.0).sum::<f64>() / n,
-        pairs.iter().map(|p| p.1).sum::<f64>() / n,
-    );
+    // two passes over the finite pairs, no copy of them (same sums in the same order)
+    let pairs = || {
+        a.iter()
+            .zip(b)
+            .filter(|(x, y)| x.is_finite() && y.is_finite())
+    };
+    let (mut n, mut sa, mut sb) = (0usize, 0.0, 0.0);
+    for (x, y) in pairs() {
+        n += 1;
+        sa += x;
+        sb += y;
+    }
+    let n = n as f64;
+    let (ma, mb) = (sa / n, sb / n);
     let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
-    for (x, y) in &pairs {
+    for (x, y) in pairs() {
         sab += (x - ma) * (y - mb);
         saa += (x - ma).powi(2);
         sbb += (y - mb).powi(2);

@@ -11,9 +11,15 @@ use std::process::Command;
 use nanocal::recording::Recording;
 use nanocal::stepwise::{stepwise, Action, StepwiseOptions};
 
+/// The reference's driver: `../shared/peers/octave-stepwise/` beside the repository, or the
+/// folder `NANOCAL_OCTAVE_STEPWISE` names (a git worktree elsewhere).
 fn oracle() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/peers/octave-stepwise/stepwise_oracle.sh")
+    std::env::var_os("NANOCAL_OCTAVE_STEPWISE")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/peers/octave-stepwise")
+        })
+        .join("stepwise_oracle.sh")
 }
 
 fn octave_available() -> bool {

@@ -5,8 +5,9 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use clap::Args;
 
+use crate::linalg::{compress_parts, merge_parts, Compressed, CompressedPart};
 use crate::recording::Recording;
-use crate::stepwise::{stepwise, Action, StepwiseOptions, StepwiseResult};
+use crate::stepwise::{stepwise_compressed, Action, StepwiseOptions, StepwiseResult};
 
 /// Stepwise linear regression with MATLAB `stepwisefit` semantics: every numeric column other
 /// than the response (and those listed in `--exclude`) is a candidate term; the intercept is
@@ -96,10 +97,12 @@ pub fn run(args: StepwiseArgs) -> anyhow::Result<()> {
         x.len(),
         y.len()
     ));
-    let res = stepwise(&x, y, &opts)?;
+    opts.thresholds()?;
+    let blocks = Blocks::compress(&x, y, args.blocks, opts.thread_count())?;
+    let res = stepwise_compressed(blocks.merged(None), &opts)?;
     bar.finish_and_clear();
     print!("{}", table(&names, &res, &opts));
-    let trust = Trust::of(&names, &x, y, &res, &opts, args.blocks)?;
+    let trust = Trust::of(&names, &x, y, &res, &opts, &blocks)?;
     print!("{}", trust.text(&args.response));
     if let Some(path) = &args.json {
         let mut json = to_json(&names, &args.response, &res);
@@ -234,21 +237,20 @@ pub struct Trust {
 }
 
 impl Trust {
-    /// Computes it for the final model of `res`.
+    /// Computes it for the final model of `res`, fitted on `blocks` (held-out fits leave one
+    /// block's compression out of the merge: no further pass over the data).
     pub fn of(
         names: &[String],
         x: &[&[f64]],
         y: &[f64],
         res: &StepwiseResult,
         opts: &StepwiseOptions,
-        blocks: usize,
+        blocks: &Blocks,
     ) -> anyhow::Result<Self> {
-        use crate::uncertainty::{time_blocks, variance_inflation, HeldOut, PredictionBand};
+        use crate::uncertainty::{variance_inflation, HeldOut, PredictionBand};
         let sel: Vec<usize> = (0..names.len()).filter(|&j| res.inmodel[j]).collect();
         // rows the fit used (no NaN in y or any candidate)
-        let used: Vec<usize> = (0..y.len())
-            .filter(|&i| !y[i].is_nan() && x.iter().all(|c| !c[i].is_nan()))
-            .collect();
+        let used = &blocks.used;
         let cols: Vec<Vec<f64>> = sel
             .iter()
             .map(|&j| used.iter().map(|&i| x[j][i]).collect())
@@ -256,9 +258,13 @@ impl Trust {
         let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
         let (pi95, pi_error) = match PredictionBand::new(&refs, res.ss_resid) {
             Ok(band) => {
+                let ts = band.t_times_s(0.95);
+                let mut row = vec![0.0; cols.len()];
                 let hw = (0..used.len()).filter_map(|r| {
-                    let row: Vec<f64> = cols.iter().map(|c| c[r]).collect();
-                    band.half_width(&row, 0.95).ok()
+                    for (v, c) in row.iter_mut().zip(&cols) {
+                        *v = c[r];
+                    }
+                    band.half_width_with(&row, ts).ok()
                 });
                 (crate::cli::trust::spread(hw), None)
             }
@@ -266,43 +272,31 @@ impl Trust {
         };
         let sel_names: Vec<String> = sel.iter().map(|&j| names[j].clone()).collect();
         let vif = variance_inflation(&sel_names, &refs);
-        let held_out = |blocks: usize| -> anyhow::Result<HeldOut> {
-            let ranges = time_blocks(used.len(), blocks)?;
+        let held_out = |ranges: &[(usize, usize)]| -> anyhow::Result<HeldOut> {
             let mut errors = Vec::new();
-            for &(start, end) in &ranges {
-                let train: Vec<Vec<f64>> = x
-                    .iter()
-                    .map(|c| {
-                        used.iter()
-                            .enumerate()
-                            .filter(|(k, _)| *k < start || *k >= end)
-                            .map(|(_, &i)| c[i])
-                            .collect()
-                    })
-                    .collect();
-                let ty: Vec<f64> = used
-                    .iter()
-                    .enumerate()
-                    .filter(|(k, _)| *k < start || *k >= end)
-                    .map(|(_, &i)| y[i])
-                    .collect();
-                let tr: Vec<&[f64]> = train.iter().map(|c| c.as_slice()).collect();
-                let fold = stepwise(&tr, &ty, opts)?;
+            for (b, &(start, end)) in ranges.iter().enumerate() {
+                let fold = stepwise_compressed(blocks.merged(Some(b)), opts)?;
+                // the fold's prediction at each held-out row, summed as `predict` sums
+                let rows = &used[start..end];
+                let mut sum = vec![0.0; rows.len()];
+                for (j, c) in x.iter().enumerate().filter(|(j, _)| fold.inmodel[*j]) {
+                    for (s, &i) in sum.iter_mut().zip(rows) {
+                        *s += c[i] * fold.b[j];
+                    }
+                }
                 errors.push(
-                    used[start..end]
-                        .iter()
-                        .map(|&i| {
-                            let row: Vec<f64> = x.iter().map(|c| c[i]).collect();
-                            y[i] - fold.predict(&row)
-                        })
+                    rows.iter()
+                        .zip(&sum)
+                        .map(|(&i, s)| y[i] - (fold.intercept + s))
                         .collect::<Vec<f64>>(),
                 );
             }
             Ok(HeldOut::from_block_errors(&errors))
         };
-        let (held_out, held_out_error) = match blocks {
-            0 => (None, None),
-            k => match held_out(k) {
+        let (held_out, held_out_error) = match &blocks.ranges {
+            None => (None, None),
+            Some(Err(e)) => (None, Some(e.clone())),
+            Some(Ok(ranges)) => match held_out(ranges) {
                 Ok(h) => (Some(h), None),
                 Err(e) => (None, Some(format!("{e:#}"))),
             },
@@ -355,5 +349,65 @@ impl Trust {
             "held_out": self.held_out.as_ref().map(crate::cli::trust::held_out_json),
             "held_out_error": self.held_out_error,
         })
+    }
+}
+
+/// The data `[x… y]` compressed once per block of rows for held-out accuracy: the full fit
+/// merges every block's triangle, the fit without block `b` all but that one — one pass over
+/// the data for the fit and all its held-out refits.
+pub struct Blocks {
+    /// The rows without NaN in `y` or any candidate, ascending.
+    pub used: Vec<usize>,
+    /// The held-out blocks as ranges of `used` (time order), or why there are none; `None`
+    /// when none were asked for.
+    pub ranges: Option<Result<Vec<(usize, usize)>, String>>,
+    parts: Vec<CompressedPart>,
+    n: usize,
+}
+
+impl Blocks {
+    /// Compresses `[x… y]` in `blocks` contiguous blocks of the rows the fit uses (0: one).
+    pub fn compress(
+        x: &[&[f64]],
+        y: &[f64],
+        blocks: usize,
+        threads: usize,
+    ) -> anyhow::Result<Self> {
+        let n = y.len();
+        let used: Vec<usize> = (0..n)
+            .filter(|&i| !y[i].is_nan() && x.iter().all(|c| !c[i].is_nan()))
+            .collect();
+        let ranges = match blocks {
+            0 => None,
+            k => Some(crate::uncertainty::time_blocks(used.len(), k).map_err(|e| e.to_string())),
+        };
+        // block b starts at the input row of its first used row; NaN rows go with either
+        // neighbour and are left out there as in the full fit
+        let mut bounds = vec![0];
+        if let Some(Ok(r)) = &ranges {
+            bounds.extend(r.iter().skip(1).map(|&(start, _)| used[start]));
+        }
+        bounds.push(n);
+        let mut cols: Vec<&[f64]> = x.to_vec();
+        cols.push(y);
+        let parts = compress_parts(&cols, true, threads, &bounds)?;
+        Ok(Blocks {
+            used,
+            ranges,
+            parts,
+            n,
+        })
+    }
+
+    /// The compression of every block but `leave_out`.
+    pub fn merged(&self, leave_out: Option<usize>) -> Compressed {
+        let keep: Vec<&CompressedPart> = self
+            .parts
+            .iter()
+            .enumerate()
+            .filter(|(b, _)| Some(*b) != leave_out)
+            .map(|(_, p)| p)
+            .collect();
+        merge_parts(&keep, self.n)
     }
 }

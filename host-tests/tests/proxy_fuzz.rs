@@ -16,8 +16,23 @@ const CI_STEPS: u64 = 20_000;
 /// Seeds per setup in CI.
 const CI_SEEDS: u64 = 4;
 
+/// Replays of runs that found a fault, up to just before each run's next, still open, finding:
+/// the host's `*IDN?` discarded by a new session taken for a marker's reply (a POS? reply then
+/// reached the host unmapped), a host `CSV?` counted as answered by a controller without `CSV?`
+/// (an `MOV?` reply then reached the host unmapped, step 38), an identification line still due
+/// to a given-up marker ending a resynchronisation early.
 #[test]
-#[ignore = "open finding (issue 21, item 5): published 1-DoF, seed 1, step 3909 — after replies were lost mid-stream, a marker answered by an earlier marker's identification line resynchronises too early and a POS? reply reaches the host unmapped"]
+fn fuzz_findings_stay_fixed() {
+    let setups = setups();
+    for (setup, seed, steps) in [(0, 1, 4_600), (2, 0, 3_000), (2, 1, 4_600)] {
+        if let Err(v) = run(&setups[setup], seed, steps) {
+            panic!("{v}");
+        }
+    }
+}
+
+#[test]
+#[ignore = "open findings (issue 21): most seeds still find a fault within 20,000 steps — a controller blackout that swallows queries the proxy counts as certainly answered (then replies pair with the wrong queries), MVE of a non-model axis beyond the controller's travel, coupled-model moves the oracle cannot match; see the branch report"]
 fn the_proxy_keeps_its_promises_under_a_stateful_fuzz() {
     let mut total = Stats::default();
     for setup in setups() {

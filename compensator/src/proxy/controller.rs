@@ -56,8 +56,11 @@ impl<T: Copy> Fact<T> {
 /// The controller's GCS syntax version.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Version {
-    /// GCS 2.0 (or `CSV?` unanswered: an older GCS 2 controller).
+    /// GCS 2.0.
     Gcs2,
+    /// `CSV?` unanswered: an older GCS 2 controller, which leaves the host's `CSV?`
+    /// unanswered too.
+    Gcs2NoCsv,
     /// GCS 3.0 (`CSV?` > 2).
     Gcs3,
 }
@@ -370,7 +373,10 @@ impl ProxyState {
                 }
             }
             A::PositionQuery { .. } => true,
-            A::VersionQuery => self.ctrl.version.known().is_some(),
+            A::VersionQuery => matches!(
+                self.ctrl.version.known(),
+                Some(Version::Gcs2 | Version::Gcs3)
+            ),
             A::UnitQuery => self.ctrl.units.known().is_some(),
             A::TravelQuery => self.ctrl.tmn.known().is_some() && self.ctrl.tmx.known().is_some(),
             _ => false,
@@ -484,7 +490,7 @@ impl ProxyState {
         match info {
             Info::Idn => self.ctrl.idn = Fact::Unanswered,
             // an older GCS 2 controller without CSV?
-            Info::Version => self.ctrl.version = Fact::Known(Version::Gcs2),
+            Info::Version => self.ctrl.version = Fact::Known(Version::Gcs2NoCsv),
             Info::Axes => self.ctrl.axes = Fact::Unanswered,
             Info::Units => self.ctrl.units = Fact::Unanswered,
             Info::TravelMin => self.ctrl.tmn = Fact::Unanswered,

@@ -233,6 +233,9 @@ pub struct ProxyState {
     /// Waiting for the reply to the marker sent to resynchronise (every reply before it is
     /// dropped).
     resyncing: bool,
+    /// While resynchronising: identification lines still due to queries given up, taken for
+    /// theirs before one is the resynchronising marker's (see `replies::resync`).
+    stale_idn: u8,
     /// The model's play operators as the commands sent left them (hysteresis memory): advanced
     /// only when a corrected target goes out, reset whenever the stage may have moved along a
     /// path the proxy did not see (see [`ProxyState::reset_hysteresis`]).
@@ -292,6 +295,7 @@ impl Proxy {
                 held_runs: 0,
                 held_lost: false,
                 resyncing: false,
+                stale_idn: 0,
                 hyst: HysteresisState::new(),
                 now_ms: 0,
                 last_rx_ms: 0,
@@ -664,7 +668,7 @@ impl ProxyState {
         if !passes {
             self.refuse(GcsErrorCode::LineTooLong);
         } else if command::is_query(s.command) {
-            self.query(Expect::Relay, Certainty::Maybe, line, out);
+            self.query(Expect::Relay, Certainty::Maybe, false, line, out);
         } else {
             self.forward(line, out);
         }
@@ -786,11 +790,14 @@ impl ProxyState {
         } else {
             self.certainty(s, action)
         };
-        self.query(e, certainty, line, out);
+        // an unaddressed `*IDN?`'s reply is the identification line, whatever `e` is
+        let idn = action == Action::IdnQuery && s.prefix.is_empty();
+        self.query(e, certainty, idn, line, out);
     }
 
-    /// Forward a query; its reply expected as `e`.
-    fn query(&mut self, e: Expect, certainty: Certainty, line: &[u8], out: &mut Output) {
+    /// Forward a query; its reply expected as `e` (`idn`: the controller's identification
+    /// line, see [`queue::Entry::idn`]).
+    fn query(&mut self, e: Expect, certainty: Certainty, idn: bool, line: &[u8], out: &mut Output) {
         let maybe = match certainty {
             Certainty::Certain => false,
             Certainty::Maybe => true,
@@ -810,7 +817,7 @@ impl ProxyState {
             self.refuse(GcsErrorCode::NoAnswer);
             return;
         }
-        self.expect(Entry::new(e, maybe, true));
+        self.expect(Entry::new(e, maybe, true).with_idn(idn));
         self.forward(line, out);
         if maybe {
             self.send_marker(out);
@@ -1056,7 +1063,8 @@ impl ProxyState {
         // the controller stopped answering: what is in flight will not come
         self.last_tx_ms = now_ms;
         if self.ctrl.marker_reply().is_some() {
-            self.resync(c, out);
+            // after a whole silence nothing given up is still coming (see `resync`)
+            self.resync(c, false, out);
         } else {
             self.give_up(c, out);
         }

@@ -121,11 +121,28 @@ pub(crate) struct Entry {
     pub maybe: bool,
     /// The host asked it (counted against [`MAX_IN_FLIGHT`]).
     pub host: bool,
+    /// Its reply is the controller's identification line (an `*IDN?` without address
+    /// prefix, the host's or the proxy's own): an identification line arriving for it is its
+    /// own reply, never a marker's. Kept when the entry is retagged (a host session that
+    /// ended turns its `*IDN?` into [`Expect::Discard`], whose reply is still that line).
+    pub idn: bool,
 }
 
 impl Entry {
+    /// An entry; `idn` is set for the proxy's and the host's `*IDN?` ([`Info::Idn`]).
     pub(crate) const fn new(e: Expect, maybe: bool, host: bool) -> Self {
-        Self { e, maybe, host }
+        let idn = matches!(e, Expect::Snoop(Info::Idn) | Expect::Internal(Info::Idn));
+        Self {
+            e,
+            maybe,
+            host,
+            idn,
+        }
+    }
+    /// The same entry, its reply the controller's identification line (see [`Entry::idn`]).
+    pub(crate) const fn with_idn(mut self, idn: bool) -> Self {
+        self.idn = idn;
+        self
     }
 }
 

@@ -181,12 +181,11 @@ impl ProxyState {
                     self.counters.unsolicited = self.counters.unsolicited.wrapping_add(1);
                     Entry::new(Expect::Unsolicited, false, false)
                 });
-                // the identification line is an own query's and the host's `*IDN?` reply,
-                // and a marker's anywhere else (the reply to an addressed `*IDN?`, the only
-                // kind that may go unanswered, starts with the address)
-                let deciding = self.ctrl.marker_reply().is_some()
-                    && (en.maybe
-                        || !matches!(en.e, Expect::Snoop(Info::Idn) | Expect::Internal(Info::Idn)));
+                // the identification line is the reply of an `*IDN?` (the proxy's own, the
+                // host's — also when a session that ended left it to be discarded, or in
+                // bypass), and a marker's anywhere else (the reply to an addressed `*IDN?`,
+                // the only kind that may go unanswered, starts with the address)
+                let deciding = self.ctrl.marker_reply().is_some() && (en.maybe || !en.idn);
                 self.rx.begin(en, deciding);
             }
             let rest = &input[i..];
@@ -310,8 +309,10 @@ impl ProxyState {
                     // still waiting for the resynchronising marker's reply
                     let _ = self.queue.push_front(en);
                 } else {
+                    // (this marker's own reply may still come, after the line it got)
+                    let _ = self.queue.push_front(en);
                     self.rx.entry = None;
-                    self.resync(None::<&super::FoldCorrector>, out);
+                    self.resync(None::<&super::FoldCorrector>, true, out);
                 }
                 // the rest of this reply is dropped
                 self.rx.entry = Some(Entry::new(Expect::Unsolicited, false, false));
@@ -347,6 +348,13 @@ impl ProxyState {
             return;
         };
         match en.e {
+            // an identification line due to a query given up when the pairing was lost: the
+            // resynchronising marker's reply is still to come
+            Expect::Marker if self.resyncing && self.stale_idn > 0 => {
+                self.stale_idn -= 1;
+                self.counters.unsolicited = self.counters.unsolicited.wrapping_add(1);
+                let _ = self.queue.push_front(en);
+            }
             // the marker's own reply: replies and queries are paired
             Expect::Marker => self.resyncing = false,
             _ if en.maybe => {
@@ -709,6 +717,7 @@ impl ProxyState {
             }
         }
         self.rx.deciding = false;
+        self.stale_idn = 0;
         while let Some(en) = self.queue.pop() {
             match en.e {
                 Expect::Answer(a) => {
@@ -731,12 +740,36 @@ impl ProxyState {
     /// The pairing of replies is lost (a marker brought back something else) or the controller
     /// went silent: give up what is in flight and send a marker; every reply before the
     /// marker's is dropped.
-    pub(super) fn resync<C: Corrector>(&mut self, c: Option<&C>, out: &mut Output) {
+    ///
+    /// Every marker is the same query, so the resynchronising marker's reply is told from the
+    /// identification lines still due to the queries given up (markers, `*IDN?`) by counting:
+    /// with `late` (a marker brought back something else: the replies given up may still
+    /// arrive), that many identification lines are taken for theirs before one is the
+    /// resynchronising marker's. Counting all of them errs on the safe side: where some were
+    /// lost, the proxy drops replies until the controller has been silent for
+    /// [`super::REPLY_TIMEOUT_MS`] and resynchronises again without `late` (after a whole
+    /// silence nothing given up is still coming); it never pairs a reply with the wrong query.
+    pub(super) fn resync<C: Corrector>(&mut self, c: Option<&C>, late: bool, out: &mut Output) {
+        let due = if late { self.idn_lines_due() } else { 0 };
         self.give_up(c, out);
         if self.ctrl.marker_reply().is_some() && self.queue.room() > 0 {
             self.resyncing = true;
+            self.stale_idn = due;
             self.send_marker(out);
         }
+    }
+
+    /// Identification lines the queries in flight (the reply being received included) may
+    /// still bring: one per marker and per `*IDN?`.
+    fn idn_lines_due(&self) -> u8 {
+        let n = self
+            .rx
+            .entry
+            .iter()
+            .chain(self.queue.iter())
+            .filter(|en| en.e == Expect::Marker || en.idn)
+            .count();
+        n.min(usize::from(u8::MAX)) as u8
     }
 }
 

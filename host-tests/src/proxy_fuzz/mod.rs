@@ -372,16 +372,21 @@ pub fn run(setup: &Setup, seed: u64, steps: u64) -> Result<Stats, Box<Violation>
                 format!("deliver {n}")
             }
             850..=989 => {
-                // the controller's replies are never late by more than a link's buffering,
-                // unless it is silent (a blackout)
-                if rig.now_ms.wrapping_sub(rig.stage_since_ms) > 500 || rng.gen_bool(0.8) {
-                    rig.deliver(usize::MAX);
-                }
                 let ms = if rng.gen_bool(0.03) {
                     REPLY_TIMEOUT_MS + rng.gen_range(1..300)
                 } else {
                     rng.gen_range(1..60)
                 };
+                // the controller's replies are never late by more than a link's buffering,
+                // unless it is silent (a blackout): they arrive before a silence as long as
+                // the proxy's reply timeout (a controller silent that long has stopped
+                // answering: what it still owes is lost, the proxy's contract)
+                if rig.now_ms.wrapping_sub(rig.stage_since_ms) > 500
+                    || ms >= REPLY_TIMEOUT_MS
+                    || rng.gen_bool(0.8)
+                {
+                    rig.deliver(usize::MAX);
+                }
                 rig.wait(ms);
                 format!("wait {ms} ms")
             }
@@ -423,7 +428,9 @@ pub fn run(setup: &Setup, seed: u64, steps: u64) -> Result<Stats, Box<Violation>
         };
         if std::env::var_os("NANOCAL_FUZZ_TRACE").is_some() {
             eprintln!(
-                "{step}: {note} | {:?} | host_rx {:?} | processed {:?}",
+                "{step}: {note} | resyncs {} stage_rx {:?} | {:?} | host_rx {:?} | processed {:?}",
+                rig.proxy.counters.resyncs,
+                String::from_utf8_lossy(&rig.stage_rx.iter().copied().collect::<Vec<u8>>()),
                 rig.proxy,
                 String::from_utf8_lossy(&rig.host_rx),
                 rig.ctl

@@ -32,7 +32,8 @@
 //! 7.2.1/7.2.2, forward and backward approaches separate poses), and over the tests R_s and R_t
 //! (Eq. 20–21) in µm and µm/h ([`crate::iso9283`]).
 
-use nanocal_compensator::proxy::{Corrector, FoldCorrector};
+use nanocal_compensator::gcs;
+use nanocal_compensator::proxy::{travel, Corrector, FoldCorrector};
 use nanocal_model::{FastInputs, HysteresisState, Model, SlowInputs, MAX_AXES};
 
 use crate::device_path::{DeviceSlowPath, SensorStream, SlowPeriods};
@@ -479,9 +480,12 @@ pub fn validate_roles(
 }
 
 /// Whether the compensator's proxy refuses a move to `x_um` with this fold: its rule
-/// (`nanocal_compensator::proxy`, `rewrite_move`) — target outside the training envelope, or
-/// corrected command outside the stage travel (a NaN command, from a fast input not supplied,
-/// is outside).
+/// (`nanocal_compensator::proxy`, `rewrite_move` and `travel`) — target outside the training
+/// envelope, or corrected command outside the stage travel by more than the proxy's clamp
+/// ([`travel::CLAMP_UM`]: a command up to 0.1 µm outside goes out as the end of the travel, and
+/// the recording's `cmd` is then that end). The command is formed as the proxy forms it, the
+/// target in micros plus δ; a NaN command (a fast input not supplied) is outside. A recording
+/// does not carry the controller's `TMN?`/`TMX?`, so only the model's travel is checked.
 fn refuses(
     device: &FoldCorrector,
     x_um: &[f32; MAX_AXES],
@@ -494,7 +498,20 @@ fn refuses(
     c.outside_envelope & ((1u8 << k) - 1) != 0
         || (0..k).any(|a| {
             let (lo, hi) = device.travel_um(a);
-            !(c.q_um[a] >= lo && c.q_um[a] <= hi)
+            if c.q_um[a] >= lo && c.q_um[a] <= hi {
+                return false;
+            }
+            let (Some(x), Some(d)) = (
+                gcs::f32_to_micros(x_um[a]),
+                gcs::f32_to_micros(c.delta_um[a]),
+            ) else {
+                return true;
+            };
+            let model = travel::model_travel_micros(lo, hi);
+            matches!(
+                travel::edge(x.saturating_add(d), model, (None, None)),
+                travel::Edge::Outside(_)
+            )
         })
 }
 
@@ -717,4 +734,58 @@ pub fn coverage(
         n,
         median_half_width_um: widths.get(widths.len() / 2).copied().unwrap_or(f64::NAN),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nanocal_model::{Factor, Input, ModelBuilder};
+
+    /// 1 axis, travel 0…500 µm, command = target + `offset_um`.
+    fn offset_model(offset_um: f64) -> Model {
+        let mut b = ModelBuilder::new(1, 0, 0)
+            .unwrap()
+            .trained_range(Input::Axis(0), -10.0, 510.0)
+            .travel_um(0, 0.0, 500.0);
+        b.add_raw_term(0, [1, 0, 0], Factor::None, 0, 1.0).unwrap();
+        b.add_raw_term(0, [0; 3], Factor::None, 0, offset_um)
+            .unwrap();
+        b.build().unwrap()
+    }
+
+    /// The corrected command at `x_um`, and whether validation counts the move as refused.
+    fn at(m: &Model, x_um: f32) -> (f32, bool) {
+        let device = FoldCorrector::new(m, &SlowInputs::default());
+        let mut x = [0.0f32; MAX_AXES];
+        x[0] = x_um;
+        let dir = [0i8; MAX_AXES];
+        let hyst = HysteresisState::default();
+        let q = device
+            .fold
+            .evaluate(&x, &dir, &FastInputs::NONE, &hyst)
+            .q_um[0];
+        (q, refuses(&device, &x, &dir, &FastInputs::NONE, &hyst, 1))
+    }
+
+    #[test]
+    fn commands_just_outside_the_travel_are_clamped_as_the_device_does_and_further_out_refused() {
+        for (offset_um, x_um, refused) in [
+            // the case: a correction of −0.05 µm at 0 on a travel that starts at 0
+            (-0.05, 0.0, false),
+            (0.05, 500.0, false),
+            (-0.2, 0.0, true),
+            (0.2, 500.0, true),
+            (-0.2, 250.0, false),
+        ] {
+            let m = offset_model(offset_um);
+            let (q, got) = at(&m, x_um);
+            assert_eq!(
+                got, refused,
+                "offset {offset_um} µm at {x_um} µm: command {q} µm, refused {got}"
+            );
+        }
+        // the command really left the travel in the clamped cases (else the test shows nothing)
+        assert!(at(&offset_model(-0.05), 0.0).0 < 0.0);
+        assert!(at(&offset_model(0.05), 500.0).0 > 500.0);
+    }
 }

@@ -109,8 +109,8 @@ pub struct Client {
     name: String,
     seq: u8,
     dec: Decoder,
-    /// The decoder's clock starts here.
-    epoch: Instant,
+    /// The decoder's clock, ms: the time spent waiting on a silent port (see [`Self::now_ms`]).
+    silent_ms: u32,
     /// The device's `HELLO` said it speaks [`mgmt::PROTOCOL`].
     protocol_checked: bool,
     /// How long to wait for each reply.
@@ -153,15 +153,19 @@ impl Client {
             name: name.to_string(),
             seq: 0,
             dec: Decoder::new(),
-            epoch: Instant::now(),
+            silent_ms: 0,
             protocol_checked: false,
             timeout,
         }
     }
 
-    /// Milliseconds on the decoder's clock (it wraps after 49 days, as the decoder expects).
+    /// Milliseconds on the decoder's clock (it wraps after 49 days, as the decoder expects). It
+    /// counts only the time reads waited on a silent port: the decoder drops a reply still
+    /// incomplete [`mgmt::FRAME_TIMEOUT_MS`] after its first byte, and that must mean the device
+    /// went quiet mid-frame (reset, cable), never that this process was off the CPU between two
+    /// reads of one reply (seen on a loaded machine: the reply dropped, the request timed out).
     fn now_ms(&self) -> u32 {
-        self.epoch.elapsed().as_millis() as u32
+        self.silent_ms
     }
 
     fn io(&self, source: io::Error) -> DeviceError {
@@ -208,6 +212,7 @@ impl Client {
             if Instant::now() > deadline {
                 return Err(DeviceError::Timeout(self.timeout, k));
             }
+            let waited = Instant::now();
             let got = match self.port.read(&mut buf) {
                 Ok(0) => {
                     return Err(self.io(io::Error::new(
@@ -224,7 +229,9 @@ impl Client {
                             | io::ErrorKind::Interrupted
                     ) =>
                 {
-                    continue
+                    let ms = waited.elapsed().as_millis().min(u128::from(u32::MAX)) as u32;
+                    self.silent_ms = self.silent_ms.wrapping_add(ms);
+                    continue;
                 }
                 Err(e) => return Err(self.io(e)),
             };

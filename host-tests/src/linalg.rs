@@ -346,6 +346,19 @@ fn block_rows(k: usize) -> usize {
     (((192 * 1024) / 8) / k.max(1)).clamp(16, 1024)
 }
 
+/// The length all `columns` share (0 for none); a column of another length is an error.
+fn common_length(columns: &[&[f64]]) -> Result<usize, LinalgError> {
+    let n = columns.first().map_or(0, |c| c.len());
+    match columns.iter().position(|c| c.len() != n) {
+        Some(j) => Err(LinalgError::LengthMismatch {
+            column: j,
+            expected: n,
+            found: columns[j].len(),
+        }),
+        None => Ok(n),
+    }
+}
+
 /// Householder-QR-compresses the columns `[1 (if intercept)] ++ columns` (all the same length)
 /// to their triangular factor, in one pass over the data, on up to `threads` threads. Rows with
 /// a NaN are left out.
@@ -354,16 +367,7 @@ pub fn compress(
     intercept: bool,
     threads: usize,
 ) -> Result<Compressed, LinalgError> {
-    let n = columns.first().map_or(0, |c| c.len());
-    for (j, c) in columns.iter().enumerate() {
-        if c.len() != n {
-            return Err(LinalgError::LengthMismatch {
-                column: j,
-                expected: n,
-                found: c.len(),
-            });
-        }
-    }
+    let n = common_length(columns)?;
     let threads = threads.max(1).min(n / 4096 + 1);
     let chunk = n.div_ceil(threads);
     let parts: Vec<CompressedPart> = if threads == 1 {
@@ -467,16 +471,7 @@ pub fn compress_parts(
     threads: usize,
     bounds: &[usize],
 ) -> Result<Vec<CompressedPart>, LinalgError> {
-    let n = columns.first().map_or(0, |c| c.len());
-    for (j, c) in columns.iter().enumerate() {
-        if c.len() != n {
-            return Err(LinalgError::LengthMismatch {
-                column: j,
-                expected: n,
-                found: c.len(),
-            });
-        }
-    }
+    let n = common_length(columns)?;
     assert!(
         bounds.len() >= 2
             && bounds[0] == 0

@@ -154,6 +154,16 @@ pub struct Stats {
     pub refused: u64,
 }
 
+impl Stats {
+    /// Count what one oracle check saw.
+    fn count(&mut self, c: oracle::Checked) {
+        self.moves_checked += c.moves;
+        self.replies_checked += c.replies;
+        self.positions_checked += c.positions;
+        self.lines_checked += c.lines;
+    }
+}
+
 impl std::ops::AddAssign for Stats {
     fn add_assign(&mut self, o: Stats) {
         self.steps += o.steps;
@@ -183,6 +193,23 @@ pub struct Violation {
     pub what: String,
     /// The last actions before it.
     pub trace: Vec<String>,
+}
+
+/// A violation seen at `step` of run (`setup`, `seed`), with the last steps' notes.
+fn violation(
+    setup: &'static str,
+    seed: u64,
+    step: u64,
+    what: String,
+    trace: &VecDeque<String>,
+) -> Box<Violation> {
+    Box::new(Violation {
+        setup,
+        seed,
+        step,
+        what,
+        trace: trace.iter().cloned().collect(),
+    })
 }
 
 impl fmt::Display for Violation {
@@ -396,19 +423,8 @@ pub fn run(setup: &Setup, seed: u64, steps: u64) -> Result<Stats, Box<Violation>
                 rig.deliver(rng.gen_range(0..16));
                 let k = oracle
                     .check(&mut rig.ctl, &mut rig.host_rx, false)
-                    .map_err(|what| {
-                        Box::new(Violation {
-                            setup: setup.name,
-                            seed,
-                            step,
-                            what,
-                            trace: trace.iter().cloned().collect(),
-                        })
-                    })?;
-                stats.moves_checked += k.moves;
-                stats.replies_checked += k.replies;
-                stats.positions_checked += k.positions;
-                stats.lines_checked += k.lines;
+                    .map_err(|what| violation(setup.name, seed, step, what, &trace))?;
+                stats.count(k);
                 rig.host_tx.clear();
                 rig.proxy.new_session();
                 oracle.new_session();
@@ -455,19 +471,8 @@ pub fn run(setup: &Setup, seed: u64, steps: u64) -> Result<Stats, Box<Violation>
         let quiet = rig.quiet();
         let checked = oracle
             .check(&mut rig.ctl, &mut rig.host_rx, quiet)
-            .map_err(|what| {
-                Box::new(Violation {
-                    setup: setup.name,
-                    seed,
-                    step,
-                    what,
-                    trace: trace.iter().cloned().collect(),
-                })
-            })?;
-        stats.moves_checked += checked.moves;
-        stats.replies_checked += checked.replies;
-        stats.positions_checked += checked.positions;
-        stats.lines_checked += checked.lines;
+            .map_err(|what| violation(setup.name, seed, step, what, &trace))?;
+        stats.count(checked);
         stats.steps += 1;
     }
     stats.resyncs = u64::from(rig.proxy.counters.resyncs);

@@ -10,6 +10,7 @@
 //! - [`sensor`] and [`fault`]: temperature amplifiers at register level and the fault policy;
 //! - [`inputs`]: which model inputs the board supplies;
 //! - [`slow_average`]: the slow path's clock: readings averaged over the fold period;
+//! - [`stale`]: whether the model in service still holds (KMZ residual, envelope);
 //! - [`upload`]: the chunked upload's state machine;
 //! - [`store`], [`l4flash`]: the persistent store on the L4's flash (and its simulation);
 //! - [`clock`], [`lps22hb`]: clock rules, the barometer;
@@ -38,5 +39,6 @@ pub mod lps22hb;
 pub mod proxy;
 pub mod sensor;
 pub mod slow_average;
+pub mod stale;
 pub mod store;
 pub mod upload;

@@ -537,10 +537,17 @@ fn a_model_using_an_input_the_board_cannot_supply_is_refused() {
 
 #[test]
 fn led_shows_what_the_stage_gets() {
-    assert_eq!(LedState::of(true, false, false), LedState::Compensating);
-    assert_eq!(LedState::of(true, true, true), LedState::Bypass);
-    assert_eq!(LedState::of(false, false, true), LedState::NoModel);
-    assert_eq!(LedState::of(true, false, true), LedState::Fault);
+    assert_eq!(
+        LedState::of(true, false, false, false),
+        LedState::Compensating
+    );
+    assert_eq!(LedState::of(true, true, true, true), LedState::Bypass);
+    assert_eq!(LedState::of(false, false, true, false), LedState::NoModel);
+    assert_eq!(LedState::of(true, false, true, true), LedState::Fault);
+    assert_eq!(LedState::of(true, false, false, true), LedState::Stale);
+    // a stale model still compensates: mostly lit, dark 200 ms every second
+    assert!(LedState::Stale.lit(0) && LedState::Stale.lit(799));
+    assert!(!LedState::Stale.lit(800) && !LedState::Stale.lit(1999) && LedState::Stale.lit(2000));
     assert!((0..2000).all(|t| LedState::Compensating.lit(t)));
     let fast = (0..1000).filter(|&t| LedState::Fault.lit(t)).count();
     assert_eq!(fast, 500);
@@ -552,7 +559,12 @@ fn led_shows_what_the_stage_gets() {
 #[test]
 fn led_next_edge_is_where_the_pattern_changes() {
     assert_eq!(LedState::Compensating.next_edge_ms(1234), None);
-    for state in [LedState::Bypass, LedState::NoModel, LedState::Fault] {
+    for state in [
+        LedState::Bypass,
+        LedState::NoModel,
+        LedState::Fault,
+        LedState::Stale,
+    ] {
         for t in 0..4000u32 {
             let e = state.next_edge_ms(t).expect("a blinking pattern has edges");
             assert!(e >= 1, "{state:?} at {t} ms: edge {e} ms away");

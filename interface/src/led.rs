@@ -8,6 +8,7 @@
 //! | bypass | 2 | slow blink (1 s on, 1 s off) |
 //! | no model | 3 | short flash every 2 s |
 //! | fault (moves refused: sensor failed, stale or warming up) | 4 | fast blink (5 Hz) |
+//! | model stale (still compensating; `MODEL_STALE`) | 5 | on, dark for 0.2 s every second |
 
 code_enum! {
     /// What the LED shows.
@@ -20,19 +21,24 @@ code_enum! {
         NoModel = 3 => "no model (short flash)",
         /// Moves are refused (a sensor failed, the fold is stale, or sensors are warming up).
         Fault = 4 => "fault (fast blink)",
+        /// A model is in service and moves are corrected, but it has gone stale (the status's
+        /// `MODEL_STALE`): refit or re-measure.
+        Stale = 5 => "compensating with a stale model (on, dark 0.2 s every second)",
     }
 }
 
 impl LedState {
     /// The state for the device's conditions (bypass shows even with a fault: it is what the
-    /// stage gets).
-    pub fn of(model: bool, bypass: bool, moves_refused: bool) -> Self {
+    /// stage gets; a fault shows over a stale model: moves are refused).
+    pub fn of(model: bool, bypass: bool, moves_refused: bool, model_stale: bool) -> Self {
         if bypass {
             LedState::Bypass
         } else if !model {
             LedState::NoModel
         } else if moves_refused {
             LedState::Fault
+        } else if model_stale {
+            LedState::Stale
         } else {
             LedState::Compensating
         }
@@ -45,6 +51,8 @@ impl LedState {
             LedState::Bypass => Some((2000, 1000)),
             LedState::NoModel => Some((2000, 100)),
             LedState::Fault => Some((200, 100)),
+            // mostly on (it compensates), with a gap no other state has
+            LedState::Stale => Some((1000, 800)),
         }
     }
 

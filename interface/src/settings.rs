@@ -12,13 +12,18 @@
 //!       200  aux sources: MAX_AUX × { kind u8 (0 none, 1 air pressure hPa, 2 force N) | channel u8
 //!            | scale f32 | offset f32 }                                            (10 bytes each)
 //!       240  fold_period_ms u16 LE (1000..=10000)
-//!       242  crc32 u32 LE (CRC-32/ISO-HDLC of bytes 0..242)
+//!       242  stale_k f32 LE (0 < k ≤ 100): the model-stale check's k standard errors
+//!       246  extrapolation_c f32 LE (0..=50): how far, °C, the model may read temperatures
+//!            beyond its training envelope before it counts as stale
+//!       250  crc32 u32 LE (CRC-32/ISO-HDLC of bytes 0..250)
 //! ```
-//! Version 3 adds the fold period (the readings of a fold period are averaged and the model
-//! folded once a period: `nanocal_compensator::slow_average`). Version 2 (16 chip-selects, no fold period:
-//! 244 bytes, CRC at 240) and version 1 (8 chip-selects, 164 bytes, mains at 89, axes at 93, aux
-//! at 120, CRC at 160, chip-selects 8..15 empty) still decode, with the default fold period:
-//! settings stored by an older firmware survive an update.
+//! Version 4 adds the model-stale check's two numbers (`nanocal_compensator::stale`).
+//! Version 3 (the fold period; the readings of a fold period are averaged and the model
+//! folded once a period: `nanocal_compensator::slow_average`; 246 bytes, CRC at 242), version
+//! 2 (16 chip-selects, no fold period: 244 bytes, CRC at 240) and version 1 (8 chip-selects,
+//! 164 bytes, mains at 89, axes at 93, aux at 120, CRC at 160, chip-selects 8..15 empty) still
+//! decode, with the defaults for what they lack: settings stored by an older firmware survive
+//! an update.
 
 use core::fmt;
 use nanocal_model::{MAX_AUX, MAX_AXES};
@@ -161,9 +166,24 @@ pub const SENSORS: usize = nanocal_model::MAX_TEMPS;
 /// Settings magic.
 pub const MAGIC: [u8; 4] = *b"NCST";
 /// Layout version; bumped whenever the bytes change.
-pub const VERSION: u8 = 3;
+pub const VERSION: u8 = 4;
 /// Encoded length.
-pub const LEN: usize = Layout::of(SENSORS, true).len;
+pub const LEN: usize = Layout::of(SENSORS, true, true).len;
+/// The model-stale check's `k` unless set: a KMZ re-measurement more than 3 standard errors of
+/// prediction from the model's prediction raises `MODEL_STALE` (a chance of 0.3 % per
+/// re-measurement for a model that still holds, with normal residuals).
+pub const DEFAULT_STALE_K: f32 = 3.0;
+/// Largest `k` the settings accept.
+pub const MAX_STALE_K: f32 = 100.0;
+/// How far beyond its training envelope a model may read temperatures unless set, °C: 0.1 °C,
+/// about six times the single-reading noise of the type K channels (≈ 16 mK) and a third of
+/// the 0.2–0.3 °C swings paper 000 §4.3.2 calls "basically within the temperature range of
+/// training" — the fold's averages wander that far over the envelope of the training's
+/// single readings while the model still holds (measured on the virtual bench: README,
+/// *The model knows when it has gone stale*).
+pub const DEFAULT_EXTRAPOLATION_C: f32 = 0.1;
+/// Largest extrapolation margin the settings accept, °C.
+pub const MAX_EXTRAPOLATION_C: f32 = 50.0;
 /// Fold period of settings that do not say (the default, and versions 1 and 2), ms: paper 001
 /// §VI's "each 5-10 seconds" at its short end.
 pub const DEFAULT_FOLD_PERIOD_MS: u16 = 5_000;
@@ -245,6 +265,12 @@ pub struct Settings {
     /// Source of each auxiliary model input: a force channel, or what an input of kind "other"
     /// reads (the compensator's `inputs::aux_source` decides).
     pub aux: [AuxSource; MAX_AUX],
+    /// The model-stale check's `k`: a KMZ re-measurement whose λ change leaves `k` standard
+    /// errors of prediction raises `MODEL_STALE` (0 < k ≤ [`MAX_STALE_K`]).
+    pub stale_k: f32,
+    /// How far a temperature may leave the model's training envelope, °C, before the model
+    /// counts as stale: what the model was shown to extrapolate (0..=[`MAX_EXTRAPOLATION_C`]).
+    pub extrapolation_c: f32,
 }
 
 impl Default for Settings {
@@ -266,6 +292,8 @@ impl Default for Settings {
                 AxisId::single(b'3'),
             ],
             aux: [AuxSource::None; MAX_AUX],
+            stale_k: DEFAULT_STALE_K,
+            extrapolation_c: DEFAULT_EXTRAPOLATION_C,
         }
     }
 }
@@ -304,25 +332,31 @@ impl fmt::Display for SettingsError {
 const SENSOR_AT: usize = 9;
 
 /// Where the fields after the sensors sit, for a layout with `sensors` chip-selects (and the
-/// fold period, or not).
+/// fold period, and the stale check, or not).
 struct Layout {
     sensors: usize,
     mains_at: usize,
     axes_at: usize,
     aux_at: usize,
     fold_at: Option<usize>,
+    stale_at: Option<usize>,
     crc_at: usize,
     len: usize,
 }
 
 impl Layout {
-    const fn of(sensors: usize, fold: bool) -> Layout {
+    const fn of(sensors: usize, fold: bool, stale: bool) -> Layout {
         let mains_at = SENSOR_AT + 10 * sensors;
         let axes_at = mains_at + 4;
         let aux_at = axes_at + 9 * MAP_AXES;
         let end = aux_at + 10 * MAX_AUX;
-        let (fold_at, crc_at) = if fold {
+        let (fold_at, end) = if fold {
             (Some(end), end + 2)
+        } else {
+            (None, end)
+        };
+        let (stale_at, crc_at) = if stale {
+            (Some(end), end + 8)
         } else {
             (None, end)
         };
@@ -332,6 +366,7 @@ impl Layout {
             axes_at,
             aux_at,
             fold_at,
+            stale_at,
             crc_at,
             len: crc_at + 4,
         }
@@ -340,19 +375,21 @@ impl Layout {
     /// The layout of a record of `version`.
     fn of_version(version: u8) -> Option<Layout> {
         match version {
-            1 => Some(Layout::of(8, false)),
-            2 => Some(Layout::of(SENSORS, false)),
-            VERSION => Some(Layout::of(SENSORS, true)),
+            1 => Some(Layout::of(8, false, false)),
+            2 => Some(Layout::of(SENSORS, false, false)),
+            3 => Some(Layout::of(SENSORS, true, false)),
+            VERSION => Some(Layout::of(SENSORS, true, true)),
             _ => None,
         }
     }
 }
 
-const NOW: Layout = Layout::of(SENSORS, true);
+const NOW: Layout = Layout::of(SENSORS, true, true);
 const MAINS_AT: usize = NOW.mains_at;
 const AXES_AT: usize = NOW.axes_at;
 const AUX_AT: usize = NOW.aux_at;
 const FOLD_AT: usize = AUX_AT + 10 * MAX_AUX;
+const STALE_AT: usize = FOLD_AT + 2;
 const CRC_AT: usize = NOW.crc_at;
 
 /// Lowest stage-link baud rate: the STM32 board's UART4 divides its 80 MHz clock by at most
@@ -393,6 +430,13 @@ impl Settings {
         }
         if !(MIN_FOLD_PERIOD_MS..=MAX_FOLD_PERIOD_MS).contains(&self.fold_period_ms) {
             return Err(SettingsError::Field(FOLD_AT as u16));
+        }
+        // written so that NaN fails too
+        if !(self.stale_k > 0.0 && self.stale_k <= MAX_STALE_K) {
+            return Err(SettingsError::Field(STALE_AT as u16));
+        }
+        if !(self.extrapolation_c >= 0.0 && self.extrapolation_c <= MAX_EXTRAPOLATION_C) {
+            return Err(SettingsError::Field(STALE_AT as u16 + 4));
         }
         for (i, a) in self.aux.iter().enumerate() {
             if let AuxSource::Force {
@@ -460,12 +504,14 @@ impl Settings {
             b[o + 6..o + 10].copy_from_slice(&f32::to_le_bytes(off));
         }
         b[FOLD_AT..FOLD_AT + 2].copy_from_slice(&self.fold_period_ms.to_le_bytes());
+        b[STALE_AT..STALE_AT + 4].copy_from_slice(&self.stale_k.to_le_bytes());
+        b[STALE_AT + 4..STALE_AT + 8].copy_from_slice(&self.extrapolation_c.to_le_bytes());
         let crc = crate::crc32(&b[..CRC_AT]);
         b[CRC_AT..].copy_from_slice(&crc.to_le_bytes());
         b
     }
 
-    /// Decode (this version's layout, or version 1's) and validate as a stored record
+    /// Decode (this version's layout, or an older one's) and validate as a stored record
     /// ([`Self::validate_stored`]: the baud rate is not held to this firmware's range).
     pub fn decode(b: &[u8]) -> Result<Self, SettingsError> {
         if b.len() < 5 {
@@ -542,6 +588,10 @@ impl Settings {
         }
         if let Some(o) = l.fold_at {
             s.fold_period_ms = u16::from_le_bytes([b[o], b[o + 1]]);
+        }
+        if let Some(o) = l.stale_at {
+            s.stale_k = f32_at(o);
+            s.extrapolation_c = f32_at(o + 4);
         }
         s.validate_stored()?;
         Ok(s)

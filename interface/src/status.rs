@@ -26,10 +26,17 @@
 //!    182 u32             sensor_reconfigs
 //!    186 f32 × 4         aux (NaN: unusable)
 //!    202 u8 × 4          aux_bits (ChannelBits)
-//!    206                 end (Status::LEN)
+//!    206 u8              stale (StaleReasons: why MODEL_STALE is set, 0: it is not)
+//!    207 u32             stale_since_ms (uptime when MODEL_STALE rose; 0: not stale)
+//!    211 f32 × 3         kmz_residual_um (λ change of the last KMZ re-measurement; NaN: none)
+//!    223 f32 × 3         kmz_limit_um (k standard errors of prediction there; NaN: no bound)
+//!    235 f32             envelope_excess_c (largest distance of a model temperature beyond its
+//!                        training envelope at the last fold, °C, ≤ 0 inside; NaN: none)
+//!    239                 end (Status::LEN)
 //! ```
 //! Protocol 5 put `model_crc32` where protocol 4 had a reserved byte (the flash slot of an
-//! older store): every later field moved by 3 bytes.
+//! older store): every later field moved by 3 bytes. Protocol 6 appended the model-stale
+//! check's fields (offset 206 on).
 //!
 //! All little-endian. Adding a field: the struct, [`Status::encode`], [`Status::decode`],
 //! [`Status::LEN`], this diagram, the golden bytes in the tests, and a bump of
@@ -161,6 +168,10 @@ impl Flags {
     pub const WARMING_UP: Flags = Flags(1 << 10);
     /// [`Status::move_fold`] is reported (always set by firmware that knows the field).
     pub const MOVE_FOLD: Flags = Flags(1 << 11);
+    /// The model in service has gone stale ([`Status::stale`] says why): a KMZ re-measurement
+    /// fell outside its prediction interval, or the temperatures left its training envelope by
+    /// more than it was shown to extrapolate. Moves are still corrected.
+    pub const MODEL_STALE: Flags = Flags(1 << 12);
 
     /// Every flag with its name, in bit order (the table `Debug` prints from).
     pub const ALL: &'static [(Flags, &'static str)] = &[
@@ -174,6 +185,7 @@ impl Flags {
         (Flags::HOST_CONNECTED, "HOST_CONNECTED"),
         (Flags::WARMING_UP, "WARMING_UP"),
         (Flags::MOVE_FOLD, "MOVE_FOLD"),
+        (Flags::MODEL_STALE, "MODEL_STALE"),
     ];
 
     /// No flag set.
@@ -239,6 +251,89 @@ impl fmt::Debug for Flags {
             write!(f, "{}{rest:#06x}", if first { "" } else { " | " })?;
         }
         write!(f, ")")
+    }
+}
+
+/// Why the model in service is stale ([`Flags::MODEL_STALE`]): bits of [`Status::stale`].
+#[derive(Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StaleReasons(u8);
+
+impl StaleReasons {
+    /// At a KMZ re-measurement the λ change the model needed left `k` standard errors of
+    /// prediction (`k` from the settings): the model no longer predicts the stage.
+    pub const KMZ_OUTSIDE_INTERVAL: StaleReasons = StaleReasons(1 << 0);
+    /// A temperature the model reads left its training envelope by more than the settings'
+    /// extrapolation margin (what the model was shown to extrapolate).
+    pub const BEYOND_ENVELOPE: StaleReasons = StaleReasons(1 << 1);
+
+    /// Every reason with its words, in bit order.
+    pub const ALL: &'static [(StaleReasons, &'static str)] = &[
+        (
+            StaleReasons::KMZ_OUTSIDE_INTERVAL,
+            "a KMZ re-measurement fell outside the prediction interval",
+        ),
+        (
+            StaleReasons::BEYOND_ENVELOPE,
+            "a temperature left the training envelope by more than the extrapolation margin",
+        ),
+    ];
+
+    /// No reason: not stale.
+    pub const fn empty() -> Self {
+        StaleReasons(0)
+    }
+    /// The bits on the wire.
+    pub const fn bits(self) -> u8 {
+        self.0
+    }
+    /// Reasons from wire bits, unknown bits kept.
+    pub const fn from_bits_retain(bits: u8) -> Self {
+        StaleReasons(bits)
+    }
+    /// True when no reason is set.
+    pub const fn is_empty(self) -> bool {
+        self.0 == 0
+    }
+    /// True when every reason of `other` is set.
+    pub const fn contains(self, other: StaleReasons) -> bool {
+        self.0 & other.0 == other.0
+    }
+    /// Set the reasons of `other`.
+    pub fn insert(&mut self, other: StaleReasons) {
+        self.0 |= other.0;
+    }
+}
+
+impl fmt::Debug for StaleReasons {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "StaleReasons({:#04x})", self.0)
+    }
+}
+
+impl fmt::Display for StaleReasons {
+    /// The reasons in words, `; `-separated (`not stale` when none).
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.is_empty() {
+            return f.write_str("not stale");
+        }
+        let mut first = true;
+        let mut rest = self.0;
+        for (r, words) in StaleReasons::ALL {
+            if self.contains(*r) {
+                write!(f, "{}{words}", if first { "" } else { "; " })?;
+                first = false;
+                rest &= !r.0;
+            }
+        }
+        if rest != 0 {
+            write!(
+                f,
+                "{}reason bits {rest:#04x}",
+                if first { "" } else { "; " }
+            )?;
+        }
+        Ok(())
     }
 }
 
@@ -310,6 +405,20 @@ pub struct Status {
     pub aux: [f32; STATUS_AUX],
     /// Per-aux state and last fault (as [`Status::sensor_bits`]).
     pub aux_bits: [ChannelBits; STATUS_AUX],
+    /// Why the model in service is stale ([`Flags::MODEL_STALE`]; empty: it is not). Latched
+    /// until another model is loaded or the device resets.
+    pub stale: StaleReasons,
+    /// Uptime when [`Flags::MODEL_STALE`] rose, ms (0: not stale).
+    pub stale_since_ms: u32,
+    /// λ change of the last KMZ re-measurement per axis, µm: the command minus what the model
+    /// predicted for the measured position (NaN: none since the model was loaded).
+    pub kmz_residual_um: [f32; 3],
+    /// `k` standard errors of prediction at that KMZ per axis, µm: the limit the residual was
+    /// held to (NaN: no KMZ yet, or the model carries no prediction bound for the axis).
+    pub kmz_limit_um: [f32; 3],
+    /// Largest distance of a temperature the model reads beyond its training envelope at the
+    /// last fold, °C (≤ 0: inside; NaN: the model reads no temperature, or no fold yet).
+    pub envelope_excess_c: f32,
 }
 
 impl Default for Status {
@@ -342,6 +451,11 @@ impl Default for Status {
             sensor_reconfigs: 0,
             aux: [0.0; STATUS_AUX],
             aux_bits: [ChannelBits::default(); STATUS_AUX],
+            stale: StaleReasons::empty(),
+            stale_since_ms: 0,
+            kmz_residual_um: [f32::NAN; 3],
+            kmz_limit_um: [f32::NAN; 3],
+            envelope_excess_c: f32::NAN,
         }
     }
 }
@@ -365,7 +479,12 @@ impl Status {
         + 1
         + 1
         + 4 * 3
-        + 5 * STATUS_AUX;
+        + 5 * STATUS_AUX
+        + 1
+        + 4
+        + 4 * 3
+        + 4 * 3
+        + 4;
 
     /// Encode (the layout in the module docs).
     pub fn encode(&self, w: &mut Writer<'_>) -> Result<(), PayloadError> {
@@ -410,6 +529,12 @@ impl Status {
         for b in self.aux_bits {
             w.u8(b.code())?;
         }
+        w.u8(self.stale.bits())?;
+        w.u32(self.stale_since_ms)?;
+        for v in self.kmz_residual_um.iter().chain(&self.kmz_limit_um) {
+            w.f32(*v)?;
+        }
+        w.f32(self.envelope_excess_c)?;
         Ok(())
     }
 
@@ -475,6 +600,15 @@ impl Status {
         for b in s.aux_bits.iter_mut() {
             *b = channel_bits(r.u8()?, "aux_bits")?;
         }
+        s.stale = StaleReasons::from_bits_retain(r.u8()?);
+        s.stale_since_ms = r.u32()?;
+        for v in s.kmz_residual_um.iter_mut() {
+            *v = r.f32()?;
+        }
+        for v in s.kmz_limit_um.iter_mut() {
+            *v = r.f32()?;
+        }
+        s.envelope_excess_c = r.f32()?;
         Ok(s)
     }
 }

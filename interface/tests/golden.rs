@@ -12,7 +12,9 @@ use nanocal_interface::mgmt::{
 use nanocal_interface::settings::{
     AuxSource, AxisId, Chip, Mains, Settings, StageUnit, TcType, Wires,
 };
-use nanocal_interface::status::{ChannelBits, ChannelStatus, Flags, SensorFault, Status};
+use nanocal_interface::status::{
+    ChannelBits, ChannelStatus, Flags, SensorFault, StaleReasons, Status,
+};
 use nanocal_interface::GcsErrorCode;
 
 include!("golden/bytes.rs");
@@ -38,7 +40,11 @@ fn status() -> Status {
         last_fault: None,
     };
     Status {
-        flags: Flags::MODEL | Flags::EXTRAPOLATING | Flags::HOST_CONNECTED | Flags::MOVE_FOLD,
+        flags: Flags::MODEL
+            | Flags::EXTRAPOLATING
+            | Flags::HOST_CONNECTED
+            | Flags::MOVE_FOLD
+            | Flags::MODEL_STALE,
         model_id: 0x0003_0001,
         model_crc32: 0x89AB_CDEF,
         move_fold: 41,
@@ -59,12 +65,17 @@ fn status() -> Status {
         uptime_ms: 123_456,
         uid: *b"0123456789AB",
         reset_cause: ResetCause::Watchdog,
-        led: LedState::Compensating,
+        led: LedState::Stale,
         fold_age_ms: 250,
         flash_ecc_errors: 0,
         sensor_reconfigs: 3,
         aux: [1013.25, 0.0, 0.0, 0.0],
         aux_bits: [ChannelBits::default(), not_read, not_read, not_read],
+        stale: StaleReasons::BEYOND_ENVELOPE,
+        stale_since_ms: 100_000,
+        kmz_residual_um: [0.25, -0.125, 0.0],
+        kmz_limit_um: [0.09375, 0.0, 0.0],
+        envelope_excess_c: 0.5,
     }
 }
 
@@ -75,6 +86,8 @@ fn custom_settings() -> Settings {
         sample_period_ms: 500,
         fold_period_ms: 8_000,
         stage_unit: StageUnit::Mm,
+        stale_k: 2.5,
+        extrapolation_c: 0.25,
         ..Settings::default()
     };
     s.sensors = [None; 16];
@@ -172,11 +185,25 @@ fn settings_bytes() {
         Settings::decode(&SETTINGS_CUSTOM).unwrap(),
         custom_settings()
     );
-    // a layout 2 record (stored by a firmware before the fold period) decodes with the default
+    use nanocal_interface::settings::{
+        DEFAULT_EXTRAPOLATION_C, DEFAULT_FOLD_PERIOD_MS, DEFAULT_STALE_K,
+    };
+    // a layout 3 record (stored by a firmware before the stale check) decodes with its defaults
+    assert_eq!(
+        Settings::decode(&SETTINGS_CUSTOM_V3).unwrap(),
+        Settings {
+            stale_k: DEFAULT_STALE_K,
+            extrapolation_c: DEFAULT_EXTRAPOLATION_C,
+            ..custom_settings()
+        }
+    );
+    // a layout 2 record (stored by a firmware before the fold period) decodes with the defaults
     assert_eq!(
         Settings::decode(&SETTINGS_CUSTOM_V2).unwrap(),
         Settings {
-            fold_period_ms: nanocal_interface::settings::DEFAULT_FOLD_PERIOD_MS,
+            fold_period_ms: DEFAULT_FOLD_PERIOD_MS,
+            stale_k: DEFAULT_STALE_K,
+            extrapolation_c: DEFAULT_EXTRAPOLATION_C,
             ..custom_settings()
         }
     );
@@ -227,7 +254,7 @@ fn every_reply_frame() {
     let mut firmware = heapless::String::new();
     firmware.push_str("0.1.0").unwrap();
     let hello = Hello {
-        protocol: 5,
+        protocol: 6,
         blob_format: 2,
         max_chunk: 256,
         firmware,
@@ -343,4 +370,29 @@ fn bus_frames() {
         assert_eq!(&b[..n], golden);
         assert_eq!(BusReply::decode(golden).unwrap(), reply);
     }
+}
+
+#[test]
+fn the_stale_check_settings_are_range_checked_with_their_offsets() {
+    use nanocal_interface::settings::SettingsError;
+    for k in [0.0, -1.0, f32::NAN, 100.5] {
+        let s = Settings {
+            stale_k: k,
+            ..Settings::default()
+        };
+        assert_eq!(s.validate(), Err(SettingsError::Field(242)), "k = {k}");
+    }
+    for m in [-0.01, f32::NAN, 51.0] {
+        let s = Settings {
+            extrapolation_c: m,
+            ..Settings::default()
+        };
+        assert_eq!(s.validate(), Err(SettingsError::Field(246)), "margin = {m}");
+    }
+    let edge = Settings {
+        stale_k: 100.0,
+        extrapolation_c: 0.0,
+        ..Settings::default()
+    };
+    assert_eq!(Settings::decode(&edge.encode()), Ok(edge));
 }

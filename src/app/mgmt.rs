@@ -11,6 +11,7 @@ use nanocal_compensator::gcs::AxisMap;
 use nanocal_compensator::inputs;
 use nanocal_compensator::l4flash::EccErrors;
 use nanocal_compensator::proxy::Gate;
+use nanocal_compensator::stale::KmzCheck;
 use nanocal_compensator::store::Store;
 use nanocal_compensator::upload::Upload;
 use nanocal_interface::mgmt::InputCode;
@@ -395,12 +396,24 @@ fn apply_kmz(
     x: &[f64; MAX_AXES],
 ) -> Option<([f64; MAX_AXES], u32)> {
     let dir = [0i8; MAX_AXES];
+    let k = sh.settings.lock(|s| s.borrow().stale_k);
     let kmz = sh.model.lock(|m| {
         let mut m = m.borrow_mut();
         let m = &mut *m;
         let slow = m.slow;
         let live = m.inputs_ready && !m.pending;
         let model = m.model.as_mut()?;
+        if live {
+            // the model-stale check: the λ change this re-measurement makes is the model's
+            // prediction error at the KMZ point (not checked on inputs never read)
+            let check = KmzCheck::of(model, q, x, &slow, k);
+            if m.stale.kmz(check, now_ms()) {
+                warn!(
+                    "model stale: the KMZ fell outside {=f32} standard errors",
+                    k
+                );
+            }
+        }
         model.set_kmz_from_reference(q, x, &dir, &slow);
         let mut k = [0.0; MAX_AXES];
         for (a, v) in k.iter_mut().enumerate().take(model.axes()) {
@@ -480,6 +493,18 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
         s.slow_outside = m.slow_outside;
         if m.slow_outside != 0 {
             s.flags |= Flags::EXTRAPOLATING;
+        }
+        if m.model.is_some() {
+            s.stale = m.stale.reasons();
+            s.stale_since_ms = m.stale.since_ms();
+            if m.stale.is_stale() {
+                s.flags |= Flags::MODEL_STALE;
+            }
+            if let Some(c) = m.stale.last_kmz() {
+                s.kmz_residual_um = c.residual_um;
+                s.kmz_limit_um = c.limit_um;
+            }
+            s.envelope_excess_c = m.stale.excess_c();
         }
         s.folds = m.folds;
         s.uploads_ok = m.uploads_ok;

@@ -32,6 +32,7 @@ use nanocal_compensator::fault::{Faults, Policy, MAX_CHANNELS};
 use nanocal_compensator::gcs::AxisMap;
 use nanocal_compensator::inputs::{self, FastSamples};
 use nanocal_compensator::proxy::{FoldCorrector, Gate, Proxy};
+use nanocal_compensator::stale::StaleCheck;
 use nanocal_interface::identity::{ResetCause, Site};
 use nanocal_interface::mgmt::Refusal;
 use nanocal_interface::settings::Settings;
@@ -125,6 +126,9 @@ pub struct ModelState {
     pub aux_faults: Faults<MAX_AUX>,
     /// Slow inputs outside the envelope at the last fold.
     pub slow_outside: u32,
+    /// Whether the model in service still holds (KMZ residuals, envelope); a new model
+    /// starts afresh.
+    pub stale: StaleCheck,
     /// Folds computed.
     pub folds: u32,
     /// Uploads accepted.
@@ -290,6 +294,7 @@ impl Shared {
                 faults: Faults::new(Policy::default()),
                 aux_faults: Faults::new(aux_policy),
                 slow_outside: 0,
+                stale: StaleCheck::new(),
                 folds: 0,
                 uploads_ok: 0,
                 uploads_rejected: 0,
@@ -331,6 +336,7 @@ impl Shared {
             m.model = Some(model);
             m.model_crc32 = crc32;
             m.generation = m.generation.wrapping_add(1);
+            m.stale = StaleCheck::new();
             m.inputs_ready = false;
             m.pending = true;
         });
@@ -358,6 +364,7 @@ impl Shared {
             m.model = None;
             m.model_crc32 = 0;
             m.generation = m.generation.wrapping_add(1);
+            m.stale = StaleCheck::new();
             m.inputs_ready = false;
             m.pending = false;
         });

@@ -27,6 +27,7 @@ use nanocal_compensator::lps22hb;
 use nanocal_compensator::proxy::Gate;
 use nanocal_compensator::sensor::{Driver, Outcome, SensorFault, MAX_TXN};
 use nanocal_compensator::slow_average::SlowAverage;
+use nanocal_compensator::stale;
 use nanocal_interface::settings::{AuxSource, Settings};
 use nanocal_model::{LagBank, MAX_AUX};
 
@@ -387,6 +388,14 @@ async fn slow_cycle<B: InputBus>(bus: &SharedBus<B>, timeout: Duration, sh: &Sha
             bank.update(&m.slow.temps_c, dt_s, &mut m.slow.lagged_c);
             let comp = Comp::new(model, &m.slow);
             m.slow_outside = comp.fold.slow_outside_envelope();
+            // the model-stale check's envelope half: once a fold, never per command
+            let excess_c = stale::envelope_excess_c(model, &m.slow);
+            if m.stale.fold(excess_c, settings.extrapolation_c, ms) {
+                warn!(
+                    "model stale: a temperature left the envelope by {=f32} °C",
+                    excess_c
+                );
+            }
             m.folds = m.folds.wrapping_add(1);
             Some(Some((Some((comp, m.folds)), blocked)))
         });

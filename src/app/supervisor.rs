@@ -39,7 +39,10 @@ fn limits_ms(sh: &Shared) -> (u32, u32) {
 
 /// What the LED shows now.
 pub fn led_state(sh: &Shared) -> LedState {
-    let model = sh.model.lock(|m| m.borrow().model.is_some());
+    let (model, stale) = sh.model.lock(|m| {
+        let m = m.borrow();
+        (m.model.is_some(), m.stale.is_stale())
+    });
     let (bypass, refused) = sh.core.lock(|c| {
         let c = c.borrow();
         (
@@ -47,7 +50,7 @@ pub fn led_state(sh: &Shared) -> LedState {
             c.proxy.gate != Gate::Open || c.comp.is_none(),
         )
     });
-    LedState::of(model, bypass, refused)
+    LedState::of(model, bypass, refused, stale)
 }
 
 /// Longest the supervisor sleeps, ms: the stale-fold gate closes at most this late (on a limit

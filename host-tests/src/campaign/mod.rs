@@ -460,6 +460,7 @@ pub fn run(
                     kmz_updates: 0,
                     device_resets: 0,
                     interruptions: Vec::new(),
+                    stale: Vec::new(),
                     loops: cfg.target_accuracy_nm.map(|target_nm| state::LoopState {
                         target_nm,
                         tests_per_block: cfg.loop_tests.unwrap_or(plan.validation.rounds),

@@ -19,7 +19,7 @@ use super::bench::{BenchDriver, BenchError, ReferenceReader};
 use super::gcs::{GcsError, GcsLink};
 use super::recorder::{Recorder, RecorderError, Row};
 use super::reference::ReferenceError;
-use super::state::{Interruption, Stage, State, StateError, UploadedModel};
+use super::state::{Interruption, Stage, StaleEvent, State, StateError, UploadedModel};
 use crate::device::{Client, DeviceError};
 use crate::fit::{adaptive_from_static, encode_blob};
 use crate::plan::{Phase, Plan, Step, TestKind};
@@ -701,8 +701,39 @@ impl<'a> Runner<'a> {
                 });
             }
         }
+        self.note_stale(k, &s);
         self.status = Some(s);
         Ok(s)
+    }
+
+    /// Record a rise of `MODEL_STALE` the first time a status shows it, with the plan time of
+    /// the rise (the device's uptime at the rise mapped onto the plan's clock).
+    fn note_stale(&mut self, k: usize, s: &Status) {
+        if !s.flags.contains(Flags::MODEL_STALE) {
+            return;
+        }
+        let seen =
+            |e: &StaleEvent| e.model_crc32 == s.model_crc32 && e.since_ms == s.stale_since_ms;
+        if self.state.stale.iter().any(seen) {
+            return;
+        }
+        let ago_s = f64::from(s.uptime_ms.wrapping_sub(s.stale_since_ms)) / 1000.0;
+        let model = match self.state.model_ids {
+            Some((st, _)) if st == s.model_id => "static".to_string(),
+            Some((_, ad)) if ad == s.model_id => "adaptive".to_string(),
+            _ => format!("{:#010x}", s.model_id),
+        };
+        let event = StaleEvent {
+            rose_s: self.t_now() - ago_s,
+            step: k,
+            during: describe(self.steps[k].phase, self.plan),
+            model,
+            model_crc32: s.model_crc32,
+            reasons: s.stale.to_string(),
+            envelope_excess_c: Some(s.envelope_excess_c).filter(|v| v.is_finite()),
+            since_ms: s.stale_since_ms,
+        };
+        self.state.stale.push(event);
     }
 
     /// Every input the recording carries has a reading (Ok(false): some have none yet, as

@@ -66,6 +66,28 @@ pub struct Interruption {
     pub what: String,
 }
 
+/// The compensator raised `MODEL_STALE` on the model in service (`nanocal_compensator::stale`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StaleEvent {
+    /// Plan time when it rose, s (the device's time of the rise, on the plan's clock).
+    pub rose_s: f64,
+    /// The step during which the campaign first saw it.
+    pub step: usize,
+    /// What the step was (e.g. `test 19/93 (static)`).
+    pub during: String,
+    /// The model it concerns: `static`, `adaptive` or its id in hex.
+    pub model: String,
+    /// The blob CRC of that model (tells two uploads of a model apart from two rises).
+    pub model_crc32: u32,
+    /// Why, in words (`nanocal_interface::status::StaleReasons`).
+    pub reasons: String,
+    /// Temperatures beyond the training envelope when seen, °C (≤ 0 inside; None: the model
+    /// reads none).
+    pub envelope_excess_c: Option<f32>,
+    /// The device's uptime at the rise, ms (with `model_crc32`, what tells rises apart).
+    pub since_ms: u32,
+}
+
 /// The state.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct State {
@@ -106,6 +128,9 @@ pub struct State {
     pub device_resets: usize,
     /// Interruptions so far.
     pub interruptions: Vec<Interruption>,
+    /// Every rise of the compensator's `MODEL_STALE` seen, in order.
+    #[serde(default)]
+    pub stale: Vec<StaleEvent>,
     /// The validate-and-return loop (paper 001 §II step 5), when a target accuracy was given.
     #[serde(default)]
     pub loops: Option<LoopState>,
@@ -301,6 +326,16 @@ mod tests {
                 step: 17,
                 plan_time_s: 374.0,
                 what: "Ctrl-C".into(),
+            }],
+            stale: vec![StaleEvent {
+                rose_s: 250_000.5,
+                step: 16,
+                during: "test 19/93 (static)".into(),
+                model: "static".into(),
+                model_crc32: 0x89AB_CDEF,
+                reasons: "a temperature left the training envelope".into(),
+                envelope_excess_c: Some(0.125),
+                since_ms: 1234,
             }],
         };
         s.save(&dir).unwrap();

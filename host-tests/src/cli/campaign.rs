@@ -234,6 +234,7 @@ fn print_outcome(o: &campaign::Outcome, out: &std::path::Path) {
         o.state.kmz_updates,
         o.state.device_resets
     );
+    print!("{}", stale_lines(&o.state.stale));
     println!("\nfrom what the stage received (the campaign's targets vs the reference):");
     let rows: Vec<&crate::validate::ValidationReport> = a.campaign.iter().collect();
     print!("{}", crate::validate::comparison_table(&rows));
@@ -377,6 +378,27 @@ pub fn loops_table(lp: &campaign::LoopState) -> String {
     s
 }
 
+/// The compensator's `MODEL_STALE` rises, one line each (one line saying so when none rose).
+pub fn stale_lines(events: &[campaign::state::StaleEvent]) -> String {
+    if events.is_empty() {
+        return "MODEL_STALE: never raised\n".into();
+    }
+    let mut o = String::new();
+    for e in events {
+        o += &format!(
+            "MODEL_STALE on the {} model at {:.1} h of plan time ({}): {}{}\n",
+            e.model,
+            e.rose_s / 3600.0,
+            e.during,
+            e.reasons,
+            e.envelope_excess_c
+                .map(|v| format!(" (temperatures {v:+.3} °C beyond the envelope)"))
+                .unwrap_or_default()
+        );
+    }
+    o
+}
+
 fn json(o: &campaign::Outcome) -> serde_json::Value {
     let rep = |r: &crate::validate::ValidationReport| {
         serde_json::json!({
@@ -397,6 +419,7 @@ fn json(o: &campaign::Outcome) -> serde_json::Value {
         "max_difference_nm": o.analysis.max_difference_nm,
         "kmz_updates": o.state.kmz_updates,
         "device_resets": o.state.device_resets,
+        "model_stale": o.state.stale,
         "wall_s": o.wall_s,
         "qemu_cpu_s": o.qemu_cpu_s,
         "bus_transactions": o.bus_transactions,

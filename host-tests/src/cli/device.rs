@@ -67,6 +67,14 @@ pub enum DeviceCommand {
         /// folded with the averages once a period (paper 001 §VI: "each 5-10 seconds").
         #[arg(long)]
         fold_period_ms: Option<u16>,
+        /// The model-stale check's k: a KMZ re-measurement whose λ change leaves k standard
+        /// errors of prediction raises MODEL_STALE (0 < k ≤ 100; default 3).
+        #[arg(long)]
+        stale_k: Option<f32>,
+        /// How far a temperature may leave the model's training envelope before the model
+        /// counts as stale, °C: what the model was shown to extrapolate (0..=50; default 0.1).
+        #[arg(long)]
+        extrapolation_c: Option<f32>,
         /// Unit of the controller's positions: um, mm or nm.
         #[arg(long)]
         stage_unit: Option<String>,
@@ -183,6 +191,7 @@ pub fn edit_settings(
     mains: Option<u32>,
     sample_period_ms: Option<u16>,
     fold_period_ms: Option<u16>,
+    stale: (Option<f32>, Option<f32>),
     stage_unit: Option<&str>,
     axes: Option<&[String]>,
     sensors: &[String],
@@ -209,6 +218,23 @@ pub fn edit_settings(
             "--fold-period-ms {p}: {MIN_FOLD_PERIOD_MS}..={MAX_FOLD_PERIOD_MS}"
         );
         s.fold_period_ms = p;
+    }
+    let (stale_k, extrapolation_c) = stale;
+    if let Some(k) = stale_k {
+        use nanocal_interface::settings::MAX_STALE_K;
+        anyhow::ensure!(
+            k > 0.0 && k <= MAX_STALE_K,
+            "--stale-k {k}: greater than 0, at most {MAX_STALE_K}"
+        );
+        s.stale_k = k;
+    }
+    if let Some(m) = extrapolation_c {
+        use nanocal_interface::settings::MAX_EXTRAPOLATION_C;
+        anyhow::ensure!(
+            (0.0..=MAX_EXTRAPOLATION_C).contains(&m),
+            "--extrapolation-c {m}: 0..={MAX_EXTRAPOLATION_C} °C"
+        );
+        s.extrapolation_c = m;
     }
     if let Some(u) = stage_unit {
         s.stage_unit = match u {
@@ -292,6 +318,8 @@ pub fn run(cmd: DeviceCommand) -> anyhow::Result<()> {
             mains,
             sample_period_ms,
             fold_period_ms,
+            stale_k,
+            extrapolation_c,
             stage_unit,
             axes,
             sensor,
@@ -305,6 +333,7 @@ pub fn run(cmd: DeviceCommand) -> anyhow::Result<()> {
                 mains,
                 sample_period_ms,
                 fold_period_ms,
+                (stale_k, extrapolation_c),
                 stage_unit.as_deref(),
                 axes.as_deref(),
                 &sensor,

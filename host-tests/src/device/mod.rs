@@ -480,6 +480,7 @@ pub fn format_status(s: &Status) -> String {
         flag(Flags::EXTRAPOLATING),
         s.slow_outside
     );
+    o += &format_stale(s);
     for i in 0..usize::from(s.sensors).min(s.temps_c.len()) {
         let bits = s.sensor_bits[i];
         o += &format!(
@@ -534,6 +535,44 @@ pub fn format_status(s: &Status) -> String {
     o
 }
 
+/// The model-stale lines of a status report: whether the model in service still holds, why
+/// not and since when, the last KMZ check and the temperatures' distance from the envelope.
+pub fn format_stale(s: &Status) -> String {
+    let mut o = if s.flags.contains(Flags::MODEL_STALE) {
+        format!(
+            "MODEL STALE since uptime {:.1} s: {} (still compensating: refit, or re-measure)\n",
+            f64::from(s.stale_since_ms) / 1000.0,
+            s.stale
+        )
+    } else {
+        "model stale: no\n".to_string()
+    };
+    let axes: Vec<String> = (0..3)
+        .filter(|&a| !(s.kmz_residual_um[a] == 0.0 && s.kmz_limit_um[a].is_nan()))
+        .map(|a| {
+            let limit = if s.kmz_limit_um[a].is_nan() {
+                "no prediction bound".to_string()
+            } else {
+                format!("limit ±{:.1} nm", 1000.0 * s.kmz_limit_um[a])
+            };
+            format!(
+                "axis {a} {:+.1} nm ({limit})",
+                1000.0 * s.kmz_residual_um[a]
+            )
+        })
+        .collect();
+    if !s.kmz_residual_um[0].is_nan() && !axes.is_empty() {
+        o += &format!("last KMZ λ change: {}\n", axes.join(", "));
+    }
+    if !s.envelope_excess_c.is_nan() {
+        o += &format!(
+            "temperatures vs the training envelope: {:+.3} °C (> 0: that far outside)\n",
+            s.envelope_excess_c
+        );
+    }
+    o
+}
+
 /// A human-readable settings report.
 pub fn format_settings(s: &Settings) -> String {
     use nanocal_interface::settings::{AuxSource, Chip, Mains};
@@ -554,6 +593,10 @@ pub fn format_settings(s: &Settings) -> String {
         if s.mains == Mains::Hz50 { 50 } else { 60 },
         s.sample_period_ms,
         s.fold_period_ms
+    );
+    o += &format!(
+        "model-stale check: k = {} standard errors of prediction at a KMZ, extrapolation margin {} °C\n",
+        s.stale_k, s.extrapolation_c
     );
     for (cs, c) in s.sensors.iter().enumerate() {
         let d = match c {

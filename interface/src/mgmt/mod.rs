@@ -65,7 +65,10 @@ pub use request::Request;
 /// changes met before any was released): HELLO ends with the reset site, reset causes 8
 /// (panic), 9 (double ECC error outside the store), 10 (CPU fault) (issue 16); settings layout 3
 /// (the fold period, 2 bytes more in CONFIG_GET/CONFIG_SET), and `Status::temps_c`/`Status::aux`
-/// are the last fold's inputs (the readings averaged over the fold period) (issue 18).
-pub const PROTOCOL: u16 = 5;
+/// are the last fold's inputs (the readings averaged over the fold period) (issue 18). 6: the
+/// model-stale check (issue 19): `STATUS` grows by 33 bytes at its end (`Status::stale` …
+/// `Status::envelope_excess_c`, flag `MODEL_STALE`), LED state 5 (model stale), settings
+/// layout 4 (the check's `k` and extrapolation margin, 8 bytes more in CONFIG_GET/CONFIG_SET).
+pub const PROTOCOL: u16 = 6;
 /// Largest upload chunk (payload minus the offset).
 pub const MAX_CHUNK: usize = 256;

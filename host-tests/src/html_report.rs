@@ -26,6 +26,11 @@ pub struct ReportContent {
     pub uncertainty: Vec<String>,
     /// explain's findings, one line each, and its full text.
     pub explain: Option<(Vec<String>, String)>,
+    /// Why explain was not run, when [`ReportContent::explain`] is `None`.
+    pub explain_absent: String,
+    /// What the compensator itself said during the run, one line each (a campaign: its
+    /// `MODEL_STALE` rises with their times); `None`: no device took part (no section).
+    pub device: Option<Vec<String>>,
     /// Plots: (title, SVG text).
     pub plots: Vec<(String, String)>,
 }
@@ -94,7 +99,20 @@ impl ReportContent {
             };
             let _ = writeln!(h, "<li{class}>{}</li>", escape(l));
         }
-        h += "</ul>\n<h2>What the model left out (explain)</h2>\n";
+        h += "</ul>\n";
+        if let Some(lines) = &self.device {
+            h += "<h2>What the compensator said</h2>\n<ul>\n";
+            for l in lines {
+                let class = if l.starts_with("MODEL_STALE") {
+                    " class=\"warn\""
+                } else {
+                    ""
+                };
+                let _ = writeln!(h, "<li{class}>{}</li>", escape(l));
+            }
+            h += "</ul>\n";
+        }
+        h += "<h2>What the model left out (explain)</h2>\n";
         match &self.explain {
             Some((findings, text)) => {
                 if findings.is_empty() {
@@ -108,7 +126,9 @@ impl ReportContent {
                 }
                 let _ = writeln!(h, "<pre>{}</pre>", escape(text));
             }
-            None => h += "<p>Not run (fewer than 50 validation dwells).</p>\n",
+            None => {
+                let _ = writeln!(h, "<p>Not run ({}).</p>", escape(&self.explain_absent));
+            }
         }
         h += "<h2>Plots</h2>\n";
         for (title, svg) in &self.plots {

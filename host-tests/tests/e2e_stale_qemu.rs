@@ -99,7 +99,8 @@ fn in_service(q: &mut Qemu, id: u32) -> Status {
 
 #[test]
 fn a_kmz_outside_the_prediction_interval_raises_model_stale_under_qemu() {
-    let Some(mut q) = Qemu::start_or_skip("a_kmz_outside_the_prediction_interval_raises_model_stale")
+    let Some(mut q) =
+        Qemu::start_or_skip("a_kmz_outside_the_prediction_interval_raises_model_stale")
     else {
         return;
     };
@@ -136,7 +137,10 @@ fn a_kmz_outside_the_prediction_interval_raises_model_stale_under_qemu() {
     let s = c.status().unwrap();
     assert!(!s.flags.contains(Flags::MODEL_STALE), "{s:?}");
     // the device's numbers are the host's evaluation of the same check (f32 on both sides)
-    assert!((s.kmz_residual_um[0] - want.residual_um[0]).abs() < 1e-5, "{s:?}");
+    assert!(
+        (s.kmz_residual_um[0] - want.residual_um[0]).abs() < 1e-5,
+        "{s:?}"
+    );
     assert!((s.kmz_limit_um[0] - want.limit_um[0]).abs() < 1e-6, "{s:?}");
 
     // one that the model misses by twice its limit: stale, and still compensating

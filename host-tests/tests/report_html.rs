@@ -178,3 +178,37 @@ fn validate_writes_a_self_contained_report_that_a_browser_renders_on_a4() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `demo` writes a `report.html` beside each stage's files (issue 19: `campaign` and `demo`
+/// write the report `validate --report` does; the campaign's is checked in
+/// `tests/campaign_stale.rs`): self-contained, with the stage's table, plots and files.
+#[test]
+fn demo_writes_a_self_contained_report_per_stage() {
+    let dir = std::env::temp_dir().join(format!("nanocal-demo-html-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    run_ok(nanocal().arg("demo").arg("--out").arg(&dir));
+    for (stage, files) in [
+        (
+            "1dof",
+            &["validation.csv", "static.blob", "adaptive.blob"][..],
+        ),
+        ("2dof", &["validation.csv", "eq22.blob"][..]),
+    ] {
+        let html = std::fs::read_to_string(dir.join(stage).join("report.html"))
+            .unwrap_or_else(|e| panic!("{stage}/report.html: {e}"));
+        assert!(
+            html.matches("<svg").count() >= 3,
+            "{stage}: plots not inline"
+        );
+        for external in ["src=\"http", "href=\"http", "<link", "<script", "<img"] {
+            assert!(!html.contains(external), "{stage}: external `{external}`");
+        }
+        for needle in ["no model", "static", "@page{size:A4", "CRC-32", "demo"] {
+            assert!(html.contains(needle), "{stage}: report lacks `{needle}`");
+        }
+        for f in files {
+            assert!(html.contains(f), "{stage}: provenance lacks {f}");
+        }
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

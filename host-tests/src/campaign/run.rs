@@ -718,15 +718,30 @@ impl<'a> Runner<'a> {
             return;
         }
         let ago_s = f64::from(s.uptime_ms.wrapping_sub(s.stale_since_ms)) / 1000.0;
-        let model = match self.state.model_ids {
-            Some((st, _)) if st == s.model_id => "static".to_string(),
-            Some((_, ad)) if ad == s.model_id => "adaptive".to_string(),
-            _ => format!("{:#010x}", s.model_id),
+        let kind = match self.state.model_ids {
+            Some((st, _)) if st == s.model_id => Some(TestKind::Static),
+            Some((_, ad)) if ad == s.model_id => Some(TestKind::Adaptive),
+            _ => None,
         };
+        let model = kind.map_or_else(
+            || format!("{:#010x}", s.model_id),
+            |t| {
+                if t == TestKind::Static {
+                    "static".into()
+                } else {
+                    "adaptive".into()
+                }
+            },
+        );
+        // the step the model serves: a model is set up during the hold of the step before its
+        // test, so the status may show it (and its rise) one step early
+        let serves = (k..self.steps.len())
+            .find(|&j| kind.is_some() && mode_of(self.steps[j].phase).model == kind)
+            .unwrap_or(k);
         let event = StaleEvent {
             rose_s: self.t_now() - ago_s,
-            step: k,
-            during: describe(self.steps[k].phase, self.plan),
+            step: serves,
+            during: describe(self.steps[serves].phase, self.plan),
             model,
             model_crc32: s.model_crc32,
             reasons: s.stale.to_string(),

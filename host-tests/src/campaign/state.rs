@@ -71,9 +71,10 @@ pub struct Interruption {
 pub struct StaleEvent {
     /// Plan time when it rose, s (the device's time of the rise, on the plan's clock).
     pub rose_s: f64,
-    /// The step during which the campaign first saw it.
+    /// The first step, from the one during which the campaign saw it, that uses the model (a
+    /// model is set up in the hold of the step before: its rise may show one step early).
     pub step: usize,
-    /// What the step was (e.g. `test 19/93 (static)`).
+    /// What that step is (e.g. `test 19/93 (static)`).
     pub during: String,
     /// The model it concerns: `static`, `adaptive` or its id in hex.
     pub model: String,

@@ -214,6 +214,10 @@ pub fn run(args: CampaignArgs) -> anyhow::Result<()> {
         )
     })?;
     print_outcome(&o, &args.out);
+    let html = html_report(&o, &args.out)?;
+    let report = args.out.join("report.html");
+    std::fs::write(&report, html).with_context(|| format!("writing {}", report.display()))?;
+    println!("wrote {}", report.display());
     if let Some(p) = &args.json {
         std::fs::write(p, serde_json::to_string_pretty(&json(&o))?)?;
     }
@@ -376,6 +380,53 @@ pub fn loops_table(lp: &campaign::LoopState) -> String {
     };
     let _ = writeln!(s, "  {stop}");
     s
+}
+
+/// The campaign's self-contained `report.html` ([`crate::html_report`]): the table from what
+/// the stage received, the compensator's `MODEL_STALE` rises, explain's advice, the plots,
+/// the files with their CRC and the command.
+pub fn html_report(o: &campaign::Outcome, out: &std::path::Path) -> anyhow::Result<String> {
+    use crate::html_report::{command_line, file_fingerprint, inline_plots, ReportContent};
+    let a = &o.analysis;
+    let rows: Vec<&crate::validate::ValidationReport> = a.campaign.iter().collect();
+    let mut provenance: Vec<(String, String)> = [
+        campaign::RECORDING,
+        campaign::PLAN,
+        "campaign.json",
+        "static.blob",
+        "adaptive.blob",
+    ]
+    .iter()
+    .map(|f| (f.to_string(), file_fingerprint(&out.join(f))))
+    .collect();
+    provenance.push((
+        "tool".into(),
+        format!("nanocal {}", env!("CARGO_PKG_VERSION")),
+    ));
+    let mut device: Vec<String> = stale_lines(&o.state.stale)
+        .lines()
+        .map(str::to_string)
+        .collect();
+    device.push(format!(
+        "{} KMZ re-measurements sent; {} compensator resets seen",
+        o.state.kmz_updates, o.state.device_resets
+    ));
+    let content = ReportContent {
+        title: format!("nanocal campaign {}", o.plan.name),
+        command: command_line(),
+        provenance,
+        table: crate::validate::comparison_table(&rows),
+        coverage: None,
+        uncertainty: vec![format!(
+            "file-based `validate` of the same recording agrees within {:.4} nm",
+            a.max_difference_nm
+        )],
+        explain: a.explain.clone().map(|text| (a.advice.clone(), text)),
+        explain_absent: "the campaign ran with --no-explain".into(),
+        device: Some(device),
+        plots: inline_plots(&rows)?,
+    };
+    Ok(content.render())
 }
 
 /// The compensator's `MODEL_STALE` rises, one line each (one line saying so when none rose).

@@ -99,6 +99,42 @@ impl DemoArgs {
     }
 }
 
+/// Writes `dir/report.html` ([`crate::html_report`]) for one of the demo's stages: its
+/// validation table and plots, the files in `dir` it rests on with their CRC, the command.
+fn demo_html(
+    dir: &std::path::Path,
+    what: &str,
+    reports: &[&crate::validate::ValidationReport],
+    files: &[&str],
+) -> anyhow::Result<()> {
+    use crate::html_report::{command_line, file_fingerprint, inline_plots, ReportContent};
+    let mut provenance: Vec<(String, String)> = files
+        .iter()
+        .map(|f| (f.to_string(), file_fingerprint(&dir.join(f))))
+        .collect();
+    provenance.push((
+        "tool".into(),
+        format!("nanocal {}", env!("CARGO_PKG_VERSION")),
+    ));
+    let content = ReportContent {
+        title: format!("nanocal demo: {what}, the published procedure on the digital twin"),
+        command: command_line(),
+        provenance,
+        table: crate::validate::comparison_table(reports),
+        coverage: None,
+        uncertainty: Vec::new(),
+        explain: None,
+        explain_absent:
+            "the demo compares with the papers; run `nanocal explain` on validation.csv".into(),
+        device: None,
+        plots: inline_plots(reports)?,
+    };
+    let path = dir.join("report.html");
+    std::fs::write(&path, content.render())
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
+}
+
 /// Runs `nanocal demo`.
 pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let one = Plan::paper000_1dof();
@@ -152,6 +188,18 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     bar.inc(1);
     bar.set_message("1-DoF: plots");
     let files1 = write_report(&dir1, &[&v1[0], &v1[1], &v1[2]])?;
+    demo_html(
+        &dir1,
+        "paper 000, 1-DoF stage",
+        &[&v1[0], &v1[1], &v1[2]],
+        &[
+            "training.csv",
+            "validation.csv",
+            "plan.json",
+            "static.blob",
+            "adaptive.blob",
+        ],
+    )?;
     bar.inc(1);
 
     bar.set_message("2-DoF: simulating the published procedure (≈ 29 h)");
@@ -177,6 +225,12 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     ];
     bar.inc(1);
     let files2 = write_report(&dir2, &[&v2[0], &v2[1]])?;
+    demo_html(
+        &dir2,
+        "paper 000, 2-DoF stage",
+        &[&v2[0], &v2[1]],
+        &["training.csv", "validation.csv", "plan.json", "eq22.blob"],
+    )?;
     bar.inc(1);
     bar.set_message("robot (paper 001): simulating, fitting stepwise, validating");
     let robot = robot(&args, &args.out.join("robot"))?;
@@ -236,7 +290,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     print!("{}", easier_or_harder());
     println!();
     println!(
-        "wrote {} and {}: training.csv, validation.csv, plan.json, model blobs and {} plot files",
+        "wrote {} and {}: training.csv, validation.csv, plan.json, model blobs, report.html and {} plot files",
         dir1.display(),
         dir2.display(),
         files1.len() + files2.len()

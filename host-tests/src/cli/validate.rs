@@ -490,6 +490,8 @@ fn html_report(
         coverage,
         uncertainty: uncertainty_lines(fit_report),
         explain,
+        explain_absent: "fewer than 50 validation dwells".into(),
+        device: None,
         plots: inline_plots(&[&reports[0], &reports[1], &reports[2]])?,
     };
     Ok(content.render())

@@ -36,7 +36,14 @@ fn model_stale_rises_on_the_static_model_near_70_h_and_never_on_the_adaptive_one
     let out = std::env::temp_dir().join(format!("nanocal-campaign-stale-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
     let json = out.with_extension("json");
+    // the child gets a user's environment, not cargo test's (with cargo's variables the
+    // campaign's first management request went unanswered; run by hand it is answered)
+    let keep: Vec<(String, String)> = std::env::vars()
+        .filter(|(k, _)| !k.starts_with("CARGO") && !k.starts_with("RUST"))
+        .collect();
     let run = Command::new(env!("CARGO_BIN_EXE_nanocal"))
+        .env_clear()
+        .envs(keep)
         .args([
             "campaign",
             "paper000-1dof",

@@ -133,7 +133,7 @@ fn a_device_of_another_protocol_version_is_named_before_its_status_is_read() {
     }
     let msg = e.to_string();
     assert!(
-        msg.contains("speaks management protocol 4 (firmware 0.0.9), this nanocal speaks 5"),
+        msg.contains("speaks management protocol 4 (firmware 0.0.9), this nanocal speaks 6"),
         "{msg}"
     );
     assert_eq!(

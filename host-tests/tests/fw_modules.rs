@@ -112,6 +112,11 @@ fn status_round_trips() {
         sensor_reconfigs: 1,
         aux: [1013.25, f32::NAN, 0.0, -1.0],
         aux_bits: [0, 4, 0, 0].map(bits),
+        stale: nanocal_interface::status::StaleReasons::KMZ_OUTSIDE_INTERVAL,
+        stale_since_ms: 12_000,
+        kmz_residual_um: [0.2, 0.0, 0.0],
+        kmz_limit_um: [0.05, 0.0, 0.0],
+        envelope_excess_c: -0.5,
     };
     assert_eq!(s.sensor_bits[15].state, ChannelStatus::NotRead);
     let mut buf = [0u8; 320];

@@ -363,33 +363,54 @@ fn settings_round_trip_and_reject_what_they_must() {
     );
 }
 
-/// Layout 3 adds the fold period (u16 LE at 240, CRC at 242): golden bytes of its fields, a
-/// fold period outside 1–10 s refused, and a layout-2 record (244 bytes, CRC at 240) — settings
-/// stored by the firmware before — decoding with the default fold period (5 s).
+/// Layout 3 added the fold period (u16 LE at 240), layout 4 the stale check's k and margin
+/// (f32 LE at 242 and 246, CRC at 250): golden bytes of their fields, a fold period outside
+/// 1–10 s refused, a layout-3 record (246 bytes, CRC at 242) decoding with the stale check's
+/// defaults and a layout-2 record (244 bytes, CRC at 240) — settings stored by the firmware
+/// before — decoding with the default fold period (5 s).
 #[test]
-fn settings_layout_3_carries_the_fold_period() {
-    use nanocal_interface::settings::{DEFAULT_FOLD_PERIOD_MS, LEN};
+fn settings_layout_4_carries_the_fold_period_and_the_stale_check() {
+    use nanocal_interface::settings::{
+        DEFAULT_EXTRAPOLATION_C, DEFAULT_FOLD_PERIOD_MS, DEFAULT_STALE_K, LEN,
+    };
     let mut s = Settings {
         fold_period_ms: 7_250,
+        stale_k: 2.5,
+        extrapolation_c: 0.25,
         ..Default::default()
     };
-    let v3 = s.encode();
+    let v4 = s.encode();
     assert_eq!(
-        (v3.len(), LEN),
-        (246, 246),
-        "9 + 16 x 10 + 4 + 27 + 40 + 2 + 4"
+        (v4.len(), LEN),
+        (254, 254),
+        "9 + 16 x 10 + 4 + 27 + 40 + 2 + 8 + 4"
     );
-    assert_eq!(&v3[..5], b"NCST\x03");
-    assert_eq!(&v3[240..242], &[0x52, 0x1C], "7250 ms, little endian");
-    let crc = nanocal_interface::crc32(&v3[..242]);
-    assert_eq!(&v3[242..], &crc.to_le_bytes());
-    assert_eq!(Settings::decode(&v3), Ok(s));
+    assert_eq!(&v4[..5], b"NCST\x04");
+    assert_eq!(&v4[240..242], &[0x52, 0x1C], "7250 ms, little endian");
+    assert_eq!(&v4[242..246], &2.5f32.to_le_bytes());
+    assert_eq!(&v4[246..250], &0.25f32.to_le_bytes());
+    let crc = nanocal_interface::crc32(&v4[..250]);
+    assert_eq!(&v4[250..], &crc.to_le_bytes());
+    assert_eq!(Settings::decode(&v4), Ok(s));
+    // layout 3: the same bytes up to 242, then the CRC
+    let mut v3 = v4[..242].to_vec();
+    v3[4] = 3;
+    let crc = nanocal_interface::crc32(&v3);
+    v3.extend_from_slice(&crc.to_le_bytes());
+    assert_eq!(
+        Settings::decode(&v3),
+        Ok(Settings {
+            stale_k: DEFAULT_STALE_K,
+            extrapolation_c: DEFAULT_EXTRAPOLATION_C,
+            ..s
+        })
+    );
     for bad in [999, 10_001, 0] {
         s.fold_period_ms = bad;
         assert!(Settings::decode(&s.encode()).is_err(), "{bad} ms");
     }
     // layout 2: the same bytes up to 240, then the CRC
-    let mut v2 = v3[..240].to_vec();
+    let mut v2 = v4[..240].to_vec();
     v2[4] = 2;
     let crc = nanocal_interface::crc32(&v2);
     v2.extend_from_slice(&crc.to_le_bytes());
@@ -399,14 +420,16 @@ fn settings_layout_3_carries_the_fold_period() {
     assert_eq!(
         Settings {
             fold_period_ms: 7_250,
+            stale_k: 2.5,
+            extrapolation_c: 0.25,
             ..old
         },
-        Settings::decode(&v3).unwrap()
+        Settings::decode(&v4).unwrap()
     );
 }
 
 /// Settings stored by a firmware with layout 1 (8 chip-selects, 164 bytes: mains at 89, axes at
-/// 93, aux at 120, CRC at 160) survive the update to layout 3 (16 chip-selects, fold period).
+/// 93, aux at 120, CRC at 160) survive the update to layout 4 (16 chip-selects, fold period, stale check).
 #[test]
 fn settings_of_layout_1_still_decode() {
     let mut s = Settings {
@@ -421,8 +444,8 @@ fn settings_of_layout_1_still_decode() {
     s.axis_names[2] = nanocal_compensator::gcs::AxisId::new(b"Z").unwrap();
     s.aux[1] = AuxSource::AirPressure;
     let v2 = s.encode();
-    assert_eq!(v2.len(), 246, "layout 3: 9 + 16 x 10 + 4 + 27 + 40 + 2 + 4");
-    assert_eq!(v2[4], 3);
+    assert_eq!(v2.len(), 254, "layout 4: 9 + 16 x 10 + 4 + 27 + 40 + 2 + 8 + 4");
+    assert_eq!(v2[4], 4);
     // layout 1, byte for byte: header, 8 sensors, then the same tail at 89
     let mut v1 = Vec::new();
     v1.extend_from_slice(b"NCST\x01");
@@ -439,9 +462,9 @@ fn settings_of_layout_1_still_decode() {
     assert_eq!(Settings::decode(&v1), Ok(s));
     // a layout-1 record cut to a layout-2 length, or with an unknown version, is refused
     assert!(Settings::decode(&v1[..163]).is_err());
-    let mut v4 = v1.clone();
-    v4[4] = 4;
-    assert!(Settings::decode(&v4).is_err());
+    let mut v5 = v1.clone();
+    v5[4] = 5;
+    assert!(Settings::decode(&v5).is_err());
 }
 
 /// A model with more temperatures than the board has chip-select lines is refused at upload

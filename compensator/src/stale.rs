@@ -65,7 +65,7 @@ impl KmzCheck {
         self.residual_um
             .iter()
             .zip(&self.limit_um)
-            .any(|(r, l)| !l.is_nan() && !(r.abs() <= *l))
+            .any(|(r, l)| !l.is_nan() && (r.is_nan() || r.abs() > *l))
     }
 }
 

@@ -444,7 +444,11 @@ fn settings_of_layout_1_still_decode() {
     s.axis_names[2] = nanocal_compensator::gcs::AxisId::new(b"Z").unwrap();
     s.aux[1] = AuxSource::AirPressure;
     let v2 = s.encode();
-    assert_eq!(v2.len(), 254, "layout 4: 9 + 16 x 10 + 4 + 27 + 40 + 2 + 8 + 4");
+    assert_eq!(
+        v2.len(),
+        254,
+        "layout 4: 9 + 16 x 10 + 4 + 27 + 40 + 2 + 8 + 4"
+    );
     assert_eq!(v2[4], 4);
     // layout 1, byte for byte: header, 8 sensors, then the same tail at 89
     let mut v1 = Vec::new();

@@ -390,7 +390,9 @@ async fn slow_cycle<B: InputBus>(bus: &SharedBus<B>, timeout: Duration, sh: &Sha
             m.slow_outside = comp.fold.slow_outside_envelope();
             // the model-stale check's envelope half: once a fold, never per command
             let excess_c = stale::envelope_excess_c(model, &m.slow);
-            if m.stale.fold(excess_c, settings.extrapolation_c, ms) {
+            let was_stale = m.stale.is_stale();
+            // logged when it rises, not at every fold while it stays out
+            if m.stale.fold(excess_c, settings.extrapolation_c, ms) && !was_stale {
                 warn!(
                     "model stale: a temperature left the envelope by {=f32} °C",
                     excess_c

@@ -24,6 +24,7 @@ use std::process::Command;
 const ROUNDS: usize = 22;
 
 #[test]
+#[ignore = "7–8 min (the published campaign through QEMU): run with --ignored"]
 fn model_stale_rises_on_the_static_model_near_70_h_and_never_on_the_adaptive_one() {
     if !have_qemu() {
         assert!(

@@ -263,6 +263,80 @@ fn coupled_axes_are_re_commanded() {
     assert_eq!(rx.len(), 2, "{rx:?}");
 }
 
+/// The calibrated targets whose f64 commands are `q` (two coupled axes): Newton's method with
+/// a finite-difference Jacobian.
+fn invert_f64_2(m: &Model, q: [f64; 2]) -> [f64; 2] {
+    let mut x = q;
+    for _ in 0..50 {
+        let f = f64_command(m, [x[0], x[1], 0.0]);
+        let mut j = [[0.0; 2]; 2];
+        for b in 0..2 {
+            let mut xh = [x[0], x[1], 0.0];
+            xh[b] += 1e-3;
+            let fh = f64_command(m, xh);
+            for a in 0..2 {
+                j[a][b] = (fh[a] - f[a]) / 1e-3;
+            }
+        }
+        let r = [f[0] - q[0], f[1] - q[1]];
+        let det = j[0][0] * j[1][1] - j[0][1] * j[1][0];
+        x[0] -= (j[1][1] * r[0] - j[0][1] * r[1]) / det;
+        x[1] -= (j[0][0] * r[1] - j[1][0] * r[0]) / det;
+    }
+    x
+}
+
+/// Fuzz finding (issue 21, `proxy_fuzz`, coupled 2-DoF): the proxy kept an axis' recorded
+/// target wherever the controller still held that axis' command, even when another axis held
+/// something else. With coupled axes the record then named a point the stage was not at: a
+/// move refused by the controller (here for axis 3's value) left the record of its clamped
+/// axis 2, and the next `GOH 1` kept that axis 2 instead of the controller's.
+#[test]
+fn a_coupled_base_comes_from_every_axis_the_controller_holds() {
+    let m = coupled_2dof().unwrap();
+    let mut cfg = everything(3);
+    let q0 = f64_command(&m, [40.0, 40.0, 0.0]);
+    for (a, ax) in cfg.axes.iter_mut().enumerate() {
+        ax.min = -10.0;
+        ax.max = 100.0;
+        ax.reference = Some(if a < 2 { q0[a] } else { 50.0 });
+        ax.start = ax.reference.unwrap();
+    }
+    let mut r = Rig::new(cfg, Some(&m), &TEMPS);
+    // y whose command at x = 20 is 0.05 µm below the travel: clamped to its end, −10
+    let q2 = |x: f64, y: f64| f64_command(&m, [x, y, 0.0])[1];
+    let (mut lo, mut hi) = (0.0, 100.0);
+    for _ in 0..100 {
+        let mid = 0.5 * (lo + hi);
+        if (q2(20.0, mid) + 10.05) * (q2(20.0, hi) + 10.05) <= 0.0 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    r.line(&format!("MOV 1 20 2 {lo:.6}"));
+    r.wait_ms(100);
+    assert_eq!(r.line("ERR?"), "0\n");
+    let held = |r: &mut Rig| [r.ctl.target(0), r.ctl.target(1)];
+    let h = held(&mut r);
+    assert_eq!(h[1], -10.0, "axis 2 clamped to the travel");
+    // refused by the controller for axis 3 (the host does not ask ERR?): axis 2's command
+    // is the clamped −10 again, axis 1's is not what the controller holds
+    r.line("MOV 1 60 3 500");
+    r.wait_ms(100);
+    assert_eq!(held(&mut r), h, "the controller refused the move");
+    r.events();
+    r.line("GOH 1");
+    let t = targets(&r.events());
+    // the base: the calibrated position of what the controller holds, both axes together
+    let base = invert_f64_2(&m, h);
+    let want = f64_command(&m, [0.0, base[1], 0.0]);
+    assert_eq!(t.len(), 2, "{t:?}");
+    for (a, v, _) in &t {
+        assert!((v - want[*a]).abs() <= 1e-3, "{t:?} vs {want:?}");
+    }
+}
+
 #[test]
 fn goh_of_all_axes_sends_the_model_axes_to_their_corrected_home() {
     let (mut r, m) = rig_1dof();
@@ -530,6 +604,41 @@ fn an_unanswered_query_is_given_up_and_later_replies_keep_their_attribution() {
     r.wait_ms(20); // the move ends
     let v = value(&r.line("POS? 1"), "1");
     assert!((v - 100.0).abs() < 2e-4, "{v}");
+}
+
+/// Fuzz finding (issue 21, `proxy_fuzz`): the reply timeout restarted with every query the
+/// host sent, so a host that kept asking hid a controller that had stopped answering; when it
+/// answered again, its replies were paired with the queries it never received (here a raw
+/// position handed to the host as the answer to an `ERR?`).
+#[test]
+fn a_host_that_keeps_asking_does_not_hide_a_silent_controller() {
+    let (mut r, _) = rig_1dof();
+    r.line("MOV 1 100");
+    r.wait_ms(20); // the move ends
+    assert_eq!(r.proxy.counters.resyncs, 0);
+    // the controller stops (its cable out): the host asks every 500 ms for 3 s
+    r.silent = true;
+    for _ in 0..6 {
+        r.line("ERR?");
+        r.wait_ms(500);
+    }
+    assert!(
+        r.proxy.counters.resyncs > 0,
+        "3 s of silence with replies due, not noticed"
+    );
+    // back: whatever the host receives from now on answers the query it was asked for
+    r.silent = false;
+    r.host_rx.clear();
+    for _ in 0..3 {
+        r.line("POS? 1");
+        r.settle();
+    }
+    let got = text(&r.host_rx);
+    assert!(!got.is_empty());
+    for l in got.lines() {
+        let v = value(l, "1");
+        assert!((v - 100.0).abs() < 2e-4, "{l:?} in {got:?}");
+    }
 }
 
 #[test]

@@ -86,6 +86,11 @@ pub(super) struct Oracle {
     travel: Vec<(f64, f64)>,
     /// Per model axis: the training envelope.
     envelope: Vec<(f64, f64)>,
+    /// Per controller axis (`1`, `2`, …): its travel, as the controller checks targets.
+    controller_travel: Vec<(f64, f64)>,
+    /// The last corrected moves of every model axis the controller received: the commands and
+    /// the calibrated targets they were the corrections of (most recent last).
+    sent: VecDeque<(Vec<f64>, [f64; MAX_AXES])>,
     /// The proxy's own queries, as it spells them.
     own: Vec<String>,
     partial: Vec<u8>,
@@ -122,6 +127,13 @@ impl Oracle {
             slow: super::slow(),
             travel,
             envelope,
+            controller_travel: setup
+                .controller
+                .axes
+                .iter()
+                .map(|a| (a.min, a.max))
+                .collect(),
+            sent: VecDeque::new(),
             own,
             partial: Vec::new(),
             discarding: false,
@@ -447,7 +459,19 @@ impl Oracle {
         if got.is_empty() {
             return Ok(()); // other axes only: forwarded untouched
         }
-        if p.failed == Some(7) {
+        // (a value of another axis beyond its travel is the host's, relayed as it was asked)
+        let others_outside = toks.chunks(2).any(|c| {
+            let (Some(a), Some(Ok(v))) = (
+                c[0].parse::<usize>().ok().filter(|&k| k > self.n),
+                c.get(1).map(|v| v.parse::<f64>()),
+            ) else {
+                return false;
+            };
+            self.controller_travel
+                .get(a - 1)
+                .is_some_and(|&(lo, hi)| v < lo || v > hi)
+        });
+        if p.failed == Some(7) && !others_outside {
             return Err(format!(
                 "{:?}: the controller refused it (7, outside its travel); the proxy knows its \
                  travel",
@@ -455,23 +479,42 @@ impl Oracle {
             ));
         }
         let before: Vec<f64> = p.before[..self.n].to_vec();
-        let xb = self.inverse(&before);
+        let bases = self.bases(&before);
         let mut first_miss = None;
         for (i, h) in self.moves.iter().enumerate() {
             if (h.kind == MoveKind::Mve) != (word == "MVE") {
                 continue;
             }
-            match self.expected(h, &xb) {
-                Ok((x, q)) => {
-                    let ok = got.iter().all(|&(a, v)| (v - q[a]).abs() <= TOL_UM);
-                    if ok {
-                        self.moves.drain(..=i);
-                        k.moves += 1;
-                        return Ok(());
+            // every base that explains the command: the targets it may have corrected
+            let mut matched: Vec<[f64; MAX_AXES]> = Vec::new();
+            for xb in &bases {
+                match self.expected(h, xb) {
+                    Ok((x, q)) => {
+                        if got.iter().all(|&(a, v)| (v - q[a]).abs() <= TOL_UM) {
+                            matched.push(x);
+                        } else {
+                            first_miss.get_or_insert((h.text.clone(), x, q));
+                        }
                     }
-                    first_miss.get_or_insert((h.text.clone(), x, q));
+                    Err(_) => continue,
                 }
-                Err(_) => continue,
+            }
+            if !matched.is_empty() {
+                self.moves.drain(..=i);
+                k.moves += 1;
+                if got.len() == self.n {
+                    let mut q = vec![f64::NAN; self.n];
+                    for &(a, v) in &got {
+                        q[a] = v;
+                    }
+                    for x in matched {
+                        if self.sent.len() == 16 {
+                            self.sent.pop_front();
+                        }
+                        self.sent.push_back((q.clone(), x));
+                    }
+                }
+                return Ok(());
             }
         }
         Err(match first_miss {
@@ -487,6 +530,23 @@ impl Oracle {
                 p.line
             ),
         })
+    }
+
+    /// The calibrated positions a move may start from when the controller holds the targets
+    /// `before` (every model axis): the inverse of the commands it holds, or — where it holds
+    /// exactly the commands of a corrected move it received lately, every model axis' — a
+    /// target that move corrected (the proxy's documented rule: the controller holds a
+    /// correction of that target; near an end of the travel, where many targets clamp to one
+    /// command, the clamped command's inverse is another of them). Per axis it would not do:
+    /// in a coupled model one axis' calibrated position depends on every axis' command.
+    fn bases(&self, before: &[f64]) -> Vec<[f64; MAX_AXES]> {
+        let mut out = vec![self.inverse(before)];
+        for (q, x) in &self.sent {
+            if q[..] == before[..self.n] && !out.contains(x) {
+                out.push(*x);
+            }
+        }
+        out
     }
 
     /// The calibrated targets a host move asks for, when the controller held targets whose

@@ -641,6 +641,36 @@ fn a_host_that_keeps_asking_does_not_hide_a_silent_controller() {
     }
 }
 
+/// Fuzz finding (issue 21, `proxy_fuzz`): a controller that stopped in the middle of a reply
+/// left the host with its beginning; the next reply then read as its continuation (`1 \n2 \n`
+/// and a later `0\n` made one three-line reply). Once the proxy gives the reply up, the host
+/// gets an end for it.
+#[test]
+fn a_reply_cut_by_a_silent_controller_gets_an_end() {
+    for (cut, ended) in [
+        (&b"1 \n2 \n"[..], &b"1 \n2 \n\n"[..]),
+        (b"1 \n2", b"1 \n2\n"),
+    ] {
+        let mut p = Proxy::default();
+        let mut out = Output::new();
+        let mut host = Vec::new();
+        p.host_bytes(None, b"SAI?\n", 1, &mut out);
+        assert_eq!(out.to_stage.as_bytes(), b"SAI?\n");
+        p.stage_bytes(None, cut, 2, &mut out);
+        host.extend_from_slice(out.to_host.as_bytes());
+        // silent: the reply is given up
+        p.poll(None, 3 + REPLY_TIMEOUT_MS, &mut out);
+        host.extend_from_slice(out.to_host.as_bytes());
+        assert_eq!(p.counters.resyncs, 1);
+        assert_eq!(text(&host), text(ended));
+        // the next reply is one of its own
+        p.host_bytes(None, b"ERR?\n", 4 + REPLY_TIMEOUT_MS, &mut out);
+        p.stage_bytes(None, b"0\n", 5 + REPLY_TIMEOUT_MS, &mut out);
+        host.extend_from_slice(out.to_host.as_bytes());
+        assert_eq!(&host[ended.len()..], b"0\n");
+    }
+}
+
 #[test]
 fn lost_stage_bytes_hold_the_host_until_the_line_is_quiet_then_raise_link_lost() {
     let (mut r, _) = rig_1dof();

@@ -246,6 +246,8 @@ struct Rig {
     blackout: Option<Blackout>,
     /// Bytes the host received.
     host_rx: Vec<u8>,
+    /// Bytes sent to the controller while it was not running.
+    lost: Vec<u8>,
 }
 
 impl Rig {
@@ -270,6 +272,7 @@ impl Rig {
             stage_since_ms: 0,
             blackout: None,
             host_rx: Vec::new(),
+            lost: Vec::new(),
         }
     }
 
@@ -279,6 +282,7 @@ impl Rig {
         self.host_rx.extend_from_slice(self.out.to_host.as_bytes());
         let sending = !self.out.to_stage.is_empty();
         if sending && self.silent() {
+            self.lost.extend_from_slice(self.out.to_stage.as_bytes());
             if self.proxy.in_flight() > 0 {
                 // (a query among them, or replies due before them: lost either way)
                 self.lose_replies();
@@ -489,6 +493,7 @@ pub fn run(setup: &Setup, seed: u64, steps: u64) -> Result<Stats, Box<Violation>
                 // the host closes the port (DTR falls) and opens it again; what happened
                 // before is checked first
                 rig.deliver(rng.gen_range(0..16));
+                oracle.lost(&std::mem::take(&mut rig.lost));
                 let k = oracle
                     .check(&mut rig.ctl, &mut rig.host_rx, false)
                     .map_err(|what| violation(setup.name, seed, step, what, &trace))?;
@@ -510,6 +515,7 @@ pub fn run(setup: &Setup, seed: u64, steps: u64) -> Result<Stats, Box<Violation>
             }
         };
         if std::env::var_os("NANOCAL_FUZZ_TRACE").is_some() {
+            eprintln!("{step}: oracle {}", oracle.pending());
             eprintln!(
                 "{step}: {note} | resyncs {} stage_rx {:?} | {:?} | host_rx {:?} | processed {:?}",
                 rig.proxy.counters.resyncs,
@@ -535,6 +541,7 @@ pub fn run(setup: &Setup, seed: u64, steps: u64) -> Result<Stats, Box<Violation>
             // what was in flight was given up: those replies may be lost
             oracle.replies_may_be_lost();
         }
+        oracle.lost(&std::mem::take(&mut rig.lost));
         if let Some(ms) = rig.unnoticed_silence() {
             return Err(violation(
                 setup.name,

@@ -59,6 +59,8 @@ enum QState {
     Reached(Vec<u8>),
     /// A later host line reached the controller first: the proxy did not forward it.
     Dropped,
+    /// Sent while the controller was not running: nobody answers it.
+    Lost,
 }
 
 #[derive(Debug, Clone)]
@@ -169,7 +171,14 @@ impl Oracle {
     /// what the controller processed. A PI controller reads them the same.
     pub(super) fn prepare(&self, item: Vec<u8>) -> Vec<u8> {
         let mut out = Vec::with_capacity(item.len() + 8);
-        let mut taken: Vec<String> = self.queries.iter().map(|q| q.text.clone()).collect();
+        // (and from every host line not yet seen at the controller: one lost to a blackout
+        // stays there, and must not be taken for a later one)
+        let mut taken: Vec<String> = self
+            .queries
+            .iter()
+            .map(|q| q.text.clone())
+            .chain(self.lines.iter().map(|l| l.text.clone()))
+            .collect();
         for seg in item.split_inclusive(|&b| b == b'\n') {
             let Some(body) = seg.strip_suffix(b"\n") else {
                 out.extend_from_slice(seg);
@@ -237,6 +246,47 @@ impl Oracle {
                 self.partial.push(b);
             }
         }
+    }
+
+    /// The controller was not running when `bytes` were sent to it: the host lines among
+    /// them never reach it (the proxy forwards in the host's order, so each is the first
+    /// pending line of its text; its own queries and rewritten moves are not among these).
+    pub(super) fn lost(&mut self, bytes: &[u8]) {
+        let mut line = Vec::new();
+        for &b in bytes {
+            if is_single(b) {
+                self.forget_line(&format!("#{b}"));
+            } else if b == b'\n' {
+                let text: String = line.iter().map(|&c| c as char).collect();
+                self.forget_line(&text);
+                line.clear();
+            } else {
+                line.push(b);
+            }
+        }
+    }
+
+    fn forget_line(&mut self, text: &str) {
+        let Some(pos) = self.lines.iter().position(|l| l.text == text) else {
+            return;
+        };
+        let Some(l) = self.lines.remove(pos) else {
+            return;
+        };
+        for q in &mut self.queries {
+            if q.id == l.id && q.state == QState::Pending {
+                q.state = QState::Lost;
+            }
+        }
+    }
+
+    /// The host queries not yet answered, for traces.
+    pub(super) fn pending(&self) -> String {
+        self.queries
+            .iter()
+            .map(|q| format!("{:?}:{:?}", q.text, q.state))
+            .collect::<Vec<_>>()
+            .join(", ")
     }
 
     fn id(&mut self) -> u64 {
@@ -611,8 +661,17 @@ impl Oracle {
                 QState::Reached(r) if r.is_empty() => {
                     self.queries.pop_front();
                 }
+                QState::Lost => {
+                    self.queries.pop_front();
+                }
                 QState::Reached(r) => match self.same_reply(&q, r, reply, k) {
                     Ok(()) => {
+                        self.queries.pop_front();
+                        return Ok(());
+                    }
+                    Err(_) if q.lossy && cut_reply(q.kind, r, reply) => {
+                        // the controller stopped in the middle of it: the host got its
+                        // beginning and an end from the proxy
                         self.queries.pop_front();
                         return Ok(());
                     }
@@ -799,6 +858,27 @@ fn axis_value(line: &[u8]) -> Option<(&str, &str, &str)> {
         None => ("", left),
     };
     Some((pre, axis, v))
+}
+
+/// `got` is the beginning of reply `r` (for position replies: whole lines, values mapped,
+/// each line's `prefix axis=` as the controller's) ended by an LF of the proxy's.
+fn cut_reply(kind: QKind, r: &[u8], got: &[u8]) -> bool {
+    let Some(body) = got.strip_suffix(b"\n") else {
+        return false;
+    };
+    if body.is_empty() || body.len() >= r.len() {
+        return false;
+    }
+    if kind != QKind::Map {
+        return r.starts_with(body);
+    }
+    let rl: Vec<&[u8]> = r.split_inclusive(|&b| b == b'\n').collect();
+    let gl: Vec<&[u8]> = body.split_inclusive(|&b| b == b'\n').collect();
+    let key = |l: &[u8]| l.iter().position(|&b| b == b'=').map(|i| l[..=i].to_vec());
+    gl.len() < rl.len()
+        && gl.iter().zip(&rl).all(|(g, r)| {
+            g.ends_with(b" \n") && r.ends_with(b" \n") && key(g).is_some() && key(g) == key(r)
+        })
 }
 
 /// An `ERR?` answer: one line whose last token is an integer.

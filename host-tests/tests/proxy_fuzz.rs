@@ -16,11 +16,12 @@ const CI_STEPS: u64 = 20_000;
 /// Seeds per setup in CI (0…5: the sweep the findings were counted on).
 const CI_SEEDS: u64 = 6;
 
-/// Replays of runs that found a fault, up to just before each run's next, still open, finding:
-/// the host's `*IDN?` discarded by a new session taken for a marker's reply (a POS? reply then
-/// reached the host unmapped), a host `CSV?` counted as answered by a controller without `CSV?`
-/// (an `MOV?` reply then reached the host unmapped, step 38), an identification line still due
-/// to a given-up marker ending a resynchronisation early.
+/// Replays of the runs that found the second proxy pass's faults (each up to where its next
+/// finding was, before the fourth pass fixed those): the host's `*IDN?` discarded by a new
+/// session taken for a marker's reply (a POS? reply then reached the host unmapped), a host
+/// `CSV?` counted as answered by a controller without `CSV?` (an `MOV?` reply then reached the
+/// host unmapped, step 38), an identification line still due to a given-up marker ending a
+/// resynchronisation early.
 #[test]
 fn fuzz_findings_stay_fixed() {
     let setups = setups();

@@ -17,6 +17,11 @@
 //!    no open-loop/raw motion of a model axis; no corrected move the controller refuses for
 //!    its travel.
 //!
+//! A controller that stops (a blackout: reboot, power, cable) loses what it was sending and
+//! what is sent to it, and stays silent until the proxy has given up the replies it lost — a
+//! PI controller answers every query it accepts and is silent for seconds when it stops; the
+//! proxy must notice within its reply timeout.
+//!
 //! Deterministic: a run is a seed ([`run`]). `tests/proxy_fuzz.rs` runs bounded seeds in CI;
 //! its ignored benchmark runs ≥ 10 million steps (BENCHMARKS.md).
 

@@ -634,12 +634,10 @@ impl ProxyState {
 
     /// `MOV?` reply to the proxy's own query for the line held under `generation`: the
     /// targets the controller holds, as calibrated positions, for every model axis (the bases
-    /// of that line's move). Where the controller holds exactly the commands the proxy sent,
-    /// on every model axis, the bases are the targets the host asked for; otherwise the
-    /// controller did something else (refused a move, stopped, referenced), the proxy forgets
-    /// its record and the bases are the calibrated position of the controller's targets, every
-    /// axis from the inverse (with coupled axes an axis' calibrated position depends on every
-    /// axis' command).
+    /// of that line's move). Where the controller holds exactly the command the proxy sent,
+    /// the base is the target the host asked for; elsewhere the controller did something else
+    /// (refused the move, stopped, referenced), the proxy forgets its record of that axis and
+    /// the base is the calibrated position of the controller's target.
     fn reseed<C: Corrector>(&mut self, c: Option<&C>, lines: &[u8], generation: u8) {
         if self.reseed != Reseed::Asked || generation != self.reseed_gen {
             // a reply for a line that no longer waits (a stop cancelled it): never used
@@ -676,10 +674,6 @@ impl ProxyState {
             }
         }
         if differ != 0 {
-            // the record holds as a whole or not at all: in a coupled model one axis'
-            // calibrated position depends on every axis' command, so an axis that still holds
-            // its command is not where the record says once another holds something else
-            differ = ((1u16 << n) - 1) as u8;
             for a in 0..n {
                 if differ >> a & 1 != 0 {
                     self.forget(Some(a));

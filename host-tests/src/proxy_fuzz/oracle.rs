@@ -583,18 +583,32 @@ impl Oracle {
     }
 
     /// The calibrated positions a move may start from when the controller holds the targets
-    /// `before` (every model axis): the inverse of the commands it holds, or — where it holds
-    /// exactly the commands of a corrected move it received lately, every model axis' — a
-    /// target that move corrected (the proxy's documented rule: the controller holds a
-    /// correction of that target; near an end of the travel, where many targets clamp to one
-    /// command, the clamped command's inverse is another of them). Per axis it would not do:
-    /// in a coupled model one axis' calibrated position depends on every axis' command.
+    /// `before`: per model axis, the inverse of the commands it holds, or — where it holds
+    /// exactly an axis' command of a corrected move it received lately — that axis' target in
+    /// the move (the proxy's documented rule, per axis, as `tests/proxy_property.rs` defines
+    /// it: an axis keeps the host's target while the controller holds its command; near an end
+    /// of the travel many targets clamp to one command). Every combination.
     fn bases(&self, before: &[f64]) -> Vec<[f64; MAX_AXES]> {
-        let mut out = vec![self.inverse(before)];
-        for (q, x) in &self.sent {
-            if q[..] == before[..self.n] && !out.contains(x) {
-                out.push(*x);
+        let xb = self.inverse(before);
+        let mut out = vec![xb];
+        for a in 0..self.n {
+            let mut alternatives: Vec<f64> = Vec::new();
+            for (q, x) in &self.sent {
+                if q[a] == before[a] && x[a] != xb[a] && !alternatives.contains(&x[a]) {
+                    alternatives.push(x[a]);
+                }
             }
+            let more: Vec<[f64; MAX_AXES]> = out
+                .iter()
+                .flat_map(|b| {
+                    alternatives.iter().map(move |&x| {
+                        let mut b = *b;
+                        b[a] = x;
+                        b
+                    })
+                })
+                .collect();
+            out.extend(more);
         }
         out
     }

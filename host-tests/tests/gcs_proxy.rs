@@ -532,6 +532,71 @@ fn an_unanswered_query_is_given_up_and_later_replies_keep_their_attribution() {
     assert!((v - 100.0).abs() < 2e-4, "{v}");
 }
 
+/// Fuzz finding (issue 21, `proxy_fuzz`): the reply timeout restarted with every query the
+/// host sent, so a host that kept asking hid a controller that had stopped answering; when it
+/// answered again, its replies were paired with the queries it never received (here a raw
+/// position handed to the host as the answer to an `ERR?`).
+#[test]
+fn a_host_that_keeps_asking_does_not_hide_a_silent_controller() {
+    let (mut r, _) = rig_1dof();
+    r.line("MOV 1 100");
+    r.wait_ms(20); // the move ends
+    assert_eq!(r.proxy.counters.resyncs, 0);
+    // the controller stops (its cable out): the host asks every 500 ms for 3 s
+    r.silent = true;
+    for _ in 0..6 {
+        r.line("ERR?");
+        r.wait_ms(500);
+    }
+    assert!(
+        r.proxy.counters.resyncs > 0,
+        "3 s of silence with replies due, not noticed"
+    );
+    // back: whatever the host receives from now on answers the query it was asked for
+    r.silent = false;
+    r.host_rx.clear();
+    for _ in 0..3 {
+        r.line("POS? 1");
+        r.settle();
+    }
+    let got = text(&r.host_rx);
+    assert!(!got.is_empty());
+    for l in got.lines() {
+        let v = value(l, "1");
+        assert!((v - 100.0).abs() < 2e-4, "{l:?} in {got:?}");
+    }
+}
+
+/// Fuzz finding (issue 21, `proxy_fuzz`): a controller that stopped in the middle of a reply
+/// left the host with its beginning; the next reply then read as its continuation (`1 \n2 \n`
+/// and a later `0\n` made one three-line reply). Once the proxy gives the reply up, the host
+/// gets an end for it.
+#[test]
+fn a_reply_cut_by_a_silent_controller_gets_an_end() {
+    for (cut, ended) in [
+        (&b"1 \n2 \n"[..], &b"1 \n2 \n\n"[..]),
+        (b"1 \n2", b"1 \n2\n"),
+    ] {
+        let mut p = Proxy::default();
+        let mut out = Output::new();
+        let mut host = Vec::new();
+        p.host_bytes(None, b"SAI?\n", 1, &mut out);
+        assert_eq!(out.to_stage.as_bytes(), b"SAI?\n");
+        p.stage_bytes(None, cut, 2, &mut out);
+        host.extend_from_slice(out.to_host.as_bytes());
+        // silent: the reply is given up
+        p.poll(None, 3 + REPLY_TIMEOUT_MS, &mut out);
+        host.extend_from_slice(out.to_host.as_bytes());
+        assert_eq!(p.counters.resyncs, 1);
+        assert_eq!(text(&host), text(ended));
+        // the next reply is one of its own
+        p.host_bytes(None, b"ERR?\n", 4 + REPLY_TIMEOUT_MS, &mut out);
+        p.stage_bytes(None, b"0\n", 5 + REPLY_TIMEOUT_MS, &mut out);
+        host.extend_from_slice(out.to_host.as_bytes());
+        assert_eq!(&host[ended.len()..], b"0\n");
+    }
+}
+
 #[test]
 fn lost_stage_bytes_hold_the_host_until_the_line_is_quiet_then_raise_link_lost() {
     let (mut r, _) = rig_1dof();

@@ -13,14 +13,15 @@ use std::time::Instant;
 
 /// Steps per setup and seed in CI.
 const CI_STEPS: u64 = 20_000;
-/// Seeds per setup in CI.
-const CI_SEEDS: u64 = 4;
+/// Seeds per setup in CI (0…5: the sweep the issue's findings were counted on).
+const CI_SEEDS: u64 = 6;
 
-/// Replays of runs that found a fault, up to just before each run's next, still open, finding:
-/// the host's `*IDN?` discarded by a new session taken for a marker's reply (a POS? reply then
-/// reached the host unmapped), a host `CSV?` counted as answered by a controller without `CSV?`
-/// (an `MOV?` reply then reached the host unmapped, step 38), an identification line still due
-/// to a given-up marker ending a resynchronisation early.
+/// Replays of the runs that found the second proxy pass's faults (each up to where its next
+/// finding was, before the fourth pass fixed those): the host's `*IDN?` discarded by a new
+/// session taken for a marker's reply (a POS? reply then reached the host unmapped), a host
+/// `CSV?` counted as answered by a controller without `CSV?` (an `MOV?` reply then reached the
+/// host unmapped, step 38), an identification line still due to a given-up marker ending a
+/// resynchronisation early.
 #[test]
 fn fuzz_findings_stay_fixed() {
     let setups = setups();
@@ -31,11 +32,14 @@ fn fuzz_findings_stay_fixed() {
     }
 }
 
+/// The setups the CI sweep runs: the published 1-DoF model on both controllers (the coupled
+/// 2-DoF setup still finds a fault, see [`the_coupled_setup_keeps_its_promises`]).
+const CI_SETUPS: [usize; 2] = [0, 2];
+
 #[test]
-#[ignore = "open findings (issue 21): most seeds still find a fault within 20,000 steps — a controller blackout that swallows queries the proxy counts as certainly answered (then replies pair with the wrong queries), MVE of a non-model axis beyond the controller's travel, coupled-model moves the oracle cannot match; see the branch report"]
 fn the_proxy_keeps_its_promises_under_a_stateful_fuzz() {
     let mut total = Stats::default();
-    for setup in setups() {
+    for setup in CI_SETUPS.map(|k| setups()[k].clone()) {
         for seed in 0..CI_SEEDS {
             match run(&setup, seed, CI_STEPS) {
                 Ok(s) => total += s,
@@ -52,6 +56,16 @@ fn the_proxy_keeps_its_promises_under_a_stateful_fuzz() {
         total.resyncs > 0 && total.drops > 0 && total.unanswered > 0,
         "{total:?}"
     );
+}
+
+#[test]
+#[ignore = "open finding (issue 21): on the coupled 2-DoF setup seeds 0-5 find a move whose kept axis is not the oracle's (~50 nm): a move the controller refused (for another axis' value) re-recorded the clamped axis 2 from the joint inverse of its own commands, and the proxy's per-axis base rule (tests/proxy_property.rs) keeps that record while the controller holds the same clamped command"]
+fn the_coupled_setup_keeps_its_promises() {
+    for seed in 0..CI_SEEDS {
+        if let Err(v) = run(&setups()[1], seed, CI_STEPS) {
+            panic!("{v}");
+        }
+    }
 }
 
 #[test]

@@ -38,9 +38,14 @@
 //! command near an end of the travel is clamped to it or refused (`travel`).
 //!
 //! Time enters only as an argument (`now_ms`), for one decision: a controller that sends
-//! nothing for [`REPLY_TIMEOUT_MS`] while replies are due has stopped answering (unplugged,
-//! rebooting); the proxy gives up what is in flight and resynchronises with a marker. Pairing
-//! itself never depends on time.
+//! nothing for [`REPLY_TIMEOUT_MS`] while replies are due (counted from the oldest reply due,
+//! whatever the host sends meanwhile) has stopped answering (unplugged, rebooting); the proxy
+//! gives up what is in flight and resynchronises with a marker. Pairing itself never depends
+//! on time. What this assumes of the controller: it answers every query it accepts (within
+//! milliseconds), and it loses input only while it is not running — rebooting, without power,
+//! its cable out — and is then silent for longer than [`REPLY_TIMEOUT_MS`]. A query lost on its
+//! way to a controller that answers the next one at once cannot be told from bytes alone (GCS
+//! replies carry no sequence number): that is a link fault the proxy does not claim to see.
 
 mod controller;
 mod corrector;
@@ -74,8 +79,9 @@ pub const STAGE_OUT: usize = INPUT_LEN + 192;
 /// Capacity of [`Output::to_host`].
 pub const HOST_OUT: usize = 1280;
 /// The controller has stopped answering when it sent nothing for this long (ms) while replies
-/// were due (counted from the last byte exchanged with it). PI controllers answer within
-/// milliseconds; PIPython waits seconds before it gives up on a reply.
+/// were due (counted from the last byte received, or from the query whose reply is the oldest
+/// due, whichever is later; queries sent meanwhile do not restart it). PI controllers answer
+/// within milliseconds; PIPython waits seconds before it gives up on a reply.
 pub const REPLY_TIMEOUT_MS: u32 = 2_000;
 
 /// Bytes the proxy produced, for each link. Cleared by every call that fills it.
@@ -243,6 +249,10 @@ pub struct ProxyState {
     now_ms: u32,
     last_rx_ms: u32,
     last_tx_ms: u32,
+    /// When the oldest reply still due was asked for (the queue was empty before it): the
+    /// reply timeout runs from here or from the last byte received, whichever is later — not
+    /// from the last query sent, so a host that keeps sending cannot hide a silent controller.
+    due_since_ms: u32,
     /// Forward everything untouched.
     pub bypass: bool,
     /// Refuse all moves when not open.
@@ -300,6 +310,7 @@ impl Proxy {
                 now_ms: 0,
                 last_rx_ms: 0,
                 last_tx_ms: 0,
+                due_since_ms: 0,
                 bypass: false,
                 gate: Gate::Open,
                 counters: Counters::default(),
@@ -638,8 +649,12 @@ impl ProxyState {
 
     /// Record an expected reply (the caller checked there is room).
     fn expect(&mut self, en: Entry) {
+        let idle = self.queue.is_empty() && !self.rx.active();
         if self.queue.push(en) {
             self.last_tx_ms = self.now_ms;
+            if idle {
+                self.due_since_ms = self.now_ms;
+            }
         }
     }
 
@@ -1055,13 +1070,15 @@ impl ProxyState {
         }
         self.emit_answers(out);
         let waiting = !self.queue.is_empty() || self.rx.active();
+        // (the host's later queries do not restart the wait for the oldest reply due)
         let quiet = now_ms.wrapping_sub(self.last_rx_ms) > REPLY_TIMEOUT_MS
-            && now_ms.wrapping_sub(self.last_tx_ms) > REPLY_TIMEOUT_MS;
+            && now_ms.wrapping_sub(self.due_since_ms) > REPLY_TIMEOUT_MS;
         if !(waiting && quiet) {
             return;
         }
         // the controller stopped answering: what is in flight will not come
         self.last_tx_ms = now_ms;
+        self.due_since_ms = now_ms;
         if self.ctrl.marker_reply().is_some() {
             // after a whole silence nothing given up is still coming (see `resync`)
             self.resync(c, false, out);

@@ -82,6 +82,8 @@ pub(crate) struct ReplyRx {
     seen: u8,
     /// Model axes seen in the lines held now.
     here: u8,
+    /// Bytes of this reply went to the host.
+    relayed: bool,
 }
 
 impl ReplyRx {
@@ -100,6 +102,7 @@ impl ReplyRx {
             values: [0; MAP_AXES],
             seen: 0,
             here: 0,
+            relayed: false,
         }
     }
 
@@ -139,6 +142,7 @@ impl ReplyRx {
         self.total_lines = 0;
         self.seen = 0;
         self.here = 0;
+        self.relayed = false;
     }
 }
 
@@ -226,6 +230,7 @@ impl ProxyState {
                 let chunk = &rest[..n];
                 if relay {
                     let _ = out.to_host.extend(chunk);
+                    self.rx.relayed = true;
                 }
                 i += n;
                 if matches!(kind, Expect::Snoop(_)) {
@@ -327,6 +332,7 @@ impl ProxyState {
                 }
                 if !matches!(en.e, Expect::Discard | Expect::Unsolicited) {
                     let _ = out.to_host.extend(held);
+                    self.rx.relayed |= !held.is_empty();
                 }
                 if matches!(en.e, Expect::Snoop(_)) {
                     self.collect(held);
@@ -396,6 +402,7 @@ impl ProxyState {
             if is_map {
                 let n = bytes.len().min(out.to_host.room());
                 let _ = out.to_host.extend(&bytes[..n]);
+                self.rx.relayed = true;
                 self.rx.prev = bytes[n.max(1) - 1];
                 return n == bytes.len();
             }
@@ -419,6 +426,7 @@ impl ProxyState {
         }
         self.map_chunk(c, out);
         let _ = out.to_host.extend(self.rx.line.as_bytes());
+        self.rx.relayed = true;
         self.rx.line.clear();
         self.rx.line_over = true;
         self.take_partial(c, bytes, is_map, out)
@@ -499,6 +507,7 @@ impl ProxyState {
         };
         let lines = self.rx.lines.as_bytes();
         let o = &mut out.to_host;
+        self.rx.relayed |= self.rx.n_lines > 0;
         for info in &self.rx.infos[..self.rx.n_lines] {
             let line = &lines[usize::from(info.start)..][..usize::from(info.len)];
             let xa = x.and_then(|x| x[usize::from(info.axis)]);
@@ -706,11 +715,20 @@ impl ProxyState {
     }
 
     /// The controller answers no more: every query in flight is given up (the proxy's own
-    /// answers still go out), facts asked are asked again later, a held line is refused.
+    /// answers still go out, a reply cut short gets an end), facts asked are asked again
+    /// later, a held line is refused.
     pub(super) fn give_up<C: Corrector>(&mut self, c: Option<&C>, out: &mut Output) {
         if let Some(en) = self.rx.entry.take() {
             if matches!(en.e, Expect::Map { .. }) {
                 self.map_chunk(c, out);
+            }
+            if self.rx.relayed
+                && matches!(en.e, Expect::Map { .. } | Expect::Relay | Expect::Snoop(_))
+            {
+                // the host holds the beginning of a reply whose end will never come: it gets
+                // an end (a line end, an empty last line after a continued one), so that the
+                // next reply is not read as this one's continuation
+                let _ = out.to_host.push(b'\n');
             }
             if !matches!(en.e, Expect::Marker | Expect::Discard | Expect::Unsolicited) {
                 self.counters.unanswered = self.counters.unanswered.wrapping_add(1);

@@ -17,6 +17,11 @@
 //!    no open-loop/raw motion of a model axis; no corrected move the controller refuses for
 //!    its travel.
 //!
+//! A controller that stops (a blackout: reboot, power, cable) loses what it was sending and
+//! what is sent to it, and stays silent until the proxy has given up the replies it lost — a
+//! PI controller answers every query it accepts and is silent for seconds when it stops; the
+//! proxy must notice within its reply timeout.
+//!
 //! Deterministic: a run is a seed ([`run`]). `tests/proxy_fuzz.rs` runs bounded seeds in CI;
 //! its ignored benchmark runs ≥ 10 million steps (BENCHMARKS.md).
 
@@ -242,10 +247,12 @@ struct Rig {
     /// Controller bytes not yet given to the proxy, and when the oldest was sent.
     stage_rx: VecDeque<u8>,
     stage_since_ms: u32,
-    /// The controller ignores its input until then (ms).
-    blackout_until_ms: u32,
+    /// The controller is not running: it ignores its input and answers nothing.
+    blackout: Option<Blackout>,
     /// Bytes the host received.
     host_rx: Vec<u8>,
+    /// Bytes sent to the controller while it was not running.
+    lost: Vec<u8>,
 }
 
 impl Rig {
@@ -268,8 +275,9 @@ impl Rig {
             host_tx: VecDeque::new(),
             stage_rx: VecDeque::new(),
             stage_since_ms: 0,
-            blackout_until_ms: 0,
+            blackout: None,
             host_rx: Vec::new(),
+            lost: Vec::new(),
         }
     }
 
@@ -277,9 +285,15 @@ impl Rig {
     /// blacked out).
     fn route(&mut self) {
         self.host_rx.extend_from_slice(self.out.to_host.as_bytes());
-        let to_stage = self.out.to_stage.as_bytes();
-        if !to_stage.is_empty() && self.now_ms >= self.blackout_until_ms {
-            let reply = self.ctl.input(to_stage);
+        let sending = !self.out.to_stage.is_empty();
+        if sending && self.silent() {
+            self.lost.extend_from_slice(self.out.to_stage.as_bytes());
+            if self.proxy.in_flight() > 0 {
+                // (a query among them, or replies due before them: lost either way)
+                self.lose_replies();
+            }
+        } else if sending {
+            let reply = self.ctl.input(self.out.to_stage.as_bytes());
             if self.stage_rx.is_empty() {
                 self.stage_since_ms = self.now_ms;
             }
@@ -349,6 +363,61 @@ impl Rig {
         self.resume();
     }
 
+    /// The controller stops for `ms` (a reboot, its power or cable out): what it was sending
+    /// is lost, and so is everything sent to it until it runs again.
+    fn black_out(&mut self, ms: u32) {
+        self.blackout = Some(Blackout {
+            start_ms: self.now_ms,
+            len_ms: ms,
+            lost: None,
+        });
+        self.stage_rx.clear();
+        if self.proxy.in_flight() > 0 {
+            self.lose_replies();
+        }
+    }
+
+    /// Replies the proxy counts as due will never come.
+    fn lose_replies(&mut self) {
+        let resyncs = self.proxy.counters.resyncs;
+        if let Some(b) = &mut self.blackout {
+            if b.lost.is_none_or(|(r, _)| r != resyncs) {
+                b.lost = Some((resyncs, self.now_ms));
+            }
+        }
+    }
+
+    /// Is the controller still not running? A blackout lasts its length and, when it cost
+    /// replies, until the proxy gave them up: a PI controller answers every query it
+    /// receives, and one that stops is silent for longer than the proxy's reply timeout
+    /// (PI's controllers take seconds to boot) — a shorter loss of input to a running
+    /// controller is a link fault no proxy can see in GCS's bytes (the proxy's contract).
+    fn silent(&mut self) -> bool {
+        let resyncs = self.proxy.counters.resyncs;
+        let Some(b) = &mut self.blackout else {
+            return false;
+        };
+        if b.lost.is_some_and(|(r, _)| r != resyncs) {
+            // the proxy gave up what was lost
+            b.lost = None;
+        }
+        if self.now_ms.wrapping_sub(b.start_ms) >= b.len_ms && b.lost.is_none() {
+            self.blackout = None;
+            return false;
+        }
+        true
+    }
+
+    /// Replies lost to a blackout the proxy still waits for, since `since_ms`, for longer
+    /// than its reply timeout (it polled since): it did not notice the silence.
+    fn unnoticed_silence(&mut self) -> Option<u32> {
+        self.silent();
+        let resyncs = self.proxy.counters.resyncs;
+        let (r, since) = self.blackout.as_ref()?.lost?;
+        let waited = self.now_ms.wrapping_sub(since);
+        (r == resyncs && waited > REPLY_TIMEOUT_MS + 100).then_some(waited)
+    }
+
     /// Nothing in flight anywhere: every host line taken and processed, every reply given.
     fn quiet(&self) -> bool {
         self.host_tx.is_empty()
@@ -357,6 +426,14 @@ impl Rig {
             && !self.proxy.holding()
             && !self.proxy.has_work()
     }
+}
+
+/// A controller that is not running.
+struct Blackout {
+    start_ms: u32,
+    len_ms: u32,
+    /// Replies due were lost: the proxy's resync count then, and since when.
+    lost: Option<(u32, u32)>,
 }
 
 /// Run `steps` steps of seed `seed` on `setup`; the first violation stops it.
@@ -421,6 +498,7 @@ pub fn run(setup: &Setup, seed: u64, steps: u64) -> Result<Stats, Box<Violation>
                 // the host closes the port (DTR falls) and opens it again; what happened
                 // before is checked first
                 rig.deliver(rng.gen_range(0..16));
+                oracle.lost(&std::mem::take(&mut rig.lost));
                 let k = oracle
                     .check(&mut rig.ctl, &mut rig.host_rx, false)
                     .map_err(|what| violation(setup.name, seed, step, what, &trace))?;
@@ -436,13 +514,13 @@ pub fn run(setup: &Setup, seed: u64, steps: u64) -> Result<Stats, Box<Violation>
             _ => {
                 // the controller goes silent for a while (it reboots, a cable is pulled)
                 let ms = rng.gen_range(100..3_000);
-                rig.blackout_until_ms = rig.now_ms.wrapping_add(ms);
-                rig.stage_rx.clear();
+                rig.black_out(ms);
                 stats.blackouts += 1;
                 format!("controller silent for {ms} ms")
             }
         };
         if std::env::var_os("NANOCAL_FUZZ_TRACE").is_some() {
+            eprintln!("{step}: oracle {}", oracle.pending());
             eprintln!(
                 "{step}: {note} | resyncs {} stage_rx {:?} | {:?} | host_rx {:?} | processed {:?}",
                 rig.proxy.counters.resyncs,
@@ -467,6 +545,16 @@ pub fn run(setup: &Setup, seed: u64, steps: u64) -> Result<Stats, Box<Violation>
             resyncs = rig.proxy.counters.resyncs;
             // what was in flight was given up: those replies may be lost
             oracle.replies_may_be_lost();
+        }
+        oracle.lost(&std::mem::take(&mut rig.lost));
+        if let Some(ms) = rig.unnoticed_silence() {
+            return Err(violation(
+                setup.name,
+                seed,
+                step,
+                format!("the controller has been silent for {ms} ms with replies due; the proxy still waits"),
+                &trace,
+            ));
         }
         let quiet = rig.quiet();
         let checked = oracle

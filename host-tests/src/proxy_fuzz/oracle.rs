@@ -59,6 +59,8 @@ enum QState {
     Reached(Vec<u8>),
     /// A later host line reached the controller first: the proxy did not forward it.
     Dropped,
+    /// Sent while the controller was not running: nobody answers it.
+    Lost,
 }
 
 #[derive(Debug, Clone)]
@@ -86,6 +88,11 @@ pub(super) struct Oracle {
     travel: Vec<(f64, f64)>,
     /// Per model axis: the training envelope.
     envelope: Vec<(f64, f64)>,
+    /// Per controller axis (`1`, `2`, …): its travel, as the controller checks targets.
+    controller_travel: Vec<(f64, f64)>,
+    /// The last corrected moves of every model axis the controller received: the commands and
+    /// the calibrated targets they were the corrections of (most recent last).
+    sent: VecDeque<(Vec<f64>, [f64; MAX_AXES])>,
     /// The proxy's own queries, as it spells them.
     own: Vec<String>,
     partial: Vec<u8>,
@@ -122,6 +129,13 @@ impl Oracle {
             slow: super::slow(),
             travel,
             envelope,
+            controller_travel: setup
+                .controller
+                .axes
+                .iter()
+                .map(|a| (a.min, a.max))
+                .collect(),
+            sent: VecDeque::new(),
             own,
             partial: Vec::new(),
             discarding: false,
@@ -157,7 +171,14 @@ impl Oracle {
     /// what the controller processed. A PI controller reads them the same.
     pub(super) fn prepare(&self, item: Vec<u8>) -> Vec<u8> {
         let mut out = Vec::with_capacity(item.len() + 8);
-        let mut taken: Vec<String> = self.queries.iter().map(|q| q.text.clone()).collect();
+        // (and from every host line not yet seen at the controller: one lost to a blackout
+        // stays there, and must not be taken for a later one)
+        let mut taken: Vec<String> = self
+            .queries
+            .iter()
+            .map(|q| q.text.clone())
+            .chain(self.lines.iter().map(|l| l.text.clone()))
+            .collect();
         for seg in item.split_inclusive(|&b| b == b'\n') {
             let Some(body) = seg.strip_suffix(b"\n") else {
                 out.extend_from_slice(seg);
@@ -225,6 +246,47 @@ impl Oracle {
                 self.partial.push(b);
             }
         }
+    }
+
+    /// The controller was not running when `bytes` were sent to it: the host lines among
+    /// them never reach it (the proxy forwards in the host's order, so each is the first
+    /// pending line of its text; its own queries and rewritten moves are not among these).
+    pub(super) fn lost(&mut self, bytes: &[u8]) {
+        let mut line = Vec::new();
+        for &b in bytes {
+            if is_single(b) {
+                self.forget_line(&format!("#{b}"));
+            } else if b == b'\n' {
+                let text: String = line.iter().map(|&c| c as char).collect();
+                self.forget_line(&text);
+                line.clear();
+            } else {
+                line.push(b);
+            }
+        }
+    }
+
+    fn forget_line(&mut self, text: &str) {
+        let Some(pos) = self.lines.iter().position(|l| l.text == text) else {
+            return;
+        };
+        let Some(l) = self.lines.remove(pos) else {
+            return;
+        };
+        for q in &mut self.queries {
+            if q.id == l.id && q.state == QState::Pending {
+                q.state = QState::Lost;
+            }
+        }
+    }
+
+    /// The host queries not yet answered, for traces.
+    pub(super) fn pending(&self) -> String {
+        self.queries
+            .iter()
+            .map(|q| format!("{:?}:{:?}", q.text, q.state))
+            .collect::<Vec<_>>()
+            .join(", ")
     }
 
     fn id(&mut self) -> u64 {
@@ -447,7 +509,19 @@ impl Oracle {
         if got.is_empty() {
             return Ok(()); // other axes only: forwarded untouched
         }
-        if p.failed == Some(7) {
+        // (a value of another axis beyond its travel is the host's, relayed as it was asked)
+        let others_outside = toks.chunks(2).any(|c| {
+            let (Some(a), Some(Ok(v))) = (
+                c[0].parse::<usize>().ok().filter(|&k| k > self.n),
+                c.get(1).map(|v| v.parse::<f64>()),
+            ) else {
+                return false;
+            };
+            self.controller_travel
+                .get(a - 1)
+                .is_some_and(|&(lo, hi)| v < lo || v > hi)
+        });
+        if p.failed == Some(7) && !others_outside {
             return Err(format!(
                 "{:?}: the controller refused it (7, outside its travel); the proxy knows its \
                  travel",
@@ -455,23 +529,42 @@ impl Oracle {
             ));
         }
         let before: Vec<f64> = p.before[..self.n].to_vec();
-        let xb = self.inverse(&before);
+        let bases = self.bases(&before);
         let mut first_miss = None;
         for (i, h) in self.moves.iter().enumerate() {
             if (h.kind == MoveKind::Mve) != (word == "MVE") {
                 continue;
             }
-            match self.expected(h, &xb) {
-                Ok((x, q)) => {
-                    let ok = got.iter().all(|&(a, v)| (v - q[a]).abs() <= TOL_UM);
-                    if ok {
-                        self.moves.drain(..=i);
-                        k.moves += 1;
-                        return Ok(());
+            // every base that explains the command: the targets it may have corrected
+            let mut matched: Vec<[f64; MAX_AXES]> = Vec::new();
+            for xb in &bases {
+                match self.expected(h, xb) {
+                    Ok((x, q)) => {
+                        if got.iter().all(|&(a, v)| (v - q[a]).abs() <= TOL_UM) {
+                            matched.push(x);
+                        } else {
+                            first_miss.get_or_insert((h.text.clone(), x, q));
+                        }
                     }
-                    first_miss.get_or_insert((h.text.clone(), x, q));
+                    Err(_) => continue,
                 }
-                Err(_) => continue,
+            }
+            if !matched.is_empty() {
+                self.moves.drain(..=i);
+                k.moves += 1;
+                if got.len() == self.n {
+                    let mut q = vec![f64::NAN; self.n];
+                    for &(a, v) in &got {
+                        q[a] = v;
+                    }
+                    for x in matched {
+                        if self.sent.len() == 16 {
+                            self.sent.pop_front();
+                        }
+                        self.sent.push_back((q.clone(), x));
+                    }
+                }
+                return Ok(());
             }
         }
         Err(match first_miss {
@@ -487,6 +580,37 @@ impl Oracle {
                 p.line
             ),
         })
+    }
+
+    /// The calibrated positions a move may start from when the controller holds the targets
+    /// `before`: per model axis, the inverse of the commands it holds, or — where it holds
+    /// exactly an axis' command of a corrected move it received lately — that axis' target in
+    /// the move (the proxy's documented rule, per axis, as `tests/proxy_property.rs` defines
+    /// it: an axis keeps the host's target while the controller holds its command; near an end
+    /// of the travel many targets clamp to one command). Every combination.
+    fn bases(&self, before: &[f64]) -> Vec<[f64; MAX_AXES]> {
+        let xb = self.inverse(before);
+        let mut out = vec![xb];
+        for a in 0..self.n {
+            let mut alternatives: Vec<f64> = Vec::new();
+            for (q, x) in &self.sent {
+                if q[a] == before[a] && x[a] != xb[a] && !alternatives.contains(&x[a]) {
+                    alternatives.push(x[a]);
+                }
+            }
+            let more: Vec<[f64; MAX_AXES]> = out
+                .iter()
+                .flat_map(|b| {
+                    alternatives.iter().map(move |&x| {
+                        let mut b = *b;
+                        b[a] = x;
+                        b
+                    })
+                })
+                .collect();
+            out.extend(more);
+        }
+        out
     }
 
     /// The calibrated targets a host move asks for, when the controller held targets whose
@@ -551,8 +675,17 @@ impl Oracle {
                 QState::Reached(r) if r.is_empty() => {
                     self.queries.pop_front();
                 }
+                QState::Lost => {
+                    self.queries.pop_front();
+                }
                 QState::Reached(r) => match self.same_reply(&q, r, reply, k) {
                     Ok(()) => {
+                        self.queries.pop_front();
+                        return Ok(());
+                    }
+                    Err(_) if q.lossy && cut_reply(q.kind, r, reply) => {
+                        // the controller stopped in the middle of it: the host got its
+                        // beginning and an end from the proxy
                         self.queries.pop_front();
                         return Ok(());
                     }
@@ -739,6 +872,27 @@ fn axis_value(line: &[u8]) -> Option<(&str, &str, &str)> {
         None => ("", left),
     };
     Some((pre, axis, v))
+}
+
+/// `got` is the beginning of reply `r` (for position replies: whole lines, values mapped,
+/// each line's `prefix axis=` as the controller's) ended by an LF of the proxy's.
+fn cut_reply(kind: QKind, r: &[u8], got: &[u8]) -> bool {
+    let Some(body) = got.strip_suffix(b"\n") else {
+        return false;
+    };
+    if body.is_empty() || body.len() >= r.len() {
+        return false;
+    }
+    if kind != QKind::Map {
+        return r.starts_with(body);
+    }
+    let rl: Vec<&[u8]> = r.split_inclusive(|&b| b == b'\n').collect();
+    let gl: Vec<&[u8]> = body.split_inclusive(|&b| b == b'\n').collect();
+    let key = |l: &[u8]| l.iter().position(|&b| b == b'=').map(|i| l[..=i].to_vec());
+    gl.len() < rl.len()
+        && gl.iter().zip(&rl).all(|(g, r)| {
+            g.ends_with(b" \n") && r.ends_with(b" \n") && key(g).is_some() && key(g) == key(r)
+        })
 }
 
 /// An `ERR?` answer: one line whose last token is an integer.

@@ -28,6 +28,9 @@ pub struct Rig {
     pub host_rx: Vec<u8>,
     /// Controller bytes not yet given to the proxy.
     stage_rx: Vec<u8>,
+    /// The controller is not running (rebooting, its cable out): what the proxy sends it is
+    /// lost, and it answers nothing.
+    pub silent: bool,
 }
 
 impl Rig {
@@ -49,12 +52,13 @@ impl Rig {
             out: Output::new(),
             host_rx: vec![],
             stage_rx: vec![],
+            silent: false,
         }
     }
 
     fn route(&mut self) {
         self.host_rx.extend_from_slice(self.out.to_host.as_bytes());
-        if !self.out.to_stage.is_empty() {
+        if !self.out.to_stage.is_empty() && !self.silent {
             let reply = self.ctl.input(self.out.to_stage.as_bytes());
             self.stage_rx.extend_from_slice(&reply);
         }

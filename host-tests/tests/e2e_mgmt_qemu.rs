@@ -14,6 +14,8 @@
 
 mod fw_sim;
 
+use fw_sim::nanocal_cli;
+
 use fw_sim::{wait_until, Qemu, SensorSim, StageSim, HANG};
 use nanocal::published::published_1dof;
 use nanocal_interface::mgmt::{Decoder, Kind, Reply, Request, FRAME_TIMEOUT_MS, MAX_FRAME};
@@ -21,24 +23,10 @@ use nanocal_interface::status::{Flags, Status};
 use nanocal_model::blob;
 use std::io::{Read, Write};
 use std::os::unix::net::UnixStream;
-use std::process::Command;
 use std::time::Duration;
 
 /// Temperatures the simulated sensors report (inside the published model's envelope).
 const TEMPS_C: [f32; 4] = [22.0, 22.125, 21.875, 22.25];
-
-fn nanocal(args: &[&str]) -> String {
-    let out = Command::new(env!("CARGO_BIN_EXE_nanocal"))
-        .args(args)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "nanocal {args:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
 
 /// The published 1-DoF model's blob, and the same blob with its last term's coefficient
 /// changed by one part in a million (same id, CRC recomputed): the issue's "changed
@@ -83,7 +71,7 @@ fn model_hash_tells_models_with_one_id_apart_under_qemu() {
     for (name, bytes, crc) in [("a", &a, crc_a), ("b", &b, crc_b), ("a", &a, crc_a)] {
         let path = dir.join(format!("{name}.blob"));
         std::fs::write(&path, bytes).unwrap();
-        let up = nanocal(&["device", "upload", "--port", &spec, path.to_str().unwrap()]);
+        let up = nanocal_cli(&["device", "upload", "--port", &spec, path.to_str().unwrap()]);
         assert!(
             up.contains(&format!("model {id:#010x} (blob CRC {crc:#010x})")),
             "{up}"
@@ -93,7 +81,7 @@ fn model_hash_tells_models_with_one_id_apart_under_qemu() {
         assert!(s.flags.contains(Flags::MODEL));
         assert_eq!((s.model_id, s.model_crc32), (id, crc), "blob {name}");
         drop(c);
-        let text = nanocal(&["device", "status", "--port", &spec]);
+        let text = nanocal_cli(&["device", "status", "--port", &spec]);
         assert!(
             text.contains(&format!("model: {id:#010x}  blob CRC {crc:#010x}")),
             "{text}"
@@ -246,7 +234,7 @@ fn a_cut_management_frame_does_not_deafen_the_port_under_qemu() {
     let mut cut = q.mgmt_stream();
     send_cut(&q, &mut cut);
     drop(cut);
-    let text = nanocal(&["device", "status", "--port", &spec]);
+    let text = nanocal_cli(&["device", "status", "--port", &spec]);
     assert!(text.contains("model: none"), "{text}");
     let mut c = q.client();
     for i in 0..24 {

@@ -9,13 +9,14 @@
 
 mod fw_sim;
 
+use fw_sim::nanocal_cli;
+
 use fw_sim::{stage_value, wait_until, Qemu, SensorSim, StageSim, HANG};
 use nanocal::published::published_1dof;
 use nanocal_compensator::stale::KmzCheck;
 use nanocal_interface::led::LedState;
 use nanocal_interface::status::{ChannelStatus, Flags, StaleReasons, Status};
 use nanocal_model::{blob, AxisBound, Model, SlowInputs, MAX_AXES};
-use std::process::Command;
 
 /// Temperatures inside the published model's envelope (21–23 °C), exact on the MAX31856's
 /// 1/128 °C grid.
@@ -27,19 +28,6 @@ fn slow(temps: &[f32; 4]) -> SlowInputs {
         s.temps_c[i] = f64::from(*t);
     }
     s
-}
-
-fn nanocal(args: &[&str]) -> String {
-    let out = Command::new(env!("CARGO_BIN_EXE_nanocal"))
-        .args(args)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "nanocal {args:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
 /// The published 1-DoF model with a prediction bound on its seven terms: s = 20 nm, t = 2,
@@ -69,7 +57,7 @@ fn upload(q: &Qemu, model: &Model, name: &str) {
         std::process::id()
     ));
     std::fs::write(&path, &b[..n]).unwrap();
-    let out = nanocal(&[
+    let out = nanocal_cli(&[
         "device",
         "upload",
         "--port",
@@ -163,7 +151,7 @@ fn a_kmz_outside_the_prediction_interval_raises_model_stale_under_qemu() {
         "a stale model still corrects: {got} vs {want_q}"
     );
     drop(c);
-    let text = nanocal(&["device", "status", "--port", &q.mgmt_spec()]);
+    let text = nanocal_cli(&["device", "status", "--port", &q.mgmt_spec()]);
     assert!(
         text.contains("MODEL STALE since uptime")
             && text.contains("a KMZ re-measurement fell outside the prediction interval"),
@@ -190,7 +178,7 @@ fn a_kmz_outside_the_prediction_interval_raises_model_stale_under_qemu() {
     drop(c);
 
     // a model shown to extrapolate 0.5 °C: the same room leaves it in service
-    let cfg = nanocal(&[
+    let cfg = nanocal_cli(&[
         "device",
         "config",
         "--port",

@@ -86,3 +86,18 @@ pub fn next_host_line(stage: &StageSim) -> String {
         }
     }
 }
+
+/// Run the `nanocal` CLI built with these tests; its stdout (the test fails on a non-zero exit,
+/// with the CLI's stderr).
+pub fn nanocal_cli(args: &[&str]) -> String {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_nanocal"))
+        .args(args)
+        .output()
+        .expect("run the nanocal CLI");
+    assert!(
+        out.status.success(),
+        "nanocal {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}

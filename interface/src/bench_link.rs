@@ -26,6 +26,9 @@
 //! 0x04C  u32   board       LINE_STATES: line state bytes applied, either port (the bench knows
 //!                          a new session has started before it sends on it; layout 2)
 //! 0x050  u32×5 board       RX_BYTES[n]: bytes the board has read from serial n since power-on
+//! 0x064  u32×5 host        ANNOUNCED[n]: bytes the host has written (or is writing) to serial n,
+//!                          on RX_BYTES[n]'s count; while RX_BYTES[n] is behind it and the
+//!                          board's reader of serial n waits, the board's clock holds (layout 3)
 //! 0x080  u32   board       BUS_REQ_SEQ: incremented when a request is posted (after its bytes)
 //! 0x084  37 B  board       BUS_REQ: the request frame (`crate::bus` layout, A5 … )
 //! 0x0C0  u32   host        BUS_REP_SEQ: set to BUS_REQ_SEQ when the reply is posted (after its bytes)
@@ -64,7 +67,7 @@ pub const PAGE_LEN: usize = 0x100;
 /// Magic value at [`MAGIC`].
 pub const MAGIC_VALUE: u32 = 0x4B4C_434E; // "NCLK"
 /// Layout version at [`VERSION`].
-pub const VERSION_VALUE: u32 = 2;
+pub const VERSION_VALUE: u32 = 3;
 
 /// Offset of the magic.
 pub const MAGIC: usize = 0x000;
@@ -92,6 +95,8 @@ pub const WATCHING: usize = 0x048;
 pub const LINE_STATES: usize = 0x04C;
 /// Offset of the per-serial receive byte counters (the bench knows its input was taken in).
 pub const RX_BYTES: usize = 0x050;
+/// Offset of the per-serial counts of bytes the host announced (see [`announced_unread`]).
+pub const ANNOUNCED: usize = 0x064;
 /// Offset of the bus request sequence number.
 pub const BUS_REQ_SEQ: usize = 0x080;
 /// Offset of the bus request frame.
@@ -115,6 +120,19 @@ pub const LINE_HOST: u8 = 0xC0;
 pub const LINE_MGMT: u8 = 0xB0;
 /// Line-state bit: DTR (the port is open).
 pub const LINE_DTR: u8 = 0x01;
+/// True when the host has announced bytes on a port that the board has not read yet:
+/// `announced` (ANNOUNCED\[n\]) is ahead of `rx` (RX_BYTES\[n\]), both counters wrapping.
+///
+/// **Why.** QEMU's UART takes one byte at a time, and only when QEMU's main loop runs; a loaded
+/// host can keep that loop off the CPU for longer than the management decoder's frame timeout.
+/// A board whose clock ran on meanwhile would see a frame the host wrote in one piece arrive in
+/// parts half a second apart and drop it. A real USB CDC link delivers it in a millisecond.
+/// So the host counts what it writes *before* writing it, and the board's clock does not pass
+/// while a reader waits for announced bytes (`src/qemu/time.rs`).
+pub fn announced_unread(announced: u32, rx: u32) -> bool {
+    (announced.wrapping_sub(rx) as i32) > 0
+}
+
 /// Seconds of bench time of `ticks`.
 pub fn ticks_to_s(ticks: u64) -> f64 {
     ticks as f64 / TICK_HZ as f64
@@ -148,6 +166,7 @@ mod tests {
             (WATCHING, 4),
             (LINE_STATES, 4),
             (RX_BYTES, 4 * SERIALS),
+            (ANNOUNCED, 4 * SERIALS),
             (BUS_REQ_SEQ, 4),
             (BUS_REQ, FRAME_LEN),
             (BUS_REP_SEQ, 4),
@@ -161,6 +180,25 @@ mod tests {
             }
         }
         assert_eq!(s_to_ticks(1.5), 1_500_000);
+        assert_eq!(
+            ANNOUNCED,
+            RX_BYTES + 4 * SERIALS,
+            "layout 3 fills the gap after RX_BYTES"
+        );
         assert_eq!(ticks_to_s(250_000), 0.25);
+    }
+
+    #[test]
+    fn announced_bytes_are_unread_until_the_board_has_read_them_across_the_wrap() {
+        assert!(!announced_unread(0, 0));
+        assert!(announced_unread(10, 0));
+        assert!(!announced_unread(10, 10));
+        // the board read bytes nobody announced (another process wrote them): nothing held
+        assert!(!announced_unread(10, 25));
+        assert!(
+            announced_unread(3, u32::MAX - 2),
+            "6 bytes on, across the wrap"
+        );
+        assert!(!announced_unread(u32::MAX - 2, 3));
     }
 }

@@ -72,6 +72,15 @@ pub fn count_tx(port: usize, n: u32) {
     }
 }
 
+/// True when the bench announced bytes on serial `port` that the board has not read yet.
+pub fn announced_unread(port: usize) -> bool {
+    port < bl::SERIALS
+        && bl::announced_unread(
+            read_u32(bl::ANNOUNCED + 4 * port),
+            read_u32(bl::RX_BYTES + 4 * port),
+        )
+}
+
 /// Count `n` bytes read from serial `port` (the bench checks its input was taken in before it
 /// moves the clock on: a deterministic board time for every byte).
 pub fn count_rx(port: usize, n: u32) {

@@ -3,7 +3,8 @@
 //! The board's time is its uptime in 1 MHz ticks (as the STM32 board's), but it only moves when
 //! the executor is idle: [`idle`] jumps to the next timer if that lies within the bench's
 //! horizon (nothing can happen in between — no task is ready and every input the board waits for
-//! comes from the bench, which holds the horizon while it sends it), or to the horizon itself, and
+//! comes from the bench, which announces what it sends and the clock holds until a waiting
+//! reader has it: [`input_on_its_way`]), or to the horizon itself, and
 //! then waits (WFI) for the bench to move it. So a day of the firmware's timers — sensor samples,
 //! fold ages, lag filters, timeouts — runs in as much wall time as its work takes, and time never
 //! passes while the bench computes. See `nanocal_interface::bench_link` for the page and the
@@ -127,6 +128,14 @@ pub fn uptime_ticks() -> u64 {
     DRIVER.now()
 }
 
+/// The bench announced bytes (`bench_link::ANNOUNCED`) on a serial port whose reader waits, and
+/// the board has not read them all. A reader that does not wait does not hold the clock: the
+/// bytes wait for it in QEMU as they would in a real UART's buffer, and a task that needs time
+/// to pass before it reads again gets it.
+fn input_on_its_way() -> bool {
+    (0..uart::COUNT).any(|n| n != uart::BENCH && uart::rx_armed(n) && link::announced_unread(n))
+}
+
 /// The executor has nothing ready: move the clock to the next timer if the horizon allows (and
 /// wake its tasks), else to the horizon, and wait there for the bench. Call with interrupts
 /// masked (a pending interrupt ends the wait).
@@ -143,6 +152,13 @@ pub fn idle() {
             d.systick_horizon.borrow(cs).get()
         };
         let horizon = horizon_bench.saturating_sub(boot_at);
+        // bytes the bench has written to a port whose reader waits for them are still on
+        // their way through QEMU: no time passes until they are in (timers already due run)
+        let horizon = if linked && input_on_its_way() {
+            horizon.min(now)
+        } else {
+            horizon
+        };
         let watchdog_at = d.watchdog_at.borrow(cs).get();
         if next.min(horizon) >= watchdog_at {
             // as the hardware watchdog would have: the supervisor stopped petting in time

@@ -100,6 +100,12 @@ pub struct UartTx {
     n: usize,
 }
 
+/// True while a reader waits on UART `n` (its receive interrupt is armed: `read` found nothing
+/// and sleeps until a byte comes).
+pub fn rx_armed(n: usize) -> bool {
+    n < COUNT && read(n, CTRL) & CTRL_RX_INT != 0
+}
+
 /// Call from `DefaultHandler`: wakes the reader of the UART whose RX line fired.
 pub fn on_interrupt(irqn: i16) {
     for (n, &irq) in RX_IRQS.iter().enumerate() {

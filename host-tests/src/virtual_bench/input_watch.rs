@@ -11,6 +11,12 @@
 //! two. This watch tells the free-running clock that input is still in flight, so board time
 //! does not age it (see `BenchLink::free_run`).
 //!
+//! It looks from outside, by polling, so a starved bench thread can miss a byte in flight.
+//! Writers in this process therefore also *announce* what they write (`BenchLink::announce`:
+//! the tests' management client and GCS host), and the board itself holds its clock while a
+//! reader waits for announced bytes — no polling in between. The watch remains for writers that
+//! cannot announce: the `nanocal` CLI run as another process.
+//!
 //! - TCP ports (serial 0–2): the receive queue of QEMU's accepted socket, from `/proc/net/tcp`
 //!   (the sender's own queue empties as soon as the loopback peer's kernel has the bytes).
 //! - Unix sockets (serial 3, the management port): the receive queue (`FIONREAD`, unix(7)) of

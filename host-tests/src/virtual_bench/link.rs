@@ -202,6 +202,8 @@ pub struct BenchLink {
     inputs: InputWatch,
     /// Wall time the free-running clock held for input in flight, µs.
     held_us: AtomicU64,
+    /// Announced bytes given up on ([`Self::forgiven_bytes`]).
+    forgiven: AtomicU64,
 }
 
 impl BenchLink {
@@ -225,6 +227,7 @@ impl BenchLink {
             pokes: AtomicU64::new(0),
             inputs: InputWatch::default(),
             held_us: AtomicU64::new(0),
+            forgiven: AtomicU64::new(0),
         });
         let l = link.clone();
         std::thread::spawn(move || l.read_doorbells(reader));
@@ -295,6 +298,79 @@ impl BenchLink {
     /// Bytes the board has read from serial `port` since power-on.
     pub fn rx_bytes(&self, port: usize) -> u32 {
         self.page.u32(bl::RX_BYTES + 4 * port)
+    }
+
+    /// Say that `n` bytes are about to be written to serial `port` — call *before* writing
+    /// them. While the board's reader of that port waits and has not read them all, its clock
+    /// holds (`bench_link::ANNOUNCED`), so a frame written in one piece arrives at one board
+    /// instant however slowly QEMU hands it over. Counted on from the board's read count when
+    /// that is ahead (bytes nobody announced: another process's). Free-running only: in
+    /// lockstep the horizon moves only when the caller says so, which is hold enough.
+    /// Returns whether it counted them.
+    pub fn announce(&self, port: usize, n: usize) -> bool {
+        if port >= bl::SERIALS || n == 0 || self.lockstep.load(Ordering::Acquire) {
+            return false;
+        }
+        let rx = self.rx_bytes(port);
+        let _ = self.page.a32(bl::ANNOUNCED + 4 * port).fetch_update(
+            Ordering::AcqRel,
+            Ordering::Acquire,
+            |a| {
+                let base = if bl::announced_unread(a, rx) { a } else { rx };
+                Some(base.wrapping_add(n as u32))
+            },
+        );
+        true
+    }
+
+    /// Take back `n` of the bytes [`Self::announce`] counted on serial `port` (they were not
+    /// written after all).
+    pub fn unannounce(&self, port: usize, n: usize) {
+        if port < bl::SERIALS {
+            self.page
+                .a32(bl::ANNOUNCED + 4 * port)
+                .fetch_sub(n as u32, Ordering::AcqRel);
+        }
+    }
+
+    /// Bytes announced on serial `port` that the board has not read yet.
+    pub fn announced_unread(&self, port: usize) -> u32 {
+        let a = self.page.u32(bl::ANNOUNCED + 4 * port);
+        let rx = self.rx_bytes(port);
+        if bl::announced_unread(a, rx) {
+            a.wrapping_sub(rx)
+        } else {
+            0
+        }
+    }
+
+    /// Give up on announced bytes that did not arrive (their connection closed before QEMU
+    /// took them): the board's clock holds no longer for them, and it is woken.
+    fn forgive_announced(&self) {
+        for port in 0..bl::SERIALS {
+            let off = bl::ANNOUNCED + 4 * port;
+            let a = self.page.u32(off);
+            let rx = self.rx_bytes(port);
+            if bl::announced_unread(a, rx) {
+                // only if nothing was announced meanwhile
+                let _ =
+                    self.page
+                        .a32(off)
+                        .compare_exchange(a, rx, Ordering::AcqRel, Ordering::Acquire);
+                self.forgiven
+                    .fetch_add(u64::from(a.wrapping_sub(rx)), Ordering::Relaxed);
+            }
+        }
+        fence(Ordering::SeqCst);
+        if self.page.u32(bl::WAITING) == 1 {
+            let _ = self.line.lock().unwrap().write_all(&[bl::RING_HORIZON]);
+        }
+    }
+
+    /// Announced bytes given up on because they never reached the board (see
+    /// [`Self::announce`]); a test that counts on its input expects 0.
+    pub fn forgiven_bytes(&self) -> u64 {
+        self.forgiven.load(Ordering::Relaxed)
     }
 
     /// Bytes the board has written to serial `port` since power-on.
@@ -436,16 +512,18 @@ impl BenchLink {
     }
 
     /// Move the horizon with the wall clock × `scale`, except while input is in flight (see
-    /// [`InputWatch`]): then the horizon holds and the board is rung until it has taken the
+    /// [`InputWatch`] and [`Self::announce`]): then the horizon holds and the board is rung until it has taken the
     /// input, as `src/qemu/time.rs` expects of the bench. A hold lasts at most [`MAX_HOLD`] of
     /// wall time while the unread count stays the same, so a board that stops reading a port
-    /// still sees its time pass.
+    /// still sees its time pass; likewise announced bytes the board holds its clock for
+    /// (see [`Self::forgive_announced`]).
     fn free_run(&self, scale: f64) {
         let mut last = Instant::now();
         let mut held = Duration::ZERO;
         let t0 = last;
         let base = self.page.u64(bl::HORIZON);
         let mut episode: Option<(u64, Instant)> = None;
+        let mut stuck: Option<(u64, u64, Instant)> = None;
         while !self.stop.load(Ordering::Acquire) && !self.lockstep.load(Ordering::Acquire) {
             let now = Instant::now();
             let dt = now - last;
@@ -463,6 +541,22 @@ impl BenchLink {
                     }
                 }
             };
+            // the board holds its own clock for announced bytes while their reader waits; if
+            // it stays held with the same bytes unread for MAX_HOLD, they are not coming
+            let announced: u64 = (0..bl::SERIALS)
+                .map(|p| u64::from(self.announced_unread(p)))
+                .sum();
+            let board_now = self.page.u64(bl::NOW);
+            let held_by_board = announced > 0 && board_now < self.page.u64(bl::HORIZON);
+            match stuck {
+                Some((a, t, since)) if held_by_board && a == announced && t == board_now => {
+                    if now - since >= MAX_HOLD {
+                        self.forgive_announced();
+                        stuck = None;
+                    }
+                }
+                _ => stuck = held_by_board.then_some((announced, board_now, now)),
+            }
             if hold {
                 held += dt;
                 self.held_us

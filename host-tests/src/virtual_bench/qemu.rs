@@ -356,7 +356,7 @@ impl Qemu {
     pub fn gcs_host(&mut self) -> GcsHost {
         let s = self.connect(0);
         self.set_dtr(true);
-        GcsHost::new(s, self.gcs_sent.clone())
+        GcsHost::new(s, self.gcs_sent.clone(), self.link.clone())
     }
 
     /// Close the GCS port as a host does: the connection ends once the board has read what
@@ -375,7 +375,7 @@ impl Qemu {
         self.set_dtr(false);
         let s = self.dial(0);
         self.set_dtr(true);
-        GcsHost::new(s, self.gcs_sent.clone())
+        GcsHost::new(s, self.gcs_sent.clone(), self.link.clone())
     }
 
     /// Give up the test's own connection to serial0 and return its port, for an external GCS
@@ -411,7 +411,12 @@ impl Qemu {
             &self.log,
         );
         s.set_read_timeout(Some(Duration::from_millis(50))).ok();
-        let mut c = Client::new(Box::new(s), &self.mgmt_spec(), HANG);
+        let port = Announced {
+            inner: s,
+            link: self.link.clone(),
+            serial: 3,
+        };
+        let mut c = Client::new(Box::new(port), &self.mgmt_spec(), HANG);
         // QEMU may still be handing over from a previous client, the board may be resetting:
         // retry the first request
         let deadline = Instant::now() + HANG;
@@ -491,19 +496,52 @@ impl Drop for Qemu {
     }
 }
 
+/// A stream into serial `serial` of the board that announces what it writes
+/// ([`BenchLink::announce`]): a request written in one piece reaches the board at one instant
+/// of its time.
+struct Announced<S> {
+    inner: S,
+    link: Arc<BenchLink>,
+    serial: usize,
+}
+
+impl<S: Read> Read for Announced<S> {
+    fn read(&mut self, b: &mut [u8]) -> std::io::Result<usize> {
+        self.inner.read(b)
+    }
+}
+
+impl<S: Write> Write for Announced<S> {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        // announced in full before any goes, what did not go taken back
+        let counted = self.link.announce(self.serial, b.len());
+        let r = self.inner.write(b);
+        let n = *r.as_ref().unwrap_or(&0);
+        if counted && n < b.len() {
+            self.link.unannounce(self.serial, b.len() - n);
+        }
+        r
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
 /// The host's side of the GCS link.
 pub struct GcsHost {
     s: TcpStream,
     buf: Vec<u8>,
     sent: Arc<AtomicU64>,
+    link: Arc<BenchLink>,
 }
 
 impl GcsHost {
-    fn new(s: TcpStream, sent: Arc<AtomicU64>) -> Self {
+    fn new(s: TcpStream, sent: Arc<AtomicU64>, link: Arc<BenchLink>) -> Self {
         Self {
             s,
             buf: vec![],
             sent,
+            link,
         }
     }
 
@@ -514,6 +552,7 @@ impl GcsHost {
 
     /// Send raw bytes.
     pub fn send_raw(&mut self, b: &[u8]) {
+        self.link.announce(0, b.len());
         self.s.write_all(b).unwrap();
         self.sent.fetch_add(b.len() as u64, Ordering::Relaxed);
     }

@@ -69,6 +69,9 @@ pub struct Status {
     pub ecc_errors: u64,
     /// Reads that returned stale data from the flash data cache (ES0250), since creation.
     pub stale_cache_reads: u64,
+    /// Of those, reads whose bytes differ from what the flash holds (a line programmed since
+    /// it was cached), since creation.
+    pub stale_cache_wrong: u64,
     /// Stage-link bytes lost to UART overruns, since creation.
     pub uart_overruns: u64,
     /// Flash operations (programs, erases) on the store since power-on.
@@ -504,6 +507,7 @@ impl<'a> Board<'a> {
         // the board's tallies run over resets
         chip.flash.ecc_errors = old.flash.ecc_errors;
         chip.flash.stale_reads = old.flash.stale_reads;
+        chip.flash.stale_wrong = old.flash.stale_wrong;
         chip.uart4.overruns = old.uart4.overruns;
         self.uc.get_data_mut().chip = chip;
         self.boot(kind)
@@ -731,6 +735,7 @@ impl<'a> Board<'a> {
         st.unmodelled = chip.unmodelled.iter().copied().collect();
         st.ecc_errors = chip.flash.ecc_errors;
         st.stale_cache_reads = chip.flash.stale_reads;
+        st.stale_cache_wrong = chip.flash.stale_wrong;
         st.uart_overruns = chip.uart4.overruns;
         st.flash_ops = chip.flash.ops;
         st.cs_conflicts = chip.io.cs_conflicts;

@@ -79,6 +79,9 @@ pub struct FlashCtl {
     pub ops: u64,
     /// Reads that returned stale cached data (ES0250 erratum).
     pub stale_reads: u64,
+    /// Of those, reads whose bytes differ from what the flash holds (the line was programmed
+    /// or erased since it was cached: the read returned the old contents).
+    pub stale_wrong: u64,
     /// Double ECC errors raised.
     pub ecc_errors: u64,
     /// Refused sequences and writes outside the store (for the fault report).
@@ -102,6 +105,7 @@ impl Default for FlashCtl {
             cache: vec![],
             ops: 0,
             stale_reads: 0,
+            stale_wrong: 0,
             ecc_errors: 0,
             errors: vec![],
             power_lost: false,
@@ -335,6 +339,13 @@ impl FlashCtl {
             (true, Some((_, data, stale, torn))) => {
                 if stale {
                     self.stale_reads += 1;
+                    let o = (addr - line) as usize;
+                    let k = o / DWORD;
+                    let now = store.read_dword(line + (k * DWORD) as u32 - STORE_BASE);
+                    let _ = store.take_ecc_error();
+                    if data[k * DWORD..(k + 1) * DWORD] != now {
+                        self.stale_wrong += 1;
+                    }
                 }
                 (data, torn)
             }

@@ -20,7 +20,14 @@
 //!   socket: a client connecting opens the port (SET_LINE_CODING 115200 8N1,
 //!   SET_CONTROL_LINE_STATE DTR|RTS) and polls its bulk IN endpoint; closing the socket sends
 //!   SET_CONTROL_LINE_STATE 0 and stops polling (a packet the device queued stays in its FIFO
-//!   until the port is opened again, as on Linux).
+//!   until the port is opened again, as on Linux); a DTR pulse on an open port
+//!   ([`HostHandle::toggle_dtr`]) sends SET_CONTROL_LINE_STATE 0 and 3 and nothing between.
+//! - **Scheduling** in steps of 50 µs of board time: a step with a control transfer in
+//!   progress moves it one stage on; any other step carries one bulk OUT packet to and one
+//!   bulk IN poll of every port whose line state is settled, then the SETUP of the next
+//!   control transfer due. A control transfer queued behind another gets its SETUP in the
+//!   same step as the other's status stage (a host controller runs queued control transfers
+//!   back to back, USB 2.0 §5.5.4).
 
 use crate::io::Io;
 use std::collections::VecDeque;
@@ -91,8 +98,8 @@ impl Listener {
 struct PortState {
     /// A client has the port open.
     open: bool,
-    /// The opens/closes the host has not yet told the device, oldest first.
-    line_state_due: VecDeque<bool>,
+    /// The line state changes the host has not yet told the device, oldest first.
+    line_state_due: VecDeque<LineChange>,
     /// Bytes from the client for the device (bulk OUT).
     out: VecDeque<u8>,
     /// Bulk IN bytes received for the client and not yet written to its socket.
@@ -103,6 +110,15 @@ struct PortState {
     comm_if: u8,
     ep_out: usize,
     ep_in: usize,
+}
+
+/// A line state change the host tells the device.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct LineChange {
+    /// DTR (and RTS) after the change.
+    dtr: bool,
+    /// SET_LINE_CODING first (a tty being opened; a DTR toggle on an open tty sends none).
+    coding: bool,
 }
 
 /// What the host knows; shared with the tests.
@@ -199,8 +215,11 @@ impl HostHandle {
         self.shared.lock().unwrap().reading[k] = reading;
     }
 
-    /// The client of port `k` closes and opens it again at once (DTR 1 → 0 → 1: two line
-    /// state requests back to back, the connection kept).
+    /// The client of port `k` drops DTR and raises it again at once, the connection kept (DTR
+    /// 1 → 0 → 1: two SET_CONTROL_LINE_STATE requests and nothing between them, as Linux's
+    /// cdc-acm sends for TIOCMBIC/TIOCMBIS on an open tty, `acm_tty_tiocmset`). The host
+    /// controller runs the second right after the first's status stage, in the same frame
+    /// (see [`Otg::update`]).
     pub fn toggle_dtr(&self, k: usize) {
         self.shared.lock().unwrap().dtr_pulses[k] += 1;
     }
@@ -262,7 +281,7 @@ enum Purpose {
     ConfigFull,
     String(u8),
     SetConfig,
-    LineCoding,
+    LineCoding(usize),
     LineState(usize, bool),
 }
 
@@ -342,7 +361,16 @@ impl Host {
             while s.dtr_pulses[k] > 0 {
                 s.dtr_pulses[k] -= 1;
                 if let Some(p) = s.ports.get_mut(k).filter(|p| p.open) {
-                    p.line_state_due.extend([false, true]);
+                    p.line_state_due.extend([
+                        LineChange {
+                            dtr: false,
+                            coding: false,
+                        },
+                        LineChange {
+                            dtr: true,
+                            coding: false,
+                        },
+                    ]);
                 }
             }
             // the open connection first: a client that closed and connected again is seen
@@ -384,7 +412,10 @@ impl Host {
                     p.open = false;
                     p.out.clear();
                     p.backlog.clear();
-                    p.line_state_due.push_back(false);
+                    p.line_state_due.push_back(LineChange {
+                        dtr: false,
+                        coding: false,
+                    });
                 }
             }
             for l in &s.listeners[k] {
@@ -396,7 +427,10 @@ impl Host {
                     }
                     let p = &mut s.ports[k];
                     p.open = true;
-                    p.line_state_due.push_back(true);
+                    p.line_state_due.push_back(LineChange {
+                        dtr: true,
+                        coding: true,
+                    });
                     s.clients[k] = Some(c);
                 }
             }
@@ -930,71 +964,14 @@ impl Otg {
     }
 
     fn host_transfers(&mut self, io: &mut Io) {
-        let host = &mut io.usb;
-        if host.ctl.is_none() {
-            if let Some(r) = host.todo.pop_front() {
-                if !self.push_out(0, &r.setup, true) {
-                    host.todo.push_front(r);
-                    return;
-                }
-                host.ctl = Some(Control {
-                    req: r,
-                    phase: Phase::Data,
-                    got: vec![],
-                });
-                return;
+        if io.usb.ctl.is_none() {
+            if io.usb.stage == Stage::Running {
+                self.bulk_traffic(io);
             }
-            if host.stage == Stage::Enumerating {
-                return;
-            }
-            // CDC: line state changes, then bulk traffic
-            let shared = host.shared.clone();
-            let mut s = shared.lock().unwrap();
-            for k in 0..s.ports.len() {
-                if let Some(open) = s.ports[k].line_state_due.pop_front() {
-                    let comm = u16::from(s.ports[k].comm_if);
-                    if open {
-                        host.todo.push_back(Request {
-                            setup: setup(0x21, 0x20, 0, comm, 7),
-                            out: vec![0x00, 0xC2, 0x01, 0x00, 0, 0, 8],
-                            what: Purpose::LineCoding,
-                        });
-                    }
-                    host.todo.push_back(req(
-                        0x21,
-                        0x22,
-                        if open { 3 } else { 0 },
-                        comm,
-                        0,
-                        Purpose::LineState(k, open),
-                    ));
-                    return;
-                }
-            }
-            let mut ins = vec![];
-            for k in 0..s.ports.len() {
-                let (ep_out, ep_in, open) = (s.ports[k].ep_out, s.ports[k].ep_in, s.ports[k].open);
-                if !open {
-                    continue;
-                }
-                if !s.ports[k].out.is_empty() {
-                    let n = s.ports[k].out.len().min(64);
-                    let pkt: Vec<u8> = s.ports[k].out.iter().take(n).copied().collect();
-                    if self.push_out(ep_out, &pkt, false) {
-                        s.ports[k].out.drain(..n);
-                    }
-                }
-                let polls_in = s.reading[k] && s.ports[k].backlog.len() < CLIENT_BACKLOG;
-                if polls_in {
-                    if let Some(pkt) = self.take_in(ep_in) {
-                        ins.push((k, pkt));
-                    }
-                }
-            }
-            drop(s);
-            host.pending_in.extend(ins);
+            self.start_control(io);
             return;
         }
+        let host = &mut io.usb;
         let Some(mut ctl) = host.ctl.take() else {
             return;
         };
@@ -1036,6 +1013,7 @@ impl Otg {
             Phase::StatusIn => {
                 if self.take_in(0).is_some() {
                     self.control_done(ctl, io);
+                    self.start_control(io);
                 } else {
                     host.ctl = Some(ctl);
                 }
@@ -1043,11 +1021,100 @@ impl Otg {
             Phase::StatusOut => {
                 if self.push_out(0, &[], false) {
                     self.control_done(ctl, io);
+                    self.start_control(io);
                 } else {
                     host.ctl = Some(ctl);
                 }
             }
         }
+    }
+
+    /// Start the next control transfer due, if any: its SETUP goes out now. Called when EP0 is
+    /// free, also right after a transfer's status stage: a host controller runs the control
+    /// transfers queued for a device back to back, as many in a frame as fit (USB 2.0
+    /// §5.5.4: control transfers are given up to 10 % of every frame; §8.5.3: a device
+    /// always accepts a SETUP), and the class driver may queue the next request before the
+    /// last completes (CDC PSTN 1.2 §6.3.12 sets no time between two
+    /// SET_CONTROL_LINE_STATE requests). Enumeration's requests first, then the ports' line
+    /// state changes.
+    fn start_control(&mut self, io: &mut Io) {
+        let host = &mut io.usb;
+        if host.todo.is_empty() && host.stage == Stage::Running {
+            let shared = host.shared.clone();
+            let mut s = shared.lock().unwrap();
+            for k in 0..s.ports.len() {
+                if let Some(c) = s.ports[k].line_state_due.pop_front() {
+                    let comm = u16::from(s.ports[k].comm_if);
+                    if c.coding {
+                        host.todo.push_back(Request {
+                            setup: setup(0x21, 0x20, 0, comm, 7),
+                            out: vec![0x00, 0xC2, 0x01, 0x00, 0, 0, 8],
+                            what: Purpose::LineCoding(k),
+                        });
+                    }
+                    host.todo.push_back(req(
+                        0x21,
+                        0x22,
+                        if c.dtr { 3 } else { 0 },
+                        comm,
+                        0,
+                        Purpose::LineState(k, c.dtr),
+                    ));
+                    break;
+                }
+            }
+        }
+        if let Some(r) = host.todo.pop_front() {
+            if !self.push_out(0, &r.setup, true) {
+                host.todo.push_front(r);
+                return;
+            }
+            host.ctl = Some(Control {
+                req: r,
+                phase: Phase::Data,
+                got: vec![],
+            });
+        }
+    }
+
+    /// One bulk OUT packet to each open port with bytes for the device, and one bulk IN poll
+    /// of each port whose client reads — for ports whose line state is settled (a tty being
+    /// opened is written once SET_CONTROL_LINE_STATE has raised DTR; a close goes out before
+    /// anything after it).
+    fn bulk_traffic(&mut self, io: &mut Io) {
+        let host = &mut io.usb;
+        let busy: Vec<usize> = host
+            .todo
+            .iter()
+            .filter_map(|r| match r.what {
+                Purpose::LineCoding(k) | Purpose::LineState(k, _) => Some(k),
+                _ => None,
+            })
+            .collect();
+        let shared = host.shared.clone();
+        let mut s = shared.lock().unwrap();
+        let mut ins = vec![];
+        for k in 0..s.ports.len() {
+            let (ep_out, ep_in, open) = (s.ports[k].ep_out, s.ports[k].ep_in, s.ports[k].open);
+            if !open || !s.ports[k].line_state_due.is_empty() || busy.contains(&k) {
+                continue;
+            }
+            if !s.ports[k].out.is_empty() {
+                let n = s.ports[k].out.len().min(64);
+                let pkt: Vec<u8> = s.ports[k].out.iter().take(n).copied().collect();
+                if self.push_out(ep_out, &pkt, false) {
+                    s.ports[k].out.drain(..n);
+                }
+            }
+            let polls_in = s.reading[k] && s.ports[k].backlog.len() < CLIENT_BACKLOG;
+            if polls_in {
+                if let Some(pkt) = self.take_in(ep_in) {
+                    ins.push((k, pkt));
+                }
+            }
+        }
+        drop(s);
+        host.pending_in.extend(ins);
     }
 
     fn control_done(&mut self, ctl: Control, io: &mut Io) {
@@ -1112,7 +1179,7 @@ impl Otg {
                 s.enumerations += 1;
                 host.stage = Stage::Running;
             }
-            Purpose::LineCoding => {}
+            Purpose::LineCoding(_) => {}
             Purpose::LineState(k, _) => {
                 if let Some(n) = s.line_states.get_mut(k) {
                     *n += 1;

@@ -12,7 +12,7 @@ use nanocal::published::published_1dof;
 use nanocal_compensator::l4flash::L4Nor;
 use nanocal_compensator::store::Store;
 use nanocal_interface::identity::ResetCause;
-use nanocal_interface::mgmt::{Refusal, Request};
+use nanocal_interface::mgmt::{self, Kind, Refusal, Request};
 use nanocal_interface::settings::Settings;
 use nanocal_interface::status::ChannelStatus;
 use nanocal_interface::status::Flags;
@@ -323,27 +323,55 @@ fn stm32_stage_byte_lost_to_an_overrun_never_moves_from_a_wrong_base() {
     assert_eq!(b.status().boots.len(), 1);
 }
 
-/// Defect 6: the host closes and opens the GCS port at once (DTR 1 → 0 → 1 in two requests
-/// back to back). The new connection starts clean: the half line the old one sent is gone.
-/// (DTR was sampled as a level when told it changed: both requests came in before the
-/// firmware looked, it saw 1 and 1, and the half line prefixed the new session's first.)
+/// Defect 6: the host drops and raises the GCS port's DTR at once (1 → 0 → 1: two
+/// SET_CONTROL_LINE_STATE requests back to back, the second right after the first's status
+/// stage). The new session starts clean: the half line the old one sent is gone.
+///
+/// The firmware's USB task answers each request, and the line-state task looks at the result
+/// when it runs next. It misses the 0 when it runs only after both requests: here a STATUS
+/// request on the management port arrives in the same frame, just before the first, and the
+/// executor runs the management task (a frame's decode, status and reply: ~20,000
+/// instructions, ~250 µs at 80 MHz) right after the USB task answered the first — long enough
+/// for the host to finish that transfer and send the second, and the USB task, woken last,
+/// runs first in the executor's next round. (DTR was sampled as a level: the line-state task
+/// saw 1 and 1, and the half line prefixed the new session's first query.)
 #[test]
 fn stm32_quick_close_and_reopen_of_the_gcs_port_starts_a_new_session() {
+    use std::io::{Read, Write};
     let b = Stm32::start(default_buses(&TEMPS_C));
     b.usb.attach();
     let mut host = b.gcs();
+    let mut mgmt_port = b.port(1);
     assert!(host.ask("*IDN?").contains("E-727"));
     b.stage.drain();
     host.send_raw(b"SVO 1 0");
     b.run_for(0.01);
     let before = b.usb.line_states(0);
+    // while the board is paused: the management request, then the DTR pulse (both leave the
+    // host in its next frame, the bulk OUT packet first)
+    let mut frame = [0u8; mgmt::MAX_FRAME];
+    let n = mgmt::encode(Kind::Status.code(), 7, &[], &mut frame).unwrap();
+    mgmt_port.write_all(&frame[..n]).unwrap();
     b.usb.toggle_dtr(0);
     let usb = b.usb.clone();
     b.run_until("the close and the open", 1.0, move |_| {
         usb.line_states(0) >= before + 2
     });
-    assert!(host.ask("*IDN?").contains("E-727"));
-    assert_eq!(b.stage.drain(), ["*IDN?"], "the half line was dropped");
+    // the management request was answered
+    let mut reply = vec![];
+    while reply.len() < mgmt::OVERHEAD
+        || reply.len() < mgmt::OVERHEAD + usize::from(u16::from_le_bytes([reply[4], reply[5]]))
+    {
+        let mut buf = [0u8; 64];
+        let n = mgmt_port.read(&mut buf).expect("the STATUS reply");
+        reply.extend_from_slice(&buf[..n]);
+    }
+    assert_eq!((reply[2], reply[3]), (Kind::Status.code() | mgmt::REPLY, 7));
+    // the new session's first query reaches the controller alone, and is answered
+    host.send("*IDN?");
+    assert_eq!(b.stage_line(1.0), "*IDN?", "the half line was dropped");
+    assert!(host.read_line().contains("E-727"));
+    assert_eq!(b.stage.drain(), [] as [&str; 0]);
 }
 
 /// Defect 6: a reply the device queued on the GCS port's IN endpoint while the host was not

@@ -12,6 +12,9 @@
 //! used up, so that the upload erases a page first (and moves the newest items off it): every
 //! operation of that upload, the erase included, is cut too.
 //!
+//! Also here (defect 2, errata ES0250): a KMZ item programmed into a line the flash data cache
+//! holds and read back before an erase resets the cache — no stale read.
+//!
 //! The second starting point found a defect: without a cache of where each key's newest item
 //! is, freeing a page scanned the whole store once per item on it; on a store full of KMZ
 //! updates the upload kept the CPU busy for more than the watchdog's 2 s, and the board reset in
@@ -27,7 +30,7 @@ use nanocal_interface::status::{Flags, Status};
 use nanocal_model::{blob, Factor, Input, Model, ModelBuilder};
 use nanocal_stm32_board::flash::StoreFlash;
 use nanocal_stm32_board::ResetKind;
-use stm32_sim::{default_buses, Stm32};
+use stm32_sim::{default_buses, Stm32, FOLD_S};
 
 const TEMPS_C: [f32; 4] = [22.0, 22.125, 21.875, 22.25];
 
@@ -278,4 +281,108 @@ fn stm32_upload_onto_a_store_full_of_kmz_updates() {
          executor blocked {:.1} ms at most",
         busy_s * 1e3
     );
+}
+
+/// Defect 2 (errata ES0250, "Data cache might be corrupted during Flash memory read-while-write
+/// operation"), on a path the firmware takes: a store line read into the data cache, then
+/// programmed, then read again before an erase resets the cache.
+///
+/// The store's first write after a boot looks for its free spot (sequential-storage reads the
+/// erased header there: that line goes into the data cache), then programs the item into it.
+/// The next write that has to free a page looks up the newest item of each key on the page it
+/// frees (`migrate_items` → `fetch_item_with_location`) — for the KMZ key, the item just
+/// programmed, in the line the cache still holds. With the cache left on across the program
+/// that read returns the line as it was before (ES0250; the model counts it), so here: a
+/// store with room for one more KMZ item and no more, its oldest page starting with a KMZ
+/// item; two KMZ updates, the second frees that page; a power cycle reads everything back.
+#[test]
+fn stm32_kmz_item_read_back_while_a_page_is_freed_comes_from_the_flash_not_a_stale_cache() {
+    let model_a = published_1dof().unwrap();
+    let blob_a = bytes(&model_a);
+    let id = model_a.id();
+    let erases = |s: &StoreFlash| s.erases.iter().sum::<u32>();
+    let mut sim = StoreFlash::new();
+    {
+        // the oldest page (the first to be freed) starts with a KMZ item
+        let mut st = Store::new(L4Nor::<_, ERASE>::new(&mut sim));
+        block_on(st.save_kmz(id, &[0.125, 0.0, 0.0])).unwrap();
+        block_on(st.save_model(&blob_a)).unwrap();
+    }
+    // n more KMZ updates fit without freeing a page (tried on a copy)
+    let fits = |sim: &StoreFlash, n: u32| {
+        let mut trial = sim.clone_sim();
+        let e0 = erases(&trial);
+        {
+            let mut st = Store::new(L4Nor::<_, ERASE>::new(&mut trial));
+            for _ in 0..n {
+                block_on(st.save_kmz(id, &[1.0, 0.0, 0.0])).unwrap();
+            }
+        }
+        erases(&trial) == e0
+    };
+    let mut updates = 0u32;
+    for batch in [256, 16, 1] {
+        while fits(&sim, batch + 1) {
+            let mut st = Store::new(L4Nor::<_, ERASE>::new(&mut sim));
+            for _ in 0..batch {
+                block_on(st.save_kmz(id, &[0.5 + f64::from(updates), 0.0, 0.0])).unwrap();
+                updates += 1;
+            }
+        }
+    }
+    assert!(
+        fits(&sim, 1) && !fits(&sim, 2),
+        "one KMZ update fits, two do not"
+    );
+    assert_eq!(erases(&sim), 0, "no page freed yet");
+    let newest_kmz_um = 0.5 + f64::from(updates - 1);
+
+    let b = Stm32::start_with(
+        default_buses(&TEMPS_C),
+        stm32_sim::e727(),
+        Some(Box::new(sim)),
+    );
+    b.usb.attach();
+    let mut c = b.mgmt();
+    let s = c.status().unwrap();
+    assert_eq!((s.model_id, s.kmz_um[0]), (id, newest_kmz_um));
+    // a KMZ update needs the model folded with the temperatures read
+    b.status_until(&mut c, "model folded", 5.0 + FOLD_S, |s| {
+        s.flags.contains(Flags::MODEL) && !s.flags.contains(Flags::SENSOR_BLOCK) && s.folds >= 2
+    });
+    let first = c
+        .set_kmz([250.0, 0.0, 0.0], [249.9, 0.0, 0.0])
+        .expect("the KMZ update into the last free spot");
+    let second = c
+        .set_kmz([250.0, 0.0, 0.0], [249.8, 0.0, 0.0])
+        .expect("the KMZ update that frees a page");
+    assert_ne!(first[0], second[0]);
+    let s = c.status().unwrap();
+    assert_eq!(s.kmz_um[0], second[0]);
+    let (stale, wrong) = {
+        let st = b.status();
+        (st.stale_cache_reads, st.stale_cache_wrong)
+    };
+    drop(c);
+    let store = b.power_off();
+    assert!(erases(&store) > 0, "the second update freed a page");
+
+    // what the flash holds now, read by the store's own code and by the board after power-on
+    let mut check = store.clone_sim();
+    let stored = block_on(Store::new(L4Nor::<_, ERASE>::new(&mut check)).load_kmz(id)).unwrap();
+    let b = Stm32::start_with(default_buses(&TEMPS_C), stm32_sim::e727(), Some(store));
+    b.usb.attach();
+    let s = b.mgmt().status().unwrap();
+    eprintln!(
+        "two KMZ updates on a store with room for one ({updates} updates before), the second \
+         freeing a page: {stale} stale data-cache reads ({wrong} of bytes programmed since they \
+         were cached); stored λ_KMZ {:?} µm, after power-on \
+         {} µm (set: {} µm)",
+        stored.map(|k| k[0]),
+        s.kmz_um[0],
+        second[0]
+    );
+    assert_eq!(stale, 0, "stale data-cache reads (ES0250)");
+    assert_eq!(stored.map(|k| k[0]), Some(second[0]), "λ_KMZ in the flash");
+    assert_eq!((s.model_id, s.kmz_um[0]), (id, second[0]), "after power-on");
 }

@@ -146,8 +146,9 @@ impl L4Flash {
     /// operation"): with DCEN set while bank 2 is programmed or erased and code runs from bank
     /// 1, the data cache can keep stale lines. ST's HAL and Zephyr's L4 driver switch DCEN off
     /// around every program and erase and reset the cache after it; so does this driver
-    /// (tests/e2e_stm32.rs: with the cache left on across programming, an upload's read-back
-    /// saw erased bytes and the store refused it).
+    /// (tests/e2e_stm32_power_cut.rs `stm32_kmz_item_read_back_while_a_page_is_freed_…`: with
+    /// the cache left on across programming, the store's read-back of an item it had just
+    /// programmed came from a line cached while that spot was still erased).
     fn dcache_off() -> bool {
         let acr = reg(FLASH_ACR);
         set(FLASH_ACR, acr & !ACR_DCEN);

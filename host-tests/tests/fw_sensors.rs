@@ -15,7 +15,7 @@ use nanocal_compensator::sensor::{
 use nanocal_interface::identity::{self, ResetCause};
 use nanocal_interface::led::LedState;
 use nanocal_interface::mgmt::{InputCode, InputWhy};
-use nanocal_interface::settings::{AuxSource, Settings, StageUnit};
+use nanocal_interface::settings::{AuxSource, Settings};
 
 /// One SPI transaction with the chip (None: nothing on the chip-select, MISO pulled up).
 fn spi(chip: Option<&mut (dyn SpiChip + '_)>, buf: &mut [u8], now_s: f64) {
@@ -339,7 +339,6 @@ fn settings_round_trip_and_reject_what_they_must() {
         wires: Wires::Four,
     });
     s.sensors[1] = Some(Chip::Max31856 { tc: TcType::T });
-    s.stage_unit = StageUnit::Mm;
     s.axis_names[0] = nanocal_compensator::gcs::AxisId::new(b"X").unwrap();
     s.aux[0] = AuxSource::AirPressure;
     s.aux[1] = AuxSource::Force {
@@ -364,12 +363,13 @@ fn settings_round_trip_and_reject_what_they_must() {
 }
 
 /// Layout 3 added the fold period (u16 LE at 240), layout 4 the stale check's k and margin
-/// (f32 LE at 242 and 246, CRC at 250): golden bytes of their fields, a fold period outside
-/// 1–10 s refused, a layout-3 record (246 bytes, CRC at 242) decoding with the stale check's
-/// defaults and a layout-2 record (244 bytes, CRC at 240) — settings stored by the firmware
-/// before — decoding with the default fold period (5 s).
+/// (f32 LE at 242 and 246, CRC at 250), layout 5 reserved the stage unit's byte (172, written
+/// 0): golden bytes of their fields, a fold period outside 1–10 s refused, a layout-4 record
+/// with any stage unit decoding to the same settings, a layout-3 record (246 bytes, CRC at 242)
+/// decoding with the stale check's defaults and a layout-2 record (244 bytes, CRC at 240) —
+/// settings stored by the firmware before — decoding with the default fold period (5 s).
 #[test]
-fn settings_layout_4_carries_the_fold_period_and_the_stale_check() {
+fn settings_layout_5_carries_the_fold_period_and_the_stale_check() {
     use nanocal_interface::settings::{
         DEFAULT_EXTRAPOLATION_C, DEFAULT_FOLD_PERIOD_MS, DEFAULT_STALE_K, LEN,
     };
@@ -385,13 +385,24 @@ fn settings_layout_4_carries_the_fold_period_and_the_stale_check() {
         (254, 254),
         "9 + 16 x 10 + 4 + 27 + 40 + 2 + 8 + 4"
     );
-    assert_eq!(&v4[..5], b"NCST\x04");
+    assert_eq!(&v4[..5], b"NCST\x05");
+    assert_eq!(v4[172], 0, "reserved: the stage unit of layouts 1 to 4");
     assert_eq!(&v4[240..242], &[0x52, 0x1C], "7250 ms, little endian");
     assert_eq!(&v4[242..246], &2.5f32.to_le_bytes());
     assert_eq!(&v4[246..250], &0.25f32.to_le_bytes());
     let crc = nanocal_interface::crc32(&v4[..250]);
     assert_eq!(&v4[250..], &crc.to_le_bytes());
     assert_eq!(Settings::decode(&v4), Ok(s));
+    // layout 4: the same places, with a stage unit at 172 (0 µm, 1 mm, 2 nm) that no firmware
+    // applied: any of them loads, to the same settings
+    for unit in [0, 1, 2, 0xFF] {
+        let mut old = v4;
+        old[4] = 4;
+        old[172] = unit;
+        let crc = nanocal_interface::crc32(&old[..250]);
+        old[250..].copy_from_slice(&crc.to_le_bytes());
+        assert_eq!(Settings::decode(&old), Ok(s), "layout 4, stage unit {unit}");
+    }
     // layout 3: the same bytes up to 242, then the CRC
     let mut v3 = v4[..242].to_vec();
     v3[4] = 3;
@@ -429,7 +440,8 @@ fn settings_layout_4_carries_the_fold_period_and_the_stale_check() {
 }
 
 /// Settings stored by a firmware with layout 1 (8 chip-selects, 164 bytes: mains at 89, axes at
-/// 93, aux at 120, CRC at 160) survive the update to layout 4 (16 chip-selects, fold period, stale check).
+/// 93, aux at 120, CRC at 160) survive the update to layout 5 (16 chip-selects, fold period,
+/// stale check, no stage unit).
 #[test]
 fn settings_of_layout_1_still_decode() {
     let mut s = Settings {
@@ -440,16 +452,15 @@ fn settings_of_layout_1_still_decode() {
     };
     s.sensors = [None; nanocal_interface::settings::SENSORS];
     s.sensors[7] = Some(Chip::Max31856 { tc: TcType::J });
-    s.stage_unit = StageUnit::Nm;
     s.axis_names[2] = nanocal_compensator::gcs::AxisId::new(b"Z").unwrap();
     s.aux[1] = AuxSource::AirPressure;
     let v2 = s.encode();
     assert_eq!(
         v2.len(),
         254,
-        "layout 4: 9 + 16 x 10 + 4 + 27 + 40 + 2 + 8 + 4"
+        "layout 5: 9 + 16 x 10 + 4 + 27 + 40 + 2 + 8 + 4"
     );
-    assert_eq!(v2[4], 4);
+    assert_eq!(v2[4], 5);
     // layout 1, byte for byte: header, 8 sensors, then the same tail at 89
     let mut v1 = Vec::new();
     v1.extend_from_slice(b"NCST\x01");
@@ -457,7 +468,7 @@ fn settings_of_layout_1_still_decode() {
     v1.extend_from_slice(&[0; 70]); // chip-selects 0..6: none
     v1.extend_from_slice(&[1, 2, 0, 0, 0, 0, 0, 0, 0, 0]); // chip-select 7: MAX31856, type J
     assert_eq!(v1.len(), 89);
-    v1.extend_from_slice(&[60, 0xF4, 0x01, 2]); // 60 Hz, 500 ms, nm
+    v1.extend_from_slice(&[60, 0xF4, 0x01, 2]); // 60 Hz, 500 ms, stage unit nm (ignored)
     assert_eq!(v1.len(), 93);
     v1.extend_from_slice(&v2[169 + 4..240]); // axis names and aux sources, as layout 2 has them
     assert_eq!(v1.len(), 160);
@@ -466,9 +477,9 @@ fn settings_of_layout_1_still_decode() {
     assert_eq!(Settings::decode(&v1), Ok(s));
     // a layout-1 record cut to a layout-2 length, or with an unknown version, is refused
     assert!(Settings::decode(&v1[..163]).is_err());
-    let mut v5 = v1.clone();
-    v5[4] = 5;
-    assert!(Settings::decode(&v5).is_err());
+    let mut v6 = v1.clone();
+    v6[4] = 6;
+    assert!(Settings::decode(&v6).is_err());
 }
 
 /// A model with more temperatures than the board has chip-select lines is refused at upload

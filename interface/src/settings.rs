@@ -7,7 +7,7 @@
 //!         5  stage_baud u32 LE
 //!         9  sensors: SENSORS × { kind u8 (0 none, 1 MAX31856, 2 MAX31865) | a u8 (TC type 0..7
 //!            B E J K N R S T, or RTD wires 2/3/4) | r_ref_ohm f32 | r0_ohm f32 }   (10 bytes each)
-//!       169  mains u8 (50 or 60) | sample_period_ms u16 | stage_unit u8 (0 µm, 1 mm, 2 nm)
+//!       169  mains u8 (50 or 60) | sample_period_ms u16 | reserved u8 (written 0, ignored)
 //!       173  axis names: 3 × { len u8 | 8 bytes }                                    (9 bytes each)
 //!       200  aux sources: MAX_AUX × { kind u8 (0 none, 1 air pressure hPa, 2 force N) | channel u8
 //!            | scale f32 | offset f32 }                                            (10 bytes each)
@@ -17,13 +17,19 @@
 //!            beyond its training envelope before it counts as stale
 //!       250  crc32 u32 LE (CRC-32/ISO-HDLC of bytes 0..250)
 //! ```
+//! Version 5 drops the stage unit (byte 172 in versions 2 to 4, 92 in version 1: 0 µm, 1 mm,
+//! 2 nm): the firmware never read it, the proxy asks the controller (`PUN?`) and moves only
+//! model axes in µm (GCS error 9007 otherwise), so the one unit worth declaring is the one
+//! already required. The byte stays where it was, written 0 and ignored on decode: every offset
+//! and length is unchanged, and so is the management protocol (6); a host built before layout 5
+//! refuses a layout 5 record with [`SettingsError::Version`].
 //! Version 4 adds the model-stale check's two numbers (`nanocal_compensator::stale`).
 //! Version 3 (the fold period; the readings of a fold period are averaged and the model
 //! folded once a period: `nanocal_compensator::slow_average`; 246 bytes, CRC at 242), version
 //! 2 (16 chip-selects, no fold period: 244 bytes, CRC at 240) and version 1 (8 chip-selects,
 //! 164 bytes, mains at 89, axes at 93, aux at 120, CRC at 160, chip-selects 8..15 empty) still
-//! decode, with the defaults for what they lack: settings stored by an older firmware survive
-//! an update.
+//! decode, with the defaults for what they lack and their stage unit ignored (whatever it held):
+//! settings stored by an older firmware survive an update.
 
 use core::fmt;
 use nanocal_model::{MAX_AUX, MAX_AXES};
@@ -166,7 +172,7 @@ pub const SENSORS: usize = nanocal_model::MAX_TEMPS;
 /// Settings magic.
 pub const MAGIC: [u8; 4] = *b"NCST";
 /// Layout version; bumped whenever the bytes change.
-pub const VERSION: u8 = 4;
+pub const VERSION: u8 = 5;
 /// Encoded length.
 pub const LEN: usize = Layout::of(SENSORS, true, true).len;
 /// The model-stale check's `k` unless set: a KMZ re-measurement more than 3 standard errors of
@@ -191,38 +197,6 @@ pub const DEFAULT_FOLD_PERIOD_MS: u16 = 5_000;
 pub const MIN_FOLD_PERIOD_MS: u16 = 1_000;
 /// Longest fold period the settings accept, ms (paper 001 §VI: "each 5-10 seconds").
 pub const MAX_FOLD_PERIOD_MS: u16 = 10_000;
-
-/// Unit of the stage controller's positions (the model works in µm).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum StageUnit {
-    /// Micrometres (PI's default for most piezo stages).
-    #[default]
-    Um,
-    /// Millimetres (PI's default for most motorised stages).
-    Mm,
-    /// Nanometres.
-    Nm,
-}
-
-impl StageUnit {
-    /// Micrometres per stage unit.
-    pub fn um_per_unit(self) -> f64 {
-        match self {
-            StageUnit::Um => 1.0,
-            StageUnit::Mm => 1000.0,
-            StageUnit::Nm => 1e-3,
-        }
-    }
-    /// Name as written on the command line.
-    pub fn name(self) -> &'static str {
-        match self {
-            StageUnit::Um => "um",
-            StageUnit::Mm => "mm",
-            StageUnit::Nm => "nm",
-        }
-    }
-}
 
 /// Where an auxiliary model input comes from on this board.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -258,8 +232,6 @@ pub struct Settings {
     /// Fold period, ms: the readings of a period are averaged and the model folded with the
     /// averages once a period (1000..=10000; `nanocal_compensator::slow_average`).
     pub fold_period_ms: u16,
-    /// Unit of the controller's positions.
-    pub stage_unit: StageUnit,
     /// GCS identifiers of model axes 0, 1, 2.
     pub axis_names: [AxisId; MAP_AXES],
     /// Source of each auxiliary model input: a force channel, or what an input of kind "other"
@@ -285,7 +257,6 @@ impl Default for Settings {
             mains: Mains::Hz50,
             sample_period_ms: 250,
             fold_period_ms: DEFAULT_FOLD_PERIOD_MS,
-            stage_unit: StageUnit::Um,
             axis_names: [
                 AxisId::single(b'1'),
                 AxisId::single(b'2'),
@@ -378,7 +349,8 @@ impl Layout {
             1 => Some(Layout::of(8, false, false)),
             2 => Some(Layout::of(SENSORS, false, false)),
             3 => Some(Layout::of(SENSORS, true, false)),
-            VERSION => Some(Layout::of(SENSORS, true, true)),
+            // 5 only reserved the stage unit's byte: the same places
+            4 | VERSION => Some(Layout::of(SENSORS, true, true)),
             _ => None,
         }
     }
@@ -480,7 +452,7 @@ impl Settings {
             Mains::Hz60 => 60,
         };
         b[MAINS_AT + 1..MAINS_AT + 3].copy_from_slice(&self.sample_period_ms.to_le_bytes());
-        b[MAINS_AT + 3] = self.stage_unit as u8;
+        // b[MAINS_AT + 3]: reserved (the stage unit of layouts 1 to 4), 0
         for (i, id) in self.axis_names.iter().enumerate() {
             let o = AXES_AT + 9 * i;
             let s = id.as_bytes();
@@ -561,12 +533,8 @@ impl Settings {
             _ => return Err(SettingsError::Field(l.mains_at as u16)),
         };
         s.sample_period_ms = u16::from_le_bytes([b[l.mains_at + 1], b[l.mains_at + 2]]);
-        s.stage_unit = match b[l.mains_at + 3] {
-            0 => StageUnit::Um,
-            1 => StageUnit::Mm,
-            2 => StageUnit::Nm,
-            _ => return Err(SettingsError::Field(l.mains_at as u16 + 3)),
-        };
+        // b[l.mains_at + 3]: the stage unit of layouts 1 to 4 (never applied) or reserved:
+        // ignored, so a record stored with any unit still loads
         for i in 0..MAP_AXES {
             let o = l.axes_at + 9 * i;
             let n = usize::from(b[o]).min(8);

@@ -9,9 +9,7 @@ use nanocal_interface::led::LedState;
 use nanocal_interface::mgmt::{
     self, Decoder, Hello, InputCode, InputWhy, Kind, Reader, Refusal, Reply, Request, Writer,
 };
-use nanocal_interface::settings::{
-    AuxSource, AxisId, Chip, Mains, Settings, StageUnit, TcType, Wires,
-};
+use nanocal_interface::settings::{AuxSource, AxisId, Chip, Mains, Settings, TcType, Wires};
 use nanocal_interface::status::{
     ChannelBits, ChannelStatus, Flags, SensorFault, StaleReasons, Status,
 };
@@ -85,7 +83,6 @@ fn custom_settings() -> Settings {
         mains: Mains::Hz60,
         sample_period_ms: 500,
         fold_period_ms: 8_000,
-        stage_unit: StageUnit::Mm,
         stale_k: 2.5,
         extrapolation_c: 0.25,
         ..Settings::default()
@@ -188,6 +185,12 @@ fn settings_bytes() {
     use nanocal_interface::settings::{
         DEFAULT_EXTRAPOLATION_C, DEFAULT_FOLD_PERIOD_MS, DEFAULT_STALE_K,
     };
+    // a layout 4 record (stored by a firmware before the stage unit was dropped, here mm, a unit
+    // the firmware never applied) decodes to the same settings
+    assert_eq!(
+        Settings::decode(&SETTINGS_CUSTOM_V4).unwrap(),
+        custom_settings()
+    );
     // a layout 3 record (stored by a firmware before the stale check) decodes with its defaults
     assert_eq!(
         Settings::decode(&SETTINGS_CUSTOM_V3).unwrap(),

@@ -6,7 +6,7 @@ use anyhow::{bail, Context};
 use clap::Subcommand;
 use nanocal_compensator::gcs::AxisId;
 use nanocal_compensator::sensor::{Chip, Mains, TcType, Wires};
-use nanocal_interface::settings::{AuxSource, Settings, StageUnit};
+use nanocal_interface::settings::{AuxSource, Settings};
 use std::path::PathBuf;
 
 /// Device subcommands.
@@ -75,9 +75,6 @@ pub enum DeviceCommand {
         /// counts as stale, °C: what the model was shown to extrapolate (0..=50; default 0.1).
         #[arg(long)]
         extrapolation_c: Option<f32>,
-        /// Unit of the controller's positions: um, mm or nm.
-        #[arg(long)]
-        stage_unit: Option<String>,
         /// GCS axis names of model axes 0,1,2 (comma separated), e.g. X,Y,Z.
         #[arg(long, value_delimiter = ',')]
         axes: Option<Vec<String>>,
@@ -192,7 +189,6 @@ pub fn edit_settings(
     sample_period_ms: Option<u16>,
     fold_period_ms: Option<u16>,
     stale: (Option<f32>, Option<f32>),
-    stage_unit: Option<&str>,
     axes: Option<&[String]>,
     sensors: &[String],
     aux: &[String],
@@ -235,14 +231,6 @@ pub fn edit_settings(
             "--extrapolation-c {m}: 0..={MAX_EXTRAPOLATION_C} °C"
         );
         s.extrapolation_c = m;
-    }
-    if let Some(u) = stage_unit {
-        s.stage_unit = match u {
-            "um" | "µm" => StageUnit::Um,
-            "mm" => StageUnit::Mm,
-            "nm" => StageUnit::Nm,
-            _ => bail!("--stage-unit {u}: um, mm or nm"),
-        };
     }
     if let Some(a) = axes {
         anyhow::ensure!((1..=3).contains(&a.len()), "--axes: 1 to 3 names");
@@ -320,7 +308,6 @@ pub fn run(cmd: DeviceCommand) -> anyhow::Result<()> {
             fold_period_ms,
             stale_k,
             extrapolation_c,
-            stage_unit,
             axes,
             sensor,
             aux,
@@ -334,7 +321,6 @@ pub fn run(cmd: DeviceCommand) -> anyhow::Result<()> {
                 sample_period_ms,
                 fold_period_ms,
                 (stale_k, extrapolation_c),
-                stage_unit.as_deref(),
                 axes.as_deref(),
                 &sensor,
                 &aux,

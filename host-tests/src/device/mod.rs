@@ -581,7 +581,6 @@ pub fn format_settings(s: &Settings) -> String {
         "stage baud: {} (8N1; applied at the next reset)\n",
         s.stage_baud
     );
-    o += &format!("stage unit: {}\n", s.stage_unit.name());
     let names: Vec<String> = s
         .axis_names
         .iter()

@@ -190,13 +190,6 @@ impl DesignSpec {
             ..Default::default()
         }
     }
-    /// The published adaptive model: cubic in position (the offset comes from KMZ).
-    pub fn published_adaptive() -> Self {
-        DesignSpec {
-            poly_order: 3,
-            ..Default::default()
-        }
-    }
 
     /// Paper 000's 2-DoF model, Eq. 22, with n1 = n2 = 3 (the paper does not give the orders;
     /// 3 is its 1-DoF order): own-axis cubic, other-axis cubic (pure powers), every temperature.
@@ -446,11 +439,6 @@ impl DesignFrame {
         })
     }
 
-    /// The skeleton model (scalings, envelope, travel; no terms).
-    pub fn skeleton(&self) -> &Model {
-        &self.skeleton
-    }
-
     /// A builder with the frame's scalings, envelope and travel, to receive fitted terms.
     pub fn builder(&self) -> ModelBuilder {
         let m = &self.skeleton;
@@ -680,12 +668,6 @@ impl DesignFrame {
                 s
             })
             .collect()
-    }
-
-    /// Scaled inputs of every dwell, at the measured (calibrated) positions, by the model's
-    /// own scaling (what the blob's terms evaluate on).
-    pub fn scaled_inputs(&self, d: &Dwells) -> Vec<ScaledInputs> {
-        self.inputs_by(&self.skeleton, d)
     }
 
     /// Raw inputs of every dwell (positions in µm, temperatures in °C, …), in the form

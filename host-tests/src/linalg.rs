@@ -56,15 +56,6 @@ impl Mat {
             data: vec![0.0; rows * cols],
         }
     }
-    /// From column-major data.
-    pub fn from_col_major(rows: usize, cols: usize, data: Vec<f64>) -> Self {
-        assert_eq!(
-            data.len(),
-            rows * cols,
-            "Mat::from_col_major: wrong data length"
-        );
-        Mat { rows, cols, data }
-    }
     /// Number of rows.
     pub fn rows(&self) -> usize {
         self.rows
@@ -199,11 +190,6 @@ impl RAccumulator {
         let rows = self.rows + other.rows;
         self.push_block(&mut block, self.k);
         self.rows = rows;
-    }
-
-    /// The accumulated `k × k` upper-triangular factor (diagonal signs arbitrary).
-    pub fn r(&self) -> &Mat {
-        &self.r
     }
 
     /// Consumes the accumulator, returning `R`.
@@ -401,13 +387,6 @@ pub struct CompressedPart {
     /// Input rows (global indices) left out for a NaN.
     nan_rows: Vec<usize>,
     constancy: Constancy,
-}
-
-impl CompressedPart {
-    /// Rows absorbed (without NaN).
-    pub fn rows(&self) -> usize {
-        self.acc.rows()
-    }
 }
 
 /// Compresses rows `lo..hi` of the columns (one thread).
@@ -623,15 +602,6 @@ impl PivotedQr {
         &self.perm
     }
 
-    /// `R[i, j]` (i ≤ j), in pivoted order.
-    pub fn r(&self, i: usize, j: usize) -> f64 {
-        if i > j {
-            0.0
-        } else {
-            self.qr.get(i, j)
-        }
-    }
-
     /// Numerical rank: the number of leading `|R[i,i]| > tol · |R[0,0]|`.
     pub fn rank(&self, tol: f64) -> usize {
         let steps = self.tau.len();
@@ -670,18 +640,6 @@ impl PivotedQr {
             v[j] -= w;
             axpy(-w, h, &mut v[j + 1..]);
         }
-    }
-
-    /// The first `r` columns of `Q` (m × r), explicitly.
-    pub fn thin_q(&self, r: usize) -> Mat {
-        let m = self.qr.rows;
-        let mut q = Mat::zeros(m, r);
-        for j in 0..r {
-            let c = q.col_mut(j);
-            c[j] = 1.0;
-            self.apply_q(c);
-        }
-        q
     }
 
     /// Solves `R[..r, ..r] z = rhs[..r]` by back substitution (pivoted order).
@@ -745,10 +703,6 @@ impl LeastSquares {
     pub fn std_errors(&self) -> Vec<f64> {
         let s2 = self.rss / self.dof as f64;
         self.xtx_inv_diag.iter().map(|d| (s2 * d).sqrt()).collect()
-    }
-    /// Standard error of the intercept.
-    pub fn intercept_std_error(&self) -> f64 {
-        (self.rss / self.dof as f64 * self.intercept_xtx_inv).sqrt()
     }
 }
 

@@ -338,21 +338,6 @@ impl Recording {
     pub fn aux_columns(&self) -> Vec<&str> {
         self.names_where(|r| matches!(r, ColumnRole::Aux(_)))
     }
-
-    /// A new recording holding only the rows for which `keep(row)` is true.
-    pub fn filter_rows(&self, keep: impl Fn(usize) -> bool) -> Recording {
-        let idx: Vec<usize> = (0..self.rows).filter(|&r| keep(r)).collect();
-        let columns = self
-            .columns
-            .iter()
-            .map(|c| idx.iter().map(|&r| c[r]).collect())
-            .collect();
-        Recording {
-            names: self.names.clone(),
-            columns,
-            rows: idx.len(),
-        }
-    }
 }
 
 /// Parses the rows after the header, splitting large inputs at line boundaries across threads.

@@ -35,8 +35,6 @@ pub trait BenchDriver: Send {
     /// Commands the stage controller received since the last call (plan time, target per
     /// axis), when the bench can see them.
     fn stage_commands(&mut self) -> Option<Vec<(f64, Vec<f64>)>>;
-    /// How time is kept (for messages).
-    fn describe(&self) -> String;
 }
 
 /// A real bench: time is the wall clock.
@@ -81,10 +79,6 @@ impl BenchDriver for WallClock {
     fn stage_commands(&mut self) -> Option<Vec<(f64, Vec<f64>)>> {
         None
     }
-
-    fn describe(&self) -> String {
-        "wall clock".into()
-    }
 }
 
 /// The reference instrument as the campaign reads it: samples in plan time, in order.
@@ -111,16 +105,6 @@ impl ReferenceReader {
             silent_after: Duration::from_secs(10),
             last_arrival: Instant::now(),
         }
-    }
-
-    /// The source's name.
-    pub fn name(&self) -> &str {
-        self.src.name()
-    }
-
-    /// Plan time of the newest sample seen.
-    pub fn last_t(&self) -> Option<f64> {
-        self.last_t
     }
 
     fn take(&mut self, samples: Vec<Sample>, now_s: f64) {

@@ -225,16 +225,6 @@ pub fn bartlett_n_eff(a: &[f64], b: &[f64]) -> f64 {
     (n as f64 / tau).clamp(2.0, n as f64)
 }
 
-/// Integrated autocorrelation time of a series, in rows (1 for white noise): how many rows
-/// one independent value of it spans.
-pub fn autocorrelation_rows(x: &[f64]) -> f64 {
-    if x.len() < 10 {
-        return 1.0;
-    }
-    let (c, v) = centred(x);
-    correlation_time(x.len(), |k| autocorrelation(&c, v, k))
-}
-
 /// Bayesian information criterion with an effective sample size: n_eff ln(RSS/n) + k ln n_eff.
 pub fn bic(rss: f64, n: usize, k: usize, n_eff: f64) -> f64 {
     n_eff * (rss / n as f64).max(1e-300).ln() + k as f64 * n_eff.max(2.0).ln()

@@ -92,14 +92,3 @@ pub fn nonlinear_thermal(
         evidence,
     }
 }
-
-/// Relative standard uncertainty of the refractivity's pressure coefficient for an unknown
-/// laboratory: Edlén's ∂n/∂p scales with 1/T (±2 % for 15–25 °C) and the wavelength (about
-/// 1.5 % between 532 and 1550 nm), each taken as a uniform spread (σ = half-width/√3).
-pub const DN_DP_REL_SIGMA: f64 = 0.0144;
-
-/// Whether a dead path (mm, with its σ) is one an interferometer can have: the optical path
-/// outside the travel is not negative beyond the travel and not longer than 10 m.
-pub fn plausible_dead_path(dead_path_mm: f64, sigma_mm: f64, travel_mm: f64) -> bool {
-    dead_path_mm + 3.0 * sigma_mm >= -1.1 * travel_mm && dead_path_mm - 3.0 * sigma_mm <= 10_000.0
-}

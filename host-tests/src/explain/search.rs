@@ -66,16 +66,6 @@ impl Basis {
         b
     }
 
-    /// Rows of the basis.
-    pub fn len(&self) -> usize {
-        self.rows.len()
-    }
-
-    /// True when the basis has no rows.
-    pub fn is_empty(&self) -> bool {
-        self.rows.is_empty()
-    }
-
     /// Columns spanned (intercept included).
     pub fn dim(&self) -> usize {
         self.q.len()
@@ -218,11 +208,6 @@ pub struct Search<'a> {
 }
 
 impl Search<'_> {
-    /// BIC change of adding columns that lower the RSS to `rss` with `k` more parameters.
-    pub fn delta_bic(&self, rss: f64, k: usize) -> f64 {
-        self.n_eff * (rss / self.basis.rss()).max(1e-300).ln() + k as f64 * self.n_eff.ln()
-    }
-
     /// Minimise `rss(θ)` over a log-spaced grid on [lo, hi], refined by golden-section search
     /// on log θ between the best point's neighbours; with `sigma`, θ's 1σ from the profile
     /// (where n_eff·ln(RSS/RSS_min) rises by 1), else NaN. Returns the θ estimate and its RSS.

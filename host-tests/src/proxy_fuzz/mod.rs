@@ -568,17 +568,3 @@ pub fn run(setup: &Setup, seed: u64, steps: u64) -> Result<Stats, Box<Violation>
     stats.refused = u64::from(rig.proxy.counters.refused);
     Ok(stats)
 }
-
-/// Run every setup for `steps` steps from each of `seeds`.
-pub fn run_all(
-    seeds: impl Iterator<Item = u64> + Clone,
-    steps: u64,
-) -> Result<Stats, Box<Violation>> {
-    let mut total = Stats::default();
-    for setup in setups() {
-        for seed in seeds.clone() {
-            total += run(&setup, seed, steps)?;
-        }
-    }
-    Ok(total)
-}

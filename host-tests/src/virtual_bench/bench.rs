@@ -331,16 +331,6 @@ impl VirtualBench {
         self.link.clone()
     }
 
-    /// The twin on the bench.
-    pub fn stage(&self) -> Arc<Mutex<TwinStage>> {
-        self.stage.clone()
-    }
-
-    /// Bus transactions served so far.
-    pub fn transactions(&self) -> u64 {
-        self.link.transactions.load(Ordering::Relaxed)
-    }
-
     /// The QEMU process (its id, for CPU figures).
     pub fn qemu(&self) -> &Qemu {
         &self.qemu
@@ -531,9 +521,5 @@ impl BenchDriver for VirtualBench {
         let new = st.commands()[self.commands_seen..].to_vec();
         self.commands_seen = st.commands().len();
         Some(new)
-    }
-
-    fn describe(&self) -> String {
-        "virtual bench (QEMU firmware, digital twin; the board's clock in lockstep)".into()
     }
 }

@@ -151,10 +151,6 @@ impl Drop for Page {
 pub type BusHandler =
     Box<dyn FnMut(BusOp, u8, &[u8], usize, f64) -> Option<(BusStatus, Vec<u8>)> + Send>;
 
-/// Something that must have taken in everything the board sent before the clock moves on (the
-/// stage controller's reader: it stamps each command with the board's clock).
-pub type DrainCheck = Box<dyn Fn(&Page) -> bool + Send + Sync>;
-
 /// Errors of the bench's clock.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -187,7 +183,6 @@ pub struct BenchLink {
     rung: Condvar,
     bus: Mutex<Option<BusHandler>>,
     bus_attached: Condvar,
-    drains: Mutex<Vec<DrainCheck>>,
     lockstep: AtomicBool,
     stop: AtomicBool,
     /// Counts completed lockstep advances (for threads that follow the board's clock).
@@ -218,7 +213,6 @@ impl BenchLink {
             rung: Condvar::new(),
             bus: Mutex::new(None),
             bus_attached: Condvar::new(),
-            drains: Mutex::new(Vec::new()),
             lockstep: AtomicBool::new(false),
             stop: AtomicBool::new(false),
             advances: Mutex::new(0),
@@ -278,11 +272,6 @@ impl BenchLink {
     pub fn attach_bus(&self, handler: BusHandler) {
         *self.bus.lock().unwrap() = Some(handler);
         self.bus_attached.notify_all();
-    }
-
-    /// Add a check that must pass before the clock moves on in lockstep.
-    pub fn add_drain_check(&self, check: DrainCheck) {
-        self.drains.lock().unwrap().push(check);
     }
 
     /// The board's clock, s of bench time.
@@ -506,11 +495,6 @@ impl BenchLink {
         &self.inputs
     }
 
-    /// Wall time the free-running clock has held for input in flight, s.
-    pub fn held_s(&self) -> f64 {
-        self.held_us.load(Ordering::Relaxed) as f64 * 1e-6
-    }
-
     /// Move the horizon with the wall clock × `scale`, except while input is in flight (see
     /// [`InputWatch`] and [`Self::announce`]): then the horizon holds and the board is rung until it has taken the
     /// input, as `src/qemu/time.rs` expects of the bench. A hold lasts at most [`MAX_HOLD`] of
@@ -602,9 +586,8 @@ impl BenchClock {
         }
     }
 
-    /// Move the board's clock to `t_s` of bench time (lockstep): first wait until everything
-    /// the board sent has been taken in (drain checks), then raise the horizon and wait until
-    /// the board is idle there. `timeout` bounds the wall time of the whole step.
+    /// Move the board's clock to `t_s` of bench time (lockstep): raise the horizon and wait
+    /// until the board is idle there. `timeout` bounds the wall time of the whole step.
     pub fn advance_to(&self, t_s: f64, timeout: Duration) -> Result<(), ClockError> {
         if !self.link.lockstep.load(Ordering::Acquire) {
             return Err(ClockError::FreeRunning);
@@ -617,16 +600,6 @@ impl BenchClock {
             now_s: bl::ticks_to_s(page.u64(bl::NOW)),
             waited: start.elapsed(),
         };
-        loop {
-            let drained = self.link.drains.lock().unwrap().iter().all(|c| c(page));
-            if drained {
-                break;
-            }
-            if start.elapsed() > timeout {
-                return Err(stalled(page));
-            }
-            std::thread::sleep(Duration::from_micros(50));
-        }
         self.link.set_horizon(target);
         // Watch the page while the board runs towards the horizon, answering its bus requests
         // here: no thread hand-over per transaction (the board waits for each reply). Sleep

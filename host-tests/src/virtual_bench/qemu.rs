@@ -321,18 +321,6 @@ impl Qemu {
         self.ports[i]
     }
 
-    /// Wait for QEMU to exit (e.g. after a semihosting exit); its status.
-    pub fn wait_exit(&mut self, timeout: Duration) -> Option<std::process::ExitStatus> {
-        let deadline = Instant::now() + timeout;
-        while Instant::now() < deadline {
-            if let Ok(Some(st)) = self.child.try_wait() {
-                return Some(st);
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        None
-    }
-
     fn dial(&mut self, i: usize) -> TcpStream {
         dial(&mut self.child, self.ports[i], i, &self.log)
     }
@@ -357,14 +345,6 @@ impl Qemu {
         let s = self.connect(0);
         self.set_dtr(true);
         GcsHost::new(s, self.gcs_sent.clone(), self.link.clone())
-    }
-
-    /// Close the GCS port as a host does: the connection ends once the board has read what
-    /// was sent on it, then DTR falls (the host session ends).
-    pub fn close_gcs(&mut self, host: GcsHost) {
-        drop(host);
-        self.wait_gcs_drained();
-        self.set_dtr(false);
     }
 
     /// A new GCS host connection on serial0 (after the previous one was dropped): the old
@@ -555,24 +535,6 @@ impl GcsHost {
         self.link.announce(0, b.len());
         self.s.write_all(b).unwrap();
         self.sent.fetch_add(b.len() as u64, Ordering::Relaxed);
-    }
-
-    /// Read what arrived within `wait` (for checking that nothing did).
-    pub fn read_for(&mut self, wait: Duration) -> Vec<u8> {
-        let deadline = Instant::now() + wait;
-        loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                return std::mem::take(&mut self.buf);
-            }
-            self.s.set_read_timeout(Some(left)).unwrap();
-            let mut b = [0u8; 256];
-            match self.s.read(&mut b) {
-                Ok(0) => return std::mem::take(&mut self.buf),
-                Ok(n) => self.buf.extend_from_slice(&b[..n]),
-                Err(_) => {}
-            }
-        }
     }
 
     /// Read one line (LF removed, trailing space kept).

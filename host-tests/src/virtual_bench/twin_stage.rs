@@ -114,11 +114,6 @@ impl TwinStage {
         }
     }
 
-    /// Axes of the stage.
-    pub fn axes(&self) -> usize {
-        self.axes
-    }
-
     /// The interferometer's sample period, s.
     pub fn period_s(&self) -> f64 {
         self.period_s

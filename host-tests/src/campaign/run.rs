@@ -353,9 +353,11 @@ pub trait Progress {
     fn note(&mut self, text: &str);
 }
 
-/// No progress report.
+/// No progress report (for the tests).
+#[cfg(feature = "test-support")]
 pub struct Quiet;
 
+#[cfg(feature = "test-support")]
 impl Progress for Quiet {
     fn step(&mut self, _k: usize, _n: usize, _what: &str) {}
     fn note(&mut self, _text: &str) {}

@@ -183,7 +183,7 @@ pub struct BenchLink {
     rung: Condvar,
     bus: Mutex<Option<BusHandler>>,
     bus_attached: Condvar,
-    lockstep: AtomicBool,
+    pub(super) lockstep: AtomicBool,
     stop: AtomicBool,
     /// Counts completed lockstep advances (for threads that follow the board's clock).
     advances: Mutex<u64>,
@@ -501,7 +501,7 @@ impl BenchLink {
     /// wall time while the unread count stays the same, so a board that stops reading a port
     /// still sees its time pass; likewise announced bytes the board holds its clock for
     /// (see [`Self::forgive_announced`]).
-    fn free_run(&self, scale: f64) {
+    pub(super) fn free_run(&self, scale: f64) {
         let mut last = Instant::now();
         let mut held = Duration::ZERO;
         let t0 = last;
@@ -559,7 +559,7 @@ impl BenchLink {
 /// The board's clock as the bench drives it.
 #[derive(Clone)]
 pub struct BenchClock {
-    link: Arc<BenchLink>,
+    pub(super) link: Arc<BenchLink>,
 }
 
 impl BenchClock {
@@ -576,14 +576,6 @@ impl BenchClock {
     /// Stop the free-running thread: from now on the clock moves only by [`Self::advance_to`].
     pub fn lockstep(&self) {
         self.link.lockstep.store(true, Ordering::Release);
-    }
-
-    /// Let the clock run with the wall clock × `scale` again.
-    pub fn free_run(&self, scale: f64) {
-        if self.link.lockstep.swap(false, Ordering::AcqRel) {
-            let l = self.link.clone();
-            std::thread::spawn(move || l.free_run(scale));
-        }
     }
 
     /// Move the board's clock to `t_s` of bench time (lockstep): raise the horizon and wait

@@ -10,6 +10,8 @@ pub mod jitter;
 pub mod link;
 pub mod qemu;
 pub mod sensors;
+#[cfg(feature = "test-support")]
+pub mod test_support;
 pub mod twin_stage;
 
 pub use controller::{
@@ -17,5 +19,7 @@ pub use controller::{
     StageSim, SystemClock,
 };
 pub use link::{BenchClock, BenchLink};
-pub use qemu::{bench_elf, have_qemu, qemu_elf, repo_root, Elf, GcsHost, Qemu, HANG};
-pub use sensors::{Buses, SensorSim};
+pub use qemu::{bench_elf, have_qemu, qemu_elf, repo_root, Elf, Qemu, HANG};
+pub use sensors::Buses;
+#[cfg(feature = "test-support")]
+pub use test_support::{GcsHost, SensorSim};

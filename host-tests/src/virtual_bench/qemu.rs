@@ -10,7 +10,6 @@ use std::net::{TcpListener, TcpStream};
 use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
@@ -162,14 +161,15 @@ pub const SERIALS: usize = 5;
 
 /// A running QEMU with the firmware; killed on drop.
 pub struct Qemu {
-    child: Child,
-    ports: [u16; SERIALS],
-    streams: [Option<TcpStream>; 3],
-    link: Arc<BenchLink>,
-    log: PathBuf,
+    pub(super) child: Child,
+    pub(super) ports: [u16; SERIALS],
+    pub(super) streams: [Option<TcpStream>; 3],
+    pub(super) link: Arc<BenchLink>,
+    pub(super) log: PathBuf,
     /// Bytes the test's GCS hosts wrote to serial0 (the board has read them all before the
     /// port is closed: a new session starts clean).
-    gcs_sent: Arc<AtomicU64>,
+    #[cfg(feature = "test-support")]
+    pub(super) gcs_sent: Arc<std::sync::atomic::AtomicU64>,
 }
 
 /// Where the file behind the board's RAM goes: tmpfs when there is one.
@@ -184,18 +184,6 @@ fn ram_file(tag: u16) -> PathBuf {
 }
 
 impl Qemu {
-    /// Start QEMU, or skip (None) with a loud message when it is missing — except in CI.
-    pub fn start_or_skip(test: &str) -> Option<Self> {
-        if !have_qemu() {
-            if std::env::var_os("CI").is_some() {
-                panic!("{test}: qemu-system-arm is missing in CI (run .ci/firmware.sh first)");
-            }
-            eprintln!("\n**********\n{test}: SKIPPED — qemu-system-arm not found (install QEMU ≥ 10, see .ci/firmware.sh)\n**********\n");
-            return None;
-        }
-        Some(Self::start(&[]))
-    }
-
     /// Start QEMU with extra arguments (e.g. a TCG plugin).
     pub fn start(extra: &[String]) -> Self {
         let elf = qemu_elf();
@@ -261,7 +249,8 @@ impl Qemu {
             streams: [None, None, None],
             link,
             log,
-            gcs_sent: Arc::new(AtomicU64::new(0)),
+            #[cfg(feature = "test-support")]
+            gcs_sent: Arc::new(std::sync::atomic::AtomicU64::new(0)),
         };
         for i in [0, 1] {
             q.streams[i] = Some(q.dial(i));
@@ -275,30 +264,6 @@ impl Qemu {
     /// sent afterwards can overtake it; false if it did not within 10 s.
     pub fn set_dtr(&mut self, on: bool) -> bool {
         apply_line_state(&self.link, bl::LINE_HOST, on)
-    }
-
-    /// Wait until the board has read every byte the test's GCS hosts wrote (up to 10 s).
-    fn wait_gcs_drained(&self) {
-        let sent = self.gcs_sent.load(Ordering::Relaxed) as u32;
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while self.link.rx_bytes(0) != sent {
-            if Instant::now() > deadline {
-                eprintln!(
-                    "qemu: the board read {} of the {sent} GCS bytes sent",
-                    self.link.rx_bytes(0)
-                );
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(1));
-        }
-    }
-
-    /// The management client opens (`true`) or closes (`false`) the management port: its line
-    /// state (DTR), as [`Self::set_dtr`]'s for the GCS port, and returns once the board has
-    /// applied it (false if not within 10 s). The board drops a management frame still
-    /// arriving when the port closes.
-    pub fn set_mgmt_dtr(&mut self, on: bool) -> bool {
-        apply_line_state(&self.link, bl::LINE_MGMT, on)
     }
 
     /// Process id of QEMU.
@@ -321,7 +286,7 @@ impl Qemu {
         self.ports[i]
     }
 
-    fn dial(&mut self, i: usize) -> TcpStream {
+    pub(super) fn dial(&mut self, i: usize) -> TcpStream {
         dial(&mut self.child, self.ports[i], i, &self.log)
     }
 
@@ -340,46 +305,9 @@ impl Qemu {
         self.streams[i].take().expect("serial port taken once")
     }
 
-    /// The GCS host side (serial0): the port opened (DTR raised, a new host session).
-    pub fn gcs_host(&mut self) -> GcsHost {
-        let s = self.connect(0);
-        self.set_dtr(true);
-        GcsHost::new(s, self.gcs_sent.clone(), self.link.clone())
-    }
-
-    /// A new GCS host connection on serial0 (after the previous one was dropped): the old
-    /// session ends (DTR falls once the board has read its bytes), the new one starts (DTR
-    /// rises before anything is sent on it).
-    pub fn reconnect_gcs(&mut self) -> GcsHost {
-        self.wait_gcs_drained();
-        self.set_dtr(false);
-        let s = self.dial(0);
-        self.set_dtr(true);
-        GcsHost::new(s, self.gcs_sent.clone(), self.link.clone())
-    }
-
-    /// Give up the test's own connection to serial0 and return its port, for an external GCS
-    /// client (QEMU serves one client per port at a time); the port is opened for it (DTR).
-    pub fn gcs_port(&mut self) -> u16 {
-        self.streams[0] = None;
-        self.set_dtr(true);
-        self.ports[0]
-    }
-
     /// Management port spec for the CLI (`unix:PATH`).
     pub fn mgmt_spec(&self) -> String {
         format!("unix:{}", self.log.with_extension("d").join("s3").display())
-    }
-
-    /// A raw connection to the management port (serial3), for tests that send bytes no client
-    /// would (a frame cut off); one connection at a time, as [`Self::client`]'s.
-    pub fn mgmt_stream(&mut self) -> UnixStream {
-        dial_unix(
-            &mut self.child,
-            &self.log.with_extension("d").join("s3"),
-            3,
-            &self.log,
-        )
     }
 
     /// A management client (serial3); one at a time.
@@ -428,7 +356,7 @@ pub fn apply_line_state(link: &BenchLink, port: u8, on: bool) -> bool {
     true
 }
 
-fn dial_unix(child: &mut Child, path: &Path, i: usize, log: &Path) -> UnixStream {
+pub(super) fn dial_unix(child: &mut Child, path: &Path, i: usize, log: &Path) -> UnixStream {
     dial_with(child, i, log, || UnixStream::connect(path).ok())
 }
 
@@ -504,76 +432,5 @@ impl<S: Write> Write for Announced<S> {
     }
     fn flush(&mut self) -> std::io::Result<()> {
         self.inner.flush()
-    }
-}
-
-/// The host's side of the GCS link.
-pub struct GcsHost {
-    s: TcpStream,
-    buf: Vec<u8>,
-    sent: Arc<AtomicU64>,
-    link: Arc<BenchLink>,
-}
-
-impl GcsHost {
-    fn new(s: TcpStream, sent: Arc<AtomicU64>, link: Arc<BenchLink>) -> Self {
-        Self {
-            s,
-            buf: vec![],
-            sent,
-            link,
-        }
-    }
-
-    /// Send one line.
-    pub fn send(&mut self, line: &str) {
-        self.send_raw(format!("{line}\n").as_bytes());
-    }
-
-    /// Send raw bytes.
-    pub fn send_raw(&mut self, b: &[u8]) {
-        self.link.announce(0, b.len());
-        self.s.write_all(b).unwrap();
-        self.sent.fetch_add(b.len() as u64, Ordering::Relaxed);
-    }
-
-    /// Read one line (LF removed, trailing space kept).
-    pub fn read_line(&mut self, timeout: Duration) -> String {
-        let deadline = Instant::now() + timeout;
-        loop {
-            if let Some(p) = self.buf.iter().position(|&b| b == b'\n') {
-                let line: Vec<u8> = self.buf.drain(..=p).collect();
-                return String::from_utf8_lossy(&line[..line.len() - 1]).into_owned();
-            }
-            let left = deadline.saturating_duration_since(Instant::now());
-            assert!(
-                !left.is_zero(),
-                "no reply from the compensator within {timeout:?}"
-            );
-            self.s
-                .set_read_timeout(Some(left.min(Duration::from_millis(200))))
-                .unwrap();
-            let mut b = [0u8; 256];
-            match self.s.read(&mut b) {
-                Ok(0) => panic!("compensator closed the host link"),
-                Ok(n) => self.buf.extend_from_slice(&b[..n]),
-                Err(_) => {}
-            }
-        }
-    }
-
-    /// Send a query and read its (possibly multi-line) reply, lines joined with LF.
-    pub fn ask(&mut self, line: &str) -> String {
-        self.send(line);
-        let mut out = String::new();
-        loop {
-            let l = self.read_line(HANG);
-            let more = l.ends_with(' ');
-            out += l.trim_end();
-            if !more {
-                return out;
-            }
-            out.push('\n');
-        }
     }
 }

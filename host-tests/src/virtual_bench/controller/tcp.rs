@@ -7,12 +7,11 @@ use std::net::TcpStream;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{channel, Receiver};
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
 
 /// A [`Controller`] served on a socket by a thread: every line (and single character) it
 /// receives is recorded before it answers.
 pub struct StageSim {
-    lines: Receiver<String>,
+    pub(in crate::virtual_bench) lines: Receiver<String>,
     ctl: Arc<Mutex<Controller>>,
     /// Bytes taken in (and acted on) and bytes answered, for a bench that must know the link is
     /// drained before its clock moves on.
@@ -94,27 +93,6 @@ impl StageSim {
     /// Bytes the controller has sent back or is sending.
     pub fn bytes_out(&self) -> u64 {
         self.bytes[1].load(Ordering::Acquire)
-    }
-
-    /// The next line the controller received (`#5` for a single character).
-    pub fn next_line(&self, timeout: Duration) -> String {
-        self.lines
-            .recv_timeout(timeout)
-            .expect("the controller received nothing in time")
-    }
-
-    /// Lines received up to and including the first one `last` accepts (each within
-    /// `timeout`).
-    pub fn drain_until(&self, last: impl Fn(&str) -> bool, timeout: Duration) -> Vec<String> {
-        let mut v = vec![];
-        loop {
-            let l = self.next_line(timeout);
-            let done = last(&l);
-            v.push(l);
-            if done {
-                return v;
-            }
-        }
     }
 
     /// Lines received so far, without waiting.

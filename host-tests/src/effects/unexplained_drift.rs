@@ -73,15 +73,21 @@ pub struct Candidate;
 
 /// Cosines cos(πk(t − t₀)/T), k = 1..K, over the recording's time (T its duration).
 pub fn cosine_basis(t_s: &[f64], k: usize) -> Vec<Vec<f64>> {
+    cosine_columns(t_s, 1..=k).collect()
+}
+
+/// The cosines of orders `orders` of [`cosine_basis`] (the same values, column by column).
+fn cosine_columns(
+    t_s: &[f64],
+    orders: std::ops::RangeInclusive<usize>,
+) -> impl Iterator<Item = Vec<f64>> + '_ {
     let t0 = t_s.first().copied().unwrap_or(0.0);
     let span = (t_s.last().copied().unwrap_or(1.0) - t0).max(1e-9);
-    (1..=k)
-        .map(|j| {
+    orders.map(move |j| {
             t_s.iter()
                 .map(|&t| (std::f64::consts::PI * j as f64 * (t - t0) / span).cos())
                 .collect()
-        })
-        .collect()
+    })
 }
 
 /// Orders K tried (time scales T/K). The slowest is T/8: with gaps 1.25 time scales long that
@@ -116,6 +122,9 @@ impl super::Candidate for Candidate {
         let stride = rows.len().div_ceil(CHOICE_ROWS).max(1);
         let choice_rows: Vec<usize> = rows.iter().copied().step_by(stride).collect();
         let mut best: Option<(f64, usize, Design)> = None;
+        // the cosines of order K are the first K of every higher order: computed once, up to
+        // the highest order tried, and shared (the same values as computing each order apart)
+        let mut cosines: Vec<Vec<f64>> = Vec::new();
         for &k in &ORDERS {
             let scale = span / k as f64;
             let blocks = (k as f64 / GAP_PER_SCALE).floor() as usize;
@@ -128,10 +137,12 @@ impl super::Candidate for Candidate {
                 continue;
             }
             let design = Design::blocks(&d.t_s, blocks, crate::explain::fit::CV_FOLDS);
-            let regs = cosine_basis(&d.t_s, k);
+            if cosines.len() < k {
+                cosines.extend(cosine_columns(&d.t_s, cosines.len() + 1..=k));
+            }
             let mut cols = s.model.clone();
             let cur = cross_validate(&cols, s.y, &design, &choice_rows)?;
-            cols.extend(regs.iter().map(|c| c.as_slice()));
+            cols.extend(cosines[..k].iter().map(|c| c.as_slice()));
             let new = cross_validate(&cols, s.y, &design, &choice_rows)?;
             let ratio = new.rms_um / cur.rms_um;
             if ratio.is_finite() && best.as_ref().is_none_or(|b| ratio < b.0) {
@@ -140,8 +151,9 @@ impl super::Candidate for Candidate {
         }
         Ok(best.map(|(_, k, design)| {
             let lo = span / ORDERS[ORDERS.len() - 1] as f64;
+            cosines.truncate(k);
             Proposal {
-                regs: cosine_basis(&d.t_s, k),
+                regs: cosines,
                 thetas: vec![super::Theta {
                     name: "time_scale_s".into(),
                     value: span / k as f64,

@@ -165,11 +165,15 @@ fn choose_smoothing(
         w *= 2.5;
     }
     let mut options: Vec<(f64, f64)> = Vec::new();
+    // the baseline's columns as `baseline_columns` builds them from `d.with_smoothing(w)`: the
+    // position's powers do not change with w, only the temperatures (nothing else is copied)
+    let (mut cols, _) = baseline_columns(d, ch);
+    let first_temp = cols.len() - d.temps.len();
     for &w in &widths {
-        let dw = d.with_smoothing(w);
-        let (cols, _) = baseline_columns(&dw, ch);
+        cols.truncate(first_temp);
+        cols.extend(d.smoothed_temps(w).into_iter().map(|(_, v)| v));
         let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
-        let cv = fit::cross_validate(&refs, &dw.channels[ch].y_um, design, rows)?;
+        let cv = fit::cross_validate(&refs, &d.channels[ch].y_um, design, rows)?;
         options.push((cv.rms_um, w));
     }
     let best = options.iter().map(|o| o.0).fold(f64::INFINITY, f64::min);

@@ -139,14 +139,19 @@ impl Basis {
 
     /// Residual sum of squares with the full-length columns `xs` added.
     pub fn rss_with(&self, xs: &[&[f64]]) -> f64 {
+        let g: Vec<Vec<f64>> = xs.iter().map(|x| gather(x, &self.rows)).collect();
+        self.rss_with_gathered(g)
+    }
+
+    /// [`Basis::rss_with`] for columns already on the basis rows.
+    pub fn rss_with_gathered(&self, xs: Vec<Vec<f64>>) -> f64 {
         let mut b = Basis {
             rows: Vec::new(),
             q: Vec::new(),
             r: self.r.clone(),
             rss: self.rss,
         };
-        for x in xs {
-            let g = gather(x, &self.rows);
+        for g in xs {
             // orthogonal to the model, then (in `add`) to the columns already added
             if let Some(e) = self.orthogonal(g) {
                 b.add(e);

@@ -5,7 +5,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{lag_series, zeros, Detail, LagTerm, Proposal};
+use super::{lag_series, lag_series_at, zeros, Detail, LagTerm, Proposal};
 use crate::explain::data::Data;
 use crate::explain::fit::{bartlett_n_eff, cross_validate, gather};
 use crate::explain::search::{dot, Basis, Search};
@@ -285,11 +285,22 @@ fn drop_implausible(
 /// then backwards in time with τ/√2 (a two-sided exponential kernel with the lag's standard
 /// deviation τ and the lag's shape, centred on the sample). Diagnostic only (it uses later
 /// readings): it tells a delay from mere denoising.
-fn zero_phase_twin(d: &Data, rev_t: &[f64], sensor: usize, tau_s: f64) -> Vec<f64> {
+///
+/// Taken at `rows` (ascending) only; `rev_t` is the time reversed and negated.
+fn zero_phase_twin(
+    d: &Data,
+    rev_t: &[f64],
+    sensor: usize,
+    tau_s: f64,
+    rows: &[usize],
+) -> Vec<f64> {
     let t = tau_s / 2f64.sqrt();
-    let forward = lag_series(&d.t_s, &d.temps[sensor].1, t, None);
-    let rev_x: Vec<f64> = forward.iter().rev().copied().collect();
-    let mut back = lag_series(rev_t, &rev_x, t, None);
+    let mut rev_x = lag_series(&d.t_s, &d.temps[sensor].1, t, None);
+    rev_x.reverse();
+    // the backward pass at the reversed rows (ascending in reversed time), then back in order
+    let n = d.rows();
+    let rev_rows: Vec<usize> = rows.iter().rev().map(|&r| n - 1 - r).collect();
+    let mut back = lag_series_at(rev_t, &rev_x, t, None, &rev_rows);
     back.reverse();
     back
 }
@@ -332,7 +343,8 @@ impl<'a> LagCache<'a> {
         if let Some(c) = self.cols.borrow().get(&key) {
             return c.clone();
         }
-        let g = gather(&lag_column(self.d, sensor, tau_s), self.rows);
+        let d = self.d;
+        let g = lag_series_at(&d.t_s, &d.temps[sensor].1, tau_s, None, self.rows);
         let mut cols = self.cols.borrow_mut();
         if cols.len() < CACHED_COLUMNS {
             cols.insert(key, g.clone());
@@ -342,10 +354,7 @@ impl<'a> LagCache<'a> {
 
     /// [`zero_phase_twin`] on the fitted rows.
     fn twin_on_rows(&self, sensor: usize, tau_s: f64) -> Vec<f64> {
-        gather(
-            &zero_phase_twin(self.d, &self.rev_t, sensor, tau_s),
-            self.rows,
-        )
+        zero_phase_twin(self.d, &self.rev_t, sensor, tau_s, self.rows)
     }
 }
 

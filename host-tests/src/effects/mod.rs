@@ -141,7 +141,7 @@ fn lag_run(t_s: &[f64], x: &[f64], tau_s: f64, y0: Option<f64>, mut emit: impl F
     }
 }
 
-/// Entries of [`Lag`]'s table of smoothing factors.
+/// Entries of [`Lag`]'s table of smoothing factors (64: the slot is a hash's top 6 bits).
 const LAG_ALPHAS: usize = 64;
 
 /// The shared model's [`nanocal_model::LagFilter`] (the same states, branches and arithmetic)
@@ -188,7 +188,9 @@ impl Lag {
         } else if dt_s > 0.0 {
             if dt_s != self.last_dt_s {
                 let bits = dt_s.to_bits();
-                let slot = ((bits ^ (bits >> 23) ^ (bits >> 41)) as usize) % LAG_ALPHAS;
+                // Fibonacci hashing: intervals differ in middle bits of the mantissa (the
+                // low ones are zero for differences of large time stamps)
+                let slot = (bits.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 58) as usize;
                 self.alpha = if self.alphas[slot].0 == bits {
                     self.alphas[slot].1
                 } else {

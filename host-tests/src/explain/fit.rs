@@ -304,17 +304,19 @@ pub fn cross_validate(
 ) -> Result<Cv, ExplainError> {
     let n = y.len();
     let mut residuals = vec![f64::NAN; n];
+    // the columns on `rows` once (scattered reads), each fold's training rows from those
+    let on_rows: Vec<Vec<f64>> = cols.iter().map(|c| gather(c, rows)).collect();
+    let y_rows = gather(y, rows);
     let mut fits = Vec::with_capacity(design.folds);
     for f in 0..design.folds {
-        let train: Vec<usize> = rows
-            .iter()
-            .copied()
-            .filter(|&i| design.fold_of[i] as usize != f)
+        let train: Vec<usize> = (0..rows.len())
+            .filter(|&k| design.fold_of[rows[k]] as usize != f)
             .collect();
-        let g: Vec<Vec<f64>> = cols.iter().map(|c| gather(c, &train)).collect();
+        let g: Vec<Vec<f64>> = on_rows.iter().map(|c| gather(c, &train)).collect();
         let refs: Vec<&[f64]> = g.iter().map(|c| c.as_slice()).collect();
-        fits.push(lstsq(&refs, &gather(y, &train), true)?);
+        fits.push(lstsq(&refs, &gather(&y_rows, &train), true)?);
     }
+    drop(on_rows);
     // one pass over the rows, each predicted by its fold's fit (runs of one fold, in blocks);
     // every fold's sum grows in row order, as fold by fold
     let mut sums = vec![(0.0f64, 0usize); design.folds];

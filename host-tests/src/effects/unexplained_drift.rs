@@ -9,6 +9,7 @@ use super::Proposal;
 use super::{lag_series, zeros};
 use crate::explain::data::Data;
 use crate::explain::fit::{cross_validate, Design};
+use crate::explain::in_parallel;
 use crate::explain::search::Search;
 use crate::explain::ExplainError;
 use crate::twin::SimContext;
@@ -81,13 +82,16 @@ fn cosine_columns(
     t_s: &[f64],
     orders: std::ops::RangeInclusive<usize>,
 ) -> impl Iterator<Item = Vec<f64>> + '_ {
+    orders.map(move |j| cosine_column(t_s, j))
+}
+
+/// The cosine of order `j` of [`cosine_basis`].
+fn cosine_column(t_s: &[f64], j: usize) -> Vec<f64> {
     let t0 = t_s.first().copied().unwrap_or(0.0);
     let span = (t_s.last().copied().unwrap_or(1.0) - t0).max(1e-9);
-    orders.map(move |j| {
-            t_s.iter()
-                .map(|&t| (std::f64::consts::PI * j as f64 * (t - t0) / span).cos())
-                .collect()
-    })
+    t_s.iter()
+        .map(|&t| (std::f64::consts::PI * j as f64 * (t - t0) / span).cos())
+        .collect()
 }
 
 /// Orders K tried (time scales T/K). The slowest is T/8: with gaps 1.25 time scales long that
@@ -122,29 +126,35 @@ impl super::Candidate for Candidate {
         let stride = rows.len().div_ceil(CHOICE_ROWS).max(1);
         let choice_rows: Vec<usize> = rows.iter().copied().step_by(stride).collect();
         let mut best: Option<(f64, usize, Design)> = None;
+        // a time scale the held-out design can test: at least two gaps, each holding rows
+        let orders: Vec<usize> = ORDERS
+            .iter()
+            .copied()
+            .filter(|&k| {
+                let scale = span / k as f64;
+                let blocks = (k as f64 / GAP_PER_SCALE).floor() as usize;
+                !(blocks < crate::explain::fit::CV_FOLDS
+                    || scale < 10.0 * d.median_dt_s
+                    || choice_rows.len() < 10 * blocks
+                    || k + s.model.len() + 10 > choice_rows.len() / 4)
+            })
+            .collect();
         // the cosines of order K are the first K of every higher order: computed once, up to
         // the highest order tried, and shared (the same values as computing each order apart)
-        let mut cosines: Vec<Vec<f64>> = Vec::new();
-        for &k in &ORDERS {
-            let scale = span / k as f64;
+        let top: Vec<usize> = (1..=orders.iter().copied().max().unwrap_or(0)).collect();
+        let mut cosines: Vec<Vec<f64>> = in_parallel(&top, |&j| cosine_column(&d.t_s, j));
+        // each order judged on its own held-out design, side by side; taken in order
+        let judged = in_parallel(&orders, |&k| -> Result<(f64, Design), ExplainError> {
             let blocks = (k as f64 / GAP_PER_SCALE).floor() as usize;
-            // a time scale the held-out design can test: at least two gaps, each holding rows
-            if blocks < crate::explain::fit::CV_FOLDS
-                || scale < 10.0 * d.median_dt_s
-                || choice_rows.len() < 10 * blocks
-                || k + s.model.len() + 10 > choice_rows.len() / 4
-            {
-                continue;
-            }
             let design = Design::blocks(&d.t_s, blocks, crate::explain::fit::CV_FOLDS);
-            if cosines.len() < k {
-                cosines.extend(cosine_columns(&d.t_s, cosines.len() + 1..=k));
-            }
             let mut cols = s.model.clone();
             let cur = cross_validate(&cols, s.y, &design, &choice_rows)?;
             cols.extend(cosines[..k].iter().map(|c| c.as_slice()));
             let new = cross_validate(&cols, s.y, &design, &choice_rows)?;
-            let ratio = new.rms_um / cur.rms_um;
+            Ok((new.rms_um / cur.rms_um, design))
+        });
+        for (outcome, &k) in judged.into_iter().zip(&orders) {
+            let (ratio, design) = outcome?;
             if ratio.is_finite() && best.as_ref().is_none_or(|b| ratio < b.0) {
                 best = Some((ratio, k, design));
             }

@@ -563,7 +563,9 @@ mod tests {
         // a 1 kHz clock far from zero (intervals differing in their last bits, more distinct
         // intervals than the table holds), irregular gaps, a repeated and a backward time
         // stamp, a missing one, and a missing reading
-        let mut t: Vec<f64> = (0..20_000).map(|k| 1000.0 + k as f64 * 1e-3).collect();
+        let mut t: Vec<f64> = (0..20_000)
+            .map(|k| 1000.0 + k as f64 * 1e-3 + ((k * k) % 1009) as f64 * 1e-9)
+            .collect();
         for k in (0..t.len()).step_by(97) {
             t[k] += ((k * 7919) % 13) as f64 * 1.3e-4;
         }
@@ -576,7 +578,11 @@ mod tests {
         x[19_990] = f64::NAN;
         let distinct: std::collections::HashSet<u64> =
             t.windows(2).map(|w| (w[1] - w[0]).to_bits()).collect();
-        assert!(distinct.len() > 2 * LAG_ALPHAS, "{} intervals", distinct.len());
+        assert!(
+            distinct.len() > 2 * LAG_ALPHAS,
+            "{} intervals",
+            distinct.len()
+        );
         for tau in [0.0, -1.0, 2e-3, 0.7, 120.0, 1e6] {
             for y0 in [None, Some(20.5)] {
                 let ours = lag_series(&t, &x, tau, y0);

@@ -128,13 +128,7 @@ fn clear(taken: &[f64], tau: f64) -> bool {
 
 /// One sweep of coordinate descent: each term's τ searched over its whole range with the other
 /// terms fixed (with its 1σ when `sigma`).
-fn refine(
-    s: &Search,
-    cache: &LagCache,
-    terms: &mut [LagTerm],
-    cols: &mut [Vec<f64>],
-    sigma: bool,
-) {
+fn refine(s: &Search, cache: &LagCache, terms: &mut [LagTerm], cols: &mut [Vec<f64>], sigma: bool) {
     for j in 0..terms.len() {
         let mut b = s.basis.clone();
         for (k, c) in cols.iter().enumerate() {
@@ -287,13 +281,7 @@ fn drop_implausible(
 /// readings): it tells a delay from mere denoising.
 ///
 /// Taken at `rows` (ascending) only; `rev_t` is the time reversed and negated.
-fn zero_phase_twin(
-    d: &Data,
-    rev_t: &[f64],
-    sensor: usize,
-    tau_s: f64,
-    rows: &[usize],
-) -> Vec<f64> {
+fn zero_phase_twin(d: &Data, rev_t: &[f64], sensor: usize, tau_s: f64, rows: &[usize]) -> Vec<f64> {
     let t = tau_s / 2f64.sqrt();
     let mut rev_x = lag_series(&d.t_s, &d.temps[sensor].1, t, None);
     rev_x.reverse();
@@ -474,9 +462,15 @@ impl super::Candidate for Candidate {
                     .filter(|t| t.sensor == sensor)
                     .map(|t| t.tau.value)
                     .collect();
-                if let Some((tau, rss)) =
-                    best_tau(s, &cache, &basis, sensor, &taken, false, Some(screen[k].tau))
-                {
+                if let Some((tau, rss)) = best_tau(
+                    s,
+                    &cache,
+                    &basis,
+                    sensor,
+                    &taken,
+                    false,
+                    Some(screen[k].tau),
+                ) {
                     let n_eff = s.n_eff;
                     if n_eff * (rss / basis.rss()).ln() + 2.0 * n_eff.ln() > -MIN_TERM_BIC {
                         continue;

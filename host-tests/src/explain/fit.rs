@@ -121,8 +121,9 @@ fn predict_block(ls: &LeastSquares, cols: &[&[f64]], a: usize, out: &mut [f64]) 
             }
         }
     }
+    // intercept + sum, as `predict` (IEEE addition commutes exactly)
     for o in out.iter_mut() {
-        *o = ls.intercept + *o;
+        *o += ls.intercept;
     }
 }
 

@@ -6,7 +6,11 @@
 //! - `--large`: 17 min at 1 kHz (~1,020,000 rows) with a 40 nm hysteresis hidden too,
 //!   target ≤ 60 s.
 //!
-//! `cargo run --release --bin bench_explain [-- [--large] [ROUNDS]]`
+//! `cargo run --release --bin bench_explain [-- [--large] [--report PATH] [ROUNDS]]`
+//!
+//! `--report PATH` writes the first round's report there (text, the JSON document with every
+//! number at full precision, and every candidate's trial): the same input gives the same file,
+//! so a change meant to be only faster can be checked against the report before it.
 
 use std::time::Instant;
 
@@ -56,9 +60,17 @@ const MINUTES_AT_1KHZ: Case = Case {
 fn main() -> anyhow::Result<()> {
     let mut rounds: Option<usize> = None;
     let mut case = &HOURS_AT_1HZ;
-    for a in std::env::args().skip(1) {
+    let mut report_path: Option<std::path::PathBuf> = None;
+    let mut args = std::env::args().skip(1);
+    while let Some(a) = args.next() {
         if a == "--large" {
             case = &MINUTES_AT_1KHZ;
+        } else if a == "--report" {
+            report_path = Some(
+                args.next()
+                    .ok_or_else(|| anyhow::anyhow!("--report needs a path"))?
+                    .into(),
+            );
         } else {
             rounds = Some(a.parse().map_err(|e| {
                 anyhow::anyhow!("expected --large or a round count, got {a:?}: {e}")
@@ -117,6 +129,16 @@ fn main() -> anyhow::Result<()> {
             named
         );
         times.push(s);
+        if let (0, Some(p)) = (r, &report_path) {
+            let mut text = rep.to_text();
+            text.push_str("\n--- JSON ---\n");
+            text.push_str(&serde_json::to_string_pretty(&rep.to_json())?);
+            text.push_str("\n--- trials ---\n");
+            for c in &rep.channels {
+                text.push_str(&format!("{:#?}\n", c.trials));
+            }
+            std::fs::write(p, text)?;
+        }
     }
     std::fs::remove_dir_all(&dir)?;
     times.sort_by(f64::total_cmp);

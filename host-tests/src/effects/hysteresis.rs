@@ -47,6 +47,22 @@ pub fn play_deviation(x: &[f64], r_um: f64) -> Vec<f64> {
         .collect()
 }
 
+/// [`play_deviation`] at `rows` (ascending) only: the operator still steps through every
+/// input.
+fn play_deviation_at(x: &[f64], r_um: f64, rows: &[usize]) -> Vec<f64> {
+    let mut state = x.first().copied().unwrap_or(0.0);
+    let mut out = Vec::with_capacity(rows.len());
+    let mut next = 0;
+    for (k, &v) in x.iter().enumerate() {
+        state = nanocal_model::play::play(state, v, r_um);
+        while next < rows.len() && rows[next] == k {
+            out.push(state - v);
+            next += 1;
+        }
+    }
+    out
+}
+
 impl Params {
     /// error = dir × (half_width + slope·u) + Σ wᵢ (F_rᵢ[cmd] − cmd).
     pub fn produce(&self, ctx: &SimContext) -> Vec<Vec<f64>> {
@@ -188,16 +204,28 @@ struct BankFit {
     amplitude: f64,
 }
 
-/// Non-negative fit of the operators with thresholds `rs` on `basis` (each sign; the better).
+/// Non-negative fit of the operators with thresholds `rs` on `basis` (each sign; the better);
+/// with `keep_cols` false, the operators' columns are formed on the basis rows only (and not
+/// returned).
 fn fit_bank(
     basis: &crate::explain::search::Basis,
     x: &[f64],
     rs: Vec<f64>,
     amplitude: f64,
+    keep_cols: bool,
 ) -> BankFit {
-    let cols: Vec<Vec<f64>> = rs.iter().map(|&r| play_deviation(x, r)).collect();
-    let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
-    let (r_mat, b, rest) = basis.reduce(&refs);
+    let (cols, (r_mat, b, rest)) = if keep_cols {
+        let cols: Vec<Vec<f64>> = rs.iter().map(|&r| play_deviation(x, r)).collect();
+        let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
+        let reduced = basis.reduce(&refs);
+        (cols, reduced)
+    } else {
+        let on_rows = rs
+            .iter()
+            .map(|&r| play_deviation_at(x, r, &basis.rows))
+            .collect();
+        (Vec::new(), basis.reduce_gathered(on_rows))
+    };
     let neg: Vec<Vec<f64>> = r_mat
         .iter()
         .map(|col| col.iter().map(|v| -v).collect())
@@ -284,7 +312,7 @@ impl super::Candidate for Candidate {
             for c in &poly {
                 basis.add_column(c);
             }
-            let fit = fit_bank(&basis, &x, thresholds_um(amplitude), amplitude);
+            let fit = fit_bank(&basis, &x, thresholds_um(amplitude), amplitude, true);
             if best.as_ref().is_none_or(|b| fit.misfit < b.0.misfit) {
                 best = Some((fit, drive, poly, basis));
             }
@@ -333,7 +361,7 @@ impl super::Candidate for Candidate {
         let others: Vec<f64> = alternative_grids(amplitude_um)
             .into_iter()
             .map(|grid| {
-                let f = fit_bank(&basis, &x, grid, amplitude_um);
+                let f = fit_bank(&basis, &x, grid, amplitude_um, false);
                 full_loop_half_width_um(&f.thresholds, &f.weights, amplitude_um)
             })
             .collect();

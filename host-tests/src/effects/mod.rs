@@ -98,22 +98,112 @@ impl EffectSpec {
 
 /// First-order lag (time constant `tau_s`) of a sampled series, exact for a held input between
 /// samples; starts at `y0` (or the first sample). The shared model's filter, which the
-/// firmware runs too.
+/// firmware runs too (its arithmetic, bit for bit: see [`Lag`]).
 pub fn lag_series(t_s: &[f64], x: &[f64], tau_s: f64, y0: Option<f64>) -> Vec<f64> {
+    let mut out = vec![0.0; x.len()];
+    lag_run(t_s, x, tau_s, y0, |k, y| out[k] = y);
+    out
+}
+
+/// [`lag_series`] at `rows` only (ascending): the filter still runs over every sample.
+pub fn lag_series_at(
+    t_s: &[f64],
+    x: &[f64],
+    tau_s: f64,
+    y0: Option<f64>,
+    rows: &[usize],
+) -> Vec<f64> {
+    let mut out = vec![0.0; rows.len()];
+    let mut next = 0;
+    lag_run(t_s, x, tau_s, y0, |k, y| {
+        // rows ascending: every row is met once, in order
+        while next < rows.len() && rows[next] == k {
+            out[next] = y;
+            next += 1;
+        }
+    });
+    out
+}
+
+/// Runs the lag over the series, handing each sample's output to `emit(k, y)` in order.
+fn lag_run(t_s: &[f64], x: &[f64], tau_s: f64, y0: Option<f64>, mut emit: impl FnMut(usize, f64)) {
     let mut filter = match y0 {
-        Some(y0) if tau_s > 0.0 => nanocal_model::LagFilter::starting_at(tau_s, y0),
-        _ => nanocal_model::LagFilter::new(tau_s),
+        Some(y0) if tau_s > 0.0 => Lag::starting_at(tau_s, y0),
+        _ => Lag::new(tau_s),
     };
-    let mut out = Vec::with_capacity(x.len());
     for (k, &v) in x.iter().enumerate() {
         let y = match k {
-            0 if y0.is_some() && tau_s > 0.0 => filter.value(),
+            0 if y0.is_some() && tau_s > 0.0 => filter.state,
             0 => filter.update(v, f64::NAN),
             _ => filter.update(v, t_s[k] - t_s[k - 1]),
         };
-        out.push(y);
+        emit(k, y);
     }
-    out
+}
+
+/// Entries of [`Lag`]'s table of smoothing factors (64: the slot is a hash's top 6 bits).
+const LAG_ALPHAS: usize = 64;
+
+/// The shared model's [`nanocal_model::LagFilter`] (the same states, branches and arithmetic)
+/// with its smoothing factor 1 − e^(−dt/τ) kept per sample interval. The model's filter keeps
+/// only the last interval's; a log's intervals take a few values (the differences of a 1 kHz
+/// clock differ in their last bits), and the factor is a function of the interval alone, so
+/// keeping each computes the same numbers with far fewer exponentials. `explain` runs lag
+/// filters over every sample of a million-row log hundreds of times.
+struct Lag {
+    tau_s: f64,
+    state: f64,
+    primed: bool,
+    last_dt_s: f64,
+    alpha: f64,
+    /// (bits of dt, factor), direct-mapped; u64::MAX (a NaN, never an interval): empty.
+    alphas: [(u64, f64); LAG_ALPHAS],
+}
+
+impl Lag {
+    fn new(tau_s: f64) -> Self {
+        Lag {
+            tau_s,
+            state: 0.0,
+            primed: false,
+            last_dt_s: f64::NAN,
+            alpha: 1.0,
+            alphas: [(u64::MAX, 0.0); LAG_ALPHAS],
+        }
+    }
+
+    fn starting_at(tau_s: f64, y0: f64) -> Self {
+        Lag {
+            state: y0,
+            primed: true,
+            ..Lag::new(tau_s)
+        }
+    }
+
+    #[inline]
+    fn update(&mut self, x: f64, dt_s: f64) -> f64 {
+        if !self.primed || self.tau_s <= 0.0 || !dt_s.is_finite() {
+            self.state = x;
+            self.primed = true;
+        } else if dt_s > 0.0 {
+            if dt_s != self.last_dt_s {
+                let bits = dt_s.to_bits();
+                // Fibonacci hashing: intervals differ in middle bits of the mantissa (the
+                // low ones are zero for differences of large time stamps)
+                let slot = (bits.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 58) as usize;
+                self.alpha = if self.alphas[slot].0 == bits {
+                    self.alphas[slot].1
+                } else {
+                    let a = 1.0 - libm::exp(-dt_s / self.tau_s);
+                    self.alphas[slot] = (bits, a);
+                    a
+                };
+                self.last_dt_s = dt_s;
+            }
+            self.state += self.alpha * (x - self.state);
+        }
+        self.state
+    }
 }
 
 pub(crate) fn zeros(ctx: &SimContext) -> Vec<Vec<f64>> {
@@ -445,5 +535,67 @@ pub fn one_theta(
         detail: Detail::None,
         design: None,
         evidence_units: None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The series as the shared model's filter gives it, step by step.
+    fn with_model_filter(t_s: &[f64], x: &[f64], tau_s: f64, y0: Option<f64>) -> Vec<f64> {
+        let mut filter = match y0 {
+            Some(y0) if tau_s > 0.0 => nanocal_model::LagFilter::starting_at(tau_s, y0),
+            _ => nanocal_model::LagFilter::new(tau_s),
+        };
+        x.iter()
+            .enumerate()
+            .map(|(k, &v)| match k {
+                0 if y0.is_some() && tau_s > 0.0 => filter.value(),
+                0 => filter.update(v, f64::NAN),
+                _ => filter.update(v, t_s[k] - t_s[k - 1]),
+            })
+            .collect()
+    }
+
+    #[test]
+    fn lag_series_is_the_model_filter_bit_for_bit() {
+        // a 1 kHz clock far from zero (intervals differing in their last bits, more distinct
+        // intervals than the table holds), irregular gaps, a repeated and a backward time
+        // stamp, a missing one, and a missing reading
+        let mut t: Vec<f64> = (0..20_000)
+            .map(|k| 1000.0 + k as f64 * 1e-3 + ((k * k) % 1009) as f64 * 1e-9)
+            .collect();
+        for k in (0..t.len()).step_by(97) {
+            t[k] += ((k * 7919) % 13) as f64 * 1.3e-4;
+        }
+        t[500] = t[499];
+        t[900] = t[899] - 0.01;
+        t[1200] = f64::NAN;
+        let mut x: Vec<f64> = (0..t.len())
+            .map(|k| 21.0 + (k as f64 * 1e-3).sin() + ((k * 31) % 7) as f64 * 1e-3)
+            .collect();
+        x[19_990] = f64::NAN;
+        let distinct: std::collections::HashSet<u64> =
+            t.windows(2).map(|w| (w[1] - w[0]).to_bits()).collect();
+        assert!(
+            distinct.len() > 2 * LAG_ALPHAS,
+            "{} intervals",
+            distinct.len()
+        );
+        for tau in [0.0, -1.0, 2e-3, 0.7, 120.0, 1e6] {
+            for y0 in [None, Some(20.5)] {
+                let ours = lag_series(&t, &x, tau, y0);
+                let model = with_model_filter(&t, &x, tau, y0);
+                for (k, (a, b)) in ours.iter().zip(&model).enumerate() {
+                    assert_eq!(a.to_bits(), b.to_bits(), "τ {tau}, y0 {y0:?}, sample {k}");
+                }
+                let rows: Vec<usize> = (0..t.len()).step_by(7).collect();
+                let at = lag_series_at(&t, &x, tau, y0, &rows);
+                for (r, a) in rows.iter().zip(&at) {
+                    assert_eq!(a.to_bits(), model[*r].to_bits(), "τ {tau}, row {r}");
+                }
+            }
+        }
     }
 }

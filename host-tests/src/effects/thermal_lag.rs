@@ -5,7 +5,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{lag_series, zeros, Detail, LagTerm, Proposal};
+use super::{lag_series, lag_series_at, zeros, Detail, LagTerm, Proposal};
 use crate::explain::data::Data;
 use crate::explain::fit::{bartlett_n_eff, cross_validate, gather};
 use crate::explain::search::{dot, Basis, Search};
@@ -128,7 +128,7 @@ fn clear(taken: &[f64], tau: f64) -> bool {
 
 /// One sweep of coordinate descent: each term's τ searched over its whole range with the other
 /// terms fixed (with its 1σ when `sigma`).
-fn refine(s: &Search, terms: &mut [LagTerm], cols: &mut [Vec<f64>], sigma: bool) {
+fn refine(s: &Search, cache: &LagCache, terms: &mut [LagTerm], cols: &mut [Vec<f64>], sigma: bool) {
     for j in 0..terms.len() {
         let mut b = s.basis.clone();
         for (k, c) in cols.iter().enumerate() {
@@ -142,7 +142,7 @@ fn refine(s: &Search, terms: &mut [LagTerm], cols: &mut [Vec<f64>], sigma: bool)
             .filter(|(k, t)| *k != j && t.sensor == terms[j].sensor)
             .map(|(_, t)| t.tau.value)
             .collect();
-        if let Some((tau, _)) = best_tau(s, &b, terms[j].sensor, &taken, sigma, None) {
+        if let Some((tau, _)) = best_tau(s, cache, &b, terms[j].sensor, &taken, sigma, None) {
             cols[j] = lag_column(s.d, terms[j].sensor, tau.value);
             terms[j].tau = tau;
         }
@@ -279,12 +279,16 @@ fn drop_implausible(
 /// then backwards in time with τ/√2 (a two-sided exponential kernel with the lag's standard
 /// deviation τ and the lag's shape, centred on the sample). Diagnostic only (it uses later
 /// readings): it tells a delay from mere denoising.
-fn zero_phase_twin(d: &Data, sensor: usize, tau_s: f64) -> Vec<f64> {
+///
+/// Taken at `rows` (ascending) only; `rev_t` is the time reversed and negated.
+fn zero_phase_twin(d: &Data, rev_t: &[f64], sensor: usize, tau_s: f64, rows: &[usize]) -> Vec<f64> {
     let t = tau_s / 2f64.sqrt();
-    let forward = lag_series(&d.t_s, &d.temps[sensor].1, t, None);
-    let rev_t: Vec<f64> = d.t_s.iter().rev().map(|x| -x).collect();
-    let rev_x: Vec<f64> = forward.iter().rev().copied().collect();
-    let mut back = lag_series(&rev_t, &rev_x, t, None);
+    let mut rev_x = lag_series(&d.t_s, &d.temps[sensor].1, t, None);
+    rev_x.reverse();
+    // the backward pass at the reversed rows (ascending in reversed time), then back in order
+    let n = d.rows();
+    let rev_rows: Vec<usize> = rows.iter().rev().map(|&r| n - 1 - r).collect();
+    let mut back = lag_series_at(rev_t, &rev_x, t, None, &rev_rows);
     back.reverse();
     back
 }
@@ -293,6 +297,53 @@ fn zero_phase_twin(d: &Data, sensor: usize, tau_s: f64) -> Vec<f64> {
 /// compensator runs it.
 fn lag_column(d: &Data, sensor: usize, tau_s: f64) -> Vec<f64> {
     lag_series(&d.t_s, &d.temps[sensor].1, tau_s, None)
+}
+
+/// Most lag columns a [`LagCache`] keeps (each is one value per fitted row: ≤ 100,000).
+const CACHED_COLUMNS: usize = 160;
+
+/// Lag columns on the fitted rows, each (sensor, τ) filtered once per proposal: the searches
+/// come back to the same τ (the screening grid is the whole-range refinement's grid; sweeps
+/// that have settled repeat their golden-section points), and every filter runs over every
+/// sample of the record while the searches need only the fitted rows. The values are the
+/// filter's, bit for bit.
+struct LagCache<'a> {
+    d: &'a Data,
+    rows: &'a [usize],
+    cols: std::cell::RefCell<std::collections::HashMap<(usize, u64), Vec<f64>>>,
+    /// Time reversed and negated, for the backward pass of [`zero_phase_twin`].
+    rev_t: Vec<f64>,
+}
+
+impl<'a> LagCache<'a> {
+    fn new(d: &'a Data, rows: &'a [usize]) -> Self {
+        Self {
+            d,
+            rows,
+            cols: Default::default(),
+            rev_t: d.t_s.iter().rev().map(|x| -x).collect(),
+        }
+    }
+
+    /// [`lag_column`] on the fitted rows.
+    fn on_rows(&self, sensor: usize, tau_s: f64) -> Vec<f64> {
+        let key = (sensor, tau_s.to_bits());
+        if let Some(c) = self.cols.borrow().get(&key) {
+            return c.clone();
+        }
+        let d = self.d;
+        let g = lag_series_at(&d.t_s, &d.temps[sensor].1, tau_s, None, self.rows);
+        let mut cols = self.cols.borrow_mut();
+        if cols.len() < CACHED_COLUMNS {
+            cols.insert(key, g.clone());
+        }
+        g
+    }
+
+    /// [`zero_phase_twin`] on the fitted rows.
+    fn twin_on_rows(&self, sensor: usize, tau_s: f64) -> Vec<f64> {
+        zero_phase_twin(self.d, &self.rev_t, sensor, tau_s, self.rows)
+    }
 }
 
 fn sensor_name(d: &Data, sensor: usize) -> String {
@@ -311,6 +362,7 @@ fn tau_range(d: &Data, sensor: usize) -> (f64, f64) {
 /// screening (between its grid neighbours); (θ with its range, rss).
 fn best_tau(
     s: &Search,
+    cache: &LagCache,
     basis: &Basis,
     sensor: usize,
     taken: &[f64],
@@ -328,7 +380,7 @@ fn best_tau(
     };
     let (mut theta, rss) = s.minimise("tau_s", (a, b), points, sigma, |tau| {
         if clear(taken, tau) {
-            basis.rss_with(&[&lag_column(s.d, sensor, tau)])
+            basis.rss_with_gathered(vec![cache.on_rows(sensor, tau)])
         } else {
             basis.rss()
         }
@@ -354,6 +406,7 @@ impl super::Candidate for Candidate {
     fn propose(&self, s: &Search) -> Result<Option<Proposal>, ExplainError> {
         let d = s.d;
         let mut basis = s.basis.clone();
+        let cache = LagCache::new(d, &s.basis.rows);
         // every sensor's lag on a τ grid, kept orthogonal to the growing model as terms join
         // (one Gram–Schmidt step per new term), so screening a grid point costs one dot product
         let mut screen: Vec<Screened> = Vec::new();
@@ -363,7 +416,7 @@ impl super::Candidate for Candidate {
                 continue;
             }
             for tau in super::log_grid(lo, hi, SCREEN_POINTS) {
-                let g = gather(&lag_column(d, sensor, tau), &basis.rows);
+                let g = cache.on_rows(sensor, tau);
                 let norm0 = g.iter().map(|v| v * v).sum::<f64>().sqrt();
                 screen.push(Screened {
                     sensor,
@@ -409,9 +462,15 @@ impl super::Candidate for Candidate {
                     .filter(|t| t.sensor == sensor)
                     .map(|t| t.tau.value)
                     .collect();
-                if let Some((tau, rss)) =
-                    best_tau(s, &basis, sensor, &taken, false, Some(screen[k].tau))
-                {
+                if let Some((tau, rss)) = best_tau(
+                    s,
+                    &cache,
+                    &basis,
+                    sensor,
+                    &taken,
+                    false,
+                    Some(screen[k].tau),
+                ) {
                     let n_eff = s.n_eff;
                     if n_eff * (rss / basis.rss()).ln() + 2.0 * n_eff.ln() > -MIN_TERM_BIC {
                         continue;
@@ -422,7 +481,7 @@ impl super::Candidate for Candidate {
                     // record is hard to tell from smoothing
                     let (_, rss_twin) =
                         s.minimise("tau_s", (tau.value / 4.0, tau.value * 4.0), 5, false, |t| {
-                            basis.rss_with(&[&zero_phase_twin(d, sensor, t)])
+                            basis.rss_with_gathered(vec![cache.twin_on_rows(sensor, t)])
                         });
                     if n_eff * (rss / rss_twin).ln() > -TWIN_BIC {
                         continue;
@@ -472,7 +531,7 @@ impl super::Candidate for Candidate {
             if terms.is_empty() {
                 return Ok(None);
             }
-            refine(s, &mut terms, &mut cols, false);
+            refine(s, &cache, &mut terms, &mut cols, false);
             let now: Vec<(usize, f64)> = terms.iter().map(|t| (t.sensor, t.tau.value)).collect();
             let settled = now.len() == last.len()
                 && now
@@ -484,7 +543,7 @@ impl super::Candidate for Candidate {
                 break;
             }
         }
-        refine(s, &mut terms, &mut cols, true);
+        refine(s, &cache, &mut terms, &mut cols, true);
         Ok(Some(Proposal {
             regs: cols,
             thetas: terms.iter().map(|t| t.tau.clone()).collect(),

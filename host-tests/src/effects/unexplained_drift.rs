@@ -9,6 +9,7 @@ use super::Proposal;
 use super::{lag_series, zeros};
 use crate::explain::data::Data;
 use crate::explain::fit::{cross_validate, Design};
+use crate::explain::in_parallel;
 use crate::explain::search::Search;
 use crate::explain::ExplainError;
 use crate::twin::SimContext;
@@ -73,14 +74,23 @@ pub struct Candidate;
 
 /// Cosines cos(πk(t − t₀)/T), k = 1..K, over the recording's time (T its duration).
 pub fn cosine_basis(t_s: &[f64], k: usize) -> Vec<Vec<f64>> {
+    cosine_columns(t_s, 1..=k).collect()
+}
+
+/// The cosines of orders `orders` of [`cosine_basis`] (the same values, column by column).
+fn cosine_columns(
+    t_s: &[f64],
+    orders: std::ops::RangeInclusive<usize>,
+) -> impl Iterator<Item = Vec<f64>> + '_ {
+    orders.map(move |j| cosine_column(t_s, j))
+}
+
+/// The cosine of order `j` of [`cosine_basis`].
+fn cosine_column(t_s: &[f64], j: usize) -> Vec<f64> {
     let t0 = t_s.first().copied().unwrap_or(0.0);
     let span = (t_s.last().copied().unwrap_or(1.0) - t0).max(1e-9);
-    (1..=k)
-        .map(|j| {
-            t_s.iter()
-                .map(|&t| (std::f64::consts::PI * j as f64 * (t - t0) / span).cos())
-                .collect()
-        })
+    t_s.iter()
+        .map(|&t| (std::f64::consts::PI * j as f64 * (t - t0) / span).cos())
         .collect()
 }
 
@@ -116,32 +126,44 @@ impl super::Candidate for Candidate {
         let stride = rows.len().div_ceil(CHOICE_ROWS).max(1);
         let choice_rows: Vec<usize> = rows.iter().copied().step_by(stride).collect();
         let mut best: Option<(f64, usize, Design)> = None;
-        for &k in &ORDERS {
-            let scale = span / k as f64;
+        // a time scale the held-out design can test: at least two gaps, each holding rows
+        let orders: Vec<usize> = ORDERS
+            .iter()
+            .copied()
+            .filter(|&k| {
+                let scale = span / k as f64;
+                let blocks = (k as f64 / GAP_PER_SCALE).floor() as usize;
+                !(blocks < crate::explain::fit::CV_FOLDS
+                    || scale < 10.0 * d.median_dt_s
+                    || choice_rows.len() < 10 * blocks
+                    || k + s.model.len() + 10 > choice_rows.len() / 4)
+            })
+            .collect();
+        // the cosines of order K are the first K of every higher order: computed once, up to
+        // the highest order tried, and shared (the same values as computing each order apart)
+        let top: Vec<usize> = (1..=orders.iter().copied().max().unwrap_or(0)).collect();
+        let mut cosines: Vec<Vec<f64>> = in_parallel(&top, |&j| cosine_column(&d.t_s, j));
+        // each order judged on its own held-out design, side by side; taken in order
+        let judged = in_parallel(&orders, |&k| -> Result<(f64, Design), ExplainError> {
             let blocks = (k as f64 / GAP_PER_SCALE).floor() as usize;
-            // a time scale the held-out design can test: at least two gaps, each holding rows
-            if blocks < crate::explain::fit::CV_FOLDS
-                || scale < 10.0 * d.median_dt_s
-                || choice_rows.len() < 10 * blocks
-                || k + s.model.len() + 10 > choice_rows.len() / 4
-            {
-                continue;
-            }
             let design = Design::blocks(&d.t_s, blocks, crate::explain::fit::CV_FOLDS);
-            let regs = cosine_basis(&d.t_s, k);
             let mut cols = s.model.clone();
             let cur = cross_validate(&cols, s.y, &design, &choice_rows)?;
-            cols.extend(regs.iter().map(|c| c.as_slice()));
+            cols.extend(cosines[..k].iter().map(|c| c.as_slice()));
             let new = cross_validate(&cols, s.y, &design, &choice_rows)?;
-            let ratio = new.rms_um / cur.rms_um;
+            Ok((new.rms_um / cur.rms_um, design))
+        });
+        for (outcome, &k) in judged.into_iter().zip(&orders) {
+            let (ratio, design) = outcome?;
             if ratio.is_finite() && best.as_ref().is_none_or(|b| ratio < b.0) {
                 best = Some((ratio, k, design));
             }
         }
         Ok(best.map(|(_, k, design)| {
             let lo = span / ORDERS[ORDERS.len() - 1] as f64;
+            cosines.truncate(k);
             Proposal {
-                regs: cosine_basis(&d.t_s, k),
+                regs: cosines,
                 thetas: vec![super::Theta {
                     name: "time_scale_s".into(),
                     value: span / k as f64,

@@ -380,23 +380,33 @@ impl Data {
     /// The same data with the temperatures and the pressure denoised by a zero-phase mean of
     /// ±`half_window_s` (diagnostic: every term explain fits sees them).
     pub fn with_smoothing(&self, half_window_s: f64) -> Data {
-        let half = if self.median_dt_s > 0.0 {
-            ((half_window_s / self.median_dt_s).round() as usize).min(self.rows() / 50)
-        } else {
-            0
-        };
+        let half = self.smoothing_half_rows(half_window_s);
         let mut d = self.clone();
-        d.temps = self
-            .temps_raw
-            .iter()
-            .map(|(c, v)| (c.clone(), centred_mean(v, half)))
-            .collect();
+        d.temps = self.smoothed_temps(half_window_s);
         d.pressure_hpa = self
             .pressure_raw_hpa
             .as_ref()
             .map(|(c, v)| (c.clone(), centred_mean(v, half)));
         d.smooth_half_window_s = if half == 0 { 0.0 } else { half_window_s };
         d
+    }
+
+    /// Half width in rows of the zero-phase mean of ±`half_window_s` (0: none).
+    fn smoothing_half_rows(&self, half_window_s: f64) -> usize {
+        if self.median_dt_s > 0.0 {
+            ((half_window_s / self.median_dt_s).round() as usize).min(self.rows() / 50)
+        } else {
+            0
+        }
+    }
+
+    /// The temperatures [`Data::with_smoothing`] gives `temps` for ±`half_window_s`, alone.
+    pub fn smoothed_temps(&self, half_window_s: f64) -> Vec<(String, Vec<f64>)> {
+        let half = self.smoothing_half_rows(half_window_s);
+        self.temps_raw
+            .iter()
+            .map(|(c, v)| (c.clone(), centred_mean(v, half)))
+            .collect()
     }
 
     /// Number of samples.

@@ -97,6 +97,36 @@ pub fn predict(ls: &LeastSquares, cols: &[&[f64]], i: usize) -> f64 {
             .sum::<f64>()
 }
 
+/// Rows per block of [`predict_block`]: its sums stay in the L1 cache.
+const PREDICT_BLOCK: usize = 1024;
+
+/// Predictions of `ls` at rows `a..a + out.len()` into `out`, every row summed exactly as
+/// [`predict`] sums it (the same terms in the same order, from the same neutral element), but
+/// a column at a time over a block of rows: contiguous loads instead of one load per column
+/// and row.
+fn predict_block(ls: &LeastSquares, cols: &[&[f64]], a: usize, out: &mut [f64]) {
+    let b = a + out.len();
+    // the neutral element `Sum` starts from (-0.0 today), so every zero keeps its sign
+    let zero: f64 = std::iter::empty::<f64>().sum();
+    out.fill(zero);
+    for (c, &coeff) in cols.iter().zip(&ls.coeffs) {
+        if coeff != 0.0 {
+            for (o, v) in out.iter_mut().zip(&c[a..b]) {
+                *o += coeff * v;
+            }
+        } else {
+            // `predict` adds a literal 0 for a dropped column
+            for o in out.iter_mut() {
+                *o += 0.0;
+            }
+        }
+    }
+    // intercept + sum, as `predict` (IEEE addition commutes exactly)
+    for o in out.iter_mut() {
+        *o += ls.intercept;
+    }
+}
+
 /// Least squares of `y` on `cols` plus an intercept, fitted on `rows`; residuals for every row
 /// with a finite response.
 pub fn fit_rows(cols: &[&[f64]], y: &[f64], rows: &[usize]) -> Result<Fit, ExplainError> {
@@ -108,15 +138,18 @@ pub fn fit_rows(cols: &[&[f64]], y: &[f64], rows: &[usize]) -> Result<Fit, Expla
         let refs: Vec<&[f64]> = g.iter().map(|c| c.as_slice()).collect();
         lstsq(&refs, &gather(y, rows), true)?
     };
-    let residuals: Vec<f64> = (0..y.len())
-        .map(|i| {
-            if y[i].is_finite() {
-                y[i] - predict(&ls, cols, i)
-            } else {
-                f64::NAN
+    let mut residuals = vec![f64::NAN; y.len()];
+    let mut buf = [0.0; PREDICT_BLOCK];
+    for a in (0..y.len()).step_by(PREDICT_BLOCK) {
+        let b = (a + PREDICT_BLOCK).min(y.len());
+        let pred = &mut buf[..b - a];
+        predict_block(&ls, cols, a, pred);
+        for ((r, &yi), &p) in residuals[a..b].iter_mut().zip(&y[a..b]).zip(pred.iter()) {
+            if yi.is_finite() {
+                *r = yi - p;
             }
-        })
-        .collect();
+        }
+    }
     let rss = ls.rss;
     let n = rows.len();
     Ok(Fit {
@@ -262,27 +295,47 @@ pub fn cross_validate(
 ) -> Result<Cv, ExplainError> {
     let n = y.len();
     let mut residuals = vec![f64::NAN; n];
-    let mut fold_mse = vec![f64::NAN; design.folds];
-    for (f, mse) in fold_mse.iter_mut().enumerate() {
-        let train: Vec<usize> = rows
-            .iter()
-            .copied()
-            .filter(|&i| design.fold_of[i] as usize != f)
+    // the columns on `rows` once (scattered reads), each fold's training rows from those
+    let on_rows: Vec<Vec<f64>> = cols.iter().map(|c| gather(c, rows)).collect();
+    let y_rows = gather(y, rows);
+    let mut fits = Vec::with_capacity(design.folds);
+    for f in 0..design.folds {
+        let train: Vec<usize> = (0..rows.len())
+            .filter(|&k| design.fold_of[rows[k]] as usize != f)
             .collect();
-        let g: Vec<Vec<f64>> = cols.iter().map(|c| gather(c, &train)).collect();
+        let g: Vec<Vec<f64>> = on_rows.iter().map(|c| gather(c, &train)).collect();
         let refs: Vec<&[f64]> = g.iter().map(|c| c.as_slice()).collect();
-        let ls = lstsq(&refs, &gather(y, &train), true)?;
-        let (mut s, mut c) = (0.0, 0usize);
-        for i in (0..n).filter(|&i| design.fold_of[i] as usize == f) {
-            let r = y[i] - predict(&ls, cols, i);
+        fits.push(lstsq(&refs, &gather(&y_rows, &train), true)?);
+    }
+    drop(on_rows);
+    // one pass over the rows, each predicted by its fold's fit (runs of one fold, in blocks);
+    // every fold's sum grows in row order, as fold by fold
+    let mut sums = vec![(0.0f64, 0usize); design.folds];
+    let mut buf = [0.0; PREDICT_BLOCK];
+    let mut a = 0;
+    while a < n {
+        let f = design.fold_of[a] as usize;
+        let mut b = a + 1;
+        while b < n && b - a < PREDICT_BLOCK && design.fold_of[b] as usize == f {
+            b += 1;
+        }
+        let pred = &mut buf[..b - a];
+        predict_block(&fits[f], cols, a, pred);
+        let (s, c) = &mut sums[f];
+        for ((res, &yi), &p) in residuals[a..b].iter_mut().zip(&y[a..b]).zip(pred.iter()) {
+            let r = yi - p;
             if r.is_finite() {
-                residuals[i] = r;
-                s += r * r;
-                c += 1;
+                *res = r;
+                *s += r * r;
+                *c += 1;
             }
         }
-        *mse = if c > 0 { s / c as f64 } else { f64::NAN };
+        a = b;
     }
+    let fold_mse: Vec<f64> = sums
+        .iter()
+        .map(|&(s, c)| if c > 0 { s / c as f64 } else { f64::NAN })
+        .collect();
     let rms_um = rms(&residuals);
     Ok(Cv {
         residuals,

@@ -132,14 +132,17 @@ fn value_bins(key: &[f64], max_bins: usize, fmt: impl Fn(f64) -> String) -> Opti
     if vals.len() > max_bins || vals.len() < 2 {
         return None;
     }
+    // one pass over the rows: each row's value found among the sorted distinct ones
+    let mut rows: Vec<Vec<usize>> = vec![Vec::new(); vals.len()];
+    for (i, v) in key.iter().enumerate() {
+        if let Ok(b) = vals.binary_search(&((v * 1e3).round() as i64)) {
+            rows[b].push(i);
+        }
+    }
     Some(
         vals.iter()
-            .map(|&v| {
-                let rows = (0..key.len())
-                    .filter(|&i| (key[i] * 1e3).round() as i64 == v)
-                    .collect();
-                (fmt(v as f64 / 1e3), rows)
-            })
+            .zip(rows)
+            .map(|(&v, rows)| (fmt(v as f64 / 1e3), rows))
             .collect(),
     )
 }
@@ -252,6 +255,8 @@ pub fn locate(d: &Data, ch: usize, r: &[f64], floor: NoiseFloor) -> Vec<Finding>
 
     let sigma = floor.unit_um.max(1e-12);
     let mut out = Vec::new();
+    // rows per unit within a bin (reset after each bin)
+    let mut counts = vec![0u64; us.len().max(1)];
     for (dim, bins) in dims {
         let mut flagged: Vec<(String, f64, f64, f64)> = Vec::new();
         for (label, rows) in &bins {
@@ -263,14 +268,19 @@ pub fn locate(d: &Data, ch: usize, r: &[f64], floor: NoiseFloor) -> Vec<Finding>
             if vals.len() < 3 {
                 continue;
             }
-            // effective number of units in the bin, each weighted by its rows in the bin
-            let mut counts: std::collections::HashMap<usize, f64> =
-                std::collections::HashMap::new();
+            // effective number of units in the bin, each weighted by its rows in the bin (sums
+            // of whole numbers far below 2⁵³: exact in any order)
             for &i in rows {
-                *counts.entry(unit_of[i]).or_default() += 1.0;
+                counts[unit_of[i]] += 1;
             }
-            let s1: f64 = counts.values().sum();
-            let s2: f64 = counts.values().map(|c| c * c).sum();
+            let (mut s1, mut s2) = (0.0f64, 0.0f64);
+            for &i in rows {
+                let c = std::mem::take(&mut counts[unit_of[i]]);
+                if c > 0 {
+                    s1 += c as f64;
+                    s2 += (c * c) as f64;
+                }
+            }
             let n_units = if s2 > 0.0 {
                 (s1 * s1 / s2).max(1.0)
             } else {

@@ -134,6 +134,41 @@ fn unexplained_drift_name() -> &'static str {
     crate::effects::unexplained_drift::NAME
 }
 
+/// `f` over `items` on up to the machine's cores (a shared queue: a long item does not hold up
+/// the rest), the results in the items' order — as `items.iter().map(f)` gives them when each
+/// item's work is its own.
+pub(crate) fn in_parallel<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+    let threads = std::thread::available_parallelism()
+        .map_or(1, |t| t.get())
+        .min(items.len());
+    if threads <= 1 {
+        return items.iter().map(f).collect();
+    }
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let slots: Vec<std::sync::Mutex<Option<R>>> =
+        items.iter().map(|_| std::sync::Mutex::new(None)).collect();
+    std::thread::scope(|scope| {
+        for _ in 0..threads {
+            scope.spawn(|| loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some(item) = items.get(i) else {
+                    break;
+                };
+                let r = f(item);
+                *slots[i].lock().unwrap_or_else(|e| e.into_inner()) = Some(r);
+            });
+        }
+    });
+    slots
+        .into_iter()
+        .map(|m| {
+            m.into_inner()
+                .unwrap_or_else(|e| e.into_inner())
+                .expect("every item was worked out (a worker's panic ends the scope first)")
+        })
+        .collect()
+}
+
 /// Most events (steps of the residual) located per channel.
 pub const MAX_EVENTS: usize = 3;
 
@@ -165,12 +200,22 @@ fn choose_smoothing(
         w *= 2.5;
     }
     let mut options: Vec<(f64, f64)> = Vec::new();
-    for &w in &widths {
-        let dw = d.with_smoothing(w);
-        let (cols, _) = baseline_columns(&dw, ch);
-        let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
-        let cv = fit::cross_validate(&refs, &dw.channels[ch].y_um, design, rows)?;
-        options.push((cv.rms_um, w));
+    // the baseline's columns as `baseline_columns` builds them from `d.with_smoothing(w)`: the
+    // position's powers do not change with w; each width brings its own temperatures (nothing
+    // else of the recording is copied), every width's held-out fit on a core of its own
+    let (mut cols, _) = baseline_columns(d, ch);
+    cols.truncate(cols.len() - d.temps.len());
+    let cvs = in_parallel(&widths, |&w| {
+        let temps = d.smoothed_temps(w);
+        let refs: Vec<&[f64]> = cols
+            .iter()
+            .chain(temps.iter().map(|(_, v)| v))
+            .map(|c| c.as_slice())
+            .collect();
+        fit::cross_validate(&refs, &d.channels[ch].y_um, design, rows)
+    });
+    for (cv, &w) in cvs.into_iter().zip(&widths) {
+        options.push((cv?.rms_um, w));
     }
     let best = options.iter().map(|o| o.0).fold(f64::INFINITY, f64::min);
     let w = options
@@ -522,17 +567,26 @@ fn explain_channel_once(
         let mut best: Option<Scored> = None;
         // explanations through recorded channels first; time alone only when none passes
         for time_only in [false, true] {
-            for cand in candidates() {
-                if cand.time_only() != time_only
-                    || accepted.contains(&cand.name())
-                    || !cand.applies(d, ch)
-                {
-                    continue;
+            let todo: Vec<&'static dyn Candidate> = candidates()
+                .into_iter()
+                .filter(|c| c.time_only() == time_only && !accepted.contains(&c.name()))
+                .collect();
+            // each candidate's proposal and score read the round and write nothing shared:
+            // worked out side by side, taken in the library's order as one after the other
+            type Outcome = Result<Option<(Trial, Option<Scored>)>, ExplainError>;
+            let outcomes = in_parallel(&todo, |&cand| -> Outcome {
+                if !cand.applies(d, ch) {
+                    return Ok(None);
                 }
-                let Some(p) = cand.propose(&s)? else {
+                match cand.propose(&s)? {
+                    Some(p) => round.score(cand, p).map(Some),
+                    None => Ok(None),
+                }
+            });
+            for outcome in outcomes {
+                let Some((trial, scored)) = outcome? else {
                     continue;
                 };
-                let (trial, scored) = round.score(cand, p)?;
                 trials.push(trial);
                 if let Some(sc) = scored {
                     // among the candidates that predict held-out data better, the information

@@ -124,7 +124,11 @@ pub fn glitch_rows(
         }
         m
     };
-    let far = FarRange::new(&masked);
+    // built only when a run longer than `max_run` comes back (most series have none)
+    let far = LazyFarRange {
+        v: &masked,
+        built: std::cell::OnceCell::new(),
+    };
     let mut out = excursions(v, &d, thr, max_run, max_run.max(n / 10), moved, Some(&far));
     out.extend(short);
     out.sort_unstable();
@@ -141,7 +145,7 @@ fn excursions(
     max_run: usize,
     long_run: usize,
     moved: Option<&[bool]>,
-    far: Option<&FarRange>,
+    far: Option<&LazyFarRange>,
 ) -> Vec<usize> {
     let n = v.len();
     let at_move = |k: usize| moved.is_some_and(|m| m[k]);
@@ -172,6 +176,21 @@ fn excursions(
         }
     }
     out
+}
+
+/// A [`FarRange`] of `v`, built on first use.
+struct LazyFarRange<'a> {
+    v: &'a [f64],
+    built: std::cell::OnceCell<FarRange<'a>>,
+}
+
+impl LazyFarRange<'_> {
+    /// See [`FarRange::outside`].
+    fn outside(&self, a: usize, b: usize, margin: f64) -> bool {
+        self.built
+            .get_or_init(|| FarRange::new(self.v))
+            .outside(a, b, margin)
+    }
 }
 
 /// Prefix and suffix extremes of a series: whether a run of rows lies beyond the range of all

@@ -129,14 +129,19 @@ impl Basis {
 
     /// Residual sum of squares with the full-length columns `xs` added.
     pub fn rss_with(&self, xs: &[&[f64]]) -> f64 {
+        let g: Vec<Vec<f64>> = xs.iter().map(|x| gather(x, &self.rows)).collect();
+        self.rss_with_gathered(g)
+    }
+
+    /// [`Basis::rss_with`] for columns already on the basis rows.
+    pub fn rss_with_gathered(&self, xs: Vec<Vec<f64>>) -> f64 {
         let mut b = Basis {
             rows: Vec::new(),
             q: Vec::new(),
             r: self.r.clone(),
             rss: self.rss,
         };
-        for x in xs {
-            let g = gather(x, &self.rows);
+        for g in xs {
             // orthogonal to the model, then (in `add`) to the columns already added
             if let Some(e) = self.orthogonal(g) {
                 b.add(e);
@@ -161,11 +166,16 @@ impl Basis {
     /// returns (R as columns of length m, b, rest) with |r − X w|² = rest + |b − R w|² for
     /// every w — exact, whatever constraint (non-negativity) w is then solved under.
     pub fn reduce(&self, xs: &[&[f64]]) -> (Vec<Vec<f64>>, Vec<f64>, f64) {
+        self.reduce_gathered(xs.iter().map(|x| gather(x, &self.rows)).collect())
+    }
+
+    /// [`Basis::reduce`] for columns already on the basis rows.
+    pub fn reduce_gathered(&self, xs: Vec<Vec<f64>>) -> (Vec<Vec<f64>>, Vec<f64>, f64) {
         let m = xs.len();
         let mut e: Vec<Vec<f64>> = Vec::with_capacity(m);
         let mut r_cols = vec![vec![0.0; m]; m];
-        for (j, x) in xs.iter().enumerate() {
-            let mut v = self.project_out(gather(x, &self.rows));
+        for (j, x) in xs.into_iter().enumerate() {
+            let mut v = self.project_out(x);
             let n0 = dot(&v, &v).sqrt();
             for _ in 0..2 {
                 for (k, ek) in e.iter().enumerate() {

@@ -90,6 +90,19 @@ fn cut_during(
 /// The store's erase unit in the firmware (src/bin/stm32.rs `ERASE`).
 const ERASE: usize = 8 * 1024;
 
+/// Boot the board on `store`, USB attached; its management client and first status.
+fn boot_on(store: StoreFlash) -> (Stm32, nanocal::device::Client, Status) {
+    let b = Stm32::start_with(
+        default_buses(&TEMPS_C),
+        stm32_sim::e727(),
+        Some(Box::new(store)),
+    );
+    b.usb.attach();
+    let mut c = b.mgmt();
+    let s = c.status().unwrap();
+    (b, c, s)
+}
+
 /// A store holding `blob_a` whose free space is used up by storing `blob_b` and `blob_a` in
 /// turn (few large items: a quick boot), so that storing `blob_b` must erase a page first (found by
 /// trying on a copy).
@@ -248,14 +261,7 @@ fn stm32_upload_onto_a_store_full_of_kmz_updates() {
         updates += 1;
     }
     assert!(updates > 1000, "{updates} KMZ updates filled the store");
-    let b = Stm32::start_with(
-        default_buses(&TEMPS_C),
-        stm32_sim::e727(),
-        Some(Box::new(sim)),
-    );
-    b.usb.attach();
-    let mut c = b.mgmt();
-    let s = c.status().unwrap();
+    let (b, mut c, s) = boot_on(sim);
     assert_eq!(s.model_id, model_a.id());
     assert_eq!(s.kmz_um[0], 0.5 + f64::from(updates - 1), "the newest KMZ");
     let t0 = b.now_s();
@@ -337,14 +343,7 @@ fn stm32_kmz_item_read_back_while_a_page_is_freed_comes_from_the_flash_not_a_sta
     assert_eq!(erases(&sim), 0, "no page freed yet");
     let newest_kmz_um = 0.5 + f64::from(updates - 1);
 
-    let b = Stm32::start_with(
-        default_buses(&TEMPS_C),
-        stm32_sim::e727(),
-        Some(Box::new(sim)),
-    );
-    b.usb.attach();
-    let mut c = b.mgmt();
-    let s = c.status().unwrap();
+    let (b, mut c, s) = boot_on(sim);
     assert_eq!((s.model_id, s.kmz_um[0]), (id, newest_kmz_um));
     // a KMZ update needs the model folded with the temperatures read
     b.status_until(&mut c, "model folded", 5.0 + FOLD_S, |s| {

@@ -195,8 +195,6 @@ pub struct BenchLink {
     /// Input written towards the board and not yet taken: the free-running clock holds while
     /// there is some.
     inputs: InputWatch,
-    /// Wall time the free-running clock held for input in flight, µs.
-    held_us: AtomicU64,
     /// Announced bytes given up on ([`Self::forgiven_bytes`]).
     forgiven: AtomicU64,
 }
@@ -220,7 +218,6 @@ impl BenchLink {
             transactions: AtomicU64::new(0),
             pokes: AtomicU64::new(0),
             inputs: InputWatch::default(),
-            held_us: AtomicU64::new(0),
             forgiven: AtomicU64::new(0),
         });
         let l = link.clone();
@@ -341,13 +338,16 @@ impl BenchLink {
             let a = self.page.u32(off);
             let rx = self.rx_bytes(port);
             if bl::announced_unread(a, rx) {
-                // only if nothing was announced meanwhile
-                let _ =
-                    self.page
-                        .a32(off)
-                        .compare_exchange(a, rx, Ordering::AcqRel, Ordering::Acquire);
-                self.forgiven
-                    .fetch_add(u64::from(a.wrapping_sub(rx)), Ordering::Relaxed);
+                // only if nothing was announced meanwhile (counted only then)
+                if self
+                    .page
+                    .a32(off)
+                    .compare_exchange(a, rx, Ordering::AcqRel, Ordering::Acquire)
+                    .is_ok()
+                {
+                    self.forgiven
+                        .fetch_add(u64::from(a.wrapping_sub(rx)), Ordering::Relaxed);
+                }
             }
         }
         fence(Ordering::SeqCst);
@@ -543,8 +543,6 @@ impl BenchLink {
             }
             if hold {
                 held += dt;
-                self.held_us
-                    .fetch_add(dt.as_micros() as u64, Ordering::Relaxed);
                 self.wake_for_input();
             } else {
                 let t = base + bl::s_to_ticks((now - t0 - held).as_secs_f64() * scale);

@@ -67,7 +67,7 @@ fn model_hash_tells_models_with_one_id_apart_under_qemu() {
     let id = blob::decode(&a).unwrap().id();
     let dir = std::env::temp_dir().join(format!("nanocal-e2e-mgmt-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let spec = q.mgmt_spec();
+    let spec = q.cli_spec();
     drop(q.client()); // the board is up and answering
 
     let mut seen = vec![];
@@ -156,7 +156,11 @@ struct Raw {
 
 impl Raw {
     fn open(q: &mut Qemu) -> Raw {
-        let s = q.mgmt_stream();
+        Raw::over(q.mgmt_stream())
+    }
+
+    /// Over a connection already open (e.g. to the `nanocal` processes' relay).
+    fn over(s: UnixStream) -> Raw {
         s.set_read_timeout(Some(Duration::from_millis(50))).unwrap();
         Raw {
             s,
@@ -228,7 +232,7 @@ fn a_cut_management_frame_does_not_deafen_the_port_under_qemu() {
     let clk = q.clock();
     let _stage = StageSim::start(q.connect(1), 1);
     let _sensors = SensorSim::start(q.link(), &TEMPS_C);
-    let spec = q.mgmt_spec();
+    let spec = q.cli_spec();
     drop(q.client()); // the board is up and answering
 
     // the scenario, as it happened: a connection closes 26 bytes into a chunk frame
@@ -387,5 +391,27 @@ fn a_request_that_trickles_in_is_answered_when_announced_and_dropped_when_not() 
         link.forgiven_bytes(),
         0,
         "no announced byte was given up on"
+    );
+
+    // a `nanocal` process's request, through the relay a test gives it (`Qemu::cli_spec`): the
+    // relay announces every byte it carries, so the board's announced count ends equal to what
+    // it read (unannounced, the count stays where it was)
+    drop(raw);
+    let spec = q.cli_spec();
+    let path = spec.strip_prefix("unix:").unwrap();
+    let mut cli = Raw::over(UnixStream::connect(path).unwrap());
+    let n = Request::Status.frame(3, &mut frame).unwrap();
+    let rx0 = link.rx_bytes(3);
+    cli.s.write_all(&frame[..n]).unwrap();
+    let mut status = None;
+    wait_for(&q, "the relayed request is answered", || {
+        status = cli.poll(3);
+        status.is_some()
+    });
+    assert_eq!(link.rx_bytes(3), rx0.wrapping_add(n as u32));
+    assert_eq!(
+        link.page().u32(bl::ANNOUNCED + 4 * 3),
+        rx0.wrapping_add(n as u32),
+        "the relay announced exactly the bytes the board read"
     );
 }

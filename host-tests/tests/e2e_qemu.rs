@@ -63,7 +63,7 @@ fn e2e_compensator_under_qemu() {
     let path = std::env::temp_dir().join(format!("nanocal-e2e-{}.blob", std::process::id()));
     std::fs::write(&path, &b[..n]).unwrap();
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_nanocal"))
-        .args(["device", "upload", "--port", &q.mgmt_spec()])
+        .args(["device", "upload", "--port", &q.cli_spec()])
         .arg(&path)
         .output()
         .unwrap();
@@ -337,7 +337,7 @@ fn e2e_compensator_under_qemu() {
     // the CLI's status report
     drop(c);
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_nanocal"))
-        .args(["device", "status", "--port", &q.mgmt_spec()])
+        .args(["device", "status", "--port", &q.cli_spec()])
         .output()
         .unwrap();
     let text = String::from_utf8_lossy(&out.stdout);

@@ -61,7 +61,7 @@ fn upload(q: &Qemu, model: &Model, name: &str) {
         "device",
         "upload",
         "--port",
-        &q.mgmt_spec(),
+        &q.cli_spec(),
         path.to_str().unwrap(),
     ]);
     let _ = std::fs::remove_file(&path);
@@ -151,7 +151,7 @@ fn a_kmz_outside_the_prediction_interval_raises_model_stale_under_qemu() {
         "a stale model still corrects: {got} vs {want_q}"
     );
     drop(c);
-    let text = nanocal_cli(&["device", "status", "--port", &q.mgmt_spec()]);
+    let text = nanocal_cli(&["device", "status", "--port", &q.cli_spec()]);
     assert!(
         text.contains("MODEL STALE since uptime")
             && text.contains("a KMZ re-measurement fell outside the prediction interval"),
@@ -182,7 +182,7 @@ fn a_kmz_outside_the_prediction_interval_raises_model_stale_under_qemu() {
         "device",
         "config",
         "--port",
-        &q.mgmt_spec(),
+        &q.cli_spec(),
         "--extrapolation-c",
         "0.5",
     ]);

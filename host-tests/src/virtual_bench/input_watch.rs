@@ -14,8 +14,10 @@
 //! It looks from outside, by polling, so a starved bench thread can miss a byte in flight.
 //! Writers in this process therefore also *announce* what they write (`BenchLink::announce`:
 //! the tests' management client and GCS host), and the board itself holds its clock while a
-//! reader waits for announced bytes — no polling in between. The watch remains for writers that
-//! cannot announce: the `nanocal` CLI run as another process.
+//! reader waits for announced bytes — no polling in between. A `nanocal` CLI that a test runs
+//! as another process reaches the board through a relay that announces for it
+//! (`cli_relay.rs`). The watch remains for writers that cannot announce: PIPython on the GCS
+//! port (the campaign runs the board in lockstep, where nothing needs announcing).
 //!
 //! - TCP ports (serial 0–2): the receive queue of QEMU's accepted socket, from `/proc/net/tcp`
 //!   (the sender's own queue empties as soon as the loopback peer's kernel has the bytes).

@@ -4,6 +4,8 @@
 
 pub mod bench;
 pub mod chips;
+#[cfg(feature = "test-support")]
+mod cli_relay;
 pub mod controller;
 pub mod input_watch;
 pub mod jitter;

@@ -170,6 +170,9 @@ pub struct Qemu {
     /// port is closed: a new session starts clean).
     #[cfg(feature = "test-support")]
     pub(super) gcs_sent: Arc<std::sync::atomic::AtomicU64>,
+    /// The management port for `nanocal` processes a test runs (started on first use).
+    #[cfg(feature = "test-support")]
+    pub(super) cli_relay: std::sync::OnceLock<super::cli_relay::CliRelay>,
 }
 
 /// Where the file behind the board's RAM goes: tmpfs when there is one.
@@ -251,6 +254,8 @@ impl Qemu {
             log,
             #[cfg(feature = "test-support")]
             gcs_sent: Arc::new(std::sync::atomic::AtomicU64::new(0)),
+            #[cfg(feature = "test-support")]
+            cli_relay: std::sync::OnceLock::new(),
         };
         for i in [0, 1] {
             q.streams[i] = Some(q.dial(i));
@@ -396,6 +401,9 @@ impl Drop for Qemu {
         self.link.shutdown();
         let _ = self.child.kill();
         let _ = self.child.wait();
+        // before its socket goes with the folder (its drop wakes its accept through it)
+        #[cfg(feature = "test-support")]
+        drop(self.cli_relay.take());
         if std::thread::panicking() {
             eprintln!("--- qemu log ---\n{}", self.log_text());
         }
@@ -407,10 +415,10 @@ impl Drop for Qemu {
 /// A stream into serial `serial` of the board that announces what it writes
 /// ([`BenchLink::announce`]): a request written in one piece reaches the board at one instant
 /// of its time.
-struct Announced<S> {
-    inner: S,
-    link: Arc<BenchLink>,
-    serial: usize,
+pub(super) struct Announced<S> {
+    pub(super) inner: S,
+    pub(super) link: Arc<BenchLink>,
+    pub(super) serial: usize,
 }
 
 impl<S: Read> Read for Announced<S> {

@@ -10,6 +10,7 @@
 //! from `tests/` that state would have to become public API.
 
 use super::chips::{Lps22hb, Max31856, Max31865, SpiChip};
+use super::cli_relay::CliRelay;
 use super::controller::StageSim;
 use super::link::{BenchClock, BenchLink};
 use super::qemu::{apply_line_state, dial_unix, have_qemu, Qemu, HANG};
@@ -83,6 +84,18 @@ impl Qemu {
         self.streams[0] = None;
         self.set_dtr(true);
         self.ports[0]
+    }
+
+    /// The management port spec to give a `nanocal` process (`--port`): a relay in this
+    /// process that announces the process's bytes to the board (`cli_relay.rs`), so its
+    /// requests reach the board at one instant of its time, as the tests' own clients' do.
+    pub fn cli_spec(&self) -> String {
+        self.cli_relay
+            .get_or_init(|| {
+                let dir = self.log.with_extension("d");
+                CliRelay::start(dir.join("cli"), dir.join("s3"), self.link.clone())
+            })
+            .spec()
     }
 
     /// A raw connection to the management port (serial3), for tests that send bytes no client

@@ -245,12 +245,20 @@ impl BenchLink {
     /// takes it as a horizon doorbell (it only re-reads the horizon). Rate-limited by the
     /// caller. Returns true if it rang.
     pub fn wake_for_input(&self) -> bool {
-        if self.page.u32(bl::WAITING) == 1 {
+        let rang = self.ring_horizon_if_waiting();
+        if rang {
             self.pokes.fetch_add(1, Ordering::Relaxed);
-            let _ = self.line.lock().unwrap().write_all(&[bl::RING_HORIZON]);
-            return true;
         }
-        false
+        rang
+    }
+
+    /// Ring the horizon doorbell if the board waits at its horizon; true if it rang.
+    fn ring_horizon_if_waiting(&self) -> bool {
+        if self.page.u32(bl::WAITING) != 1 {
+            return false;
+        }
+        let _ = self.line.lock().unwrap().write_all(&[bl::RING_HORIZON]);
+        true
     }
 
     /// Times [`Self::wake_for_input`] had to ring.
@@ -351,9 +359,7 @@ impl BenchLink {
             }
         }
         fence(Ordering::SeqCst);
-        if self.page.u32(bl::WAITING) == 1 {
-            let _ = self.line.lock().unwrap().write_all(&[bl::RING_HORIZON]);
-        }
+        self.ring_horizon_if_waiting();
     }
 
     /// Announced bytes given up on because they never reached the board (see
@@ -485,9 +491,7 @@ impl BenchLink {
             self.page.set_u64(bl::HORIZON, ticks);
         }
         fence(Ordering::SeqCst);
-        if self.page.u32(bl::WAITING) == 1 {
-            let _ = self.line.lock().unwrap().write_all(&[bl::RING_HORIZON]);
-        }
+        self.ring_horizon_if_waiting();
     }
 
     /// The ways into the board whose input in flight holds the free-running clock.

@@ -87,7 +87,7 @@ fn cut_during(
     st
 }
 
-/// The store's erase unit in the firmware (src/bin/stm32.rs `ERASE`).
+/// The store's erase unit in the firmware (src/stm32/flash.rs `ERASE`).
 const ERASE: usize = 8 * 1024;
 
 /// Boot the board on `store`, USB attached; its management client and first status.

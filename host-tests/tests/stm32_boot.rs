@@ -4,7 +4,7 @@
 //! and the ADC's synchronous clock off (`ADC_CCR.CKMODE = 00`), `Adc::new` sets ADCAL and spins
 //! until the hardware clears it, which an unclocked ADC never does; the watchdog, already
 //! running, resets the board every 2 s and the tasks never start. The firmware selects SYSCLK
-//! as the ADC's kernel clock (`clocks()` in src/bin/stm32.rs).
+//! as the ADC's kernel clock (`config()` in src/stm32/clocks.rs).
 
 mod stm32_sim;
 

@@ -19,22 +19,20 @@ use embassy_stm32::spi::{self, Spi};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::usart::{self, BufferedUart, BufferedUartTx};
 use embassy_stm32::wdg::IndependentWatchdog;
-use embassy_stm32::{bind_interrupts, dma, usb, Config};
+use embassy_stm32::{bind_interrupts, dma, usb};
 use embassy_time::{Duration, Timer};
 use embassy_usb::class::cdc_acm::{CdcAcmClass, State};
 use embassy_usb::UsbDevice;
-use nanocal_compensator::clock;
 use nanocal_compensator::l4flash::L4Nor;
 use nanocal_compensator::line_state::LineSeen;
 use nanocal_compensator::store::Store;
 use nanocal_fw::app::{self, Identity, Shared};
 use nanocal_fw::stm32::buses::{Buses, I2C_TIMEOUT};
-use nanocal_fw::stm32::crash;
 use nanocal_fw::stm32::flash::{self, L4Flash, ERASE};
 use nanocal_fw::stm32::stage::{StageRx, StageRxWatch, RX_RING};
 use nanocal_fw::stm32::usb::{LineWatch, UsbDriver, UsbRx, UsbTx, GCS_PORT, PORTS, USB_PACKET};
-use nanocal_interface::identity::{self, ResetCause, Site};
-use nanocal_interface::settings::{Settings, MAX_STAGE_BAUD, MIN_STAGE_BAUD};
+use nanocal_fw::stm32::{clocks, crash, stage};
+use nanocal_interface::identity;
 use static_cell::StaticCell;
 
 bind_interrupts!(struct Irqs {
@@ -46,18 +44,6 @@ bind_interrupts!(struct Irqs {
 });
 
 type Flash = L4Nor<L4Flash, ERASE>;
-
-const FLASH_ACR: usize = 0x4002_2000;
-
-fn reg(a: usize) -> u32 {
-    // SAFETY: a peripheral register, 32-bit access.
-    unsafe { core::ptr::read_volatile(a as *const u32) }
-}
-
-fn set(a: usize, v: u32) {
-    // SAFETY: as above.
-    unsafe { core::ptr::write_volatile(a as *mut u32, v) }
-}
 
 static SHARED: StaticCell<Shared> = StaticCell::new();
 static STORE: StaticCell<Store<Flash>> = StaticCell::new();
@@ -136,78 +122,11 @@ async fn supervisor_task(board: Stm32Board, sh: &'static Shared) {
     app::supervisor(board, sh).await
 }
 
-fn clocks() -> Config {
-    use embassy_stm32::rcc::*;
-    let mut config = embassy_stm32::Config::default();
-    // MSI 48 MHz trimmed by the 32.768 kHz LSE (MSI PLL mode) clocks USB; PLL → 80 MHz SYSCLK.
-    config.rcc.ls = LsConfig::default_lse();
-    config.rcc.msi = Some(MSIRange::RANGE48M);
-    config.rcc.pll = Some(Pll {
-        source: PllSource::MSI,
-        prediv: PllPreDiv::DIV6,
-        mul: PllMul::MUL20,
-        divp: None,
-        divq: None,
-        divr: Some(PllRDiv::DIV2),
-    });
-    config.rcc.sys = Sysclk::PLL1_R;
-    config.rcc.mux.clk48sel = mux::Clk48sel::MSI;
-    // The ADC's kernel clock: CCIPR.ADCSEL resets to 00, "no clock" (RM0351 §6.4.28), and
-    // embassy-stm32 leaves ADC_CCR.CKMODE at 00 (the asynchronous clock), so an unset mux
-    // leaves the ADC unclocked: `Adc::new` spins on ADCAL for ever and the watchdog resets the
-    // board every 2 s (issue 16; tests/stm32_boot.rs). SYSCLK (80 MHz) is within the ADC's
-    // 80 MHz maximum (datasheet fADC).
-    config.rcc.mux.adcsel = mux::Adcsel::SYS;
-    config
-}
-
-/// Program the flash wait states for 80 MHz before embassy-stm32 touches a clock.
-///
-/// embassy-stm32 0.6.0 `rcc/l.rs` `init()` calls `msi_enable(RANGE48M)` while MSI is the
-/// system clock and writes FLASH_ACR.LATENCY only after the PLL is configured; from reset the
-/// L4 runs 0 wait states, valid to 16 MHz (RM0351 §3.3.3, Table 12), so the core would run
-/// 48 MHz from flash at 0 WS. Fixed upstream after 0.6.0 (embassy-rs/embassy#6768, "set max
-/// flash latency before raising the MSI range"), not released: more wait states are always
-/// safe, and init then writes the exact value for the final clocks.
-fn flash_latency_first() {
-    let acr = reg(FLASH_ACR);
-    let ws = u32::from(clock::BOOT_WAIT_STATES);
-    set(FLASH_ACR, (acr & !0x7) | ws);
-    while reg(FLASH_ACR) & 0x7 != ws {}
-}
-
-/// Why the chip reset: the firmware's own record when it made one (a panic, an ECC error
-/// outside the store, a HardFault — RCC_CSR would say "watchdog" or "software"), else RCC_CSR
-/// (RM0351 §6.4.29); the flags are cleared (RMVF).
-fn reset_cause() -> (ResetCause, Site<'static>) {
-    const RCC_CSR: usize = 0x4002_1094;
-    let csr = reg(RCC_CSR);
-    set(RCC_CSR, csr | (1 << 23));
-    crash::take().unwrap_or((ResetCause::from_rcc_csr(csr), Site::None))
-}
-
-/// The stage link's UART at the stored baud rate. A rate the USART cannot make (a record stored
-/// by a firmware that accepted it) must not stop the board at every boot: the default is used
-/// instead, and the settings show what is stored.
-fn stage_uart_config(settings: &Settings) -> usart::Config {
-    let mut c = usart::Config::default();
-    c.baudrate = settings.stage_baud;
-    if !(MIN_STAGE_BAUD..=MAX_STAGE_BAUD).contains(&c.baudrate) {
-        defmt::warn!(
-            "stored stage baud rate {=u32} is out of range: {=u32} in force",
-            c.baudrate,
-            Settings::default().stage_baud
-        );
-        c.baudrate = Settings::default().stage_baud;
-    }
-    c
-}
-
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
-    flash_latency_first();
-    let (cause, site) = reset_cause();
-    let p = embassy_stm32::init(clocks());
+    clocks::flash_latency_first();
+    let (cause, site) = crash::reset_cause();
+    let p = embassy_stm32::init(clocks::config());
     // the watchdog first: a hang anywhere from here on resets the board
     let mut wdg = IndependentWatchdog::new(p.IWDG, 2_000_000);
     wdg.unleash();
@@ -295,7 +214,7 @@ async fn main(spawner: Spawner) {
         UART_TX.init([0; 256]),
         UART_RX.init([0; RX_RING as usize]),
         Irqs,
-        stage_uart_config(&settings),
+        stage::uart_config(&settings),
     ) {
         Ok(u) => u,
         Err(_) => panic!("stage UART configuration rejected"),

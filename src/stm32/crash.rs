@@ -131,3 +131,13 @@ unsafe fn HardFault(ef: &cortex_m_rt::ExceptionFrame) -> ! {
     record(Kind::Fault, ef.pc(), 0, 0);
     cortex_m::peripheral::SCB::sys_reset()
 }
+
+/// Why the chip reset: the firmware's own record when it made one (a panic, an ECC error
+/// outside the store, a HardFault — RCC_CSR would say "watchdog" or "software"), else RCC_CSR
+/// (RM0351 §6.4.29); the flags are cleared (RMVF).
+pub fn reset_cause() -> (ResetCause, Site<'static>) {
+    const RCC_CSR: usize = 0x4002_1094;
+    let csr = reg(RCC_CSR);
+    set(RCC_CSR, csr | (1 << 23));
+    take().unwrap_or((ResetCause::from_rcc_csr(csr), Site::None))
+}

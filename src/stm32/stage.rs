@@ -9,6 +9,7 @@ use core::sync::atomic::{AtomicU32, Ordering};
 use embassy_stm32::interrupt;
 use embassy_stm32::usart::{self, BufferedUartRx};
 use embedded_io_async::{ErrorKind, ErrorType, Read};
+use nanocal_interface::settings::{Settings, MAX_STAGE_BAUD, MIN_STAGE_BAUD};
 
 /// Bytes of the receive ring (the buffer given to `BufferedUart::new`).
 pub const RX_RING: u32 = 256;
@@ -117,4 +118,21 @@ impl Read for StageRx {
         }
         Ok(n)
     }
+}
+
+/// The stage link's UART at the stored baud rate. A rate the USART cannot make (a record stored
+/// by a firmware that accepted it) must not stop the board at every boot: the default is used
+/// instead, and the settings show what is stored.
+pub fn uart_config(settings: &Settings) -> usart::Config {
+    let mut c = usart::Config::default();
+    c.baudrate = settings.stage_baud;
+    if !(MIN_STAGE_BAUD..=MAX_STAGE_BAUD).contains(&c.baudrate) {
+        defmt::warn!(
+            "stored stage baud rate {=u32} is out of range: {=u32} in force",
+            c.baudrate,
+            Settings::default().stage_baud
+        );
+        c.baudrate = Settings::default().stage_baud;
+    }
+    c
 }

@@ -83,6 +83,11 @@ pub struct Status {
     /// The longest stretch the core ran without sleeping (WFI/WFE) since the board was
     /// created or [`Inject::reset_busy_record`], s: how long the executor was blocked at most.
     pub longest_busy_s: f64,
+    /// The longest the IWDG counted without a reload in the current boot (from its start or a
+    /// reload to the next reload, or to now), s; 0 before it is started.
+    pub longest_watchdog_wait_s: f64,
+    /// The IWDG's timeout as programmed (PR, RLR at the LSI's 32 kHz), s.
+    pub watchdog_timeout_s: f64,
     /// The PC where the core last was, with its function.
     pub pc: String,
     /// Notable events (faults taken, resets), oldest first (the last 100).
@@ -746,6 +751,9 @@ impl<'a> Board<'a> {
             0
         };
         st.longest_busy_s = self.longest_busy_ps.max(awake) as f64 / PS as f64;
+        let chip = &self.uc.get_data().chip;
+        st.longest_watchdog_wait_s = chip.iwdg.longest_wait_ps(total) as f64 / PS as f64;
+        st.watchdog_timeout_s = chip.iwdg.timeout_ps() as f64 / PS as f64;
         st.pc = format!("{pc:#010x} {name}");
     }
 

@@ -306,6 +306,10 @@ pub struct Iwdg {
     pub rlr: u32,
     /// When the counter reaches 0, ps.
     pub deadline_ps: u64,
+    /// When it was started or last reloaded, ps.
+    fed_at_ps: u64,
+    /// The longest it has counted between a start or reload and the next reload, ps.
+    longest_wait_ps: u64,
 }
 
 /// LSI frequency, Hz (RM0351 §6.2.6, datasheet fLSI 29.5–34 kHz: nominal 32 kHz).
@@ -340,6 +344,9 @@ impl Iwdg {
     pub fn write(&mut self, off: u32, v: u32, now_ps: u64, rcc: &mut Rcc) {
         match (off, v & 0xFFFF) {
             (0x00, 0xCCCC) => {
+                if !self.running {
+                    self.fed_at_ps = now_ps;
+                }
                 self.running = true;
                 rcc.csr |= 3; // the LSI starts with the watchdog (RM0351 §32.3.2)
                 self.deadline_ps = now_ps + self.period_ps();
@@ -347,6 +354,10 @@ impl Iwdg {
             (0x00, 0xAAAA) => {
                 self.unlocked = false;
                 self.deadline_ps = now_ps + self.period_ps();
+                if self.running {
+                    self.longest_wait_ps = self.longest_wait_ps.max(now_ps - self.fed_at_ps);
+                    self.fed_at_ps = now_ps;
+                }
             }
             (0x00, 0x5555) => self.unlocked = true,
             (0x00, _) => self.unlocked = false,
@@ -354,6 +365,21 @@ impl Iwdg {
             (0x08, _) if self.unlocked => self.rlr = v & 0xFFF,
             _ => {}
         }
+    }
+
+    /// The longest the watchdog has counted without a reload in this boot, up to `now_ps`
+    /// (0 while it is not started), ps.
+    pub fn longest_wait_ps(&self, now_ps: u64) -> u64 {
+        if !self.running {
+            return 0;
+        }
+        self.longest_wait_ps
+            .max(now_ps - self.fed_at_ps.min(now_ps))
+    }
+
+    /// The time it counts from a reload to a reset, ps.
+    pub fn timeout_ps(&self) -> u64 {
+        self.period_ps()
     }
 
     /// True when the watchdog has expired by `now_ps`.

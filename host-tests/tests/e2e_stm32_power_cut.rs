@@ -246,21 +246,7 @@ fn stm32_upload_onto_a_store_full_of_kmz_updates() {
     let model_a = published_1dof().unwrap();
     let blob_a = bytes(&model_a);
     let blob_b = bytes(&nanocal::published::coupled_2dof().unwrap());
-    let mut sim = StoreFlash::new();
-    block_on(Store::new(L4Nor::<_, ERASE>::new(&mut sim)).save_model(&blob_a)).unwrap();
-    let mut updates = 0;
-    loop {
-        let mut trial = sim.clone_sim();
-        let erases = trial.erases.iter().sum::<u32>();
-        block_on(Store::new(L4Nor::<_, ERASE>::new(&mut trial)).save_model(&blob_b)).unwrap();
-        if trial.erases.iter().sum::<u32>() > erases {
-            break;
-        }
-        let mut st = Store::new(L4Nor::<_, ERASE>::new(&mut sim));
-        block_on(st.save_kmz(model_a.id(), &[0.5 + f64::from(updates), 0.0, 0.0])).unwrap();
-        updates += 1;
-    }
-    assert!(updates > 1000, "{updates} KMZ updates filled the store");
+    let (sim, updates) = store_full_of_kmz_updates(&model_a, &blob_a, &blob_b);
     let (b, mut c, s) = boot_on(sim);
     assert_eq!(s.model_id, model_a.id());
     assert_eq!(s.kmz_um[0], 0.5 + f64::from(updates - 1), "the newest KMZ");
@@ -286,6 +272,72 @@ fn stm32_upload_onto_a_store_full_of_kmz_updates() {
         "upload onto a store full of {updates} KMZ updates: {took_s:.3} s of board time, the \
          executor blocked {:.1} ms at most",
         busy_s * 1e3
+    );
+}
+
+/// A store holding `blob_a` whose free space is used up by hourly KMZ updates, so that storing
+/// `blob_b` must free a page (found by trying on a copy); with the number of updates.
+fn store_full_of_kmz_updates(model_a: &Model, blob_a: &[u8], blob_b: &[u8]) -> (StoreFlash, u32) {
+    let mut sim = StoreFlash::new();
+    block_on(Store::new(L4Nor::<_, ERASE>::new(&mut sim)).save_model(blob_a)).unwrap();
+    let mut updates = 0;
+    loop {
+        let mut trial = sim.clone_sim();
+        let erases = trial.erases.iter().sum::<u32>();
+        block_on(Store::new(L4Nor::<_, ERASE>::new(&mut trial)).save_model(blob_b)).unwrap();
+        if trial.erases.iter().sum::<u32>() > erases {
+            break;
+        }
+        let mut st = Store::new(L4Nor::<_, ERASE>::new(&mut sim));
+        block_on(st.save_kmz(model_a.id(), &[0.5 + f64::from(updates), 0.0, 0.0])).unwrap();
+        updates += 1;
+    }
+    assert!(updates > 1000, "{updates} KMZ updates filled the store");
+    (sim, updates)
+}
+
+/// Defect 8's boot half: the store is read, and repaired after a power cut, before any task
+/// runs, so nothing but the flash driver itself (`feed_watchdog_while_booting` in
+/// src/stm32/flash.rs) reloads the IWDG meanwhile. The longest boot the store can cause: one
+/// full of KMZ updates (every key looked up with a cold cache), cut at operations of the
+/// upload that frees a page (the boot finds the page half moved and repairs it). Every such
+/// boot must come up by power-on, not through the watchdog, and with half the watchdog's
+/// window to spare.
+#[test]
+fn stm32_boot_on_a_full_store_cut_while_a_page_is_freed_keeps_the_watchdog_fed() {
+    let model_a = published_1dof().unwrap();
+    let blob_a = bytes(&model_a);
+    let blob_b = bytes(&nanocal::published::coupled_2dof().unwrap());
+    let (full, _) = store_full_of_kmz_updates(&model_a, &blob_a, &blob_b);
+    let (b, _, s) = boot_on(full.clone_sim());
+    assert_eq!(s.model_id, model_a.id());
+    let st = b.status();
+    let (timeout_s, mut longest_s) = (st.watchdog_timeout_s, st.longest_watchdog_wait_s);
+    assert!(timeout_s > 1.0, "the IWDG runs: timeout {timeout_s} s");
+    let before = b.status().flash_ops;
+    b.mgmt()
+        .upload(&blob_b)
+        .expect("the upload that frees a page");
+    let ops = (b.status().flash_ops - before) as u32;
+    assert!(ops > 100, "{ops} flash operations");
+    let mut boots = 1;
+    for k in (0..ops).step_by((ops / 6) as usize) {
+        power_cycle(&b, &full);
+        cut_during(&b, k, "the upload that frees a page", |c| {
+            c.upload(&blob_b).is_ok()
+        });
+        let st = b.status();
+        longest_s = longest_s.max(st.longest_watchdog_wait_s);
+        boots += 1;
+    }
+    eprintln!(
+        "{boots} boots on a full store, cut while a page is freed: the IWDG waited {:.3} s at \
+         most for a reload (timeout {timeout_s:.3} s)",
+        longest_s
+    );
+    assert!(
+        longest_s < 0.5 * timeout_s,
+        "the IWDG waited {longest_s:.3} s for a reload (timeout {timeout_s:.3} s)"
     );
 }
 

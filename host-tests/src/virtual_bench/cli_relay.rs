@@ -13,8 +13,7 @@
 //! board's back unchanged — the bytes the board reads are exactly the CLI's. One connection at a
 //! time, as QEMU serves one client per port; the next waits until the previous has closed.
 
-use super::link::BenchLink;
-use super::qemu::Announced;
+use super::link::{Announced, BenchLink};
 use std::io::{Read, Write};
 use std::net::Shutdown;
 use std::os::unix::net::{UnixListener, UnixStream};

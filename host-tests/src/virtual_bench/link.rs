@@ -649,3 +649,34 @@ impl BenchClock {
         result
     }
 }
+
+/// A stream into serial `serial` of the board that announces what it writes
+/// ([`BenchLink::announce`]): a request written in one piece reaches the board at one instant
+/// of its time.
+pub(crate) struct Announced<S> {
+    pub(crate) inner: S,
+    pub(crate) link: Arc<BenchLink>,
+    pub(crate) serial: usize,
+}
+
+impl<S: Read> Read for Announced<S> {
+    fn read(&mut self, b: &mut [u8]) -> std::io::Result<usize> {
+        self.inner.read(b)
+    }
+}
+
+impl<S: Write> Write for Announced<S> {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        // announced in full before any goes, what did not go taken back
+        let counted = self.link.announce(self.serial, b.len());
+        let r = self.inner.write(b);
+        let n = *r.as_ref().unwrap_or(&0);
+        if counted && n < b.len() {
+            self.link.unannounce(self.serial, b.len() - n);
+        }
+        r
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}

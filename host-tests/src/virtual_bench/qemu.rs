@@ -2,10 +2,9 @@
 //! local TCP sockets and its PSRAM on a host file (the bench's page: clock and bus mailbox, see
 //! [`super::link`]), and talk GCS (serial0) and management (serial3) to it.
 
-use super::link::{BenchClock, BenchLink, Page, RAM_FILE_LEN};
+use super::link::{Announced, BenchClock, BenchLink, Page, RAM_FILE_LEN};
 use crate::device::Client;
 use nanocal_interface::bench_link as bl;
-use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
@@ -409,36 +408,5 @@ impl Drop for Qemu {
         }
         let _ = std::fs::remove_file(&self.log);
         let _ = std::fs::remove_dir_all(self.log.with_extension("d"));
-    }
-}
-
-/// A stream into serial `serial` of the board that announces what it writes
-/// ([`BenchLink::announce`]): a request written in one piece reaches the board at one instant
-/// of its time.
-pub(super) struct Announced<S> {
-    pub(super) inner: S,
-    pub(super) link: Arc<BenchLink>,
-    pub(super) serial: usize,
-}
-
-impl<S: Read> Read for Announced<S> {
-    fn read(&mut self, b: &mut [u8]) -> std::io::Result<usize> {
-        self.inner.read(b)
-    }
-}
-
-impl<S: Write> Write for Announced<S> {
-    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
-        // announced in full before any goes, what did not go taken back
-        let counted = self.link.announce(self.serial, b.len());
-        let r = self.inner.write(b);
-        let n = *r.as_ref().unwrap_or(&0);
-        if counted && n < b.len() {
-            self.link.unannounce(self.serial, b.len() - n);
-        }
-        r
-    }
-    fn flush(&mut self) -> std::io::Result<()> {
-        self.inner.flush()
     }
 }

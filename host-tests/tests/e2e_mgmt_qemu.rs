@@ -40,8 +40,8 @@ fn two_blobs() -> (Vec<u8>, Vec<u8>) {
     let n = blob::encode(&model, &mut a).unwrap();
     a.truncate(n);
     let mut b = a.clone();
-    // the last term's coefficient is the f64 before the CRC
-    let at = n - blob::TRAILER_LEN - 8;
+    // the last term's coefficient is the f64 before the provenance (the model has no bound)
+    let at = n - blob::TRAILER_LEN - blob::PROVENANCE_LEN - 8;
     let c = f64::from_le_bytes(b[at..at + 8].try_into().unwrap());
     b[at..at + 8].copy_from_slice(&(c * (1.0 + 1e-6)).to_le_bytes());
     let crc = blob::crc32(&b[..n - blob::TRAILER_LEN]);

@@ -14,7 +14,10 @@
 //! executor busy, so the board's clock stood still — no timeout of the writer could fire (the
 //! management reply's `REPLY_STALL_MS`), the supervisor never ran, and QEMU's own watchdog
 //! reset the board after 4 s of its clock. A bench that reads only between steps of the board's
-//! clock waited for the board's time while the board waited for it to read.
+//! clock waited for the board's time while the board waited for it to read. A waiting writer
+//! is marked in the bench's page (`bench_link::TX_WAITING`): while the bench runs freely the
+//! board's clock holds for it (`super::time`), so QEMU's delay in passing bytes on is no board
+//! time.
 
 use core::convert::Infallible;
 use core::future::poll_fn;
@@ -183,12 +186,35 @@ impl embedded_io_async::Read for UartRx {
     }
 }
 
+/// The writer of a UART waits for room: marked in the bench's page while it does
+/// (`bench_link::TX_WAITING`), cleared when it stops waiting — also when its write is dropped
+/// (a reply given up on).
+struct TxWaiting(usize);
+
+impl TxWaiting {
+    fn new(n: usize) -> Self {
+        super::link::tx_waiting(n, true);
+        Self(n)
+    }
+}
+
+impl Drop for TxWaiting {
+    fn drop(&mut self) {
+        super::link::tx_waiting(self.0, false);
+    }
+}
+
 impl UartTx {
     /// Wait until the UART holds no byte (QEMU handed the last one to its socket). While it
     /// does, the task sleeps until the TX interrupt (QEMU raises it when TX full clears with
-    /// the interrupt enabled): the executor idles and the board's clock moves on.
+    /// the interrupt enabled): the executor idles and the board's clock moves on — unless the
+    /// free-running bench takes the bytes on their way (`TxWaiting`, `super::time`).
     async fn room(&self) {
         let n = self.n;
+        if read(n, STATE) & STATE_TX_FULL == 0 {
+            return;
+        }
+        let _waiting = TxWaiting::new(n);
         poll_fn(|cx| {
             if read(n, STATE) & STATE_TX_FULL == 0 {
                 return Poll::Ready(());

@@ -42,7 +42,7 @@ impl<'a> Bytes<'a> {
 }
 
 /// The coefficient blob (`nanocal_model::blob`): decoding never panics; whatever decodes
-/// re-encodes to the same bytes (a version 1 or 2 blob: to a version 3 blob of the same model),
+/// re-encodes to the same bytes (a version 1, 2 or 3 blob: to a version 4 blob of the same model),
 /// folds, and runs the fast path and the inverse without panicking. Mode byte bit 0: the
 /// harness writes the trailing CRC-32 (else the bytes go as they are).
 pub fn blob(input: &[u8]) {
@@ -66,7 +66,7 @@ pub fn blob(input: &[u8]) {
         assert_eq!(
             decode(&out[..n]).as_ref(),
             Ok(&model),
-            "v1/v2 → v3 changed the model"
+            "v1/v2/v3 → v4 changed the model"
         );
     }
     exercise(&model);

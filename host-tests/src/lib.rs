@@ -20,6 +20,7 @@ pub mod linalg;
 pub mod plan;
 pub mod plot;
 pub mod procedure;
+pub mod provenance;
 #[cfg(feature = "test-support")]
 pub mod proxy_fuzz;
 pub mod published;

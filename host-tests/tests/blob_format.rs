@@ -1,8 +1,9 @@
-//! The blob's bytes: golden bytes for format versions 3, 2 and 1, round trips, CRC check value.
+//! The blob's bytes: golden bytes for format versions 4, 3, 2 and 1, round trips, CRC check value.
 
 use nanocal::published::{coupled_2dof, published_1dof};
 use nanocal_model::blob::{self, BlobError, FORMAT_VERSION, MAX_BLOB_LEN};
 use nanocal_model::bound::packed_len;
+use nanocal_model::provenance::{self, Provenance, ProvenanceUnit};
 use nanocal_model::reference::delta_robot_78;
 use nanocal_model::{
     AuxKind, AuxSpec, AxisBound, Factor, Input, Model, ModelBuilder, Scaling, Term, MAX_AUX,
@@ -136,6 +137,21 @@ fn golden_model_v3() -> Model {
     model
 }
 
+/// The version 3 golden model with its provenance: fitted on the stage of the PI controller
+/// whose `*IDN?` names serial 0116044408, axis `x` in µm.
+fn golden_model_v4() -> Model {
+    let mut model = golden_model_v3();
+    let idn = b"(c)2015 Physik Instrumente (PI) GmbH & Co. KG, E-727, 0116044408, 13.21.00.09\n";
+    model.set_provenance(Provenance {
+        stage_serial: provenance::serial_of_idn(idn),
+        axes: [provenance::AxisName::new(b"x"), None, None],
+        unit: ProvenanceUnit::Um,
+        fit_date_s: 1_700_000_000,
+        data_fnv64: 0x0123_4567_89ab_cdef,
+    });
+    model
+}
+
 /// Format version 3, byte for byte: version 1's layout for this model (no aux inputs, no play
 /// operators), the bound mask at payload byte +11, the bound after the terms. Written by
 /// Python's `struct` and `zlib.crc32` from the version 1 bytes, not by the encoder. Changing
@@ -198,6 +214,83 @@ const GOLDEN_V3_HEX: &str = concat!(
     "0000803e", // R row 3
     "00008040", // R row 4
     "78650a63", // CRC-32/IEEE (zlib) of all bytes above
+);
+
+/// Format version 4, byte for byte: version 3's golden bytes (the payload 72 bytes longer),
+/// then the provenance (stage serial 0116044408, axis `x`, µm, fit date, data hash). Written by
+/// Python's `struct` and `zlib.crc32` from the version 3 bytes, not by the encoder. Changing
+/// these bytes needs a FORMAT_VERSION bump.
+const GOLDEN_V4_HEX: &str = concat!(
+    "4e43414c",
+    "0400",
+    "0000",
+    "68010000", // magic, version 4, reserved, payload 360
+    "efbeadde",
+    "01010001",
+    "0400",
+    "00",
+    "01", // id, A T X L, 4 terms, 0 play operators, bound mask: axis 0
+    "0000000000004940",
+    "0000000000004940",
+    "0000000000000000",
+    "0000000000005940", // axis 0
+    "0000000000003640",
+    "000000000000f03f",
+    "0000000000003540",
+    "0000000000003740", // temp 0
+    "00000000000014c0",
+    "0000000000405a40", // travel −5 … 105
+    "000000000000e03f",
+    "000000000000d0bf", // λ 0.5, λ_KMZ −0.25
+    "0000000000000000",
+    "0000000000c08240", // lag: sensor 0, τ 600 s
+    "0001000000000000",
+    "000000000000f83f", // 1.5·u
+    "0000000001000000",
+    "000000000000d0bf", // −0.25·T0
+    "0001000003000000",
+    "000000000000c03f", // 0.125·u·lag0
+    "0000000000000100",
+    "000000000000a03f", // 0.03125·sign(x)
+    "0000003f",
+    "00000040", // bound of axis 0 (f32): s 0.5 µm, t95 2
+    "00000000",
+    "0000003f",
+    "0000803e",
+    "00000000", // mean 0, 0.5, 0.25, 0
+    "0000803f",
+    "00000040",
+    "0000003f",
+    "0000803f", // scale 1, 2, 0.5, 1
+    "00008040",
+    "0000003f",
+    "0000003f",
+    "0000003f",
+    "0000003f", // R row 0: 4, 0.5, 0.5, 0.5, 0.5
+    "00008040",
+    "0000803e",
+    "0000803e",
+    "0000803e", // R row 1: 4, 0.25, 0.25, 0.25
+    "00008040",
+    "0000803e",
+    "0000803e", // R row 2
+    "00008040",
+    "0000803e",         // R row 3
+    "00008040",         // R row 4
+    "00f1536500000000", // provenance: fit date 1 700 000 000 s (2023-11-14 22:13:20 UTC)
+    "efcdab8967452301", // data hash (FNV-1a 64) 0x0123456789abcdef
+    "0a",
+    "01",
+    "0000", // serial length 10, unit 1 (µm), reserved
+    "303131363034343430380000000000000000000000000000", // serial "0116044408", zeros
+    "01",
+    "7800000000000000", // axis 0: "x"
+    "00",
+    "0000000000000000", // axis slot 1: none
+    "00",
+    "0000000000000000", // axis slot 2: none
+    "00",               // reserved
+    "c3db8cb5",         // CRC-32/IEEE (zlib) of all bytes above
 );
 
 /// Format version 2, byte for byte, as version 2 wrote it: the decoder still reads it. The CRC
@@ -278,9 +371,81 @@ fn crc32_matches_the_standard_check_value() {
 }
 
 #[test]
+fn golden_bytes_of_format_version_4() {
+    assert_eq!(FORMAT_VERSION, 4, "a version bump needs new golden bytes");
+    assert_eq!(hex(&encode(&golden_model_v4())), GOLDEN_V4_HEX);
+    let model = blob::decode(&unhex(GOLDEN_V4_HEX)).unwrap();
+    assert_eq!(model, golden_model_v4());
+    let p = model.provenance();
+    assert_eq!(p.stage_serial.unwrap().as_str(), "0116044408");
+    assert_eq!(p.axes[0].unwrap().as_str(), "x");
+    assert_eq!((p.unit, p.fit_date_s), (ProvenanceUnit::Um, 1_700_000_000));
+}
+
+#[test]
+fn version_3_blobs_still_decode_with_the_provenance_unknown() {
+    let v3 = unhex(GOLDEN_V3_HEX);
+    let model = blob::decode(&v3).unwrap();
+    assert!(
+        model.provenance().is_unknown(),
+        "version 3 carries no provenance"
+    );
+    // re-encoded: version 4, the same bytes but the version, the payload length and the CRC,
+    // then an all-unknown provenance (zeros)
+    let v4 = encode(&model);
+    assert_eq!(&v4[4..6], &4u16.to_le_bytes());
+    assert_eq!(v4.len(), v3.len() + blob::PROVENANCE_LEN);
+    assert_eq!(&v4[12..v3.len() - 4], &v3[12..v3.len() - 4]);
+    assert!(v4[v3.len() - 4..v4.len() - 4].iter().all(|&b| b == 0));
+    assert_eq!(blob::decode(&v4).unwrap(), model);
+}
+
+/// The golden version 4 blob with byte `at` (an offset into its provenance) set to `v`, the
+/// CRC made right again.
+fn v4_with(at: usize, v: u8) -> Vec<u8> {
+    let mut b = unhex(GOLDEN_V4_HEX);
+    let n = b.len() - 4;
+    b[n - blob::PROVENANCE_LEN + at] = v;
+    let crc = blob::crc32(&b[..n]);
+    b[n..].copy_from_slice(&crc.to_le_bytes());
+    b
+}
+
+#[test]
+fn a_malformed_provenance_is_refused_with_its_offset() {
+    let start = unhex(GOLDEN_V4_HEX).len() - 4 - blob::PROVENANCE_LEN;
+    for (at, v, why) in [
+        (16, 25, "serial longer than its field"),
+        (17, 2, "unknown unit"),
+        (20, b',', "a comma in the serial"),
+        (20, b' ', "a space at the serial's start"),
+        (30, b'9', "a byte after the serial's end"),
+        (44, 9, "axis name longer than its field"),
+        (53, 1, "a name for an axis slot past the model's axes"),
+        (46, b'y', "a byte after an axis name's end"),
+    ] {
+        match blob::decode(&v4_with(at, v)) {
+            Err(BlobError::InvalidProvenance { offset }) => {
+                assert!(
+                    offset >= start && offset < start + blob::PROVENANCE_LEN,
+                    "{why}: {offset}"
+                )
+            }
+            other => panic!("{why}: {other:?}"),
+        }
+    }
+    assert_eq!(
+        blob::decode(&v4_with(18, 1)),
+        Err(BlobError::ReservedNotZero { offset: start + 18 })
+    );
+    assert_eq!(
+        blob::decode(&v4_with(71, 1)),
+        Err(BlobError::ReservedNotZero { offset: start + 71 })
+    );
+}
+
+#[test]
 fn golden_bytes_of_format_version_3() {
-    assert_eq!(FORMAT_VERSION, 3, "a version bump needs new golden bytes");
-    assert_eq!(hex(&encode(&golden_model_v3())), GOLDEN_V3_HEX);
     let model = blob::decode(&unhex(GOLDEN_V3_HEX)).unwrap();
     assert_eq!(model, golden_model_v3());
     let bound = model.bound(0).unwrap();
@@ -292,17 +457,18 @@ fn golden_bytes_of_format_version_3() {
 }
 
 #[test]
-fn version_2_blobs_still_decode_and_re_encode_as_version_3() {
+fn version_2_blobs_still_decode_and_re_encode_as_version_4() {
     let v2 = unhex(GOLDEN_V2_HEX);
     let model = blob::decode(&v2).unwrap();
     assert_eq!(model, golden_model_v2());
     assert!(model.bound(0).is_none(), "version 2 carries no bound");
-    let v3 = encode(&model);
-    // A model without a bound: the same bytes but the version and the CRC.
-    assert_eq!(&v3[4..6], &3u16.to_le_bytes());
-    assert_eq!(v3.len(), v2.len());
-    assert_eq!(&v3[6..v3.len() - 4], &v2[6..v2.len() - 4]);
-    assert_eq!(blob::decode(&v3).unwrap(), model);
+    let v4 = encode(&model);
+    // A model without a bound: the same bytes but the version, the payload length (the
+    // provenance added) and the CRC.
+    assert_eq!(&v4[4..6], &4u16.to_le_bytes());
+    assert_eq!(v4.len(), v2.len() + blob::PROVENANCE_LEN);
+    assert_eq!(&v4[12..v2.len() - 4], &v2[12..v2.len() - 4]);
+    assert_eq!(blob::decode(&v4).unwrap(), model);
 }
 
 #[test]
@@ -332,18 +498,19 @@ fn golden_bytes_decode_to_the_golden_model() {
 }
 
 #[test]
-fn version_1_blobs_still_decode_and_re_encode_as_version_3() {
+fn version_1_blobs_still_decode_and_re_encode_as_version_4() {
     let v1 = unhex(GOLDEN_V1_HEX);
     let model = blob::decode(&v1).unwrap();
     assert_eq!(model, golden_model());
     assert_eq!(model.aux_spec(0), None);
     let v2 = encode(&model);
-    assert_eq!(&v2[4..6], &3u16.to_le_bytes());
+    assert_eq!(&v2[4..6], &4u16.to_le_bytes());
     // Versions 2 and 3 add the play count (0) and the bound mask (0) where version 1 had
     // reserved zeros, and nothing else for a model without aux inputs, play operators or
-    // bounds: same bytes but version and CRC.
-    assert_eq!(v2.len(), v1.len());
-    assert_eq!(&v2[6..v2.len() - 4], &v1[6..v1.len() - 4]);
+    // bounds; version 4 the provenance at the end: same bytes but version, payload length
+    // and CRC, then the (unknown) provenance.
+    assert_eq!(v2.len(), v1.len() + blob::PROVENANCE_LEN);
+    assert_eq!(&v2[12..v1.len() - 4], &v1[12..v1.len() - 4]);
     assert_eq!(blob::decode(&v2).unwrap(), model);
 }
 
@@ -355,6 +522,7 @@ fn reference_models_round_trip() {
         delta_robot_78().unwrap(),
         golden_model_v2(),
         golden_model_v3(),
+        golden_model_v4(),
     ] {
         let bytes = encode(&model);
         assert_eq!(bytes.len(), blob::encoded_len(&model));

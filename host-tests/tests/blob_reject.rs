@@ -69,6 +69,16 @@ fn valid_blob(rich: bool) -> Vec<u8> {
 }
 
 /// Re-seals a hand-edited blob with a correct CRC, so the semantic checks are what rejects it.
+/// A version 4 blob's bytes without its provenance section (the payload length shortened; the
+/// CRC as it was — reseal it): the layout of versions 1–3 for the same model.
+fn without_provenance(mut bytes: Vec<u8>) -> Vec<u8> {
+    let crc_at = bytes.len() - 4;
+    bytes.drain(crc_at - blob::PROVENANCE_LEN..crc_at);
+    let payload = u32::from_le_bytes(bytes[8..12].try_into().unwrap());
+    bytes[8..12].copy_from_slice(&(payload - blob::PROVENANCE_LEN as u32).to_le_bytes());
+    bytes
+}
+
 fn reseal(mut bytes: Vec<u8>) -> Vec<u8> {
     let body = bytes.len() - 4;
     let crc = blob::crc32(&bytes[..body]);
@@ -158,10 +168,10 @@ fn each_header_fault_has_its_own_error() {
     assert_eq!(blob::decode(&bad), Err(BlobError::BadMagic));
 
     let mut bad = good.clone();
-    bad[4] = 4;
+    bad[4] = 5;
     assert_eq!(
         blob::decode(&bad),
-        Err(BlobError::UnsupportedVersion { found: 4 })
+        Err(BlobError::UnsupportedVersion { found: 5 })
     );
     let mut bad = good.clone();
     bad[4] = 0;
@@ -304,7 +314,7 @@ fn aux_descriptors_and_version_1_rules_have_typed_errors() {
         Err(BlobError::ReservedNotZero { offset: aux0 + 5 })
     );
     // Version 1 had no play operators: a play count there is a reserved byte that is not zero.
-    let mut v1 = encode(&published_1dof().unwrap());
+    let mut v1 = without_provenance(encode(&published_1dof().unwrap()));
     v1[4] = 1;
     let mut bad = v1.clone();
     bad[HEADER_LEN + 10] = 1;
@@ -332,7 +342,7 @@ fn errors_explain_themselves() {
     assert!(msg.contains("term 3"), "{msg}");
     let msg = BlobError::UnsupportedVersion { found: 7 }.to_string();
     assert!(
-        msg.contains('7') && msg.contains('1') && msg.contains('3'),
+        msg.contains('7') && msg.contains('1') && msg.contains('4'),
         "{msg}"
     );
     let msg = BlobError::UnknownAuxKind { aux: 1, kind: 9 }.to_string();

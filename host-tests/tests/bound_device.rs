@@ -105,7 +105,7 @@ fn fit_writes_a_version_3_blob_with_a_bound_per_axis() {
     );
     let bytes = std::fs::read(&out).unwrap();
     assert_eq!(&bytes[4..6], &blob::FORMAT_VERSION.to_le_bytes());
-    assert_eq!(blob::FORMAT_VERSION, 3);
+    assert_eq!(blob::FORMAT_VERSION, 4);
     let model = blob::decode(&bytes).unwrap();
     for a in 0..model.axes() {
         let b = model

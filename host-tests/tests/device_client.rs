@@ -133,7 +133,10 @@ fn a_device_of_another_protocol_version_is_named_before_its_status_is_read() {
     }
     let msg = e.to_string();
     assert!(
-        msg.contains("speaks management protocol 4 (firmware 0.0.9), this nanocal speaks 6"),
+        msg.contains(&format!(
+            "speaks management protocol 4 (firmware 0.0.9), this nanocal speaks {}",
+            mgmt::PROTOCOL
+        )),
         "{msg}"
     );
     assert_eq!(

@@ -10,7 +10,10 @@
 //!   (`FRAME_TIMEOUT_MS` of the board's clock, measured in lockstep) or at once when the port's
 //!   line state falls, and the requests after it are answered;
 //! - a request whose bytes QEMU hands over slowly (slower than the frame timeout) is dropped,
-//!   unless the bench announced them: then the board's clock holds until they are in.
+//!   unless the bench announced them: then the board's clock holds until they are in;
+//! - a host that stops reading its replies loses them, not the board: the board's clock goes
+//!   on while its replies wait for room (each is dropped after 1 s), the board does not reset,
+//!   and the next connection's request is answered.
 //!
 //! Without qemu-system-arm the tests are skipped with a loud message, except in CI.
 
@@ -21,6 +24,7 @@ use fw_sim::nanocal_cli;
 use fw_sim::{wait_until, Qemu, SensorSim, StageSim, HANG};
 use nanocal::published::published_1dof;
 use nanocal_interface::bench_link as bl;
+use nanocal_interface::identity::ResetCause;
 use nanocal_interface::mgmt::{Decoder, Kind, Reply, Request, FRAME_TIMEOUT_MS, MAX_FRAME};
 use nanocal_interface::status::{Flags, Status};
 use nanocal_model::blob;
@@ -40,8 +44,8 @@ fn two_blobs() -> (Vec<u8>, Vec<u8>) {
     let n = blob::encode(&model, &mut a).unwrap();
     a.truncate(n);
     let mut b = a.clone();
-    // the last term's coefficient is the f64 before the CRC
-    let at = n - blob::TRAILER_LEN - 8;
+    // the last term's coefficient is the f64 before the provenance (the model has no bound)
+    let at = n - blob::TRAILER_LEN - blob::PROVENANCE_LEN - 8;
     let c = f64::from_le_bytes(b[at..at + 8].try_into().unwrap());
     b[at..at + 8].copy_from_slice(&(c * (1.0 + 1e-6)).to_le_bytes());
     let crc = blob::crc32(&b[..n - blob::TRAILER_LEN]);
@@ -295,6 +299,74 @@ fn a_cut_management_frame_does_not_deafen_the_port_under_qemu() {
     assert_eq!(
         after.uptime_ms, before.uptime_ms,
         "answered at once, not at the timeout"
+    );
+    clk.free_run(1.0);
+}
+
+/// A management host that sends requests and stops reading (their replies outgrow what the
+/// port's socket holds unread: a Unix socket takes ≈ 280 one-byte writes, QEMU's UART hands it
+/// one byte at a time, a STATUS reply frame is 301 bytes). The board's writer then waits for
+/// room; the board's clock must go on meanwhile — the reply is dropped after the management
+/// task's 1 s, the supervisor pets the watchdog — and the board answers the next connection.
+/// (A writer that waited in a `yield_now` loop kept the executor busy: the board's clock
+/// stood still and QEMU's watchdog reset the board — what the cut-frame test above met when
+/// the STATUS reply grew by 51 bytes.)
+#[test]
+fn a_host_that_stops_reading_loses_its_replies_not_the_board_under_qemu() {
+    let Some(mut q) =
+        Qemu::start_or_skip("a_host_that_stops_reading_loses_its_replies_not_the_board_under_qemu")
+    else {
+        return;
+    };
+    let clk = q.clock();
+    let _stage = StageSim::start(q.connect(1), 1);
+    let _sensors = SensorSim::start(q.link(), &TEMPS_C);
+    let up0_ms = q.client().status().unwrap().uptime_ms;
+    let link = q.link();
+    let boots = link.boots();
+
+    clk.lockstep();
+    let mut raw = Raw::open(&mut q);
+    // eight replies of 301 bytes: many times what the socket takes unread
+    let requests = 8u8;
+    for seq in 1..=requests {
+        raw.send(seq);
+    }
+    let (before_s, step_s) = (clk.now_s(), 0.1);
+    // ten seconds of the board's time pass while nobody reads (8 replies × their 1 s, and more
+    // than the watchdog's 4 s): each step must end with the board idle at its horizon
+    for i in 1..=100 {
+        clk.advance_to(before_s + f64::from(i) * step_s, HANG)
+            .unwrap_or_else(|e| {
+                panic!("the board's clock stood still while the host did not read: {e}")
+            });
+    }
+    assert_eq!(
+        link.boots(),
+        boots,
+        "the board reset while its replies waited for room"
+    );
+    // what the socket held: the replies did wait (and were dropped), else the test proved
+    // nothing
+    let mut got = 0usize;
+    let mut buf = [0u8; 4096];
+    while let Ok(n @ 1..) = raw.s.read(&mut buf) {
+        got += n;
+    }
+    assert!(
+        got < usize::from(requests) * 301,
+        "all {got} bytes of the replies went out: none waited for room"
+    );
+
+    // the host comes back on a new connection: answered at once, by the board that never reset
+    drop(raw);
+    let mut raw = Raw::open(&mut q);
+    let s = raw.status_now(&q, 9);
+    assert_eq!(s.reset_cause, ResetCause::PowerOn, "{s:?}");
+    assert!(
+        s.uptime_ms >= up0_ms + 10_000,
+        "the board's time went on: uptime {} ms, {up0_ms} ms before",
+        s.uptime_ms
     );
     clk.free_run(1.0);
 }

@@ -117,6 +117,9 @@ fn status_round_trips() {
         kmz_residual_um: [0.2, 0.0, 0.0],
         kmz_limit_um: [0.05, 0.0, 0.0],
         envelope_excess_c: -0.5,
+        stage: nanocal_interface::status::StageCheck::Mismatch,
+        model_serial: nanocal_model::StageSerial::new(b"0116044408"),
+        controller_serial: None,
     };
     assert_eq!(s.sensor_bits[15].state, ChannelStatus::NotRead);
     let mut buf = [0u8; 320];

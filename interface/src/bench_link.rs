@@ -29,6 +29,11 @@
 //! 0x064  u32×5 host        ANNOUNCED[n]: bytes the host has written (or is writing) to serial n,
 //!                          on RX_BYTES[n]'s count; while RX_BYTES[n] is behind it and the
 //!                          board's reader of serial n waits, the board's clock holds (layout 3)
+//! 0x078  u32   board       TX_WAITING: bit n set while the board's writer of serial n waits for
+//!                          room (QEMU's UART holds a byte its socket does not take yet) (layout 4)
+//! 0x07C  u32   host        TX_HOLD: 1 while the host runs the clock freely and reads what the
+//!                          board writes: the board's clock holds while TX_WAITING is not 0; 0 in
+//!                          lockstep, or once a wait has made no progress for long (layout 4)
 //! 0x080  u32   board       BUS_REQ_SEQ: incremented when a request is posted (after its bytes)
 //! 0x084  37 B  board       BUS_REQ: the request frame (`crate::bus` layout, A5 … )
 //! 0x0C0  u32   host        BUS_REP_SEQ: set to BUS_REQ_SEQ when the reply is posted (after its bytes)
@@ -67,7 +72,7 @@ pub const PAGE_LEN: usize = 0x100;
 /// Magic value at [`MAGIC`].
 pub const MAGIC_VALUE: u32 = 0x4B4C_434E; // "NCLK"
 /// Layout version at [`VERSION`].
-pub const VERSION_VALUE: u32 = 3;
+pub const VERSION_VALUE: u32 = 4;
 
 /// Offset of the magic.
 pub const MAGIC: usize = 0x000;
@@ -97,6 +102,22 @@ pub const LINE_STATES: usize = 0x04C;
 pub const RX_BYTES: usize = 0x050;
 /// Offset of the per-serial counts of bytes the host announced (see [`announced_unread`]).
 pub const ANNOUNCED: usize = 0x064;
+/// Offset of the mask of serial ports whose writer waits for room.
+///
+/// **Why.** QEMU hands each byte the board writes to its socket on its own, and a Unix socket
+/// takes ≈ 280 such bytes unread: a 301-byte management reply waits for the bench to read the
+/// first ones, and for QEMU's main loop to pass the rest on. A real USB CDC host reads into
+/// kilobytes of buffer. The board's writer sleeps meanwhile (`src/qemu/uart.rs`). With
+/// [`TX_HOLD`] set (the bench runs freely) the board's clock holds while a writer waits, as it
+/// does for announced input: a loaded machine's delay in passing bytes on is no board time,
+/// else the board's reply timeout (1 s, `src/app/mgmt.rs`) drops replies the bench reads. In
+/// lockstep the bench moves the clock itself and clears [`TX_HOLD`]: a bench that reads only
+/// between its steps would otherwise wait for the board's time while the board waited for it
+/// to read; so would a free-running bench that stops reading, which is why it clears
+/// [`TX_HOLD`] when a wait makes no progress for long.
+pub const TX_WAITING: usize = 0x078;
+/// Offset of the host's "hold the clock while a writer waits" flag (see [`TX_WAITING`]).
+pub const TX_HOLD: usize = 0x07C;
 /// Offset of the bus request sequence number.
 pub const BUS_REQ_SEQ: usize = 0x080;
 /// Offset of the bus request frame.
@@ -167,6 +188,8 @@ mod tests {
             (LINE_STATES, 4),
             (RX_BYTES, 4 * SERIALS),
             (ANNOUNCED, 4 * SERIALS),
+            (TX_WAITING, 4),
+            (TX_HOLD, 4),
             (BUS_REQ_SEQ, 4),
             (BUS_REQ, FRAME_LEN),
             (BUS_REP_SEQ, 4),
@@ -185,6 +208,12 @@ mod tests {
             RX_BYTES + 4 * SERIALS,
             "layout 3 fills the gap after RX_BYTES"
         );
+        assert_eq!(
+            TX_WAITING,
+            ANNOUNCED + 4 * SERIALS,
+            "layout 4 fills the gap after ANNOUNCED"
+        );
+        assert_eq!(TX_HOLD + 4, BUS_REQ_SEQ, "and ends at the bus mailbox");
         assert_eq!(ticks_to_s(250_000), 0.25);
     }
 

@@ -2,7 +2,7 @@
 //! refuses a line (nothing is forwarded to the controller).
 //!
 //! Three are PI's own codes with PI's meaning (GCS 2.0, the controller manuals' error table), so
-//! a host that knows PI's codes understands them; 9001–9014 are the compensator's own, above
+//! a host that knows PI's codes understands them; 9001–9015 are the compensator's own, above
 //! PI's range. The firmware's proxy raises exactly these, and the host's messages (`nanocal
 //! campaign`, `nanocal device status`) come from the same table.
 //!
@@ -25,6 +25,7 @@
 //! | 9012 | the corrected command is outside the controller's travel (`TMN?`/`TMX?`) by more than the clamp tolerance |
 //! | 9013 | a model axis is not one of the controller's axes (`SAI?`) |
 //! | 9014 | the controller does not answer (identification unanswered or unusable, or silent while the line waited) |
+//! | 9015 | the controller's identification (`*IDN?`) names another stage serial than the model was fitted on, and the setting `allow_other_stage` is off |
 
 code_enum! {
     /// A GCS error the compensator raises (see the module's table).
@@ -76,6 +77,10 @@ code_enum! {
         /// The controller does not answer (its identification `*IDN?` went unanswered or is no
         /// usable marker, or it went silent while the line waited for it): not forwarded.
         NoAnswer = 9014 => "the controller does not answer (identification unanswered or unusable, or silent while the line waited)",
+        /// The controller's identification (`*IDN?`) names another stage serial than the
+        /// model's blob was fitted on (or none): moves are refused unless the setting
+        /// `allow_other_stage` is on (`nanocal_model::provenance`).
+        StageMismatch = 9015 => "the controller is another stage than the model was fitted on (its *IDN? serial differs); set allow_other_stage to compensate it anyway",
     }
 }
 

@@ -7,7 +7,7 @@
 //! | compensating | 1 | on |
 //! | bypass | 2 | slow blink (1 s on, 1 s off) |
 //! | no model | 3 | short flash every 2 s |
-//! | fault (moves refused: sensor failed, stale or warming up) | 4 | fast blink (5 Hz) |
+//! | fault (moves refused: sensor failed, stale or warming up, or another stage than the model's) | 4 | fast blink (5 Hz) |
 //! | model stale (still compensating; `MODEL_STALE`) | 5 | on, dark for 0.2 s every second |
 
 code_enum! {
@@ -19,7 +19,8 @@ code_enum! {
         Bypass = 2 => "bypass (slow blink)",
         /// No model loaded.
         NoModel = 3 => "no model (short flash)",
-        /// Moves are refused (a sensor failed, the fold is stale, or sensors are warming up).
+        /// Moves are refused (a sensor failed, the fold is stale, sensors are warming up, or the
+        /// controller is another stage than the model was fitted on, `STAGE_MISMATCH`).
         Fault = 4 => "fault (fast blink)",
         /// A model is in service and moves are corrected, but it has gone stale (the status's
         /// `MODEL_STALE`): refit or re-measure.

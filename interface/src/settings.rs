@@ -15,14 +15,17 @@
 //!       242  stale_k f32 LE (0 < k ≤ 100): the model-stale check's k standard errors
 //!       246  extrapolation_c f32 LE (0..=50): how far, °C, the model may read temperatures
 //!            beyond its training envelope before it counts as stale
-//!       250  crc32 u32 LE (CRC-32/ISO-HDLC of bytes 0..250)
+//!       250  allow_other_stage u8 (0 or 1): compensate a stage whose controller's serial
+//!            differs from the one the model was fitted on
+//!       251  crc32 u32 LE (CRC-32/ISO-HDLC of bytes 0..251)
 //! ```
-//! Version 5 drops the stage unit (byte 172 in versions 2 to 4, 92 in version 1: 0 µm, 1 mm,
-//! 2 nm): the firmware never read it, the proxy asks the controller (`PUN?`) and moves only
-//! model axes in µm (GCS error 9007 otherwise), so the one unit worth declaring is the one
-//! already required. The byte stays where it was, written 0 and ignored on decode: every offset
-//! and length is unchanged, and so is the management protocol (6); a host built before layout 5
-//! refuses a layout 5 record with [`SettingsError::Version`].
+//! Version 5 drops the stage unit and adds `allow_other_stage` (the provenance check,
+//! `nanocal_model::provenance`). The stage unit (byte 172 in versions 2 to 4, 92 in version 1:
+//! 0 µm, 1 mm, 2 nm) was never read by the firmware: the proxy asks the controller (`PUN?`) and
+//! moves only model axes in µm (GCS error 9007 otherwise), so the one unit worth declaring is
+//! the one already required. Its byte stays where it was, written 0 and ignored on decode. A
+//! version 4 record (250 bytes, CRC at 250) decodes with `allow_other_stage` off; a host built
+//! before layout 5 refuses a layout 5 record with [`SettingsError::Version`].
 //! Version 4 adds the model-stale check's two numbers (`nanocal_compensator::stale`).
 //! Version 3 (the fold period; the readings of a fold period are averaged and the model
 //! folded once a period: `nanocal_compensator::slow_average`; 246 bytes, CRC at 242), version
@@ -174,7 +177,7 @@ pub const MAGIC: [u8; 4] = *b"NCST";
 /// Layout version; bumped whenever the bytes change.
 pub const VERSION: u8 = 5;
 /// Encoded length.
-pub const LEN: usize = Layout::of(SENSORS, true, true).len;
+pub const LEN: usize = Layout::of(SENSORS, true, true, true).len;
 /// The model-stale check's `k` unless set: a KMZ re-measurement more than 3 standard errors of
 /// prediction from the model's prediction raises `MODEL_STALE` (a chance of 0.3 % per
 /// re-measurement for a model that still holds, with normal residuals).
@@ -243,6 +246,10 @@ pub struct Settings {
     /// How far a temperature may leave the model's training envelope, °C, before the model
     /// counts as stale: what the model was shown to extrapolate (0..=[`MAX_EXTRAPOLATION_C`]).
     pub extrapolation_c: f32,
+    /// Compensate moves even when the controller's identification (`*IDN?`) names another
+    /// stage serial than the model was fitted on (status still reports the mismatch). Off
+    /// unless set: a model on the wrong stage is refused, not applied.
+    pub allow_other_stage: bool,
 }
 
 impl Default for Settings {
@@ -265,6 +272,7 @@ impl Default for Settings {
             aux: [AuxSource::None; MAX_AUX],
             stale_k: DEFAULT_STALE_K,
             extrapolation_c: DEFAULT_EXTRAPOLATION_C,
+            allow_other_stage: false,
         }
     }
 }
@@ -311,12 +319,13 @@ struct Layout {
     aux_at: usize,
     fold_at: Option<usize>,
     stale_at: Option<usize>,
+    stage_at: Option<usize>,
     crc_at: usize,
     len: usize,
 }
 
 impl Layout {
-    const fn of(sensors: usize, fold: bool, stale: bool) -> Layout {
+    const fn of(sensors: usize, fold: bool, stale: bool, stage: bool) -> Layout {
         let mains_at = SENSOR_AT + 10 * sensors;
         let axes_at = mains_at + 4;
         let aux_at = axes_at + 9 * MAP_AXES;
@@ -326,8 +335,13 @@ impl Layout {
         } else {
             (None, end)
         };
-        let (stale_at, crc_at) = if stale {
+        let (stale_at, end) = if stale {
             (Some(end), end + 8)
+        } else {
+            (None, end)
+        };
+        let (stage_at, crc_at) = if stage {
+            (Some(end), end + 1)
         } else {
             (None, end)
         };
@@ -338,6 +352,7 @@ impl Layout {
             aux_at,
             fold_at,
             stale_at,
+            stage_at,
             crc_at,
             len: crc_at + 4,
         }
@@ -346,23 +361,25 @@ impl Layout {
     /// The layout of a record of `version`.
     fn of_version(version: u8) -> Option<Layout> {
         match version {
-            1 => Some(Layout::of(8, false, false)),
-            2 => Some(Layout::of(SENSORS, false, false)),
-            3 => Some(Layout::of(SENSORS, true, false)),
-            // 5 only reserved the stage unit's byte: the same places
-            4 | VERSION => Some(Layout::of(SENSORS, true, true)),
+            1 => Some(Layout::of(8, false, false, false)),
+            2 => Some(Layout::of(SENSORS, false, false, false)),
+            3 => Some(Layout::of(SENSORS, true, false, false)),
+            4 => Some(Layout::of(SENSORS, true, true, false)),
+            VERSION => Some(Layout::of(SENSORS, true, true, true)),
             _ => None,
         }
     }
 }
 
-const NOW: Layout = Layout::of(SENSORS, true, true);
+const NOW: Layout = Layout::of(SENSORS, true, true, true);
 const MAINS_AT: usize = NOW.mains_at;
 const AXES_AT: usize = NOW.axes_at;
 const AUX_AT: usize = NOW.aux_at;
 const FOLD_AT: usize = AUX_AT + 10 * MAX_AUX;
 const STALE_AT: usize = FOLD_AT + 2;
+const STAGE_AT: usize = STALE_AT + 8;
 const CRC_AT: usize = NOW.crc_at;
+const _: () = assert!(STAGE_AT + 1 == CRC_AT);
 
 /// Lowest stage-link baud rate: the STM32 board's UART4 divides its 80 MHz clock by at most
 /// 65 535 and has no prescaler (RM0351 §40.5.4), so 1 221 Bd is its floor; 1 200 Bd was
@@ -478,6 +495,7 @@ impl Settings {
         b[FOLD_AT..FOLD_AT + 2].copy_from_slice(&self.fold_period_ms.to_le_bytes());
         b[STALE_AT..STALE_AT + 4].copy_from_slice(&self.stale_k.to_le_bytes());
         b[STALE_AT + 4..STALE_AT + 8].copy_from_slice(&self.extrapolation_c.to_le_bytes());
+        b[STAGE_AT] = u8::from(self.allow_other_stage);
         let crc = crate::crc32(&b[..CRC_AT]);
         b[CRC_AT..].copy_from_slice(&crc.to_le_bytes());
         b
@@ -560,6 +578,13 @@ impl Settings {
         if let Some(o) = l.stale_at {
             s.stale_k = f32_at(o);
             s.extrapolation_c = f32_at(o + 4);
+        }
+        if let Some(o) = l.stage_at {
+            s.allow_other_stage = match b[o] {
+                0 => false,
+                1 => true,
+                _ => return Err(SettingsError::Field(o as u16)),
+            };
         }
         s.validate_stored()?;
         Ok(s)

@@ -32,9 +32,14 @@
 //!    223 f32 × 3         kmz_limit_um (k standard errors of prediction there; NaN: no bound)
 //!    235 f32             envelope_excess_c (largest distance of a model temperature beyond its
 //!                        training envelope at the last fold, °C, ≤ 0 inside; NaN: none)
-//!    239                 end (Status::LEN)
+//!    239 u8              stage (StageCheck code: the provenance check)
+//!    240 u8 + 24         model_serial: length n u8 (0..=24; 0: none) | 24 bytes, n ASCII then zeros
+//!                        (the stage serial the model's blob records)
+//!    265 u8 + 24         controller_serial: same layout (the serial in the controller's `*IDN?`;
+//!                        0: not read, or its identification has none)
+//!    290                 end (Status::LEN)
 //! ```
-//! Protocol 5 put `model_crc32` where protocol 4 had a reserved byte (the flash slot of an
+//! Protocol 7 appended the provenance check's fields (offset 239 on). Protocol 5 put `model_crc32` where protocol 4 had a reserved byte (the flash slot of an
 //! older store): every later field moved by 3 bytes. Protocol 6 appended the model-stale
 //! check's fields (offset 206 on).
 //!
@@ -48,6 +53,7 @@ use crate::led::LedState;
 use crate::mgmt::{PayloadError, Reader, Refusal, Writer};
 use core::fmt;
 use core::ops::{BitOr, BitOrAssign};
+use nanocal_model::provenance::{StageSerial, MAX_SERIAL};
 
 /// Sensors in a status report (every temperature a model can read).
 pub const STATUS_SENSORS: usize = nanocal_model::MAX_TEMPS;
@@ -172,6 +178,10 @@ impl Flags {
     /// fell outside its prediction interval, or the temperatures left its training envelope by
     /// more than it was shown to extrapolate. Moves are still corrected.
     pub const MODEL_STALE: Flags = Flags(1 << 12);
+    /// The controller's identification names another stage serial than the model was fitted
+    /// on ([`Status::stage`] says whether moves are refused or, by the setting
+    /// `allow_other_stage`, corrected all the same).
+    pub const STAGE_MISMATCH: Flags = Flags(1 << 13);
 
     /// Every flag with its name, in bit order (the table `Debug` prints from).
     pub const ALL: &'static [(Flags, &'static str)] = &[
@@ -186,6 +196,7 @@ impl Flags {
         (Flags::WARMING_UP, "WARMING_UP"),
         (Flags::MOVE_FOLD, "MOVE_FOLD"),
         (Flags::MODEL_STALE, "MODEL_STALE"),
+        (Flags::STAGE_MISMATCH, "STAGE_MISMATCH"),
     ];
 
     /// No flag set.
@@ -251,6 +262,39 @@ impl fmt::Debug for Flags {
             write!(f, "{}{rest:#06x}", if first { "" } else { " | " })?;
         }
         write!(f, ")")
+    }
+}
+
+code_enum! {
+    /// The provenance check: is the controller the stage the model was fitted on
+    /// (`nanocal_model::provenance`)? Its code is [`Status::stage`]'s byte.
+    pub enum StageCheck: u8 {
+        /// Nothing to check: no model, or the model records no stage serial (a blob older
+        /// than format version 4, or fitted without the stage's identification).
+        Unchecked = 0 => "not checked: the model records no stage serial",
+        /// The controller's identification is not read yet: the proxy reads it before the
+        /// first corrected move (or from the host's own `*IDN?`), and no move is corrected
+        /// before it has.
+        NotRead = 1 => "the controller's identification is not read yet (read before the first corrected move)",
+        /// The controller's serial is the one the model was fitted on.
+        Match = 2 => "the controller is the stage the model was fitted on",
+        /// The controller's serial differs from the model's (or its identification names
+        /// none): moves are refused (GCS error 9015).
+        Mismatch = 3 => "ANOTHER STAGE than the model was fitted on: moves refused (GCS error 9015; setting allow_other_stage overrides)",
+        /// As [`StageCheck::Mismatch`], but the setting `allow_other_stage` is on: moves are
+        /// corrected all the same.
+        MismatchAllowed = 4 => "ANOTHER STAGE than the model was fitted on: moves corrected all the same (setting allow_other_stage)",
+        /// The controller's identification went unanswered or is no usable line: moves are
+        /// refused (GCS error 9014).
+        Unanswered = 5 => "the controller's identification went unanswered: moves refused (GCS error 9014)",
+    }
+}
+
+impl StageCheck {
+    /// True when the controller is known to be another stage than the model's
+    /// ([`Flags::STAGE_MISMATCH`]).
+    pub const fn mismatch(self) -> bool {
+        matches!(self, StageCheck::Mismatch | StageCheck::MismatchAllowed)
     }
 }
 
@@ -419,6 +463,12 @@ pub struct Status {
     /// Largest distance of a temperature the model reads beyond its training envelope at the
     /// last fold, °C (≤ 0: inside; NaN: the model reads no temperature, or no fold yet).
     pub envelope_excess_c: f32,
+    /// The provenance check (protocol 7).
+    pub stage: StageCheck,
+    /// The stage serial the model in service records (`None`: no model, or none recorded).
+    pub model_serial: Option<StageSerial>,
+    /// The serial in the controller's identification (`None`: not read, or it has none).
+    pub controller_serial: Option<StageSerial>,
 }
 
 impl Default for Status {
@@ -456,6 +506,9 @@ impl Default for Status {
             kmz_residual_um: [f32::NAN; 3],
             kmz_limit_um: [f32::NAN; 3],
             envelope_excess_c: f32::NAN,
+            stage: StageCheck::Unchecked,
+            model_serial: None,
+            controller_serial: None,
         }
     }
 }
@@ -484,7 +537,9 @@ impl Status {
         + 4
         + 4 * 3
         + 4 * 3
-        + 4;
+        + 4
+        + 1
+        + 2 * (1 + MAX_SERIAL);
 
     /// Encode (the layout in the module docs).
     pub fn encode(&self, w: &mut Writer<'_>) -> Result<(), PayloadError> {
@@ -535,6 +590,13 @@ impl Status {
             w.f32(*v)?;
         }
         w.f32(self.envelope_excess_c)?;
+        w.u8(self.stage.code())?;
+        for serial in [&self.model_serial, &self.controller_serial] {
+            let b = serial.as_ref().map_or(&[][..], |s| s.as_bytes());
+            w.u8(b.len() as u8)?;
+            w.bytes(b)?;
+            w.bytes(&[0; MAX_SERIAL][b.len()..])?;
+        }
         Ok(())
     }
 
@@ -609,7 +671,29 @@ impl Status {
             *v = r.f32()?;
         }
         s.envelope_excess_c = r.f32()?;
+        let c = r.u8()?;
+        s.stage = StageCheck::from_code(c).ok_or(PayloadError::Value {
+            field: "stage",
+            value: c.into(),
+        })?;
+        s.model_serial = serial(r, "model_serial")?;
+        s.controller_serial = serial(r, "controller_serial")?;
         Ok(s)
+    }
+}
+
+/// A serial field: its length byte, then [`MAX_SERIAL`] bytes (the serial, then zeros).
+fn serial(r: &mut Reader<'_>, field: &'static str) -> Result<Option<StageSerial>, PayloadError> {
+    let n = r.u8()?;
+    let b = r.bytes(MAX_SERIAL)?;
+    let bad = PayloadError::Value {
+        field,
+        value: n.into(),
+    };
+    match usize::from(n) {
+        0 => Ok(None),
+        n if n <= MAX_SERIAL => StageSerial::new(&b[..n]).map(Some).ok_or(bad),
+        _ => Err(bad),
     }
 }
 

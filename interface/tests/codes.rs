@@ -45,13 +45,13 @@ fn every_code_maps_back() {
 
 #[test]
 fn gcs_errors_mean_what_the_proxy_raises_them_for() {
-    // the compensator's own codes, 9001..=9014, each with its own meaning
+    // the compensator's own codes, 9001..=9015, each with its own meaning
     let own: Vec<i32> = GcsErrorCode::ALL
         .iter()
         .filter(|e| e.is_compensators())
         .map(|e| e.code())
         .collect();
-    assert_eq!(own, (9001..=9014).collect::<Vec<_>>());
+    assert_eq!(own, (9001..=9015).collect::<Vec<_>>());
     // the two the campaign once mislabelled (9006 as a unit mismatch)
     assert_eq!(
         GcsErrorCode::from_code(9006),
@@ -80,7 +80,11 @@ fn gcs_errors_mean_what_the_proxy_raises_them_for() {
     );
     assert!(GcsErrorCode::NotPrintable.to_string().contains("printable"));
     assert_eq!(GcsErrorCode::from_code(9014), Some(GcsErrorCode::NoAnswer));
-    assert_eq!(GcsErrorCode::from_code(9015), None);
+    assert_eq!(
+        GcsErrorCode::from_code(9015),
+        Some(GcsErrorCode::StageMismatch)
+    );
+    assert_eq!(GcsErrorCode::from_code(9016), None);
 }
 
 #[test]

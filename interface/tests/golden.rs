@@ -11,9 +11,10 @@ use nanocal_interface::mgmt::{
 };
 use nanocal_interface::settings::{AuxSource, AxisId, Chip, Mains, Settings, TcType, Wires};
 use nanocal_interface::status::{
-    ChannelBits, ChannelStatus, Flags, SensorFault, StaleReasons, Status,
+    ChannelBits, ChannelStatus, Flags, SensorFault, StageCheck, StaleReasons, Status,
 };
 use nanocal_interface::GcsErrorCode;
+use nanocal_model::StageSerial;
 
 include!("golden/bytes.rs");
 
@@ -42,7 +43,8 @@ fn status() -> Status {
             | Flags::EXTRAPOLATING
             | Flags::HOST_CONNECTED
             | Flags::MOVE_FOLD
-            | Flags::MODEL_STALE,
+            | Flags::MODEL_STALE
+            | Flags::STAGE_MISMATCH,
         model_id: 0x0003_0001,
         model_crc32: 0x89AB_CDEF,
         move_fold: 41,
@@ -74,6 +76,9 @@ fn status() -> Status {
         kmz_residual_um: [0.25, -0.125, 0.0],
         kmz_limit_um: [0.09375, 0.0, 0.0],
         envelope_excess_c: 0.5,
+        stage: StageCheck::MismatchAllowed,
+        model_serial: StageSerial::new(b"0116044408"),
+        controller_serial: StageSerial::new(b"0116044999"),
     }
 }
 
@@ -85,6 +90,7 @@ fn custom_settings() -> Settings {
         fold_period_ms: 8_000,
         stale_k: 2.5,
         extrapolation_c: 0.25,
+        allow_other_stage: true,
         ..Settings::default()
     };
     s.sensors = [None; 16];
@@ -185,11 +191,15 @@ fn settings_bytes() {
     use nanocal_interface::settings::{
         DEFAULT_EXTRAPOLATION_C, DEFAULT_FOLD_PERIOD_MS, DEFAULT_STALE_K,
     };
-    // a layout 4 record (stored by a firmware before the stage unit was dropped, here mm, a unit
-    // the firmware never applied) decodes to the same settings
+    // a layout 4 record (stored by a firmware before layout 5: the stage unit, here mm, a unit
+    // the firmware never applied; no provenance check) decodes to the same settings, other
+    // stages refused
     assert_eq!(
         Settings::decode(&SETTINGS_CUSTOM_V4).unwrap(),
-        custom_settings()
+        Settings {
+            allow_other_stage: false,
+            ..custom_settings()
+        }
     );
     // a layout 3 record (stored by a firmware before the stale check) decodes with its defaults
     assert_eq!(
@@ -197,6 +207,7 @@ fn settings_bytes() {
         Settings {
             stale_k: DEFAULT_STALE_K,
             extrapolation_c: DEFAULT_EXTRAPOLATION_C,
+            allow_other_stage: false,
             ..custom_settings()
         }
     );
@@ -207,6 +218,7 @@ fn settings_bytes() {
             fold_period_ms: DEFAULT_FOLD_PERIOD_MS,
             stale_k: DEFAULT_STALE_K,
             extrapolation_c: DEFAULT_EXTRAPOLATION_C,
+            allow_other_stage: false,
             ..custom_settings()
         }
     );
@@ -257,8 +269,8 @@ fn every_reply_frame() {
     let mut firmware = heapless::String::new();
     firmware.push_str("0.1.0").unwrap();
     let hello = Hello {
-        protocol: 6,
-        blob_format: 2,
+        protocol: 7,
+        blob_format: 4,
         max_chunk: 256,
         firmware,
         uid: core::array::from_fn(|i| i as u8),

@@ -5,7 +5,7 @@
 //! ```text
 //! offset      size  field
 //! 0           4     magic "NCAL"
-//! 4           2     format version (u16) = FORMAT_VERSION (3)
+//! 4           2     format version (u16) = FORMAT_VERSION (4)
 //! 6           2     reserved, 0
 //! 8           4     payload length N (u32)
 //! 12          N     payload
@@ -38,16 +38,30 @@
 //!             (0..=16, MAX_BOUND_TERMS), all f32 (the device's precision; see crate::bound):
 //!                   s f32 (µm) | t95 f32 | mean f32 ×P_a | scale f32 ×P_a |
 //!                   R f32 ×(P_a+1)(P_a+2)/2 (upper triangle, row-major, row i = columns i..=P_a)
+//! then        72    provenance (crate::provenance; zeros where unknown):
+//!             +0  8   fit date i64 (UTC seconds since 1970-01-01; 0: unknown)
+//!             +8  8   training data hash u64 (64-bit FNV-1a of the recording's bytes; 0: unknown)
+//!             +16 1   stage serial length S (0..=24; 0: unknown, the device checks nothing)
+//!             +17 1   unit (0 unknown, 1 µm)
+//!             +18 2   reserved, 0
+//!             +20 24  stage serial: S printable ASCII bytes (no comma, no space at either end)
+//!                     from the controller's `*IDN?`, then zeros
+//!             +44 27  per model axis slot 0..3: name length n u8 (0..=8; 0 for a slot ≥ A or
+//!                     unknown) | 8 bytes: n printable ASCII bytes (the recording's axis
+//!                     name), then zeros
+//!             +71 1   reserved, 0
 //! ```
 //!
-//! Version history: 3 added the bound mask (payload byte +11, reserved before) and the
+//! Version history: 4 added the provenance after the bounds: the stage (its controller's
+//! serial), axes and unit the model was fitted on, the fit's date and the hash of its data
+//! (a version 1–3 blob decodes with the provenance unknown: the device checks no stage). 3 added the bound mask (payload byte +11, reserved before) and the
 //! prediction bounds after the terms: what a device needs to evaluate the fit's prediction
 //! interval ([`crate::bound`]). 2 had no aux descriptors (every aux input of kind "other" and slow), no
 //! play operators (payload bytes +10 and +11 reserved) and at most 8 temperatures and 8 lags.
 //! Version 2 added the aux descriptors, the play operators and factor kind 4, and widened the
-//! counts. The decoder still reads version 1 and 2 blobs (a device keeps the models it stored
-//! before an update; they carry no bound); the encoder writes version 3 only, and an upload
-//! must be version 3 (`nanocal_compensator::upload` refuses others by name).
+//! counts. The decoder still reads version 1, 2 and 3 blobs (a device keeps the models it stored
+//! before an update; they carry no provenance, 1 and 2 no bound); the encoder writes version 4
+//! only, and an upload must be version 4 (`nanocal_compensator::upload` refuses others by name).
 //!
 //! The decoder checks everything — lengths, CRC, counts, indices, finiteness, reserved bytes,
 //! the order of play operators, the monotonicity of their banks — and returns a typed
@@ -62,13 +76,18 @@ use crate::input::{AuxKind, AuxSpec, Input, Scaling};
 use crate::lag::LagSpec;
 use crate::limits::{MAX_AUX, MAX_AXES, MAX_INPUTS, MAX_LAGS, MAX_PLAY, MAX_TEMPS, MAX_TERMS};
 use crate::model::Model;
+use crate::provenance::{
+    AxisName, Provenance, ProvenanceUnit, StageSerial, MAX_AXIS_NAME, MAX_SERIAL,
+};
 use crate::term::{Factor, Term};
 use crate::ModelBuilder;
 
 /// First four bytes of every blob.
 pub const MAGIC: [u8; 4] = *b"NCAL";
 /// Version of the byte layout above; bumped whenever the bytes change.
-pub const FORMAT_VERSION: u16 = 3;
+pub const FORMAT_VERSION: u16 = 4;
+/// Version 3 (no provenance), which the decoder still reads.
+pub const FORMAT_VERSION_3: u16 = 3;
 /// Version 2 (no prediction bounds), which the decoder still reads.
 pub const FORMAT_VERSION_2: u16 = 2;
 /// Version 1, which the decoder still reads.
@@ -84,6 +103,11 @@ const AUX_LEN: usize = 8;
 const LAG_LEN: usize = 16;
 const PLAY_LEN: usize = 16;
 const TERM_LEN: usize = 16;
+/// Bytes of the provenance (version 4).
+pub const PROVENANCE_LEN: usize = 72;
+const SERIAL_AT: usize = 20;
+const AXIS_NAMES_AT: usize = SERIAL_AT + MAX_SERIAL;
+const _: () = assert!(AXIS_NAMES_AT + (1 + MAX_AXIS_NAME) * MAX_AXES + 1 == PROVENANCE_LEN);
 /// Bytes of one axis' prediction bound with `p` regressors.
 const fn bound_len(p: usize) -> usize {
     4 * (2 + 2 * p + packed_len(p))
@@ -98,7 +122,8 @@ pub const MAX_PAYLOAD_LEN: usize = PAYLOAD_FIXED_LEN
     + LAG_LEN * MAX_LAGS
     + PLAY_LEN * MAX_PLAY
     + TERM_LEN * MAX_TERMS
-    + (MAX_AXES - 1) * bound_len(MAX_BOUND_TERMS);
+    + (MAX_AXES - 1) * bound_len(MAX_BOUND_TERMS)
+    + PROVENANCE_LEN;
 // The largest payload: all MAX_TERMS terms and a full bound on all axes but one (an axis
 // with a bound has at most MAX_BOUND_TERMS terms, so the last axis holds the rest, too many
 // for a bound; that beats fewer terms and a bound on every axis).
@@ -120,7 +145,7 @@ pub enum BlobError {
     },
     /// The first four bytes are not "NCAL".
     BadMagic,
-    /// A format version this build does not read (it reads 1, 2 and 3).
+    /// A format version this build does not read (it reads 1 to 4).
     UnsupportedVersion {
         /// Version found.
         found: u16,
@@ -165,6 +190,12 @@ pub enum BlobError {
         /// Kind byte found.
         kind: u8,
     },
+    /// The provenance holds a value outside its range: a serial or axis name longer than its
+    /// field or not printable ASCII, an unknown unit code, bytes after a name's end.
+    InvalidProvenance {
+        /// Offset of the offending byte in the blob.
+        offset: usize,
+    },
     /// The bytes describe a model that breaks the model's rules.
     InvalidModel(ModelError),
     /// The output buffer is too small for the encoded model.
@@ -208,6 +239,9 @@ impl fmt::Display for BlobError {
             }
             BlobError::UnknownAuxKind { aux, kind } => {
                 write!(f, "aux input {aux} has unknown kind {kind}")
+            }
+            BlobError::InvalidProvenance { offset } => {
+                write!(f, "blob provenance is malformed at offset {offset}")
             }
             BlobError::InvalidModel(e) => write!(f, "blob holds an invalid model: {e}"),
             BlobError::BufferTooSmall { needed } => {
@@ -282,7 +316,8 @@ impl Counts {
         }
     }
 
-    /// Payload length in format `version` (1 has no aux descriptors), bounds not included.
+    /// Payload length in format `version` (1 has no aux descriptors, 1–3 no provenance),
+    /// bounds not included.
     fn payload_len(&self, version: u16) -> usize {
         let aux_descriptors = if version == FORMAT_VERSION_1 {
             0
@@ -296,6 +331,11 @@ impl Counts {
             + LAG_LEN * self.lags
             + PLAY_LEN * self.plays
             + TERM_LEN * self.terms
+            + if version >= FORMAT_VERSION {
+                PROVENANCE_LEN
+            } else {
+                0
+            }
     }
 }
 
@@ -391,12 +431,13 @@ pub fn encode(model: &Model, out: &mut [u8]) -> Result<usize, BlobError> {
             w.f32(v);
         }
     }
+    write_provenance(&mut w, model.provenance(), model.axes());
     let crc = crc32(&w.buf[..w.pos]);
     w.u32(crc);
     Ok(total)
 }
 
-/// Reads a blob (format version 3, 2 or 1); every malformation is a typed error, never a panic.
+/// Reads a blob (format version 4, 3, 2 or 1); every malformation is a typed error, never a panic.
 pub fn decode(bytes: &[u8]) -> Result<Model, BlobError> {
     if bytes.len() < HEADER_LEN + TRAILER_LEN {
         return Err(BlobError::TooShort { len: bytes.len() });
@@ -437,7 +478,7 @@ pub fn decode(bytes: &[u8]) -> Result<Model, BlobError> {
     let n_terms = r.u16()?;
     // Version 1 had a reserved u16 here: zero plays and a zero byte read it the same way.
     let plays = r.bytes::<1>()?[0];
-    let mask = if version == FORMAT_VERSION {
+    let mask = if version >= FORMAT_VERSION_3 {
         let mask = r.bytes::<1>()?[0];
         if axes as usize <= MAX_AXES && mask >> axes != 0 {
             return Err(BlobError::ReservedNotZero { offset: r.pos - 1 });
@@ -471,7 +512,7 @@ pub fn decode(bytes: &[u8]) -> Result<Model, BlobError> {
         return Err(ModelError::TooManyTerms.into());
     }
     let needed = counts.payload_len(version);
-    // version 3's bounds follow the terms: their length is checked once the terms are read
+    // version 3's and 4's bounds follow the terms: their length is checked once the terms are read
     if needed != payload && !(mask != 0 && needed < payload) {
         return Err(BlobError::PayloadSizeMismatch {
             expected: needed,
@@ -597,7 +638,77 @@ pub fn decode(bytes: &[u8]) -> Result<Model, BlobError> {
         let bound = AxisBound::new(s_um, t95, &mean[..p], &scale[..p], &rp[..packed_len(p)])?;
         model.set_bound(a, Some(bound))?;
     }
+    if version >= FORMAT_VERSION {
+        model.provenance = read_provenance(&mut r, na)?;
+    }
     Ok(model)
+}
+
+/// Writes the provenance section (version 4).
+fn write_provenance(w: &mut Writer<'_>, p: &Provenance, axes_n: usize) {
+    let start = w.pos;
+    w.bytes(&p.fit_date_s.to_le_bytes());
+    w.bytes(&p.data_fnv64.to_le_bytes());
+    let serial = p.stage_serial.as_ref().map_or(&[][..], |s| s.as_bytes());
+    w.bytes(&[serial.len() as u8, p.unit.code()]);
+    w.pos = start + SERIAL_AT;
+    w.bytes(serial);
+    for (a, name) in p.axes.iter().enumerate().take(axes_n) {
+        w.pos = start + AXIS_NAMES_AT + a * (1 + MAX_AXIS_NAME);
+        let name = name.as_ref().map_or(&[][..], |n| n.as_bytes());
+        w.bytes(&[name.len() as u8]);
+        w.bytes(name);
+    }
+    // the buffer was zeroed: reserved bytes and padding stay 0
+    w.pos = start + PROVENANCE_LEN;
+}
+
+/// Reads the provenance section (version 4): every length in range, every text printable,
+/// every byte after a text's end zero.
+fn read_provenance(r: &mut Reader<'_>, axes_n: usize) -> Result<Provenance, BlobError> {
+    let start = r.pos;
+    let fit_date_s = i64::from_le_bytes(r.bytes()?);
+    let data_fnv64 = u64::from_le_bytes(r.bytes()?);
+    let [s_len, unit] = r.bytes::<2>()?;
+    let bad = |at: usize| BlobError::InvalidProvenance { offset: start + at };
+    let unit = ProvenanceUnit::from_code(unit).ok_or(bad(17))?;
+    r.reserved_u16()?;
+    let serial_field = r.bytes::<MAX_SERIAL>()?;
+    let s_len = usize::from(s_len);
+    if s_len > MAX_SERIAL {
+        return Err(bad(16));
+    }
+    let stage_serial = match s_len {
+        0 => None,
+        n => Some(StageSerial::new(&serial_field[..n]).ok_or(bad(SERIAL_AT))?),
+    };
+    if let Some(k) = serial_field[s_len..].iter().position(|&b| b != 0) {
+        return Err(bad(SERIAL_AT + s_len + k));
+    }
+    let mut axes = [None; MAX_AXES];
+    for (a, slot) in axes.iter_mut().enumerate() {
+        let at = AXIS_NAMES_AT + a * (1 + MAX_AXIS_NAME);
+        let [n] = r.bytes::<1>()?;
+        let field = r.bytes::<MAX_AXIS_NAME>()?;
+        let n = usize::from(n);
+        if n > MAX_AXIS_NAME || (n > 0 && a >= axes_n) {
+            return Err(bad(at));
+        }
+        if n > 0 {
+            *slot = Some(AxisName::new(&field[..n]).ok_or(bad(at + 1))?);
+        }
+        if let Some(k) = field[n..].iter().position(|&b| b != 0) {
+            return Err(bad(at + 1 + n + k));
+        }
+    }
+    r.reserved_u8()?;
+    Ok(Provenance {
+        stage_serial,
+        axes,
+        unit,
+        fit_date_s,
+        data_fnv64,
+    })
 }
 
 struct Writer<'a> {

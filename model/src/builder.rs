@@ -57,6 +57,7 @@ impl ModelBuilder {
                 }; MAX_TERMS],
                 n_terms: 0,
                 bounds: [None; MAX_AXES],
+                provenance: crate::provenance::Provenance::UNKNOWN,
             },
         })
     }

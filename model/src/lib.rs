@@ -36,6 +36,7 @@ mod lag;
 pub mod limits;
 mod model;
 pub mod play;
+pub mod provenance;
 pub mod reference;
 mod term;
 
@@ -48,4 +49,5 @@ pub use input::{AuxKind, AuxSpec, EnvelopeFlags, FastInputs, Input, Range, Scali
 pub use lag::{LagBank, LagFilter, LagSpec};
 pub use limits::{MAX_AUX, MAX_AXES, MAX_LAGS, MAX_PLAY, MAX_TEMPS, MAX_TERMS};
 pub use model::{Model, ScaledInputs};
+pub use provenance::{Provenance, StageSerial};
 pub use term::{approach_sign, Factor, Term};

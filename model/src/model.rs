@@ -10,6 +10,7 @@ use crate::limits::{
     MAX_AUX, MAX_AXES, MAX_INPUTS, MAX_LAGS, MAX_PLAY, MAX_POWER, MAX_TEMPS, MAX_TERMS,
 };
 use crate::play::play;
+use crate::provenance::Provenance;
 use crate::term::{approach_sign, Factor, Term};
 
 /// A calibration model mapping calibrated target positions `x` (µm) to the commands `q` (µm)
@@ -43,6 +44,8 @@ pub struct Model {
     pub(crate) n_terms: u16,
     /// The prediction bound of each output axis, when the fit wrote one (blob version 3).
     pub(crate) bounds: [Option<AxisBound>; MAX_AXES],
+    /// Where the model comes from (blob version 4; unknown for older blobs).
+    pub(crate) provenance: Provenance,
 }
 
 /// Every input of one evaluation, already scaled, ready for [`Term::value`].
@@ -174,6 +177,21 @@ impl Model {
     /// The prediction bound of output axis `axis` ([`crate::bound`]), if the fit wrote one.
     pub fn bound(&self, axis: usize) -> Option<&AxisBound> {
         self.bounds.get(axis).and_then(|b| b.as_ref())
+    }
+
+    /// Where the model comes from: the stage, axes and unit it was fitted on, the fit's date
+    /// and the hash of its data ([`crate::provenance`]; all unknown for a version 1–3 blob).
+    pub fn provenance(&self) -> &Provenance {
+        &self.provenance
+    }
+
+    /// Records where the model comes from. Axis names past the model's axes are dropped (the
+    /// blob has no place for them).
+    pub fn set_provenance(&mut self, mut provenance: Provenance) {
+        for name in provenance.axes.iter_mut().skip(self.axes()) {
+            *name = None;
+        }
+        self.provenance = provenance;
     }
 
     /// Terms of output axis `axis` (the regressors of its bound).

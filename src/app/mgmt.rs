@@ -438,6 +438,13 @@ fn apply_settings(sh: &Shared, s: Settings) {
             .proxy
             .reconfigure(AxisMap::new(&s.axis_names))
     });
+    let serial = sh.model.lock(|m| {
+        m.borrow()
+            .model
+            .as_ref()
+            .and_then(|x| x.provenance().stage_serial)
+    });
+    sh.check_stage(serial);
     sh.settings_changed.signal(());
 }
 
@@ -468,6 +475,7 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
             s.flags |= Flags::MODEL;
             s.model_id = model.id();
             s.model_crc32 = m.model_crc32;
+            s.model_serial = model.provenance().stage_serial;
             for a in 0..model.axes().min(3) {
                 s.kmz_um[a] = model.kmz_offset_um(a);
             }
@@ -538,6 +546,11 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
         }
         if c.proxy.unit_mismatch() {
             s.flags |= Flags::UNIT_MISMATCH;
+        }
+        s.stage = c.proxy.stage_check();
+        s.controller_serial = c.proxy.controller_serial();
+        if s.stage.mismatch() {
+            s.flags |= Flags::STAGE_MISMATCH;
         }
         let k = c.proxy.counters;
         s.host_lines = k.host_lines;

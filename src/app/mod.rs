@@ -36,7 +36,7 @@ use nanocal_compensator::stale::StaleCheck;
 use nanocal_interface::identity::{ResetCause, Site};
 use nanocal_interface::mgmt::Refusal;
 use nanocal_interface::settings::Settings;
-use nanocal_model::{Model, SlowInputs, MAX_AUX};
+use nanocal_model::{Model, SlowInputs, StageSerial, MAX_AUX};
 
 /// Reads at least one byte into `buf`. An error or end of input (host unplugged, a UART
 /// framing error) is retried after a short pause instead of ending the task: the compensator
@@ -331,6 +331,7 @@ impl Shared {
     /// were never read).
     /// `crc32` is the CRC its blob carries (`nanocal_model::blob::stored_crc`).
     pub fn stage(&self, model: Model, crc32: u32) {
+        let serial = model.provenance().stage_serial;
         self.model.lock(|m| {
             let mut m = m.borrow_mut();
             m.model = Some(model);
@@ -348,6 +349,16 @@ impl Shared {
             c.proxy.reset_hysteresis();
             c.fast.clear();
         });
+        self.check_stage(serial);
+    }
+
+    /// The provenance check's model side: the stage serial the model in service was fitted on
+    /// (`None`: no model or none recorded) and the settings' `allow_other_stage`, for the
+    /// proxy, which compares them with the controller's `*IDN?` before correcting a move.
+    pub fn check_stage(&self, serial: Option<StageSerial>) {
+        let allow = self.settings.lock(|s| s.borrow().allow_other_stage);
+        self.core
+            .lock(|c| c.borrow_mut().proxy.set_stage(serial, allow));
     }
 
     /// The staged model is in the store: the sensor task may fold it.
@@ -369,6 +380,7 @@ impl Shared {
             m.pending = false;
         });
         self.core.lock(|c| c.borrow_mut().comp = None);
+        self.check_stage(None);
     }
 
     /// Used channels (temperatures) of the model in service.

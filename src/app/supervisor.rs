@@ -10,6 +10,7 @@ use core::sync::atomic::Ordering;
 use embassy_time::Timer;
 use nanocal_compensator::proxy::Gate;
 use nanocal_interface::led::LedState;
+use nanocal_interface::status::StageCheck;
 
 /// What the supervisor drives on a board.
 pub trait Board {
@@ -47,7 +48,10 @@ pub fn led_state(sh: &Shared) -> LedState {
         let c = c.borrow();
         (
             c.proxy.bypass,
-            c.proxy.gate != Gate::Open || c.comp.is_none(),
+            // another stage than the model's (provenance check): moves refused too
+            c.proxy.gate != Gate::Open
+                || c.comp.is_none()
+                || c.proxy.stage_check() == StageCheck::Mismatch,
         )
     });
     LedState::of(model, bypass, refused, stale)

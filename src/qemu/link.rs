@@ -72,6 +72,16 @@ pub fn count_tx(port: usize, n: u32) {
     }
 }
 
+/// Mark (`on`) or clear the board's writer of serial `port` as waiting for room
+/// (`bench_link::TX_WAITING`). Thread mode only (the UART writers and the clock's start).
+pub fn tx_waiting(port: usize, on: bool) {
+    if port < bl::SERIALS {
+        let bit = 1u32 << port;
+        let m = read_u32(bl::TX_WAITING);
+        write_u32(bl::TX_WAITING, if on { m | bit } else { m & !bit });
+    }
+}
+
 /// True when the bench announced bytes on serial `port` that the board has not read yet.
 pub fn announced_unread(port: usize) -> bool {
     port < bl::SERIALS

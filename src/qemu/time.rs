@@ -88,6 +88,8 @@ pub fn init(mut syst: SYST) {
             link::write_u64(bl::BOOT_AT, boot_at);
             link::write_u64(bl::NEXT_ALARM, u64::MAX);
             link::write_u32(bl::WAITING, 0);
+            // no writer of this boot waits yet (one of the last may have, when it reset)
+            link::write_u32(bl::TX_WAITING, 0);
             link::barrier();
             link::write_u32(bl::BOOTS, link::read_u32(bl::BOOTS).wrapping_add(1));
         }
@@ -136,6 +138,14 @@ fn input_on_its_way() -> bool {
     (0..uart::COUNT).any(|n| n != uart::BENCH && uart::rx_armed(n) && link::announced_unread(n))
 }
 
+/// A writer of the board waits for room (its bytes are on their way to the bench through
+/// QEMU) and the bench, running freely, reads them: no time passes until they are out
+/// (`bench_link::TX_WAITING`; in lockstep, or when the bench stops reading, it clears
+/// `TX_HOLD` and time passes — the writer's own timeout then decides).
+fn output_on_its_way() -> bool {
+    link::read_u32(bl::TX_HOLD) != 0 && link::read_u32(bl::TX_WAITING) != 0
+}
+
 /// The executor has nothing ready: move the clock to the next timer if the horizon allows (and
 /// wake its tasks), else to the horizon, and wait there for the bench. Call with interrupts
 /// masked (a pending interrupt ends the wait).
@@ -153,8 +163,9 @@ pub fn idle() {
         };
         let horizon = horizon_bench.saturating_sub(boot_at);
         // bytes the bench has written to a port whose reader waits for them are still on
-        // their way through QEMU: no time passes until they are in (timers already due run)
-        let horizon = if linked && input_on_its_way() {
+        // their way through QEMU: no time passes until they are in (timers already due run);
+        // likewise bytes the board wrote, while the free-running bench takes them
+        let horizon = if linked && (input_on_its_way() || output_on_its_way()) {
             horizon.min(now)
         } else {
             horizon

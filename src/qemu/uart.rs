@@ -2,10 +2,22 @@
 //! `embedded-io-async` Read/Write halves.
 //!
 //! Registers: DATA 0x00, STATE 0x04 (bit0 TX full, bit1 RX full), CTRL 0x08 (bit0 TX enable,
-//! bit1 RX enable, bit3 RX interrupt enable), INTSTATUS/INTCLEAR 0x0C (bit1 RX), BAUDDIV 0x10.
-//! On `mps2-an386`, UART n (n = 0..=3) sits at 0x4000_4000 + n·0x1000 and UART4 at 0x4000_9000,
-//! serial port n of QEMU's command line, with its RX interrupt at IRQ 0, 2, 4, 18, 20. Bytes
-//! written are counted in the bench's page ([`super::link::count_tx`]).
+//! bit1 RX enable, bit2 TX interrupt enable, bit3 RX interrupt enable), INTSTATUS/INTCLEAR 0x0C
+//! (bit0 TX, bit1 RX), BAUDDIV 0x10. On `mps2-an386`, UART n (n = 0..=3) sits at
+//! 0x4000_4000 + n·0x1000 and UART4 at 0x4000_9000, serial port n of QEMU's command line, with
+//! its RX interrupt at IRQ 0, 2, 4, 18, 20 and its TX interrupt one above (QEMU
+//! `hw/arm/mps2.c`). Bytes written are counted in the bench's page ([`super::link::count_tx`]).
+//!
+//! Both directions wait for their interrupt, never in a loop: QEMU's UART holds one byte and
+//! keeps TX full while its socket takes no more (a peer that does not read: a Unix socket
+//! takes ≈ 280 one-byte writes), and a writer that polled the flag with `yield_now` kept the
+//! executor busy, so the board's clock stood still — no timeout of the writer could fire (the
+//! management reply's `REPLY_STALL_MS`), the supervisor never ran, and QEMU's own watchdog
+//! reset the board after 4 s of its clock. A bench that reads only between steps of the board's
+//! clock waited for the board's time while the board waited for it to read. A waiting writer
+//! is marked in the bench's page (`bench_link::TX_WAITING`): while the bench runs freely the
+//! board's clock holds for it (`super::time`), so QEMU's delay in passing bytes on is no board
+//! time.
 
 use core::convert::Infallible;
 use core::future::poll_fn;
@@ -24,7 +36,9 @@ const STATE_TX_FULL: u32 = 1 << 0;
 const STATE_RX_FULL: u32 = 1 << 1;
 const CTRL_TX_EN: u32 = 1 << 0;
 const CTRL_RX_EN: u32 = 1 << 1;
+const CTRL_TX_INT: u32 = 1 << 2;
 const CTRL_RX_INT: u32 = 1 << 3;
+const INT_TX: u32 = 1 << 0;
 const INT_RX: u32 = 1 << 1;
 
 /// UARTs the board uses.
@@ -39,8 +53,11 @@ const BASES: [usize; COUNT] = [
     0x4000_9000,
 ];
 const RX_IRQS: [u16; COUNT] = [0, 2, 4, 18, 20];
+/// TX interrupt of UART n: its RX interrupt + 1.
+const TX_IRQ_OFFSET: u16 = 1;
 
 static WAKERS: [AtomicWaker; COUNT] = [const { AtomicWaker::new() }; COUNT];
+static TX_WAKERS: [AtomicWaker; COUNT] = [const { AtomicWaker::new() }; COUNT];
 
 #[derive(Clone, Copy)]
 struct Irq(u16);
@@ -71,7 +88,8 @@ pub struct Uart {
 }
 
 impl Uart {
-    /// Enable UART `n` (0..=4) at `baud` (QEMU ignores the rate) and its RX interrupt line.
+    /// Enable UART `n` (0..=4) at `baud` (QEMU ignores the rate) and its RX and TX interrupt
+    /// lines (each source stays disabled in CTRL until a reader or writer waits for it).
     ///
     /// # Safety
     /// Call at most once per `n`: the halves assume exclusive use of the registers.
@@ -80,7 +98,10 @@ impl Uart {
         write(n, BAUDDIV, (super::SYSCLK_HZ / baud.max(1)).max(16));
         write(n, CTRL, CTRL_TX_EN | CTRL_RX_EN);
         // SAFETY: the handler only wakes a waker; no mask-based critical section relies on it.
-        unsafe { NVIC::unmask(Irq(RX_IRQS[n])) };
+        unsafe {
+            NVIC::unmask(Irq(RX_IRQS[n]));
+            NVIC::unmask(Irq(RX_IRQS[n] + TX_IRQ_OFFSET));
+        }
         Self { n }
     }
 
@@ -106,7 +127,8 @@ pub fn rx_armed(n: usize) -> bool {
     n < COUNT && read(n, CTRL) & CTRL_RX_INT != 0
 }
 
-/// Call from `DefaultHandler`: wakes the reader of the UART whose RX line fired.
+/// Call from `DefaultHandler`: wakes the reader of the UART whose RX line fired, the writer
+/// of the one whose TX line fired (its byte went out: room for the next).
 pub fn on_interrupt(irqn: i16) {
     for (n, &irq) in RX_IRQS.iter().enumerate() {
         if irqn == irq as i16 {
@@ -116,6 +138,13 @@ pub fn on_interrupt(irqn: i16) {
             });
             write(n, INTCLEAR, INT_RX);
             WAKERS[n].wake();
+        } else if irqn == (irq + TX_IRQ_OFFSET) as i16 {
+            // the same for the writer
+            cortex_m::interrupt::free(|_| {
+                write(n, CTRL, read(n, CTRL) & !CTRL_TX_INT);
+            });
+            write(n, INTCLEAR, INT_TX);
+            TX_WAKERS[n].wake();
         }
     }
 }
@@ -157,12 +186,58 @@ impl embedded_io_async::Read for UartRx {
     }
 }
 
+/// The writer of a UART waits for room: marked in the bench's page while it does
+/// (`bench_link::TX_WAITING`), cleared when it stops waiting — also when its write is dropped
+/// (a reply given up on).
+struct TxWaiting(usize);
+
+impl TxWaiting {
+    fn new(n: usize) -> Self {
+        super::link::tx_waiting(n, true);
+        Self(n)
+    }
+}
+
+impl Drop for TxWaiting {
+    fn drop(&mut self) {
+        super::link::tx_waiting(self.0, false);
+    }
+}
+
+impl UartTx {
+    /// Wait until the UART holds no byte (QEMU handed the last one to its socket). While it
+    /// does, the task sleeps until the TX interrupt (QEMU raises it when TX full clears with
+    /// the interrupt enabled): the executor idles and the board's clock moves on — unless the
+    /// free-running bench takes the bytes on their way (`TxWaiting`, `super::time`).
+    async fn room(&self) {
+        let n = self.n;
+        if read(n, STATE) & STATE_TX_FULL == 0 {
+            return;
+        }
+        let _waiting = TxWaiting::new(n);
+        poll_fn(|cx| {
+            if read(n, STATE) & STATE_TX_FULL == 0 {
+                return Poll::Ready(());
+            }
+            TX_WAKERS[n].register(cx.waker());
+            cortex_m::interrupt::free(|_| write(n, CTRL, read(n, CTRL) | CTRL_TX_INT));
+            // the byte may have gone between the check and arming the interrupt (QEMU raises
+            // it only on the transition): then disarm it, the writer goes on
+            if read(n, STATE) & STATE_TX_FULL == 0 {
+                cortex_m::interrupt::free(|_| write(n, CTRL, read(n, CTRL) & !CTRL_TX_INT));
+                write(n, INTCLEAR, INT_TX);
+                return Poll::Ready(());
+            }
+            Poll::Pending
+        })
+        .await
+    }
+}
+
 impl embedded_io_async::Write for UartTx {
     async fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
         for &b in buf {
-            while read(self.n, STATE) & STATE_TX_FULL != 0 {
-                embassy_futures::yield_now().await;
-            }
+            self.room().await;
             write(self.n, DATA, u32::from(b));
         }
         super::link::count_tx(self.n, buf.len() as u32);

@@ -15,6 +15,8 @@
 use super::queue::{Entry, Expect, Info};
 use super::{GcsErrorCode, Output, ProxyState, MAX_CONTROLLER_AXES};
 use crate::gcs::{self, AxisId, LineBuf, MAP_AXES};
+use nanocal_interface::status::StageCheck;
+use nanocal_model::provenance::{serial_of_idn, StageSerial};
 
 /// Longest identification line (`*IDN?`, LF excluded) the proxy keeps as its marker's reply.
 /// PI's are about 80 bytes ("(c)2015 Physik Instrumente (PI) GmbH & Co. KG, E-727, …").
@@ -92,6 +94,9 @@ pub(crate) struct ControllerInfo {
     pub idn_line: LineBuf<IDN_LEN>,
     /// `*IDN?`; `Unanswered` also when its reply is no usable marker (several lines, too long).
     pub idn: Fact<()>,
+    /// The stage serial in the identification line, when `idn` is known and the line has one
+    /// (`nanocal_model::provenance::serial_of_idn`).
+    pub serial: Option<StageSerial>,
     pub version: Fact<Version>,
     pub axes: Fact<Axes>,
     /// Bit a: model axis a is in µm (`PUN?` of the model axes, read for `ProxyState::facts_n`
@@ -118,6 +123,7 @@ impl ControllerInfo {
         Self {
             idn_line: LineBuf::new(),
             idn: Fact::Unknown,
+            serial: None,
             version: Fact::Unknown,
             axes: Fact::Unknown,
             units: Fact::Unknown,
@@ -143,9 +149,9 @@ impl ControllerInfo {
 
     /// After `RBT`: the controller starts afresh; its identity stays.
     pub(crate) fn rebooted(&mut self) {
-        let idn = (self.idn, self.idn_line.clone());
+        let idn = (self.idn, self.idn_line.clone(), self.serial);
         *self = Self::new();
-        (self.idn, self.idn_line) = idn;
+        (self.idn, self.idn_line, self.serial) = idn;
     }
 
     /// The facts about the model axes (the model's axes or their names changed).
@@ -279,6 +285,11 @@ impl ProxyState {
         if ctrl.idn == Fact::Unanswered {
             return Err(NotReady::Refuse(GcsErrorCode::NoAnswer));
         }
+        // the provenance check, as soon as the identification is read (before it is, the
+        // move waits for it below: no move is corrected on an unchecked stage)
+        if self.stage_check() == StageCheck::Mismatch {
+            return Err(NotReady::Refuse(GcsErrorCode::StageMismatch));
+        }
         if ctrl.gcs3() {
             return Err(NotReady::Refuse(GcsErrorCode::Gcs3));
         }
@@ -301,6 +312,29 @@ impl ProxyState {
             Fact::Known(u) if u == (1u8 << n) - 1 => Ok(()),
             _ => Err(NotReady::Refuse(GcsErrorCode::UnitMismatch)),
         }
+    }
+
+    /// The provenance check: the controller's serial (its `*IDN?`) against the one the model
+    /// in service was fitted on ([`ProxyState::set_stage`]). A model without a serial checks
+    /// nothing; an identification without a serial field is another stage (nothing says it is
+    /// the model's).
+    pub fn stage_check(&self) -> StageCheck {
+        let Some(model) = self.stage.serial else {
+            return StageCheck::Unchecked;
+        };
+        match self.ctrl.idn {
+            Fact::Unanswered => StageCheck::Unanswered,
+            Fact::Known(()) if self.ctrl.serial == Some(model) => StageCheck::Match,
+            Fact::Known(()) if self.stage.allow_other => StageCheck::MismatchAllowed,
+            Fact::Known(()) => StageCheck::Mismatch,
+            Fact::Unknown | Fact::Asked => StageCheck::NotRead,
+        }
+    }
+
+    /// The stage serial in the controller's identification (`None`: not read yet, or the line
+    /// has none).
+    pub fn controller_serial(&self) -> Option<StageSerial> {
+        self.ctrl.idn.known().and(self.ctrl.serial)
     }
 
     /// Ask whatever the controller has not told yet for `n` model axes. False when the queue
@@ -410,6 +444,7 @@ impl ProxyState {
                 if n_lines == 1 && !line.is_empty() && l.extend(line).is_ok() {
                     self.ctrl.idn_line = l;
                     self.ctrl.idn = Fact::Known(());
+                    self.ctrl.serial = serial_of_idn(line);
                 } else {
                     // several lines, or too long: no usable marker
                     self.ctrl.idn = Fact::Unanswered;

@@ -35,7 +35,12 @@
 //! The model is in µm: another unit, or no answer, refuses moves (code
 //! [`GcsErrorCode::UnitMismatch`]); a GCS 3.0 controller (version > 2, PIPython's own test) is not
 //! supported: moves are refused ([`GcsErrorCode::Gcs3`]) and replies relayed untouched. A corrected
-//! command near an end of the travel is clamped to it or refused (`travel`).
+//! command near an end of the travel is clamped to it or refused (`travel`). The provenance
+//! check: when the model records the stage serial it was fitted on ([`ProxyState::set_stage`]),
+//! the serial in the controller's `*IDN?` must be that one, or moves are refused
+//! ([`GcsErrorCode::StageMismatch`]) unless the settings allow another stage; until the
+//! identification is read, a move waits for it like for the other facts, so no move is ever
+//! corrected on an unchecked stage ([`ProxyState::stage_check`] for the status).
 //!
 //! Time enters only as an argument (`now_ms`), for one decision: a controller that sends
 //! nothing for [`REPLY_TIMEOUT_MS`] while replies are due (counted from the oldest reply due,
@@ -64,7 +69,7 @@ use crate::gcs::{self, AxisMap, LineBuf, Split, MAP_AXES, MAX_LINE};
 use controller::{Certainty, ControllerInfo, Fact};
 use core::fmt;
 pub use nanocal_interface::GcsErrorCode;
-use nanocal_model::HysteresisState;
+use nanocal_model::{HysteresisState, StageSerial};
 use queue::{Answer, Entry, Expect, Info, Queue};
 use replies::ReplyRx;
 
@@ -186,6 +191,15 @@ pub(crate) enum Reseed {
     Failed,
 }
 
+/// What the provenance check compares the controller with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct StageGuard {
+    /// The stage serial the model in service was fitted on (`None`: no check).
+    pub serial: Option<StageSerial>,
+    /// Correct moves on another stage all the same (setting `allow_other_stage`).
+    pub allow_other: bool,
+}
+
 /// Controller axis identifiers the proxy keeps (from `SAI?`).
 pub(crate) const MAX_CONTROLLER_AXES: usize = 16;
 
@@ -257,6 +271,8 @@ pub struct ProxyState {
     pub bypass: bool,
     /// Refuse all moves when not open.
     pub gate: Gate,
+    /// The provenance check's side of the model and the settings ([`ProxyState::set_stage`]).
+    stage: StageGuard,
     /// Counters.
     pub counters: Counters,
     /// Bytes from the controller were lost: until the line is quiet, nothing received can be
@@ -313,6 +329,10 @@ impl Proxy {
                 due_since_ms: 0,
                 bypass: false,
                 gate: Gate::Open,
+                stage: StageGuard {
+                    serial: None,
+                    allow_other: false,
+                },
                 counters: Counters::default(),
                 link_lost: false,
             },
@@ -623,6 +643,23 @@ impl ProxyState {
             Fact::Known(u) => u != (1u8 << self.facts_n.min(MAP_AXES)) - 1,
             Fact::Unanswered => true,
             _ => false,
+        }
+    }
+
+    /// The model's side of the provenance check: the stage serial the model in service was
+    /// fitted on (`None`: no model, or it records none — nothing is checked), and whether the
+    /// settings allow another stage (`allow_other_stage`: moves corrected, the mismatch still
+    /// reported). The controller's side is its `*IDN?`, read before the first corrected move;
+    /// a move on another stage is refused with [`GcsErrorCode::StageMismatch`].
+    pub fn set_stage(&mut self, serial: Option<StageSerial>, allow_other: bool) {
+        let guard = StageGuard {
+            serial,
+            allow_other,
+        };
+        if self.stage != guard {
+            self.stage = guard;
+            // the move path's cached readiness was decided without it
+            self.ctrl.changed();
         }
     }
 

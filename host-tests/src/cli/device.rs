@@ -75,6 +75,11 @@ pub enum DeviceCommand {
         /// counts as stale, °C: what the model was shown to extrapolate (0..=50; default 0.1).
         #[arg(long)]
         extrapolation_c: Option<f32>,
+        /// Compensate a stage whose controller's serial (`*IDN?`) differs from the one the
+        /// model was fitted on (on), or refuse its moves with GCS error 9015 (off, the
+        /// default). The status reports the mismatch either way.
+        #[arg(long, value_parser = ["on", "off"])]
+        allow_other_stage: Option<String>,
         /// GCS axis names of model axes 0,1,2 (comma separated), e.g. X,Y,Z.
         #[arg(long, value_delimiter = ',')]
         axes: Option<Vec<String>>,
@@ -189,6 +194,7 @@ pub fn edit_settings(
     sample_period_ms: Option<u16>,
     fold_period_ms: Option<u16>,
     stale: (Option<f32>, Option<f32>),
+    allow_other_stage: Option<&str>,
     axes: Option<&[String]>,
     sensors: &[String],
     aux: &[String],
@@ -231,6 +237,13 @@ pub fn edit_settings(
             "--extrapolation-c {m}: 0..={MAX_EXTRAPOLATION_C} °C"
         );
         s.extrapolation_c = m;
+    }
+    if let Some(a) = allow_other_stage {
+        s.allow_other_stage = match a {
+            "on" => true,
+            "off" => false,
+            _ => bail!("--allow-other-stage {a}: on or off"),
+        };
     }
     if let Some(a) = axes {
         anyhow::ensure!((1..=3).contains(&a.len()), "--axes: 1 to 3 names");
@@ -308,6 +321,7 @@ pub fn run(cmd: DeviceCommand) -> anyhow::Result<()> {
             fold_period_ms,
             stale_k,
             extrapolation_c,
+            allow_other_stage,
             axes,
             sensor,
             aux,
@@ -321,6 +335,7 @@ pub fn run(cmd: DeviceCommand) -> anyhow::Result<()> {
                 sample_period_ms,
                 fold_period_ms,
                 (stale_k, extrapolation_c),
+                allow_other_stage.as_deref(),
                 axes.as_deref(),
                 &sensor,
                 &aux,

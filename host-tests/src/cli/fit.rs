@@ -55,6 +55,19 @@ pub struct FitArgs {
     /// coverage), VIF, held-out accuracy.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// The stage controller's identification, its reply to `*IDN?` (e.g. "(c)2015 Physik
+    /// Instrumente (PI) GmbH & Co. KG, E-727, 0116044408, 13.21.00.09"): the blob records its
+    /// serial (the third comma-separated field) and the device refuses to compensate a
+    /// controller reporting another (unless its setting allow_other_stage is on). The
+    /// recording's CSV has no place for it. Without it the blob records no stage and the
+    /// device checks none.
+    #[arg(long)]
+    pub stage_idn: Option<String>,
+    /// The fit's date recorded in the blob, UTC: seconds since 1970 or
+    /// YYYY-MM-DD[THH:MM:SS[Z]] (default: now). Give it to make the blob reproducible byte
+    /// for byte.
+    #[arg(long)]
+    pub fit_date: Option<String>,
 }
 
 /// Runs `nanocal fit`.
@@ -66,6 +79,18 @@ pub fn run(args: FitArgs) -> anyhow::Result<()> {
     };
     let bar = crate::cli::validate::spinner(format!("reading {}", args.recording.display()));
     let rec = Recording::read_path(&args.recording)?;
+    // checked before the fit's work, so a typo costs nothing
+    let fit_date_s = match &args.fit_date {
+        Some(t) => crate::provenance::parse_fit_date(t)?,
+        None => std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs() as i64),
+    };
+    if let Some(line) = &args.stage_idn {
+        crate::provenance::provenance(b"", &[], Some(line), 0)?;
+    }
+    let recording_bytes = std::fs::read(&args.recording)
+        .with_context(|| format!("reading {}", args.recording.display()))?;
     let selection = if fixed {
         Selection::Fixed
     } else {
@@ -86,10 +111,18 @@ pub fn run(args: FitArgs) -> anyhow::Result<()> {
         dwell,
         id: args.id,
     };
-    let rep =
+    let mut rep =
         fit_dwells(&d, &opts).with_context(|| format!("fitting {}", args.recording.display()))?;
+    let provenance = crate::provenance::provenance(
+        &recording_bytes,
+        &rep.frame.axes,
+        args.stage_idn.as_deref(),
+        fit_date_s,
+    )?;
+    rep.model.set_provenance(provenance);
     bar.finish_and_clear();
     print!("{}", summary(&rep));
+    println!("{}", crate::provenance::describe(rep.model.provenance()));
     let held_out = if args.blocks > 0 {
         let bar = crate::cli::validate::spinner(format!(
             "held-out accuracy: refitting without each of {} blocks of time",
@@ -218,6 +251,18 @@ pub fn summary(rep: &FitReport) -> String {
     s
 }
 
+/// The provenance as JSON.
+fn provenance_json(p: &nanocal_model::Provenance) -> serde_json::Value {
+    serde_json::json!({
+        "stage_serial": p.stage_serial.map(|s| s.as_str().to_string()),
+        "axes": p.axes.iter().flatten().map(|a| a.as_str()).collect::<Vec<_>>(),
+        "unit": p.unit.name(),
+        "fit_date_utc_s": p.fit_date_s,
+        "fit_date_utc": crate::provenance::format_utc(p.fit_date_s),
+        "training_data_fnv1a64": format!("{:016x}", p.data_fnv64),
+    })
+}
+
 /// The fit report as JSON (µm): per axis the terms, MATLAB `stepwisefit`'s outputs when
 /// stepwise selected them, the prediction band over the model's own terms, and the summaries.
 pub fn report_json(
@@ -250,6 +295,7 @@ pub fn report_json(
         .collect();
     serde_json::json!({
         "model_id": rep.model.id(),
+        "provenance": provenance_json(rep.model.provenance()),
         "dwells": rep.dwells,
         "axes": axes,
         "temperature_vif": vif_json(&rep.temp_vif, "temperature"),

@@ -481,6 +481,7 @@ pub fn format_status(s: &Status) -> String {
         s.slow_outside
     );
     o += &format_stale(s);
+    o += &format_stage(s);
     for i in 0..usize::from(s.sensors).min(s.temps_c.len()) {
         let bits = s.sensor_bits[i];
         o += &format!(
@@ -573,6 +574,27 @@ pub fn format_stale(s: &Status) -> String {
     o
 }
 
+/// The provenance check's line of a status report: is the controller the stage the model was
+/// fitted on, and what happens to moves.
+pub fn format_stage(s: &Status) -> String {
+    let serial = |x: &Option<nanocal_model::StageSerial>| {
+        x.as_ref()
+            .map_or("none".to_string(), |x| x.as_str().to_string())
+    };
+    let mut o = format!("stage check: {}", s.stage);
+    if s.flags.contains(Flags::STAGE_MISMATCH) {
+        o = format!("STAGE MISMATCH — {}", s.stage);
+    }
+    if s.model_serial.is_some() || s.controller_serial.is_some() {
+        o += &format!(
+            " (model fitted on serial {}, controller reports {})",
+            serial(&s.model_serial),
+            serial(&s.controller_serial)
+        );
+    }
+    o + "\n"
+}
+
 /// A human-readable settings report.
 pub fn format_settings(s: &Settings) -> String {
     use nanocal_interface::settings::{AuxSource, Chip, Mains};
@@ -596,6 +618,14 @@ pub fn format_settings(s: &Settings) -> String {
     o += &format!(
         "model-stale check: k = {} standard errors of prediction at a KMZ, extrapolation margin {} °C\n",
         s.stale_k, s.extrapolation_c
+    );
+    o += &format!(
+        "another stage than the model's (controller serial differs): {}\n",
+        if s.allow_other_stage {
+            "compensated all the same (allow_other_stage on)"
+        } else {
+            "moves refused (allow_other_stage off)"
+        }
     );
     for (cs, c) in s.sensors.iter().enumerate() {
         let d = match c {

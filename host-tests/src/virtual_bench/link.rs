@@ -499,13 +499,34 @@ impl BenchLink {
         &self.inputs
     }
 
+    /// Set `TX_HOLD` (`on`: only while the clock runs freely — a racing [`BenchClock::lockstep`]
+    /// wins) or clear it.
+    fn hold_for_output(&self, on: bool) {
+        // all in one order with the lockstep flag (SeqCst): a free-running thread that saw the
+        // flag clear wrote its 1 before lockstep()'s 0
+        let hold = self.page.a32(bl::TX_HOLD);
+        if on && !self.lockstep.load(Ordering::SeqCst) {
+            hold.store(1, Ordering::SeqCst);
+            if !self.lockstep.load(Ordering::SeqCst) {
+                return;
+            }
+        }
+        hold.store(0, Ordering::SeqCst);
+    }
+
     /// Move the horizon with the wall clock × `scale`, except while input is in flight (see
     /// [`InputWatch`] and [`Self::announce`]): then the horizon holds and the board is rung until it has taken the
     /// input, as `src/qemu/time.rs` expects of the bench. A hold lasts at most [`MAX_HOLD`] of
     /// wall time while the unread count stays the same, so a board that stops reading a port
     /// still sees its time pass; likewise announced bytes the board holds its clock for
-    /// (see [`Self::forgive_announced`]).
+    /// (see [`Self::forgive_announced`]). The board holds its clock too while one of its writers
+    /// waits for room (`bench_link::TX_WAITING`: QEMU's socket takes ≈ 280 one-byte writes
+    /// unread, and QEMU passes the rest on when the bench has read them): the bench sets
+    /// `TX_HOLD` while it runs freely, and clears it when such a wait makes no progress for
+    /// [`MAX_HOLD`] (nobody reads: the board's reply timeout may then pass).
     pub(super) fn free_run(&self, scale: f64) {
+        self.hold_for_output(true);
+        let mut out: Option<((u32, u64, u64), Instant)> = None;
         let mut last = Instant::now();
         let mut held = Duration::ZERO;
         let t0 = last;
@@ -545,6 +566,26 @@ impl BenchLink {
                 }
                 _ => stuck = held_by_board.then_some((announced, board_now, now)),
             }
+            // a writer of the board waits, and neither it nor the board's clock moves: after
+            // MAX_HOLD the bench is taken not to read
+            let waiting = self.page.u32(bl::TX_WAITING);
+            if waiting == 0 {
+                out = None;
+                self.hold_for_output(true);
+            } else {
+                let written: u64 = (0..bl::SERIALS)
+                    .map(|p| u64::from(self.page.u32(bl::TX_BYTES + 4 * p)))
+                    .sum();
+                let key = (waiting, written, board_now);
+                match out {
+                    Some((k, since)) if k == key => {
+                        if now - since >= MAX_HOLD {
+                            self.hold_for_output(false);
+                        }
+                    }
+                    _ => out = Some((key, now)),
+                }
+            }
             if hold {
                 held += dt;
                 self.wake_for_input();
@@ -577,7 +618,9 @@ impl BenchClock {
 
     /// Stop the free-running thread: from now on the clock moves only by [`Self::advance_to`].
     pub fn lockstep(&self) {
-        self.link.lockstep.store(true, Ordering::Release);
+        self.link.lockstep.store(true, Ordering::SeqCst);
+        // the board's clock must reach every horizon: no holding for its writers
+        self.link.hold_for_output(false);
     }
 
     /// Move the board's clock to `t_s` of bench time (lockstep): raise the horizon and wait

@@ -18,7 +18,7 @@ pub mod twin_stage;
 
 pub use controller::{
     AxisConfig, Clock, Config, Controller, Event, IdealPlant, ManualClock, Plant, Processed,
-    StageSim, SystemClock,
+    StageSim, SystemClock, DEFAULT_SERIAL,
 };
 pub use link::{BenchClock, BenchLink};
 pub use qemu::{bench_elf, have_qemu, qemu_elf, repo_root, Elf, Qemu, HANG};

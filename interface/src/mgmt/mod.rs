@@ -69,6 +69,10 @@ pub use request::Request;
 /// model-stale check (issue 19): `STATUS` grows by 33 bytes at its end (`Status::stale` …
 /// `Status::envelope_excess_c`, flag `MODEL_STALE`), LED state 5 (model stale), settings
 /// layout 4 (the check's `k` and extrapolation margin, 8 bytes more in CONFIG_GET/CONFIG_SET).
-pub const PROTOCOL: u16 = 6;
+/// 7: the provenance check (issue 19): `STATUS` grows by 51 bytes at its end (`Status::stage`,
+/// `Status::model_serial`, `Status::controller_serial`), flag `STAGE_MISMATCH`, GCS error 9015,
+/// settings layout 5 (`allow_other_stage`, 1 byte more in CONFIG_GET/CONFIG_SET), and HELLO's
+/// blob format is 4 (the provenance section).
+pub const PROTOCOL: u16 = 7;
 /// Largest upload chunk (payload minus the offset).
 pub const MAX_CHUNK: usize = 256;

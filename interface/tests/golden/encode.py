@@ -8,7 +8,7 @@ def frame(kind, seq, payload):
     return bytes([0xA7, 0x5C]) + body + struct.pack('<I', zlib.crc32(body))
 
 def settings(baud, sensors, mains, period, unit, axes, aux, fold_ms=5000, version=5, n_cs=16,
-             stale_k=3.0, extrapolation_c=0.1):
+             stale_k=3.0, extrapolation_c=0.1, allow_other_stage=0):
     b = b'NCST' + bytes([version]) + struct.pack('<I', baud)
     for i in range(n_cs):
         kind, a, rr, r0 = sensors.get(i, (0, 0, 0.0, 0.0))
@@ -23,11 +23,14 @@ def settings(baud, sensors, mains, period, unit, axes, aux, fold_ms=5000, versio
         b += struct.pack('<H', fold_ms)
     if version >= 4:
         b += struct.pack('<ff', stale_k, extrapolation_c)
+    if version >= 5:
+        b += bytes([allow_other_stage])
     return b + struct.pack('<I', zlib.crc32(b))
 
 def status():
     # protocol 5: model_crc32 at offset 6 (protocol 4 had one reserved byte 0xFF there)
-    b = struct.pack('<H', 0x1A09) + struct.pack('<I', 0x00030001) + struct.pack('<I', 0x89ABCDEF) + struct.pack('<I', 41)
+    # flags: MODEL, EXTRAPOLATING, HOST_CONNECTED, MOVE_FOLD, MODEL_STALE, STAGE_MISMATCH (bit 13)
+    b = struct.pack('<H', 0x3A09) + struct.pack('<I', 0x00030001) + struct.pack('<I', 0x89ABCDEF) + struct.pack('<I', 41)
     temps = [20.5, 21.25, -1.5, 0.0] + [0.0] * 12
     b += struct.pack('<16f', *temps)
     b += bytes([0x00, 0x11, 0x62, 0x04] + [0] * 12)
@@ -41,7 +44,11 @@ def status():
     b += bytes([0x02]) + struct.pack('<I', 100000)
     b += struct.pack('<3f', 0.25, -0.125, 0.0) + struct.pack('<3f', 0.09375, 0.0, 0.0)
     b += struct.pack('<f', 0.5)
-    assert len(b) == 239, len(b)
+    # protocol 7: the provenance check: stage 4 (mismatch allowed), the two serials
+    b += bytes([4])
+    b += bytes([10]) + b'0116044408'.ljust(24, b'\0')
+    b += bytes([10]) + b'0116044999'.ljust(24, b'\0')
+    assert len(b) == 290, len(b)
     return b
 
 def rust(name, b, doc):
@@ -55,24 +62,25 @@ default_settings = settings(115200, {i: (1, 3, 0.0, 0.0) for i in range(4)}, 50,
 custom_args = (57600, {0: (1, 3, 0.0, 0.0), 1: (1, 7, 0.0, 0.0), 2: (2, 3, 430.0, 100.0),
                        3: (2, 4, 4300.0, 1000.0)}, 60, 500, 1, [b'X', b'Y', b'3'],
                [(1, 0, 0.0, 0.0), (2, 0, 0.01, -20.48), (0, 0, 0.0, 0.0), (0, 0, 0.0, 0.0)])
-custom_settings = settings(*custom_args, fold_ms=8000, stale_k=2.5, extrapolation_c=0.25)
-# the same settings as a version 4 record (stage unit mm, never applied), as a firmware before layout 5 stored them
+custom_settings = settings(*custom_args, fold_ms=8000, stale_k=2.5, extrapolation_c=0.25,
+                           allow_other_stage=1)
+# the same settings as a version 4 record (stage unit mm, never applied; no allow_other_stage), as a firmware before layout 5 stored them
 custom_settings_v4 = settings(*custom_args, fold_ms=8000, stale_k=2.5, extrapolation_c=0.25, version=4)
 # the same settings as a version 3 record (no stale check), as a firmware before layout 4 stored them
 custom_settings_v3 = settings(*custom_args, fold_ms=8000, version=3)
 # the same settings as a version 2 record (no fold period), as a firmware before layout 3 stored them
 custom_settings_v2 = settings(*custom_args, version=2)
-assert len(default_settings) == 254
+assert len(default_settings) == 255
 assert len(custom_settings_v4) == 254
 assert len(custom_settings_v3) == 246
 assert len(custom_settings_v2) == 244
 
-hello = struct.pack('<HHH', 6, 2, 256) + bytes([5]) + b'0.1.0' + bytes(range(12)) + bytes([8]) + bytes([19]) + b'src/bin/stm32.rs:42'
+hello = struct.pack('<HHH', 7, 4, 256) + bytes([5]) + b'0.1.0' + bytes(range(12)) + bytes([8]) + bytes([19]) + b'src/bin/stm32.rs:42'
 items = [
-    ("STATUS_BYTES", status(), "The status of `status()` alone (239 bytes)."),
-    ("SETTINGS_DEFAULT", default_settings, "`Settings::default()` (254 bytes, layout 5)."),
-    ("SETTINGS_CUSTOM", custom_settings, "The settings of `custom_settings()` (fold period 8 s, k 2.5, margin 0.25 °C)."),
-    ("SETTINGS_CUSTOM_V4", custom_settings_v4, "`custom_settings()` as a layout 4 record (stage unit mm, 254 bytes)."),
+    ("STATUS_BYTES", status(), "The status of `status()` alone (290 bytes)."),
+    ("SETTINGS_DEFAULT", default_settings, "`Settings::default()` (255 bytes, layout 5)."),
+    ("SETTINGS_CUSTOM", custom_settings, "The settings of `custom_settings()` (fold period 8 s, k 2.5, margin 0.25 °C, other stages allowed)."),
+    ("SETTINGS_CUSTOM_V4", custom_settings_v4, "`custom_settings()` as a layout 4 record (stage unit mm, no allow_other_stage, 254 bytes)."),
     ("SETTINGS_CUSTOM_V3", custom_settings_v3, "`custom_settings()` as a layout 3 record (no stale check, 246 bytes)."),
     ("SETTINGS_CUSTOM_V2", custom_settings_v2, "`custom_settings()` as a layout 2 record (no fold period, 244 bytes)."),
     ("REQ_HELLO", frame(0x01, 1, b''), "HELLO, seq 1."),
@@ -87,7 +95,7 @@ items = [
     ("REQ_CONFIG_SET", frame(0x31, 10, custom_settings), "CONFIG_SET of `custom_settings()`, seq 10."),
     ("REQ_RESET", frame(0x32, 11, b''), "RESET, seq 11."),
     ("REQ_DEBUG_HANG", frame(0x7E, 12, b''), "DEBUG_HANG, seq 12."),
-    ("REP_HELLO", frame(0x81, 1, bytes([0]) + hello), "HELLO reply: protocol 6, blob format 2, chunk 256, firmware \"0.1.0\", UID 00..0B, panic at src/bin/stm32.rs:42."),
+    ("REP_HELLO", frame(0x81, 1, bytes([0]) + hello), "HELLO reply: protocol 7, blob format 4, chunk 256, firmware \"0.1.0\", UID 00..0B, panic at src/bin/stm32.rs:42."),
     ("REP_STATUS", frame(0x82, 2, bytes([0]) + status()), "STATUS reply with `status()`."),
     ("REP_UPLOAD_BEGIN", frame(0x90, 3, bytes([0])), "UPLOAD_BEGIN reply: ok."),
     ("REP_UPLOAD_CHUNK", frame(0x91, 4, bytes([0]) + struct.pack('<I', 260)), "UPLOAD_CHUNK reply: 260 bytes received."),

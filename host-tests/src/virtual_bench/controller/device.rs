@@ -62,6 +62,8 @@ pub struct AxisConfig {
 pub struct Config {
     /// Model name (in `*IDN?`).
     pub name: String,
+    /// Serial number (the third field of `*IDN?`, as PI's controllers report it).
+    pub serial: String,
     /// GCS syntax version `CSV?` reports (`2.0`; `3.0` plays a GCS 3.0 controller's answer).
     pub syntax_version: String,
     /// Daisy-chain address.
@@ -74,6 +76,9 @@ pub struct Config {
     /// the commands the compensator meets on that controller, not its manual's complete set.
     pub commands: Vec<&'static str>,
 }
+
+/// The serial number a simulated controller reports unless told another.
+pub const DEFAULT_SERIAL: &str = "0123456789";
 
 /// Commands both presets know.
 const COMMON: &[&str] = &[
@@ -93,6 +98,7 @@ impl Config {
         ]);
         Self {
             name: "E-727".into(),
+            serial: DEFAULT_SERIAL.into(),
             syntax_version: "2.0".into(),
             address: 1,
             servo_on_at_start: false,
@@ -122,6 +128,7 @@ impl Config {
         ]);
         Self {
             name: "C-867".into(),
+            serial: DEFAULT_SERIAL.into(),
             syntax_version: "2.0".into(),
             address: 1,
             servo_on_at_start: false,
@@ -582,8 +589,8 @@ impl Controller {
         let reply = |s: String| Ok(Some(cp1252(&s)));
         match m {
             "*IDN?" => reply(format!(
-                "(c)2026 Physik Instrumente (PI) GmbH & Co. KG, {}, 0123456789, 01.00.00 (simulated)\n",
-                self.cfg.name
+                "(c)2026 Physik Instrumente (PI) GmbH & Co. KG, {}, {}, 01.00.00 (simulated)\n",
+                self.cfg.name, self.cfg.serial
             )),
             "CSV?" => reply(format!("{}\n", self.cfg.syntax_version)),
             "VER?" => reply(format!("FW_ARM: V1.0.0 (simulated {})\n", self.cfg.name)),
@@ -619,8 +626,10 @@ impl Controller {
             }
             "MVR" => {
                 let p = self.pairs(args)?;
-                let abs: Vec<(usize, f64)> =
-                    p.iter().map(|&(a, d)| (a, self.axes[a].target + d)).collect();
+                let abs: Vec<(usize, f64)> = p
+                    .iter()
+                    .map(|&(a, d)| (a, self.axes[a].target + d))
+                    .collect();
                 self.move_to(&abs, t, m)?;
                 Ok(None)
             }

@@ -8,6 +8,6 @@ pub mod device;
 pub mod plant;
 mod tcp;
 
-pub use device::{AxisConfig, Config, Controller, Event, Processed};
+pub use device::{AxisConfig, Config, Controller, Event, Processed, DEFAULT_SERIAL};
 pub use plant::{Clock, IdealPlant, ManualClock, Plant, SystemClock};
 pub use tcp::StageSim;

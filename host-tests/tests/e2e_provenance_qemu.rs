@@ -62,7 +62,7 @@ fn upload(q: &Qemu, model: &Model) {
         "device",
         "upload",
         "--port",
-        &q.mgmt_spec(),
+        &q.cli_spec(),
         path.to_str().unwrap(),
     ]);
     let _ = std::fs::remove_file(&path);
@@ -131,7 +131,7 @@ fn a_model_is_not_applied_to_another_stage_under_qemu() {
     assert_eq!(s.led, LedState::Fault);
     assert_eq!(s.moves, 0);
     drop(c);
-    let text = nanocal_cli(&["device", "status", "--port", &q.mgmt_spec()]);
+    let text = nanocal_cli(&["device", "status", "--port", &q.cli_spec()]);
     assert!(
         text.contains("STAGE MISMATCH")
             && text.contains("moves refused (GCS error 9015")
@@ -144,7 +144,7 @@ fn a_model_is_not_applied_to_another_stage_under_qemu() {
         "device",
         "config",
         "--port",
-        &q.mgmt_spec(),
+        &q.cli_spec(),
         "--allow-other-stage",
         "on",
     ]);
@@ -165,7 +165,7 @@ fn a_model_is_not_applied_to_another_stage_under_qemu() {
     assert_eq!(s.stage, StageCheck::MismatchAllowed);
     assert_eq!(s.led, LedState::Compensating);
     drop(c);
-    let text = nanocal_cli(&["device", "status", "--port", &q.mgmt_spec()]);
+    let text = nanocal_cli(&["device", "status", "--port", &q.cli_spec()]);
     assert!(
         text.contains("moves corrected all the same (setting allow_other_stage)"),
         "{text}"
@@ -176,7 +176,7 @@ fn a_model_is_not_applied_to_another_stage_under_qemu() {
         "device",
         "config",
         "--port",
-        &q.mgmt_spec(),
+        &q.cli_spec(),
         "--allow-other-stage",
         "off",
     ]);
@@ -209,7 +209,7 @@ fn a_model_is_not_applied_to_another_stage_under_qemu() {
     assert_eq!(s.model_serial, serial(OTHER_SERIAL));
     assert_eq!(s.controller_serial, serial(OTHER_SERIAL));
     assert_eq!(s.led, LedState::Compensating);
-    let text = nanocal_cli(&["device", "status", "--port", &q.mgmt_spec()]);
+    let text = nanocal_cli(&["device", "status", "--port", &q.cli_spec()]);
     assert!(
         text.contains("stage check: the controller is the stage the model was fitted on"),
         "{text}"

@@ -15,8 +15,15 @@
 //!       242  stale_k f32 LE (0 < k ≤ 100): the model-stale check's k standard errors
 //!       246  extrapolation_c f32 LE (0..=50): how far, °C, the model may read temperatures
 //!            beyond its training envelope before it counts as stale
-//!       250  crc32 u32 LE (CRC-32/ISO-HDLC of bytes 0..250)
+//!       250  follow_nm u16 LE (0 off, else 1..=10000): re-issue a held target when the fold
+//!            moves its command by more than this
+//!       252  follow_interval_ms u16 LE (100..=60000): at most one re-issue per interval
+//!       254  follow_step_nm u16 LE (0 no limit): largest change of a command per re-issue
+//!       256  crc32 u32 LE (CRC-32/ISO-HDLC of bytes 0..256)
 //! ```
+//! Version 6 adds *held targets follow the model* (`nanocal_compensator::proxy::FollowConfig`;
+//! 260 bytes, the CRC moves from 250 to 256). Version 5 records (254 bytes) still decode,
+//! with following off.
 //! Version 5 drops the stage unit (byte 172 in versions 2 to 4, 92 in version 1: 0 µm, 1 mm,
 //! 2 nm): the firmware never read it, the proxy asks the controller (`PUN?`) and moves only
 //! model axes in µm (GCS error 9007 otherwise), so the one unit worth declaring is the one
@@ -172,9 +179,18 @@ pub const SENSORS: usize = nanocal_model::MAX_TEMPS;
 /// Settings magic.
 pub const MAGIC: [u8; 4] = *b"NCST";
 /// Layout version; bumped whenever the bytes change.
-pub const VERSION: u8 = 5;
+pub const VERSION: u8 = 6;
 /// Encoded length.
-pub const LEN: usize = Layout::of(SENSORS, true, true).len;
+pub const LEN: usize = Layout::of(SENSORS, true, true, true).len;
+/// Largest re-issue threshold the settings accept, nm (10 µm: beyond it a drift is no thermal
+/// correction to follow quietly).
+pub const MAX_FOLLOW_NM: u16 = 10_000;
+/// Re-issue interval unless set, ms.
+pub const DEFAULT_FOLLOW_INTERVAL_MS: u16 = 10_000;
+/// Shortest re-issue interval the settings accept, ms.
+pub const MIN_FOLLOW_INTERVAL_MS: u16 = 100;
+/// Longest re-issue interval the settings accept, ms.
+pub const MAX_FOLLOW_INTERVAL_MS: u16 = 60_000;
 /// The model-stale check's `k` unless set: a KMZ re-measurement more than 3 standard errors of
 /// prediction from the model's prediction raises `MODEL_STALE` (a chance of 0.3 % per
 /// re-measurement for a model that still holds, with normal residuals).
@@ -243,6 +259,15 @@ pub struct Settings {
     /// How far a temperature may leave the model's training envelope, °C, before the model
     /// counts as stale: what the model was shown to extrapolate (0..=[`MAX_EXTRAPOLATION_C`]).
     pub extrapolation_c: f32,
+    /// Held targets follow the model: re-issue the corrected command of the target the stage
+    /// holds when the fold moves it by more than this, nm (0: off, the default;
+    /// ..=[`MAX_FOLLOW_NM`]).
+    pub follow_nm: u16,
+    /// At most one re-issue per this many ms ([`MIN_FOLLOW_INTERVAL_MS`]..=
+    /// [`MAX_FOLLOW_INTERVAL_MS`]); the first no sooner after the host's move.
+    pub follow_interval_ms: u16,
+    /// Largest change of a command per re-issue, nm (0: no limit).
+    pub follow_step_nm: u16,
 }
 
 impl Default for Settings {
@@ -265,6 +290,9 @@ impl Default for Settings {
             aux: [AuxSource::None; MAX_AUX],
             stale_k: DEFAULT_STALE_K,
             extrapolation_c: DEFAULT_EXTRAPOLATION_C,
+            follow_nm: 0,
+            follow_interval_ms: DEFAULT_FOLLOW_INTERVAL_MS,
+            follow_step_nm: 0,
         }
     }
 }
@@ -311,12 +339,13 @@ struct Layout {
     aux_at: usize,
     fold_at: Option<usize>,
     stale_at: Option<usize>,
+    follow_at: Option<usize>,
     crc_at: usize,
     len: usize,
 }
 
 impl Layout {
-    const fn of(sensors: usize, fold: bool, stale: bool) -> Layout {
+    const fn of(sensors: usize, fold: bool, stale: bool, follow: bool) -> Layout {
         let mains_at = SENSOR_AT + 10 * sensors;
         let axes_at = mains_at + 4;
         let aux_at = axes_at + 9 * MAP_AXES;
@@ -326,8 +355,13 @@ impl Layout {
         } else {
             (None, end)
         };
-        let (stale_at, crc_at) = if stale {
+        let (stale_at, end) = if stale {
             (Some(end), end + 8)
+        } else {
+            (None, end)
+        };
+        let (follow_at, crc_at) = if follow {
+            (Some(end), end + 6)
         } else {
             (None, end)
         };
@@ -338,6 +372,7 @@ impl Layout {
             aux_at,
             fold_at,
             stale_at,
+            follow_at,
             crc_at,
             len: crc_at + 4,
         }
@@ -346,22 +381,24 @@ impl Layout {
     /// The layout of a record of `version`.
     fn of_version(version: u8) -> Option<Layout> {
         match version {
-            1 => Some(Layout::of(8, false, false)),
-            2 => Some(Layout::of(SENSORS, false, false)),
-            3 => Some(Layout::of(SENSORS, true, false)),
+            1 => Some(Layout::of(8, false, false, false)),
+            2 => Some(Layout::of(SENSORS, false, false, false)),
+            3 => Some(Layout::of(SENSORS, true, false, false)),
             // 5 only reserved the stage unit's byte: the same places
-            4 | VERSION => Some(Layout::of(SENSORS, true, true)),
+            4 | 5 => Some(Layout::of(SENSORS, true, true, false)),
+            VERSION => Some(Layout::of(SENSORS, true, true, true)),
             _ => None,
         }
     }
 }
 
-const NOW: Layout = Layout::of(SENSORS, true, true);
+const NOW: Layout = Layout::of(SENSORS, true, true, true);
 const MAINS_AT: usize = NOW.mains_at;
 const AXES_AT: usize = NOW.axes_at;
 const AUX_AT: usize = NOW.aux_at;
 const FOLD_AT: usize = AUX_AT + 10 * MAX_AUX;
 const STALE_AT: usize = FOLD_AT + 2;
+const FOLLOW_AT: usize = STALE_AT + 8;
 const CRC_AT: usize = NOW.crc_at;
 
 /// Lowest stage-link baud rate: the STM32 board's UART4 divides its 80 MHz clock by at most
@@ -409,6 +446,12 @@ impl Settings {
         }
         if !(self.extrapolation_c >= 0.0 && self.extrapolation_c <= MAX_EXTRAPOLATION_C) {
             return Err(SettingsError::Field(STALE_AT as u16 + 4));
+        }
+        if self.follow_nm > MAX_FOLLOW_NM {
+            return Err(SettingsError::Field(FOLLOW_AT as u16));
+        }
+        if !(MIN_FOLLOW_INTERVAL_MS..=MAX_FOLLOW_INTERVAL_MS).contains(&self.follow_interval_ms) {
+            return Err(SettingsError::Field(FOLLOW_AT as u16 + 2));
         }
         for (i, a) in self.aux.iter().enumerate() {
             if let AuxSource::Force {
@@ -478,6 +521,9 @@ impl Settings {
         b[FOLD_AT..FOLD_AT + 2].copy_from_slice(&self.fold_period_ms.to_le_bytes());
         b[STALE_AT..STALE_AT + 4].copy_from_slice(&self.stale_k.to_le_bytes());
         b[STALE_AT + 4..STALE_AT + 8].copy_from_slice(&self.extrapolation_c.to_le_bytes());
+        b[FOLLOW_AT..FOLLOW_AT + 2].copy_from_slice(&self.follow_nm.to_le_bytes());
+        b[FOLLOW_AT + 2..FOLLOW_AT + 4].copy_from_slice(&self.follow_interval_ms.to_le_bytes());
+        b[FOLLOW_AT + 4..FOLLOW_AT + 6].copy_from_slice(&self.follow_step_nm.to_le_bytes());
         let crc = crate::crc32(&b[..CRC_AT]);
         b[CRC_AT..].copy_from_slice(&crc.to_le_bytes());
         b
@@ -560,6 +606,12 @@ impl Settings {
         if let Some(o) = l.stale_at {
             s.stale_k = f32_at(o);
             s.extrapolation_c = f32_at(o + 4);
+        }
+        if let Some(o) = l.follow_at {
+            let u16_at = |o: usize| u16::from_le_bytes([b[o], b[o + 1]]);
+            s.follow_nm = u16_at(o);
+            s.follow_interval_ms = u16_at(o + 2);
+            s.follow_step_nm = u16_at(o + 4);
         }
         s.validate_stored()?;
         Ok(s)

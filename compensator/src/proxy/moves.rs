@@ -203,6 +203,7 @@ impl ProxyState {
         c.sent(&xf, &mut self.hyst);
         self.dir = dir;
         self.counters.moves = self.counters.moves.wrapping_add(1);
+        self.follow_arm(!s.prefix.is_empty());
         Ok(())
     }
 

@@ -121,9 +121,8 @@ fn hold_an_hour(follow: &[&str]) -> Option<Hour> {
     let want_q = model.eval_f64(&[TARGET_UM, 0.0, 0.0], &[0; MAX_AXES], &slow(&TEMPS_C))[0];
     assert!((stage_value(&sent, "1") - want_q).abs() < 1e-4, "{sent}");
     let mut temps = TEMPS_C;
-    let start_err_nm = (true_position_um(&model, stage.with(|c| c.target(0)), &temps)
-        - TARGET_UM)
-        * 1e3;
+    let start_err_nm =
+        (true_position_um(&model, stage.with(|c| c.target(0)), &temps) - TARGET_UM) * 1e3;
     assert!(start_err_nm.abs() < 0.5, "{start_err_nm} nm");
 
     // the hour, in lockstep: each step, the controller acts on every byte the board sent it
@@ -140,11 +139,13 @@ fn hold_an_hour(follow: &[&str]) -> Option<Hour> {
             if delivered && taken && link.idle_at_horizon() {
                 return;
             }
-            if !delivered && stuck.elapsed() > Duration::from_millis(5) && link.wake_for_input()
-            {
+            if !delivered && stuck.elapsed() > Duration::from_millis(5) && link.wake_for_input() {
                 stuck = Instant::now();
             }
-            assert!(start.elapsed() < Duration::from_secs(10), "stage link stuck");
+            assert!(
+                start.elapsed() < Duration::from_secs(10),
+                "stage link stuck"
+            );
             std::thread::sleep(Duration::from_micros(50));
         }
     };
@@ -170,7 +171,11 @@ fn hold_an_hour(follow: &[&str]) -> Option<Hour> {
                 hour.end_of_minute_nm.push(err_nm);
             }
         }
-        hour.moves += stage.drain().iter().filter(|l| l.starts_with("MOV")).count();
+        hour.moves += stage
+            .drain()
+            .iter()
+            .filter(|l| l.starts_with("MOV"))
+            .count();
     }
     hour.wall = wall.elapsed();
     clk.free_run(1.0);

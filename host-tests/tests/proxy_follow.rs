@@ -8,7 +8,7 @@
 mod proxy_rig;
 
 use nanocal::published::published_1dof;
-use nanocal_compensator::proxy::{FollowConfig, FoldCorrector, Gate};
+use nanocal_compensator::proxy::{FoldCorrector, FollowConfig, Gate};
 use nanocal_model::{Model, MAX_AXES};
 use proxy_rig::{everything, slow, value, Rig};
 
@@ -36,7 +36,11 @@ fn holding(cfg: FollowConfig) -> (Rig, Model) {
     r.line("MOV 1 100");
     assert_eq!(r.line("ERR?"), "0\n");
     r.received();
+    // armed at the stage link's next tick (nothing is added to the `MOV` line's path)
+    assert!(!r.proxy.following() && r.proxy.follow_due());
+    r.follow_for_ms(250, 250);
     assert!(r.proxy.following());
+    assert!(r.received().is_empty());
     (r, m)
 }
 
@@ -58,10 +62,11 @@ fn off_by_default_a_held_target_is_left_where_it_was_sent() {
     let mut r = Rig::new(everything(3), Some(&m), &T0);
     r.line("MOV 1 100");
     r.received();
-    assert!(!r.proxy.following());
+    assert!(!r.proxy.follow_due());
     warm(&mut r, &m, &T1);
     r.follow_for_ms(5_000, 250);
     assert!(r.received().is_empty());
+    assert!(!r.proxy.following());
 }
 
 #[test]
@@ -90,7 +95,11 @@ fn a_held_target_follows_the_fold_and_the_host_keeps_its_frame() {
     let pos = value(&r.line("POS? 1"), "1");
     assert!((pos - 100.0).abs() < 1e-3, "{pos}");
     assert_eq!(value(&r.line("ONT? 1"), "1"), 1.0);
-    assert_eq!(r.line("ERR?"), "0\n", "the host reads no error of the proxy's");
+    assert_eq!(
+        r.line("ERR?"),
+        "0\n",
+        "the host reads no error of the proxy's"
+    );
     // followed once: nothing more while the fold stays
     r.received();
     r.follow_for_ms(3_000, 250);
@@ -204,8 +213,7 @@ fn stops_faults_bypass_and_a_new_model_cancel_following_a_move_rearms_it() {
         r.follow_for_ms(1_250, 250);
         let rx = r.received();
         assert_eq!(
-            r.proxy.counters.follow_reissues,
-            1,
+            r.proxy.counters.follow_reissues, 1,
             "{what}: re-armed {rx:?}"
         );
     }
@@ -278,7 +286,11 @@ fn a_refused_reissue_is_swallowed_and_following_stops() {
     assert_eq!(r.proxy.counters.follow_refused, 1);
     assert_eq!(r.proxy.counters.follow_reissues, 0);
     assert!(!r.proxy.following());
-    assert_eq!(r.line("ERR?"), "0\n", "the refusal was the proxy's, not the host's");
+    assert_eq!(
+        r.line("ERR?"),
+        "0\n",
+        "the refusal was the proxy's, not the host's"
+    );
     r.received();
     r.follow_for_ms(5_000, 250);
     assert!(r.received().is_empty());
@@ -301,9 +313,30 @@ fn a_host_line_between_check_and_reissue_voids_the_check() {
     assert_eq!(out.to_stage.as_bytes(), b"VEL 1 10\n");
     let _ = r.ctl.input(out.to_stage.as_bytes());
     r.proxy.follow_tick(r.comp.as_ref(), r.now_ms, &mut out);
-    assert!(out.to_stage.is_empty(), "no re-issue on an unchecked error register");
+    assert!(
+        out.to_stage.is_empty(),
+        "no re-issue on an unchecked error register"
+    );
     // the next interval checks again and re-issues
     r.received();
     r.follow_for_ms(1_250, 250);
+    assert_eq!(r.proxy.counters.follow_reissues, 1);
+}
+
+#[test]
+fn a_move_with_an_address_prefix_is_not_followed() {
+    let (mut r, m) = holding(CFG);
+    // (the simulated controller is at address 1, answering to the host at 0)
+    r.line("1 0 MOV 1 110");
+    r.received();
+    warm(&mut r, &m, &T1);
+    r.follow_for_ms(5_000, 250);
+    assert!(r.received().is_empty());
+    assert!(!r.proxy.following());
+    // an unaddressed move is
+    r.line("MOV 1 110");
+    r.received();
+    warm(&mut r, &m, &T0);
+    r.follow_for_ms(1_500, 250);
     assert_eq!(r.proxy.counters.follow_reissues, 1);
 }

@@ -31,7 +31,7 @@ use embassy_sync::signal::Signal;
 use nanocal_compensator::fault::{Faults, Policy, MAX_CHANNELS};
 use nanocal_compensator::gcs::AxisMap;
 use nanocal_compensator::inputs::{self, FastSamples};
-use nanocal_compensator::proxy::{FollowConfig, FoldCorrector, Gate, Proxy};
+use nanocal_compensator::proxy::{FoldCorrector, FollowConfig, Gate, Proxy};
 use nanocal_compensator::stale::StaleCheck;
 use nanocal_interface::identity::{ResetCause, Site};
 use nanocal_interface::mgmt::Refusal;

@@ -16,7 +16,8 @@
 //! still under way smoothly anyway); the move gate open (no sensor fault: never chase a bad
 //! temperature) and the fold's fast inputs fresh and inside the envelope; nothing in flight
 //! or waiting on either link (no host query, no held or queued host line). Any host move
-//! re-arms it for the new target.
+//! re-arms it for the new target, at the next tick (the tick sees the move count change:
+//! nothing is added to the `MOV` line's path, whose instruction budget is spent).
 //!
 //! **A re-issue never races the host.** It takes two steps, each only while nothing else is
 //! in flight: first the proxy's own `ERR?`, so that an error the host has not read yet is
@@ -71,8 +72,11 @@ pub(crate) struct Follow {
     /// The host's move or the last re-issue, ms.
     pub since_ms: u32,
     pub phase: Phase,
-    /// Increased by every host move: a refusal read for an older target is not this one's.
-    pub gen: u8,
+    /// The host moves ([`Counters::moves`](super::Counters)) seen: a new one arms following
+    /// for its target at the next tick (nothing is added to the `MOV` line's path).
+    pub seen_moves: u32,
+    /// The host moves with an address prefix seen ([`ProxyState::prefixed_moves`]).
+    pub seen_prefixed: u32,
     /// The controller's error the proxy's check read, for the host's next `ERR?`.
     pub ctrl_error: Option<i32>,
 }
@@ -88,7 +92,8 @@ impl Follow {
             armed: false,
             since_ms: 0,
             phase: Phase::Idle,
-            gen: 0,
+            seen_moves: 0,
+            seen_prefixed: 0,
             ctrl_error: None,
         }
     }
@@ -98,11 +103,13 @@ impl Follow {
 const MICROS_PER_NM: i64 = 1_000;
 
 impl ProxyState {
-    /// A host move went out corrected (`prefixed`: with an address prefix, which following
-    /// does not repeat: it is not armed).
-    pub(super) fn follow_arm(&mut self, prefixed: bool) {
+    /// Host moves went out corrected since the last tick: follow the last one's targets
+    /// (not when one of them had an address prefix, which following does not repeat).
+    fn follow_arm(&mut self) {
+        let prefixed = self.prefixed_moves != self.follow.seen_prefixed;
         let f = &mut self.follow;
-        f.gen = f.gen.wrapping_add(1);
+        f.seen_moves = self.counters.moves;
+        f.seen_prefixed = self.prefixed_moves;
         f.armed = !prefixed && f.cfg.threshold_nm != 0;
         f.since_ms = self.now_ms;
         // (a check or re-issue in flight is read when its reply comes; a cleared check is
@@ -164,6 +171,9 @@ impl ProxyState {
     ) {
         out.clear();
         self.now_ms = now_ms;
+        if self.counters.moves != self.follow.seen_moves {
+            self.follow_arm();
+        }
         if !self.follow.armed {
             return;
         }
@@ -211,7 +221,7 @@ impl ProxyState {
                 if self.follow_step(c).is_some() && self.queue.room() >= 2 {
                     let _ = out.to_stage.extend(b"ERR?\n");
                     self.expect(Entry::new(
-                        Expect::Internal(Info::FollowCheck(self.follow.gen)),
+                        Expect::Internal(Info::FollowCheck(self.counters.moves as u8)),
                         false,
                         false,
                     ));
@@ -239,7 +249,7 @@ impl ProxyState {
             return;
         }
         self.expect(Entry::new(
-            Expect::Internal(Info::FollowDone(self.follow.gen)),
+            Expect::Internal(Info::FollowDone(self.counters.moves as u8)),
             false,
             false,
         ));
@@ -253,6 +263,9 @@ impl ProxyState {
     /// Following stops until the next host move.
     pub(super) fn follow_cancel(&mut self) {
         self.follow.armed = false;
+        // the moves before the cancel are done with: only a later one arms it again
+        self.follow.seen_moves = self.counters.moves;
+        self.follow.seen_prefixed = self.prefixed_moves;
         // a check or re-issue in flight is still read when its reply comes (an error it reads
         // is the host's, or the re-issue's own); one given up is not waited for
         let in_flight = matches!(self.follow.phase, Phase::Checking { .. } | Phase::Sent);
@@ -275,7 +288,7 @@ impl ProxyState {
                 let was = self.follow.phase;
                 self.follow.phase = Phase::Idle;
                 match code {
-                    Some(0) if g == self.follow.gen && self.follow.armed => {
+                    Some(0) if g == self.counters.moves as u8 && self.follow.armed => {
                         if let Phase::Checking { lines } = was {
                             self.follow.phase = Phase::Cleared { lines };
                         }
@@ -298,7 +311,7 @@ impl ProxyState {
                 } else {
                     // the re-issue's own refusal: swallowed, the target forgotten
                     self.counters.follow_refused = self.counters.follow_refused.wrapping_add(1);
-                    if g == self.follow.gen {
+                    if g == self.counters.moves as u8 {
                         self.forget(None);
                     }
                     self.follow_cancel();

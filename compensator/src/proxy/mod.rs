@@ -270,6 +270,8 @@ pub struct ProxyState {
     link_lost: bool,
     /// Held targets following the model (`follow`).
     follow: follow::Follow,
+    /// Corrected moves that went out with an address prefix.
+    prefixed_moves: u32,
 }
 
 impl Default for Proxy {
@@ -324,6 +326,7 @@ impl Proxy {
                 counters: Counters::default(),
                 link_lost: false,
                 follow: follow::Follow::new(),
+                prefixed_moves: 0,
             },
         }
     }
@@ -607,15 +610,18 @@ impl Proxy {
         self.st.follow_cancel();
     }
 
-    /// True while a held target is followed (armed by a host move, not cancelled since).
+    /// True while a held target is followed: armed by a host move (at the tick after it),
+    /// not cancelled since.
     pub fn following(&self) -> bool {
         self.st.follow.armed
     }
 
-    /// True when [`follow_tick`](Self::follow_tick) has anything to decide: following is armed
-    /// (the firmware ticks it only then).
+    /// True when [`follow_tick`](Self::follow_tick) has anything to decide: following is on
+    /// and armed, or a host move went out since the last tick (the firmware ticks it
+    /// periodically only then).
     pub fn follow_due(&self) -> bool {
-        self.st.follow.armed && self.st.follow.cfg.threshold_nm != 0
+        let f = &self.st.follow;
+        f.cfg.threshold_nm != 0 && (f.armed || self.st.counters.moves != f.seen_moves)
     }
 
     /// Time passes for held targets that follow the model: when the stage holds the host's

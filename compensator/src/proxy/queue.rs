@@ -47,11 +47,11 @@ pub(crate) enum Info {
     /// The host's `ERR?` answered by the controller: a non-zero code may mean the controller
     /// refused a move the proxy forwarded, so the proxy forgets its targets.
     Error,
-    /// The proxy's `ERR?` before it re-issues a held target (`follow`), for the host move of
-    /// this generation.
+    /// The proxy's `ERR?` before it re-issues a held target (`follow`), asked after this many
+    /// host moves (mod 256): one read after a later move is not for the target it checked.
     FollowCheck(u8),
-    /// The proxy's `ERR?` after a re-issued `MOV` (`follow`), for the host move of this
-    /// generation.
+    /// The proxy's `ERR?` after a re-issued `MOV` (`follow`), sent after this many host moves
+    /// (mod 256).
     FollowDone(u8),
 }
 

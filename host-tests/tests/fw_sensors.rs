@@ -364,12 +364,14 @@ fn settings_round_trip_and_reject_what_they_must() {
 
 /// Layout 3 added the fold period (u16 LE at 240), layout 4 the stale check's k and margin
 /// (f32 LE at 242 and 246, CRC at 250), layout 5 reserved the stage unit's byte (172, written
-/// 0): golden bytes of their fields, a fold period outside 1–10 s refused, a layout-4 record
+/// 0), layout 6 held targets following the model (3 × u16 LE at 250, CRC at 256): golden bytes
+/// of their fields, a layout-5 record (254 bytes, CRC at 250) decoding with following off, a
+/// fold period outside 1–10 s refused, a layout-4 record
 /// with any stage unit decoding to the same settings, a layout-3 record (246 bytes, CRC at 242)
 /// decoding with the stale check's defaults and a layout-2 record (244 bytes, CRC at 240) —
 /// settings stored by the firmware before — decoding with the default fold period (5 s).
 #[test]
-fn settings_layout_5_carries_the_fold_period_and_the_stale_check() {
+fn settings_layout_6_carries_the_fold_period_the_stale_check_and_following() {
     use nanocal_interface::settings::{
         DEFAULT_EXTRAPOLATION_C, DEFAULT_FOLD_PERIOD_MS, DEFAULT_STALE_K, LEN,
     };
@@ -379,13 +381,27 @@ fn settings_layout_5_carries_the_fold_period_and_the_stale_check() {
         extrapolation_c: 0.25,
         ..Default::default()
     };
-    let v4 = s.encode();
+    let v6 = s.encode();
     assert_eq!(
-        (v4.len(), LEN),
-        (254, 254),
-        "9 + 16 x 10 + 4 + 27 + 40 + 2 + 8 + 4"
+        (v6.len(), LEN),
+        (260, 260),
+        "9 + 16 x 10 + 4 + 27 + 40 + 2 + 8 + 6 + 4"
     );
-    assert_eq!(&v4[..5], b"NCST\x05");
+    assert_eq!(&v6[..5], b"NCST\x06");
+    assert_eq!(
+        &v6[250..256],
+        &[0, 0, 0x10, 0x27, 0, 0],
+        "following off, 10 000 ms, no step limit"
+    );
+    let crc = nanocal_interface::crc32(&v6[..256]);
+    assert_eq!(&v6[256..], &crc.to_le_bytes());
+    assert_eq!(Settings::decode(&v6), Ok(s));
+    // layout 5: the same bytes up to 250, then the CRC; following off
+    let mut v4 = v6[..250].to_vec();
+    v4[4] = 5;
+    let crc = nanocal_interface::crc32(&v4);
+    v4.extend_from_slice(&crc.to_le_bytes());
+    assert_eq!(v4.len(), 254);
     assert_eq!(v4[172], 0, "reserved: the stage unit of layouts 1 to 4");
     assert_eq!(&v4[240..242], &[0x52, 0x1C], "7250 ms, little endian");
     assert_eq!(&v4[242..246], &2.5f32.to_le_bytes());
@@ -396,7 +412,7 @@ fn settings_layout_5_carries_the_fold_period_and_the_stale_check() {
     // layout 4: the same places, with a stage unit at 172 (0 µm, 1 mm, 2 nm) that no firmware
     // applied: any of them loads, to the same settings
     for unit in [0, 1, 2, 0xFF] {
-        let mut old = v4;
+        let mut old = v4.clone();
         old[4] = 4;
         old[172] = unit;
         let crc = nanocal_interface::crc32(&old[..250]);
@@ -440,8 +456,8 @@ fn settings_layout_5_carries_the_fold_period_and_the_stale_check() {
 }
 
 /// Settings stored by a firmware with layout 1 (8 chip-selects, 164 bytes: mains at 89, axes at
-/// 93, aux at 120, CRC at 160) survive the update to layout 5 (16 chip-selects, fold period,
-/// stale check, no stage unit).
+/// 93, aux at 120, CRC at 160) survive the update to layout 6 (16 chip-selects, fold period,
+/// stale check, no stage unit, following).
 #[test]
 fn settings_of_layout_1_still_decode() {
     let mut s = Settings {
@@ -457,10 +473,10 @@ fn settings_of_layout_1_still_decode() {
     let v2 = s.encode();
     assert_eq!(
         v2.len(),
-        254,
-        "layout 5: 9 + 16 x 10 + 4 + 27 + 40 + 2 + 8 + 4"
+        260,
+        "layout 6: 9 + 16 x 10 + 4 + 27 + 40 + 2 + 8 + 6 + 4"
     );
-    assert_eq!(v2[4], 5);
+    assert_eq!(v2[4], 6);
     // layout 1, byte for byte: header, 8 sensors, then the same tail at 89
     let mut v1 = Vec::new();
     v1.extend_from_slice(b"NCST\x01");
@@ -477,9 +493,9 @@ fn settings_of_layout_1_still_decode() {
     assert_eq!(Settings::decode(&v1), Ok(s));
     // a layout-1 record cut to a layout-2 length, or with an unknown version, is refused
     assert!(Settings::decode(&v1[..163]).is_err());
-    let mut v6 = v1.clone();
-    v6[4] = 6;
-    assert!(Settings::decode(&v6).is_err());
+    let mut v7 = v1.clone();
+    v7[4] = 7;
+    assert!(Settings::decode(&v7).is_err());
 }
 
 /// A model with more temperatures than the board has chip-select lines is refused at upload

@@ -363,14 +363,16 @@ fn settings_round_trip_and_reject_what_they_must() {
 }
 
 /// Layout 3 added the fold period (u16 LE at 240), layout 4 the stale check's k and margin
-/// (f32 LE at 242 and 246), layout 5 reserved the stage unit's byte (172, written 0) and added
-/// `allow_other_stage` (u8 at 250, CRC at 251): golden bytes of their fields, a fold period
-/// outside 1–10 s refused, a layout-4 record (250 bytes, CRC at 250) with any stage unit
-/// decoding to the same settings with other stages refused, a layout-3 record (246 bytes, CRC at
-/// 242) decoding with the stale check's defaults and a layout-2 record (244 bytes, CRC at 240) —
-/// settings stored by the firmware before — decoding with the default fold period (5 s).
+/// (f32 LE at 242 and 246), layout 5 reserved the stage unit's byte (172, written 0), layout 6
+/// added `allow_other_stage` (u8 at 250) and held targets following the model (3 × u16 LE at
+/// 251, CRC at 257): golden bytes of their fields, a layout-5 record (254 bytes, CRC at 250)
+/// decoding with other stages refused and following off, a fold period outside 1–10 s refused,
+/// a layout-4 record with any stage unit decoding to the same settings, a layout-3 record (246
+/// bytes, CRC at 242) decoding with the stale check's defaults and a layout-2 record (244 bytes,
+/// CRC at 240) — settings stored by the firmware before — decoding with the default fold period
+/// (5 s).
 #[test]
-fn settings_layout_5_carries_the_fold_period_the_stale_check_and_the_stage_check() {
+fn settings_layout_6_carries_the_fold_period_the_stale_check_the_stage_check_and_following() {
     use nanocal_interface::settings::{
         DEFAULT_EXTRAPOLATION_C, DEFAULT_FOLD_PERIOD_MS, DEFAULT_STALE_K, LEN,
     };
@@ -381,46 +383,53 @@ fn settings_layout_5_carries_the_fold_period_the_stale_check_and_the_stage_check
         allow_other_stage: true,
         ..Default::default()
     };
-    let v5 = s.encode();
+    let v6 = s.encode();
     assert_eq!(
-        (v5.len(), LEN),
-        (255, 255),
-        "9 + 16 x 10 + 4 + 27 + 40 + 2 + 8 + 1 + 4"
+        (v6.len(), LEN),
+        (261, 261),
+        "9 + 16 x 10 + 4 + 27 + 40 + 2 + 8 + 1 + 6 + 4"
     );
-    assert_eq!(&v5[..5], b"NCST\x05");
-    assert_eq!(&v5[240..242], &[0x52, 0x1C], "7250 ms, little endian");
-    assert_eq!(&v5[242..246], &2.5f32.to_le_bytes());
-    assert_eq!(&v5[246..250], &0.25f32.to_le_bytes());
-    assert_eq!(v5[250], 1, "allow_other_stage");
-    let crc = nanocal_interface::crc32(&v5[..251]);
-    assert_eq!(&v5[251..], &crc.to_le_bytes());
-    assert_eq!(Settings::decode(&v5), Ok(s));
+    assert_eq!(&v6[..5], b"NCST\x06");
+    assert_eq!(&v6[240..242], &[0x52, 0x1C], "7250 ms, little endian");
+    assert_eq!(&v6[242..246], &2.5f32.to_le_bytes());
+    assert_eq!(&v6[246..250], &0.25f32.to_le_bytes());
+    assert_eq!(v6[250], 1, "allow_other_stage");
+    assert_eq!(
+        &v6[251..257],
+        &[0, 0, 0x10, 0x27, 0, 0],
+        "following off, 10 000 ms, no step limit"
+    );
+    let crc = nanocal_interface::crc32(&v6[..257]);
+    assert_eq!(&v6[257..], &crc.to_le_bytes());
+    assert_eq!(Settings::decode(&v6), Ok(s));
     // a value other than 0 or 1 is refused, naming its byte
-    let mut bad = v5;
+    let mut bad = v6;
     bad[250] = 2;
-    let crc = nanocal_interface::crc32(&bad[..251]);
-    bad[251..].copy_from_slice(&crc.to_le_bytes());
+    let crc = nanocal_interface::crc32(&bad[..257]);
+    bad[257..].copy_from_slice(&crc.to_le_bytes());
     assert_eq!(
         Settings::decode(&bad),
         Err(nanocal_interface::settings::SettingsError::Field(250))
     );
-    // layout 4: the same bytes up to 250, then the CRC; other stages refused
-    let mut v4 = v5[..250].to_vec();
-    v4[4] = 4;
-    let crc = nanocal_interface::crc32(&v4);
-    v4.extend_from_slice(&crc.to_le_bytes());
+    // layout 5: the same bytes up to 250, then the CRC; other stages refused, following off
+    let mut v5 = v6[..250].to_vec();
+    v5[4] = 5;
+    let crc = nanocal_interface::crc32(&v5);
+    v5.extend_from_slice(&crc.to_le_bytes());
+    assert_eq!(v5.len(), 254);
+    assert_eq!(v5[172], 0, "reserved: the stage unit of layouts 1 to 4");
     assert_eq!(
-        Settings::decode(&v4),
+        Settings::decode(&v5),
         Ok(Settings {
             allow_other_stage: false,
             ..s
         })
     );
-    assert_eq!(v5[172], 0, "reserved: the stage unit of layouts 1 to 4");
-    // layout 4 had a stage unit at 172 (0 µm, 1 mm, 2 nm) that no firmware applied: any of
-    // them loads, to the same settings
+    // layout 4: the same places, with a stage unit at 172 (0 µm, 1 mm, 2 nm) that no firmware
+    // applied: any of them loads, to the same settings
     for unit in [0, 1, 2, 0xFF] {
-        let mut old = v4.clone();
+        let mut old = v5.clone();
+        old[4] = 4;
         old[172] = unit;
         let crc = nanocal_interface::crc32(&old[..250]);
         old[250..].copy_from_slice(&crc.to_le_bytes());
@@ -434,7 +443,7 @@ fn settings_layout_5_carries_the_fold_period_the_stale_check_and_the_stage_check
         );
     }
     // layout 3: the same bytes up to 242, then the CRC
-    let mut v3 = v5[..242].to_vec();
+    let mut v3 = v6[..242].to_vec();
     v3[4] = 3;
     let crc = nanocal_interface::crc32(&v3);
     v3.extend_from_slice(&crc.to_le_bytes());
@@ -452,7 +461,7 @@ fn settings_layout_5_carries_the_fold_period_the_stale_check_and_the_stage_check
         assert!(Settings::decode(&s.encode()).is_err(), "{bad} ms");
     }
     // layout 2: the same bytes up to 240, then the CRC
-    let mut v2 = v5[..240].to_vec();
+    let mut v2 = v6[..240].to_vec();
     v2[4] = 2;
     let crc = nanocal_interface::crc32(&v2);
     v2.extend_from_slice(&crc.to_le_bytes());
@@ -467,13 +476,13 @@ fn settings_layout_5_carries_the_fold_period_the_stale_check_and_the_stage_check
             allow_other_stage: true,
             ..old
         },
-        Settings::decode(&v5).unwrap()
+        Settings::decode(&v6).unwrap()
     );
 }
 
 /// Settings stored by a firmware with layout 1 (8 chip-selects, 164 bytes: mains at 89, axes at
-/// 93, aux at 120, CRC at 160) survive the update to layout 5 (16 chip-selects, fold period,
-/// stale check, stage check, no stage unit).
+/// 93, aux at 120, CRC at 160) survive the update to layout 6 (16 chip-selects, fold period,
+/// stale check, no stage unit, stage check, following).
 #[test]
 fn settings_of_layout_1_still_decode() {
     let mut s = Settings {
@@ -489,10 +498,10 @@ fn settings_of_layout_1_still_decode() {
     let v2 = s.encode();
     assert_eq!(
         v2.len(),
-        255,
-        "layout 5: 9 + 16 x 10 + 4 + 27 + 40 + 2 + 8 + 1 + 4"
+        261,
+        "layout 6: 9 + 16 x 10 + 4 + 27 + 40 + 2 + 8 + 1 + 6 + 4"
     );
-    assert_eq!(v2[4], 5);
+    assert_eq!(v2[4], 6);
     // layout 1, byte for byte: header, 8 sensors, then the same tail at 89
     let mut v1 = Vec::new();
     v1.extend_from_slice(b"NCST\x01");
@@ -509,9 +518,9 @@ fn settings_of_layout_1_still_decode() {
     assert_eq!(Settings::decode(&v1), Ok(s));
     // a layout-1 record cut to a layout-2 length, or with an unknown version, is refused
     assert!(Settings::decode(&v1[..163]).is_err());
-    let mut v6 = v1.clone();
-    v6[4] = 6;
-    assert!(Settings::decode(&v6).is_err());
+    let mut v7 = v1.clone();
+    v7[4] = 7;
+    assert!(Settings::decode(&v7).is_err());
 }
 
 /// A model with more temperatures than the board has chip-select lines is refused at upload

@@ -17,15 +17,22 @@
 //!            beyond its training envelope before it counts as stale
 //!       250  allow_other_stage u8 (0 or 1): compensate a stage whose controller's serial
 //!            differs from the one the model was fitted on
-//!       251  crc32 u32 LE (CRC-32/ISO-HDLC of bytes 0..251)
+//!       251  follow_nm u16 LE (0 off, else 1..=10000): re-issue a held target when the fold
+//!            moves its command by more than this
+//!       253  follow_interval_ms u16 LE (100..=60000): at most one re-issue per interval
+//!       255  follow_step_nm u16 LE (0 no limit): largest change of a command per re-issue
+//!       257  crc32 u32 LE (CRC-32/ISO-HDLC of bytes 0..257)
 //! ```
-//! Version 5 drops the stage unit and adds `allow_other_stage` (the provenance check,
-//! `nanocal_model::provenance`). The stage unit (byte 172 in versions 2 to 4, 92 in version 1:
-//! 0 µm, 1 mm, 2 nm) was never read by the firmware: the proxy asks the controller (`PUN?`) and
-//! moves only model axes in µm (GCS error 9007 otherwise), so the one unit worth declaring is
-//! the one already required. Its byte stays where it was, written 0 and ignored on decode. A
-//! version 4 record (250 bytes, CRC at 250) decodes with `allow_other_stage` off; a host built
-//! before layout 5 refuses a layout 5 record with [`SettingsError::Version`].
+//! Version 6 adds `allow_other_stage` (the provenance check, `nanocal_model::provenance`) and
+//! *held targets follow the model* (`nanocal_compensator::proxy::FollowConfig`): 261 bytes, the
+//! CRC moves from 250 to 257. Version 5 and 4 records (254 bytes) still decode, with
+//! `allow_other_stage` off and following off.
+//! Version 5 drops the stage unit (byte 172 in versions 2 to 4, 92 in version 1: 0 µm, 1 mm,
+//! 2 nm): the firmware never read it, the proxy asks the controller (`PUN?`) and moves only
+//! model axes in µm (GCS error 9007 otherwise), so the one unit worth declaring is the one
+//! already required. The byte stays where it was, written 0 and ignored on decode: every offset
+//! and length is unchanged, and so is the management protocol (6); a host built before layout 5
+//! refuses a layout 5 record with [`SettingsError::Version`].
 //! Version 4 adds the model-stale check's two numbers (`nanocal_compensator::stale`).
 //! Version 3 (the fold period; the readings of a fold period are averaged and the model
 //! folded once a period: `nanocal_compensator::slow_average`; 246 bytes, CRC at 242), version
@@ -175,9 +182,18 @@ pub const SENSORS: usize = nanocal_model::MAX_TEMPS;
 /// Settings magic.
 pub const MAGIC: [u8; 4] = *b"NCST";
 /// Layout version; bumped whenever the bytes change.
-pub const VERSION: u8 = 5;
+pub const VERSION: u8 = 6;
 /// Encoded length.
 pub const LEN: usize = Layout::of(SENSORS, true, true, true).len;
+/// Largest re-issue threshold the settings accept, nm (10 µm: beyond it a drift is no thermal
+/// correction to follow quietly).
+pub const MAX_FOLLOW_NM: u16 = 10_000;
+/// Re-issue interval unless set, ms.
+pub const DEFAULT_FOLLOW_INTERVAL_MS: u16 = 10_000;
+/// Shortest re-issue interval the settings accept, ms.
+pub const MIN_FOLLOW_INTERVAL_MS: u16 = 100;
+/// Longest re-issue interval the settings accept, ms.
+pub const MAX_FOLLOW_INTERVAL_MS: u16 = 60_000;
 /// The model-stale check's `k` unless set: a KMZ re-measurement more than 3 standard errors of
 /// prediction from the model's prediction raises `MODEL_STALE` (a chance of 0.3 % per
 /// re-measurement for a model that still holds, with normal residuals).
@@ -250,6 +266,15 @@ pub struct Settings {
     /// stage serial than the model was fitted on (status still reports the mismatch). Off
     /// unless set: a model on the wrong stage is refused, not applied.
     pub allow_other_stage: bool,
+    /// Held targets follow the model: re-issue the corrected command of the target the stage
+    /// holds when the fold moves it by more than this, nm (0: off, the default;
+    /// ..=[`MAX_FOLLOW_NM`]).
+    pub follow_nm: u16,
+    /// At most one re-issue per this many ms ([`MIN_FOLLOW_INTERVAL_MS`]..=
+    /// [`MAX_FOLLOW_INTERVAL_MS`]); the first no sooner after the host's move.
+    pub follow_interval_ms: u16,
+    /// Largest change of a command per re-issue, nm (0: no limit).
+    pub follow_step_nm: u16,
 }
 
 impl Default for Settings {
@@ -273,6 +298,9 @@ impl Default for Settings {
             stale_k: DEFAULT_STALE_K,
             extrapolation_c: DEFAULT_EXTRAPOLATION_C,
             allow_other_stage: false,
+            follow_nm: 0,
+            follow_interval_ms: DEFAULT_FOLLOW_INTERVAL_MS,
+            follow_step_nm: 0,
         }
     }
 }
@@ -320,12 +348,14 @@ struct Layout {
     fold_at: Option<usize>,
     stale_at: Option<usize>,
     stage_at: Option<usize>,
+    follow_at: Option<usize>,
     crc_at: usize,
     len: usize,
 }
 
 impl Layout {
-    const fn of(sensors: usize, fold: bool, stale: bool, stage: bool) -> Layout {
+    /// `v6`: the provenance flag and the following settings (layout 6).
+    const fn of(sensors: usize, fold: bool, stale: bool, v6: bool) -> Layout {
         let mains_at = SENSOR_AT + 10 * sensors;
         let axes_at = mains_at + 4;
         let aux_at = axes_at + 9 * MAP_AXES;
@@ -340,10 +370,10 @@ impl Layout {
         } else {
             (None, end)
         };
-        let (stage_at, crc_at) = if stage {
-            (Some(end), end + 1)
+        let (stage_at, follow_at, crc_at) = if v6 {
+            (Some(end), Some(end + 1), end + 7)
         } else {
-            (None, end)
+            (None, None, end)
         };
         Layout {
             sensors,
@@ -353,6 +383,7 @@ impl Layout {
             fold_at,
             stale_at,
             stage_at,
+            follow_at,
             crc_at,
             len: crc_at + 4,
         }
@@ -364,7 +395,8 @@ impl Layout {
             1 => Some(Layout::of(8, false, false, false)),
             2 => Some(Layout::of(SENSORS, false, false, false)),
             3 => Some(Layout::of(SENSORS, true, false, false)),
-            4 => Some(Layout::of(SENSORS, true, true, false)),
+            // 5 only reserved the stage unit's byte: the same places
+            4 | 5 => Some(Layout::of(SENSORS, true, true, false)),
             VERSION => Some(Layout::of(SENSORS, true, true, true)),
             _ => None,
         }
@@ -378,8 +410,9 @@ const AUX_AT: usize = NOW.aux_at;
 const FOLD_AT: usize = AUX_AT + 10 * MAX_AUX;
 const STALE_AT: usize = FOLD_AT + 2;
 const STAGE_AT: usize = STALE_AT + 8;
+const FOLLOW_AT: usize = STAGE_AT + 1;
+const _: () = assert!(FOLLOW_AT + 6 == CRC_AT);
 const CRC_AT: usize = NOW.crc_at;
-const _: () = assert!(STAGE_AT + 1 == CRC_AT);
 
 /// Lowest stage-link baud rate: the STM32 board's UART4 divides its 80 MHz clock by at most
 /// 65 535 and has no prescaler (RM0351 §40.5.4), so 1 221 Bd is its floor; 1 200 Bd was
@@ -426,6 +459,12 @@ impl Settings {
         }
         if !(self.extrapolation_c >= 0.0 && self.extrapolation_c <= MAX_EXTRAPOLATION_C) {
             return Err(SettingsError::Field(STALE_AT as u16 + 4));
+        }
+        if self.follow_nm > MAX_FOLLOW_NM {
+            return Err(SettingsError::Field(FOLLOW_AT as u16));
+        }
+        if !(MIN_FOLLOW_INTERVAL_MS..=MAX_FOLLOW_INTERVAL_MS).contains(&self.follow_interval_ms) {
+            return Err(SettingsError::Field(FOLLOW_AT as u16 + 2));
         }
         for (i, a) in self.aux.iter().enumerate() {
             if let AuxSource::Force {
@@ -496,6 +535,9 @@ impl Settings {
         b[STALE_AT..STALE_AT + 4].copy_from_slice(&self.stale_k.to_le_bytes());
         b[STALE_AT + 4..STALE_AT + 8].copy_from_slice(&self.extrapolation_c.to_le_bytes());
         b[STAGE_AT] = u8::from(self.allow_other_stage);
+        b[FOLLOW_AT..FOLLOW_AT + 2].copy_from_slice(&self.follow_nm.to_le_bytes());
+        b[FOLLOW_AT + 2..FOLLOW_AT + 4].copy_from_slice(&self.follow_interval_ms.to_le_bytes());
+        b[FOLLOW_AT + 4..FOLLOW_AT + 6].copy_from_slice(&self.follow_step_nm.to_le_bytes());
         let crc = crate::crc32(&b[..CRC_AT]);
         b[CRC_AT..].copy_from_slice(&crc.to_le_bytes());
         b
@@ -585,6 +627,12 @@ impl Settings {
                 1 => true,
                 _ => return Err(SettingsError::Field(o as u16)),
             };
+        }
+        if let Some(o) = l.follow_at {
+            let u16_at = |o: usize| u16::from_le_bytes([b[o], b[o + 1]]);
+            s.follow_nm = u16_at(o);
+            s.follow_interval_ms = u16_at(o + 2);
+            s.follow_step_nm = u16_at(o + 4);
         }
         s.validate_stored()?;
         Ok(s)

@@ -91,6 +91,9 @@ fn custom_settings() -> Settings {
         stale_k: 2.5,
         extrapolation_c: 0.25,
         allow_other_stage: true,
+        follow_nm: 5,
+        follow_interval_ms: 2_000,
+        follow_step_nm: 20,
         ..Settings::default()
     };
     s.sensors = [None; 16];
@@ -189,26 +192,28 @@ fn settings_bytes() {
         custom_settings()
     );
     use nanocal_interface::settings::{
-        DEFAULT_EXTRAPOLATION_C, DEFAULT_FOLD_PERIOD_MS, DEFAULT_STALE_K,
+        DEFAULT_EXTRAPOLATION_C, DEFAULT_FOLD_PERIOD_MS, DEFAULT_FOLLOW_INTERVAL_MS,
+        DEFAULT_STALE_K,
     };
-    // a layout 4 record (stored by a firmware before layout 5: the stage unit, here mm, a unit
-    // the firmware never applied; no provenance check) decodes to the same settings, other
-    // stages refused
-    assert_eq!(
-        Settings::decode(&SETTINGS_CUSTOM_V4).unwrap(),
-        Settings {
-            allow_other_stage: false,
-            ..custom_settings()
-        }
-    );
+    // records before layout 6 decode with other stages refused and following off
+    let unfollowed = Settings {
+        allow_other_stage: false,
+        follow_nm: 0,
+        follow_interval_ms: DEFAULT_FOLLOW_INTERVAL_MS,
+        follow_step_nm: 0,
+        ..custom_settings()
+    };
+    assert_eq!(Settings::decode(&SETTINGS_CUSTOM_V5).unwrap(), unfollowed);
+    // a layout 4 record (stored by a firmware before the stage unit was dropped, here mm, a unit
+    // the firmware never applied) decodes to the same settings
+    assert_eq!(Settings::decode(&SETTINGS_CUSTOM_V4).unwrap(), unfollowed);
     // a layout 3 record (stored by a firmware before the stale check) decodes with its defaults
     assert_eq!(
         Settings::decode(&SETTINGS_CUSTOM_V3).unwrap(),
         Settings {
             stale_k: DEFAULT_STALE_K,
             extrapolation_c: DEFAULT_EXTRAPOLATION_C,
-            allow_other_stage: false,
-            ..custom_settings()
+            ..unfollowed
         }
     );
     // a layout 2 record (stored by a firmware before the fold period) decodes with the defaults
@@ -218,8 +223,7 @@ fn settings_bytes() {
             fold_period_ms: DEFAULT_FOLD_PERIOD_MS,
             stale_k: DEFAULT_STALE_K,
             extrapolation_c: DEFAULT_EXTRAPOLATION_C,
-            allow_other_stage: false,
-            ..custom_settings()
+            ..unfollowed
         }
     );
 }
@@ -407,6 +411,30 @@ fn the_stale_check_settings_are_range_checked_with_their_offsets() {
     let edge = Settings {
         stale_k: 100.0,
         extrapolation_c: 0.0,
+        ..Settings::default()
+    };
+    assert_eq!(Settings::decode(&edge.encode()), Ok(edge));
+}
+
+#[test]
+fn the_follow_settings_are_range_checked_with_their_offsets() {
+    use nanocal_interface::settings::SettingsError;
+    let s = Settings {
+        follow_nm: 10_001,
+        ..Settings::default()
+    };
+    assert_eq!(s.validate(), Err(SettingsError::Field(251)));
+    for ms in [0, 99, 60_001] {
+        let s = Settings {
+            follow_interval_ms: ms,
+            ..Settings::default()
+        };
+        assert_eq!(s.validate(), Err(SettingsError::Field(253)), "{ms} ms");
+    }
+    let edge = Settings {
+        follow_nm: 10_000,
+        follow_interval_ms: 100,
+        follow_step_nm: u16::MAX,
         ..Settings::default()
     };
     assert_eq!(Settings::decode(&edge.encode()), Ok(edge));

@@ -17,6 +17,10 @@ use nanocal_compensator::proxy::Output;
 /// How often the stage link lets the proxy check its reply timeout, ms.
 const POLL_MS: u64 = 50;
 
+/// How often the stage link lets the proxy look at a held target that follows the model, ms
+/// (only while one is armed; the fold changes every 1 to 10 s).
+const FOLLOW_MS: u64 = 250;
+
 /// How long the host may leave a packet for it unread before it is dropped, ms: a host that
 /// has its port open but does not read must not stop the compensator (its replies go; what the
 /// controller sends is still read, see [`send_from_stage`]).
@@ -111,7 +115,10 @@ async fn send_from_stage(sh: &Shared, out: &Output) {
 /// nobody has the host port open: what would be queued belongs to no connection.
 async fn send(sh: &Shared, out: &Output) {
     if !out.to_stage.is_empty() {
+        // (the stage link's re-issue of a held target waits until the line is all in the pipe)
+        sh.host_to_stage.store(true, Ordering::Relaxed);
         sh.to_stage.write_all(out.to_stage.as_bytes()).await;
+        sh.host_to_stage.store(false, Ordering::Relaxed);
         // the proxy may now wait for a reply: the stage link polls its timeout from now on
         sh.stage_sent.signal(());
     }
@@ -229,10 +236,15 @@ pub async fn stage_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) ->
             // poll the reply timeout only while a reply is awaited; otherwise sleep until the
             // controller sends or something is sent to it (a wake-up every 50 ms for nothing
             // was most of what the board did in a day on the virtual bench)
-            let awaiting = sh.core.lock(|c| c.borrow().proxy.awaiting_controller());
+            let (awaiting, follow) = sh.core.lock(|c| {
+                let c = c.borrow();
+                (c.proxy.awaiting_controller(), c.proxy.follow_due())
+            });
             let tick = async {
                 if awaiting {
                     Timer::after_millis(POLL_MS).await
+                } else if follow {
+                    select(Timer::after_millis(FOLLOW_MS), sh.stage_sent.wait()).await;
                 } else {
                     sh.stage_sent.wait().await
                 }
@@ -261,6 +273,17 @@ pub async fn stage_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) ->
                 }
             }
             resume(sh, &mut out).await;
+            if !sh.host_to_stage.load(Ordering::Relaxed) {
+                // held targets that follow the model (nothing unless armed): the proxy's
+                // check, or the re-issue once the check's reply is in (whole lines, never
+                // inside a host line on its way)
+                sh.core.lock(|c| {
+                    let mut c = c.borrow_mut();
+                    let now = now_ms();
+                    c.drive(now, |proxy, comp| proxy.follow_tick(comp, now, &mut out))
+                });
+                send_from_stage(sh, &out).await;
+            }
         }
     };
     join(rx_loop, stage_pump(sh, &mut tx)).await;

@@ -429,14 +429,15 @@ fn apply_kmz(
     kmz
 }
 
-/// Put new settings in force: sensors are reconfigured at once, the axis names take effect on
-/// the next line, the stage baud rate at the next reset.
+/// Put new settings in force: sensors are reconfigured at once, the axis names and following
+/// take effect on the next line (a new host session: nothing held is followed until the next
+/// move), the stage baud rate at the next reset.
 fn apply_settings(sh: &Shared, s: Settings) {
     sh.settings.lock(|x| *x.borrow_mut() = s);
     sh.core.lock(|c| {
-        c.borrow_mut()
-            .proxy
-            .reconfigure(AxisMap::new(&s.axis_names))
+        let mut c = c.borrow_mut();
+        c.proxy.reconfigure(AxisMap::new(&s.axis_names));
+        c.proxy.set_follow(super::follow_config(&s));
     });
     let serial = sh.model.lock(|m| {
         m.borrow()
@@ -446,6 +447,8 @@ fn apply_settings(sh: &Shared, s: Settings) {
     });
     sh.check_stage(serial);
     sh.settings_changed.signal(());
+    // the stage link ticks following only while it is armed: let it look
+    sh.stage_sent.signal(());
 }
 
 /// Count a rejected upload; the refusal.

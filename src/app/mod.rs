@@ -31,7 +31,7 @@ use embassy_sync::signal::Signal;
 use nanocal_compensator::fault::{Faults, Policy, MAX_CHANNELS};
 use nanocal_compensator::gcs::AxisMap;
 use nanocal_compensator::inputs::{self, FastSamples};
-use nanocal_compensator::proxy::{FoldCorrector, Gate, Proxy};
+use nanocal_compensator::proxy::{FoldCorrector, FollowConfig, Gate, Proxy};
 use nanocal_compensator::stale::StaleCheck;
 use nanocal_interface::identity::{ResetCause, Site};
 use nanocal_interface::mgmt::Refusal;
@@ -198,6 +198,9 @@ pub struct Shared {
     pub host_cancel: Signal<Cs, ()>,
     /// Bytes for the host dropped because it did not read them.
     pub host_bytes_dropped: AtomicU32,
+    /// The host link is writing a line of the host's toward the stage controller: a re-issued
+    /// held target (`links`, following) must not cut into it.
+    pub host_to_stage: AtomicBool,
 }
 
 /// The tasks with heartbeats ([`Shared::beats`]) and how long each may stay busy.
@@ -321,6 +324,7 @@ impl Shared {
             host_session: AtomicU32::new(0),
             host_cancel: Signal::new(),
             host_bytes_dropped: AtomicU32::new(0),
+            host_to_stage: AtomicBool::new(false),
         }
     }
 
@@ -345,8 +349,10 @@ impl Shared {
             let mut c = c.borrow_mut();
             c.comp = None;
             c.proxy.gate = Gate::SensorFault;
-            // the memory of the play operators and the fast samples were the old model's
+            // the memory of the play operators and the fast samples were the old model's, and
+            // so was the command of a held target: it is not followed with the new one
             c.proxy.reset_hysteresis();
+            c.proxy.cancel_follow();
             c.fast.clear();
         });
         self.check_stage(serial);
@@ -391,9 +397,20 @@ impl Shared {
     }
 }
 
-/// A proxy with the settings' axis names and nothing else remembered.
+/// A proxy with the settings' axis names and following, nothing else remembered.
 pub fn fresh_proxy(settings: &Settings) -> Proxy {
-    Proxy::new(AxisMap::new(&settings.axis_names))
+    let mut p = Proxy::new(AxisMap::new(&settings.axis_names));
+    p.set_follow(follow_config(settings));
+    p
+}
+
+/// The settings' *held targets follow the model*, as the proxy takes it.
+pub fn follow_config(s: &Settings) -> FollowConfig {
+    FollowConfig {
+        threshold_nm: s.follow_nm,
+        interval_ms: u32::from(s.follow_interval_ms),
+        max_step_nm: s.follow_step_nm,
+    }
 }
 
 /// Aux inputs the status reports.

@@ -514,7 +514,7 @@ impl ProxyState {
                     self.ctrl.tmx = Fact::Known(());
                 }
             }
-            Info::Targets(_) | Info::Error => {}
+            Info::Targets(_) | Info::Error | Info::FollowCheck(_) | Info::FollowDone(_) => {}
         }
     }
 
@@ -530,7 +530,7 @@ impl ProxyState {
             Info::Units => self.ctrl.units = Fact::Unanswered,
             Info::TravelMin => self.ctrl.tmn = Fact::Unanswered,
             Info::TravelMax => self.ctrl.tmx = Fact::Unanswered,
-            Info::Targets(_) | Info::Error => {}
+            Info::Targets(_) | Info::Error | Info::FollowCheck(_) | Info::FollowDone(_) => {}
         }
     }
 

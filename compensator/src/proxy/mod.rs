@@ -54,6 +54,7 @@
 
 mod controller;
 mod corrector;
+mod follow;
 mod moves;
 mod queue;
 mod replies;
@@ -61,6 +62,7 @@ mod session;
 pub mod travel;
 
 pub use corrector::{Corrected, Corrector, FoldCorrector};
+pub use follow::FollowConfig;
 pub use queue::MAX_IN_FLIGHT;
 pub use session::RESYNC_QUIET_MS;
 
@@ -148,6 +150,10 @@ pub struct Counters {
     pub resyncs: u32,
     /// Times bytes from the controller were lost (UART overrun, full receive buffer).
     pub link_losses: u32,
+    /// Held targets re-issued because the fold moved their command (`follow`), accepted.
+    pub follow_reissues: u32,
+    /// Re-issues the controller refused (its error swallowed; following stopped).
+    pub follow_refused: u32,
 }
 
 /// What the proxy knows of the model axes' targets: what it sent.
@@ -278,6 +284,10 @@ pub struct ProxyState {
     /// Bytes from the controller were lost: until the line is quiet, nothing received can be
     /// paired with a query and no host line goes out ([`Proxy::stage_bytes_lost`]).
     link_lost: bool,
+    /// Held targets following the model (`follow`).
+    follow: follow::Follow,
+    /// Corrected moves that went out with an address prefix.
+    prefixed_moves: u32,
 }
 
 impl Default for Proxy {
@@ -335,6 +345,8 @@ impl Proxy {
                 },
                 counters: Counters::default(),
                 link_lost: false,
+                follow: follow::Follow::new(),
+                prefixed_moves: 0,
             },
         }
     }
@@ -384,6 +396,7 @@ impl Proxy {
         st.held_runs = 0;
         st.reseed = Reseed::None;
         st.pending_error = None;
+        st.follow.ctrl_error = None;
         st.queue.drop_answers();
         st.queue.retag(|en| match en.e {
             // the proxy's own queries keep their meaning, except the bases of a dropped line
@@ -602,6 +615,44 @@ impl Proxy {
     pub fn forget_targets(&mut self) {
         self.st.forget(None);
     }
+
+    /// Held targets follow the model with `cfg` (threshold 0: off; see `follow`).
+    pub fn set_follow(&mut self, cfg: FollowConfig) {
+        self.st.follow.cfg = cfg;
+        if cfg.threshold_nm == 0 {
+            self.st.follow_cancel();
+        }
+    }
+
+    /// Following stops until the host's next move (a new model is staged: the held
+    /// target's command was the old model's).
+    pub fn cancel_follow(&mut self) {
+        self.st.follow_cancel();
+    }
+
+    /// True while a held target is followed: armed by a host move (at the tick after it),
+    /// not cancelled since.
+    pub fn following(&self) -> bool {
+        self.st.follow.armed
+    }
+
+    /// True when [`follow_tick`](Self::follow_tick) has anything to decide: following is on
+    /// and armed, or a host move went out since the last tick (the firmware ticks it
+    /// periodically only then).
+    pub fn follow_due(&self) -> bool {
+        let f = &self.st.follow;
+        f.cfg.threshold_nm != 0 && (f.armed || self.st.counters.moves != f.seen_moves)
+    }
+
+    /// Time passes for held targets that follow the model: when the stage holds the host's
+    /// target and the fold has moved its command by more than the threshold, the proxy's own
+    /// check and then the re-issued command go to the controller, rate-limited (`follow`).
+    /// Call periodically (every 100 ms to 1 s) and whenever the fold changed.
+    #[inline(never)]
+    pub fn follow_tick(&mut self, c: Option<&FoldCorrector>, now_ms: u32, out: &mut Output) {
+        let waiting = self.lines_waiting() || !self.input.is_empty() || self.discarding;
+        self.st.follow_tick(c, now_ms, waiting, out)
+    }
 }
 
 impl ProxyState {
@@ -740,6 +791,10 @@ impl ProxyState {
         }
         if action == Action::ErrorQuery && self.pending_error.is_some() {
             self.answer_error(s.prefix, out);
+            return;
+        }
+        if action == Action::ErrorQuery && self.follow_owns_error() {
+            self.answer_controller_error(s.prefix, out);
             return;
         }
         if self.bypass {
@@ -945,6 +1000,24 @@ impl ProxyState {
         }
     }
 
+    /// True when the controller's error register is the proxy's to answer: its own `ERR?` read
+    /// (or is reading) an error the host has not read yet (`follow`).
+    fn follow_owns_error(&self) -> bool {
+        self.follow.ctrl_error.is_some()
+            || matches!(self.follow.phase, follow::Phase::Checking { .. })
+    }
+
+    /// The host's `ERR?` answered with the controller's code that the proxy's own check read
+    /// (after the replies still due: the check's among them when it is in flight).
+    fn answer_controller_error(&mut self, prefix: &[u8], out: &mut Output) {
+        let a = Answer::with_code(prefix, self.follow.ctrl_error.take());
+        let now = self.queue.is_empty() && !self.rx.active();
+        if now || !self.queue.push(Entry::new(Expect::Answer(a), false, false)) {
+            a.resolve(|| self.follow.ctrl_error.take().unwrap_or(0))
+                .write(&mut out.to_host);
+        }
+    }
+
     /// Send the proxy's own answers that are due (nothing in flight before them). False when
     /// one is due and does not fit `out`.
     fn emit_answers(&mut self, out: &mut Output) -> bool {
@@ -957,7 +1030,8 @@ impl ProxyState {
                     if out.to_host.room() < 24 {
                         return false;
                     }
-                    a.write(&mut out.to_host);
+                    a.resolve(|| self.follow.ctrl_error.take().unwrap_or(0))
+                        .write(&mut out.to_host);
                     self.queue.pop();
                 }
                 _ => break,
@@ -1021,6 +1095,7 @@ impl ProxyState {
             _ => self.targets.known = 0,
         }
         self.hyst.reset();
+        self.follow_cancel();
     }
 
     /// Keep `line` until the controller answered the proxy's own queries for `needs`.

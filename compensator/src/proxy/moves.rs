@@ -261,7 +261,7 @@ impl ProxyState {
     /// pairs of the other axes; the other axes of an `MVR` keep their relative move in an `MVR`
     /// of their own, those of a `GOH` their `GOH`. This writes the `MOV` without its line end.
     fn format_move(
-        &self,
+        &mut self,
         prefix: &[u8],
         kind: MoveKind,
         named: u8,
@@ -269,10 +269,13 @@ impl ProxyState {
         n: usize,
         out: &mut Output,
     ) -> Result<(), GcsError> {
-        let o = &mut out.to_stage;
         if !prefix.is_empty() {
-            o.extend(prefix)?;
+            // (counted here, off the unaddressed line's path: following does not repeat an
+            // address, so it leaves such a target alone)
+            self.prefixed_moves = self.prefixed_moves.wrapping_add(1);
+            out.to_stage.extend(prefix)?;
         }
+        let o = &mut out.to_stage;
         o.extend(if kind == MoveKind::Vector {
             b"MVE"
         } else {

@@ -47,6 +47,12 @@ pub(crate) enum Info {
     /// The host's `ERR?` answered by the controller: a non-zero code may mean the controller
     /// refused a move the proxy forwarded, so the proxy forgets its targets.
     Error,
+    /// The proxy's `ERR?` before it re-issues a held target (`follow`), asked after this many
+    /// host moves (mod 256): one read after a later move is not for the target it checked.
+    FollowCheck(u8),
+    /// The proxy's `ERR?` after a re-issued `MOV` (`follow`), sent after this many host moves
+    /// (mod 256).
+    FollowDone(u8),
 }
 
 /// The proxy's own answer to the host's `ERR?`: the code, after the address prefix a
@@ -56,13 +62,20 @@ pub(crate) struct Answer {
     /// The reply prefix (sender and target swapped), `len` bytes of it.
     prefix: [u8; 11],
     len: u8,
-    code: GcsErrorCode,
+    /// The code; `None`: the controller's error that the proxy's own `ERR?` in flight before
+    /// it reads (`follow`), 0 when it reads none — filled in when the answer goes out.
+    code: Option<i32>,
 }
 
 impl Answer {
     /// The answer to an `ERR?` sent with address prefix `prefix` (see
     /// [`crate::gcs::reply_prefix`]; a prefix longer than any address pair is dropped).
     pub(crate) fn new(prefix: &[u8], code: GcsErrorCode) -> Self {
+        Self::with_code(prefix, Some(code.code()))
+    }
+    /// The answer to an `ERR?` with the code `code` (`None`: filled in later, see
+    /// [`Answer::resolve`]).
+    pub(crate) fn with_code(prefix: &[u8], code: Option<i32>) -> Self {
         let mut p = LineBuf::<16>::new();
         crate::gcs::reply_prefix(prefix, &mut p);
         let mut a = Self {
@@ -76,11 +89,18 @@ impl Answer {
         }
         a
     }
+    /// The answer with its code filled in by `f` when it has none yet.
+    pub(crate) fn resolve(mut self, f: impl FnOnce() -> i32) -> Self {
+        if self.code.is_none() {
+            self.code = Some(f());
+        }
+        self
+    }
     /// The answer's bytes, LF included.
     pub(crate) fn write(&self, out: &mut LineBuf<{ super::HOST_OUT }>) -> bool {
         out.room() >= 24
             && out.extend(&self.prefix[..usize::from(self.len)]).is_ok()
-            && out.push_int(i64::from(self.code.code())).is_ok()
+            && out.push_int(i64::from(self.code.unwrap_or(0))).is_ok()
             && out.push(b'\n').is_ok()
     }
 }

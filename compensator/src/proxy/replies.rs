@@ -592,6 +592,8 @@ impl ProxyState {
                 let lines = self.rx.lines.clone();
                 if let Info::Targets(generation) = info {
                     self.reseed(c, lines.as_bytes(), generation);
+                } else if matches!(info, Info::FollowCheck(_) | Info::FollowDone(_)) {
+                    self.follow_reply(info, lines.as_bytes());
                 } else if self.rx.truncated && info == Info::Idn {
                     // an identification line too long to hold: no usable marker
                     self.ctrl.idn = Fact::Unanswered;
@@ -739,7 +741,8 @@ impl ProxyState {
         while let Some(en) = self.queue.pop() {
             match en.e {
                 Expect::Answer(a) => {
-                    a.write(&mut out.to_host);
+                    a.resolve(|| self.follow.ctrl_error.take().unwrap_or(0))
+                        .write(&mut out.to_host);
                 }
                 Expect::Marker | Expect::Discard | Expect::Unsolicited => {}
                 _ => self.counters.unanswered = self.counters.unanswered.wrapping_add(1),

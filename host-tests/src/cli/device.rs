@@ -80,6 +80,18 @@ pub enum DeviceCommand {
         /// default). The status reports the mismatch either way.
         #[arg(long, value_parser = ["on", "off"])]
         allow_other_stage: Option<String>,
+        /// Held targets follow the model: while the stage holds the host's target, re-issue its
+        /// corrected command when the fold moves it by more than this many nm (0 = off, the
+        /// default; at most 10000). The host still reads its own target (MOV?, POS?).
+        #[arg(long)]
+        follow_nm: Option<u16>,
+        /// At most one re-issue per this many ms, the first no sooner after the host's move
+        /// (100..=60000; default 10000).
+        #[arg(long)]
+        follow_interval_ms: Option<u16>,
+        /// Largest change of a command per re-issue, nm (0 = no limit, the default).
+        #[arg(long)]
+        follow_step_nm: Option<u16>,
         /// GCS axis names of model axes 0,1,2 (comma separated), e.g. X,Y,Z.
         #[arg(long, value_delimiter = ',')]
         axes: Option<Vec<String>>,
@@ -195,6 +207,7 @@ pub fn edit_settings(
     fold_period_ms: Option<u16>,
     stale: (Option<f32>, Option<f32>),
     allow_other_stage: Option<&str>,
+    follow: (Option<u16>, Option<u16>, Option<u16>),
     axes: Option<&[String]>,
     sensors: &[String],
     aux: &[String],
@@ -244,6 +257,26 @@ pub fn edit_settings(
             "off" => false,
             _ => bail!("--allow-other-stage {a}: on or off"),
         };
+    }
+    let (follow_nm, follow_interval_ms, follow_step_nm) = follow;
+    if let Some(nm) = follow_nm {
+        use nanocal_interface::settings::MAX_FOLLOW_NM;
+        anyhow::ensure!(
+            nm <= MAX_FOLLOW_NM,
+            "--follow-nm {nm}: 0 (off) to {MAX_FOLLOW_NM}"
+        );
+        s.follow_nm = nm;
+    }
+    if let Some(ms) = follow_interval_ms {
+        use nanocal_interface::settings::{MAX_FOLLOW_INTERVAL_MS, MIN_FOLLOW_INTERVAL_MS};
+        anyhow::ensure!(
+            (MIN_FOLLOW_INTERVAL_MS..=MAX_FOLLOW_INTERVAL_MS).contains(&ms),
+            "--follow-interval-ms {ms}: {MIN_FOLLOW_INTERVAL_MS}..={MAX_FOLLOW_INTERVAL_MS}"
+        );
+        s.follow_interval_ms = ms;
+    }
+    if let Some(nm) = follow_step_nm {
+        s.follow_step_nm = nm;
     }
     if let Some(a) = axes {
         anyhow::ensure!((1..=3).contains(&a.len()), "--axes: 1 to 3 names");
@@ -322,6 +355,9 @@ pub fn run(cmd: DeviceCommand) -> anyhow::Result<()> {
             stale_k,
             extrapolation_c,
             allow_other_stage,
+            follow_nm,
+            follow_interval_ms,
+            follow_step_nm,
             axes,
             sensor,
             aux,
@@ -336,6 +372,7 @@ pub fn run(cmd: DeviceCommand) -> anyhow::Result<()> {
                 fold_period_ms,
                 (stale_k, extrapolation_c),
                 allow_other_stage.as_deref(),
+                (follow_nm, follow_interval_ms, follow_step_nm),
                 axes.as_deref(),
                 &sensor,
                 &aux,

@@ -627,6 +627,20 @@ pub fn format_settings(s: &Settings) -> String {
             "moves refused (allow_other_stage off)"
         }
     );
+    o += &if s.follow_nm == 0 {
+        "held targets follow the model: off\n".to_string()
+    } else {
+        format!(
+            "held targets follow the model: re-issued beyond {} nm, at most every {} ms, {}\n",
+            s.follow_nm,
+            s.follow_interval_ms,
+            if s.follow_step_nm == 0 {
+                "no step limit".to_string()
+            } else {
+                format!("at most {} nm a step", s.follow_step_nm)
+            }
+        )
+    };
     for (cs, c) in s.sensors.iter().enumerate() {
         let d = match c {
             None => "none".to_string(),

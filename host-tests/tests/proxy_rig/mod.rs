@@ -135,6 +135,26 @@ impl Rig {
         self.pump();
     }
 
+    /// Let `ms` pass with held targets following the model: the stage link's tick every
+    /// `tick_ms` (a poll, then `follow_tick`, and `follow_tick` again after the controller's
+    /// replies), as the firmware runs it while following is armed.
+    pub fn follow_for_ms(&mut self, ms: u32, tick_ms: u32) {
+        let mut left = ms;
+        while left > 0 {
+            let d = left.min(tick_ms);
+            left -= d;
+            self.wait_ms(d);
+            // (the firmware ticks again once the controller's replies are in: a check that
+            // cleared is followed by its re-issue at once)
+            for _ in 0..2 {
+                self.proxy
+                    .follow_tick(self.comp.as_ref(), self.now_ms, &mut self.out);
+                self.route();
+                self.pump();
+            }
+        }
+    }
+
     /// Let the proxy's reply timeout pass, so queries the controller never answered are
     /// given up (what the firmware's stage link does by polling).
     pub fn settle(&mut self) {

@@ -7,8 +7,8 @@ def frame(kind, seq, payload):
     body = hdr + payload
     return bytes([0xA7, 0x5C]) + body + struct.pack('<I', zlib.crc32(body))
 
-def settings(baud, sensors, mains, period, unit, axes, aux, fold_ms=5000, version=5, n_cs=16,
-             stale_k=3.0, extrapolation_c=0.1, allow_other_stage=0):
+def settings(baud, sensors, mains, period, unit, axes, aux, fold_ms=5000, version=6, n_cs=16,
+             stale_k=3.0, extrapolation_c=0.1, allow_other_stage=0, follow=(0, 10000, 0)):
     b = b'NCST' + bytes([version]) + struct.pack('<I', baud)
     for i in range(n_cs):
         kind, a, rr, r0 = sensors.get(i, (0, 0, 0.0, 0.0))
@@ -23,8 +23,10 @@ def settings(baud, sensors, mains, period, unit, axes, aux, fold_ms=5000, versio
         b += struct.pack('<H', fold_ms)
     if version >= 4:
         b += struct.pack('<ff', stale_k, extrapolation_c)
-    if version >= 5:
+    if version >= 6:
         b += bytes([allow_other_stage])
+        # held targets follow the model: threshold nm, interval ms, step nm
+        b += struct.pack('<HHH', *follow)
     return b + struct.pack('<I', zlib.crc32(b))
 
 def status():
@@ -63,14 +65,17 @@ custom_args = (57600, {0: (1, 3, 0.0, 0.0), 1: (1, 7, 0.0, 0.0), 2: (2, 3, 430.0
                        3: (2, 4, 4300.0, 1000.0)}, 60, 500, 1, [b'X', b'Y', b'3'],
                [(1, 0, 0.0, 0.0), (2, 0, 0.01, -20.48), (0, 0, 0.0, 0.0), (0, 0, 0.0, 0.0)])
 custom_settings = settings(*custom_args, fold_ms=8000, stale_k=2.5, extrapolation_c=0.25,
-                           allow_other_stage=1)
-# the same settings as a version 4 record (stage unit mm, never applied; no allow_other_stage), as a firmware before layout 5 stored them
+                           allow_other_stage=1, follow=(5, 2000, 20))
+# the same settings as a version 5 record (no allow_other_stage, no following), as a firmware before layout 6 stored them
+custom_settings_v5 = settings(*custom_args, fold_ms=8000, stale_k=2.5, extrapolation_c=0.25, version=5)
+# the same settings as a version 4 record (stage unit mm, never applied), as a firmware before layout 5 stored them
 custom_settings_v4 = settings(*custom_args, fold_ms=8000, stale_k=2.5, extrapolation_c=0.25, version=4)
 # the same settings as a version 3 record (no stale check), as a firmware before layout 4 stored them
 custom_settings_v3 = settings(*custom_args, fold_ms=8000, version=3)
 # the same settings as a version 2 record (no fold period), as a firmware before layout 3 stored them
 custom_settings_v2 = settings(*custom_args, version=2)
-assert len(default_settings) == 255
+assert len(default_settings) == 261
+assert len(custom_settings_v5) == 254
 assert len(custom_settings_v4) == 254
 assert len(custom_settings_v3) == 246
 assert len(custom_settings_v2) == 244
@@ -78,9 +83,10 @@ assert len(custom_settings_v2) == 244
 hello = struct.pack('<HHH', 7, 4, 256) + bytes([5]) + b'0.1.0' + bytes(range(12)) + bytes([8]) + bytes([19]) + b'src/bin/stm32.rs:42'
 items = [
     ("STATUS_BYTES", status(), "The status of `status()` alone (290 bytes)."),
-    ("SETTINGS_DEFAULT", default_settings, "`Settings::default()` (255 bytes, layout 5)."),
-    ("SETTINGS_CUSTOM", custom_settings, "The settings of `custom_settings()` (fold period 8 s, k 2.5, margin 0.25 °C, other stages allowed)."),
-    ("SETTINGS_CUSTOM_V4", custom_settings_v4, "`custom_settings()` as a layout 4 record (stage unit mm, no allow_other_stage, 254 bytes)."),
+    ("SETTINGS_DEFAULT", default_settings, "`Settings::default()` (261 bytes, layout 6)."),
+    ("SETTINGS_CUSTOM", custom_settings, "The settings of `custom_settings()` (fold period 8 s, k 2.5, margin 0.25 °C, other stages allowed, following 5 nm / 2 s / 20 nm)."),
+    ("SETTINGS_CUSTOM_V5", custom_settings_v5, "`custom_settings()` as a layout 5 record (no allow_other_stage, no following, 254 bytes)."),
+    ("SETTINGS_CUSTOM_V4", custom_settings_v4, "`custom_settings()` as a layout 4 record (stage unit mm, 254 bytes)."),
     ("SETTINGS_CUSTOM_V3", custom_settings_v3, "`custom_settings()` as a layout 3 record (no stale check, 246 bytes)."),
     ("SETTINGS_CUSTOM_V2", custom_settings_v2, "`custom_settings()` as a layout 2 record (no fold period, 244 bytes)."),
     ("REQ_HELLO", frame(0x01, 1, b''), "HELLO, seq 1."),

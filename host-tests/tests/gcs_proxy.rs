@@ -679,12 +679,16 @@ fn a_host_that_keeps_asking_does_not_hide_a_silent_controller() {
 /// Fuzz finding (issue 21, `proxy_fuzz`): a controller that stopped in the middle of a reply
 /// left the host with its beginning; the next reply then read as its continuation (`1 \n2 \n`
 /// and a later `0\n` made one three-line reply). Once the proxy gives the reply up, the host
-/// gets an end for it.
+/// gets an end for it. The link-fault fuzz (a reply cut anywhere, bytes lost on the stage
+/// link) then found a cut right after a space: the one LF made `1 \n`, a continued line, and
+/// the next reply (`15\n`) joined it — such a cut gets two.
 #[test]
 fn a_reply_cut_by_a_silent_controller_gets_an_end() {
     for (cut, ended) in [
         (&b"1 \n2 \n"[..], &b"1 \n2 \n\n"[..]),
         (b"1 \n2", b"1 \n2\n"),
+        (b"1 ", b"1 \n\n"),
+        (b"1 \n2 ", b"1 \n2 \n\n"),
     ] {
         let mut p = Proxy::default();
         let mut out = Output::new();

@@ -347,6 +347,11 @@ impl Proxy {
     /// due.
     pub fn has_work(&self) -> bool {
         let st = &self.st;
+        if st.link_lost {
+            // nothing is processed until the line is quiet (`poll` ends that): a caller that
+            // loops while there is work would spin
+            return false;
+        }
         let answer_due = !st.rx.active()
             && matches!(
                 st.queue.front(),

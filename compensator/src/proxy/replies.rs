@@ -717,7 +717,12 @@ impl ProxyState {
             {
                 // the host holds the beginning of a reply whose end will never come: it gets
                 // an end (a line end, an empty last line after a continued one), so that the
-                // next reply is not read as this one's continuation
+                // next reply is not read as this one's continuation. A line cut after a space
+                // (relayed as it came) would read as continued with one LF: it gets two
+                let raw = !matches!(en.e, Expect::Map { .. }) || self.rx.line_over;
+                if raw && self.rx.prev == b' ' {
+                    let _ = out.to_host.push(b'\n');
+                }
                 let _ = out.to_host.push(b'\n');
             }
             if !matches!(en.e, Expect::Marker | Expect::Discard | Expect::Unsolicited) {

@@ -869,16 +869,22 @@ fn axis_value(line: &[u8]) -> Option<(&str, &str, &str)> {
 }
 
 /// `got` is the beginning of reply `r` (for position replies: whole lines, values mapped,
-/// each line's `prefix axis=` as the controller's) ended by an LF of the proxy's.
+/// each line's `prefix axis=` as the controller's) ended by an LF of the proxy's (two after a
+/// space: one would continue the line).
 fn cut_reply(kind: QKind, r: &[u8], got: &[u8]) -> bool {
     let Some(body) = got.strip_suffix(b"\n") else {
         return false;
     };
+    if kind != QKind::Map {
+        let body = match body.strip_suffix(b" \n") {
+            Some(b) => &body[..b.len() + 1],
+            None if body.ends_with(b" ") => return false,
+            None => body,
+        };
+        return !body.is_empty() && body.len() < r.len() && r.starts_with(body);
+    }
     if body.is_empty() || body.len() >= r.len() {
         return false;
-    }
-    if kind != QKind::Map {
-        return r.starts_with(body);
     }
     let rl: Vec<&[u8]> = r.split_inclusive(|&b| b == b'\n').collect();
     let gl: Vec<&[u8]> = body.split_inclusive(|&b| b == b'\n').collect();
@@ -889,12 +895,13 @@ fn cut_reply(kind: QKind, r: &[u8], got: &[u8]) -> bool {
         })
 }
 
-/// An `ERR?` answer: one line whose last token is an integer.
+/// The proxy's own answer to an `ERR?`: one line whose last token is a non-zero integer (the
+/// proxy answers only when it has an error of its own; a `0` is the controller's).
 fn is_error_answer(r: &[u8]) -> bool {
     let s = String::from_utf8_lossy(r);
     s.lines().count() == 1
         && s.trim()
             .split(' ')
             .next_back()
-            .is_some_and(|t| t.parse::<i32>().is_ok())
+            .is_some_and(|t| t.parse::<i32>().is_ok_and(|c| c != 0))
 }

@@ -20,7 +20,13 @@
 //! A controller that stops (a blackout: reboot, power, cable) loses what it was sending and
 //! what is sent to it, and stays silent until the proxy has given up the replies it lost — a
 //! PI controller answers every query it accepts and is silent for seconds when it stops; the
-//! proxy must notice within its reply timeout.
+//! proxy must notice within its reply timeout. Link faults (a stream of their own, see
+//! [`run_with`]): bytes lost on the stage link anywhere in what the controller is sending, which
+//! the board reports (a UART overrun or framing error, [`Proxy::stage_bytes_lost`]) while the
+//! controller keeps running; a host connection dropped in the middle of a line; a controller
+//! that stops in the middle of a reply. Bytes lost unnoticed are not among them: a query lost on
+//! its way to a controller that answers the next one cannot be told from GCS's bytes (the
+//! proxy's stated contract).
 //!
 //! Deterministic: a run is a seed ([`run`]). `tests/proxy_fuzz.rs` runs bounded seeds in CI;
 //! its ignored benchmark runs ≥ 10 million steps (BENCHMARKS.md).

@@ -263,6 +263,115 @@ fn coupled_axes_are_re_commanded() {
     assert_eq!(rx.len(), 2, "{rx:?}");
 }
 
+/// Calibrated targets of the coupled model's commands `q` (axes 1 and 2): Newton's method in
+/// f64 with a finite-difference Jacobian, independent of the proxy's f32 inverse.
+fn invert_2d(m: &Model, q: [f64; 2]) -> [f64; 2] {
+    let mut x = q;
+    for _ in 0..60 {
+        let f = f64_command(m, [x[0], x[1], 0.0]);
+        let mut j = [[0.0; 2]; 2];
+        for b in 0..2 {
+            let mut xh = [x[0], x[1], 0.0];
+            xh[b] += 1e-3;
+            let fh = f64_command(m, xh);
+            for a in 0..2 {
+                j[a][b] = (fh[a] - f[a]) / 1e-3;
+            }
+        }
+        let r = [f[0] - q[0], f[1] - q[1]];
+        let det = j[0][0] * j[1][1] - j[0][1] * j[1][0];
+        let step = [
+            (j[1][1] * r[0] - j[0][1] * r[1]) / det,
+            (j[0][0] * r[1] - j[1][0] * r[0]) / det,
+        ];
+        x = [x[0] - step[0], x[1] - step[1]];
+        if step.iter().all(|s| s.abs() < 1e-11) {
+            break;
+        }
+    }
+    x
+}
+
+/// Fuzz finding (issue 21, `proxy_fuzz`, the coupled 2-DoF setup, seeds 0–5): a move whose
+/// axis 2 clamps to the travel's end and which the controller refuses (for axis 3's value)
+/// left the proxy a record of axis 2 computed with the refused axis 1 target; the proxy kept
+/// that record per axis because the controller holds the same clamped command, and the next
+/// move of axis 1 sent axis 2 ≈ 50 nm away from where the stage's y was. The record holds as
+/// a whole or not at all: axis 2's base is the calibrated position of what the controller
+/// holds on both axes.
+#[test]
+fn a_refused_coupled_move_leaves_no_base_on_the_axis_it_clamped() {
+    let m = coupled_2dof().unwrap();
+    let mut cfg = everything(3);
+    let q0 = f64_command(&m, [40.0, 40.0, 0.0]);
+    for (a, ax) in cfg.axes.iter_mut().enumerate() {
+        ax.min = -10.0;
+        ax.max = 100.0;
+        let q = if a < 2 { q0[a] } else { 50.0 };
+        ax.reference = Some(q);
+        ax.start = q;
+    }
+    let mut r = Rig::new(cfg, Some(&m), &TEMPS);
+    // the y whose command at x is 0.05 µm beyond the travel's end (clamped to −10)
+    let y_clamped = |x: f64| {
+        let mut y = 40.0;
+        for _ in 0..60 {
+            let f = |y: f64| f64_command(&m, [x, y, 0.0])[1] + 10.05;
+            let d = (f(y + 1e-3) - f(y)) / 1e-3;
+            y -= f(y) / d;
+        }
+        y
+    };
+    r.line(&format!("MOV 1 40 2 {:.6}", y_clamped(40.0)));
+    r.wait_ms(100);
+    let held = [r.ctl.target(0), r.ctl.target(1)];
+    assert_eq!(held[1], -10.0, "axis 2 clamped to the travel");
+    // refused by the controller (axis 3 outside its travel, error 7): its axis 2 clamps to
+    // the same command, and the host does not ask ERR?
+    r.received();
+    r.line(&format!("MOV 1 20 2 {:.6} 3 200", y_clamped(20.0)));
+    let rx = r.received();
+    assert!(
+        rx.iter().any(|l| l.ends_with(" 2 -10.000000 3 200")),
+        "{rx:?}"
+    );
+    r.wait_ms(100);
+    assert_eq!(
+        [r.ctl.target(0), r.ctl.target(1)],
+        held,
+        "refused: nothing moved"
+    );
+    // a relative move of axis 2 starts from where the controller's targets put it: the
+    // calibrated position of both (the refused move's record is that of other commands)
+    let x = invert_2d(&m, held);
+    let q1_refused = f64_command(&m, [20.0, y_clamped(20.0), 0.0])[0];
+    let stale = invert_2d(&m, [q1_refused, -10.0]);
+    let mut tried = vec![];
+    for d in [2.0, -2.0, 5.0, -5.0] {
+        let want = f64_command(&m, [x[0], x[1] + d, 0.0]);
+        let wrong = f64_command(&m, [x[0], stale[1] + d, 0.0]);
+        tried.push((d, want, wrong));
+        if want[1] < -9.9 {
+            continue; // clamped: the base would not show
+        }
+        assert!(
+            (want[1] - wrong[1]).abs() > 0.01,
+            "the two bases must differ visibly: {want:?} {wrong:?}"
+        );
+        r.line(&format!("MVR 2 {d}"));
+        r.wait_ms(100);
+        let got = [r.ctl.target(0), r.ctl.target(1)];
+        assert!(
+            (got[1] - want[1]).abs() <= 1e-3,
+            "sent {got:?}: the correction of {:?} + (0, {d}) is {want:?} (the refused move's \
+             record of axis 2 gives {wrong:?})",
+            x
+        );
+        return;
+    }
+    panic!("no relative move leaves axis 2 inside the travel: {tried:?}");
+}
+
 #[test]
 fn goh_of_all_axes_sends_the_model_axes_to_their_corrected_home() {
     let (mut r, m) = rig_1dof();
@@ -570,12 +679,16 @@ fn a_host_that_keeps_asking_does_not_hide_a_silent_controller() {
 /// Fuzz finding (issue 21, `proxy_fuzz`): a controller that stopped in the middle of a reply
 /// left the host with its beginning; the next reply then read as its continuation (`1 \n2 \n`
 /// and a later `0\n` made one three-line reply). Once the proxy gives the reply up, the host
-/// gets an end for it.
+/// gets an end for it. The link-fault fuzz (a reply cut anywhere, bytes lost on the stage
+/// link) then found a cut right after a space: the one LF made `1 \n`, a continued line, and
+/// the next reply (`15\n`) joined it — such a cut gets two.
 #[test]
 fn a_reply_cut_by_a_silent_controller_gets_an_end() {
     for (cut, ended) in [
         (&b"1 \n2 \n"[..], &b"1 \n2 \n\n"[..]),
         (b"1 \n2", b"1 \n2\n"),
+        (b"1 ", b"1 \n\n"),
+        (b"1 \n2 ", b"1 \n2 \n\n"),
     ] {
         let mut p = Proxy::default();
         let mut out = Output::new();

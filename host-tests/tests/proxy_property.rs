@@ -12,7 +12,11 @@
 //! change, referencing or an error the controller reported (the host asks `ERR?` after every
 //! command, like PIPython) made them the controller's business: then from the controller's own
 //! targets, mapped back by an f64 Newton inverse of the reference model (what GCS defines
-//! `MVR` against).
+//! `MVR` against). The host's targets are one record, all model axes together: a stop or
+//! referencing of one axis makes every axis start from the controller's targets (with a
+//! coupled model an axis' command depends on the others' targets, so after `FRF 1` axis 2 is
+//! no longer at the host's target even though its command did not change; the proxy's
+//! documentation, *Bases*).
 //!
 //! A second property maps position replies: a `POS?`/`MOV?` naming every model axis is answered
 //! with the f64 inverse of what the controller reports.
@@ -387,8 +391,9 @@ fn run(model: &Model, lines: &[Line]) -> Result<Checked, TestCaseError> {
                 host[k] = Some(x_set[k]);
             }
         }
-        for k in forgets(&l.cmd, n) {
-            host[k] = None;
+        if !forgets(&l.cmd, n).is_empty() {
+            // the record holds as a whole or not at all
+            host = [None; MAX_AXES];
         }
         // position replies naming every model axis map back to the f64 inverse
         if let Cmd::Query(q @ ("POS?" | "MOV?"), axes) = &l.cmd {

@@ -15,6 +15,22 @@
 //! record of it. Single-character commands pass at once, even in the middle of a line.
 //! Everything else is forwarded untouched.
 //!
+//! *Bases.* Where the controller holds exactly every command the proxy last sent for the
+//! model axes, a move's bases are the calibrated targets those commands corrected (exact, as
+//! the host wrote them); where it holds anything else on any model axis, every model axis'
+//! base is the model's inverse of all the controller's targets. The record is whole, not per
+//! axis, because of the physics of a coupled model: the command of axis 2 is the correction of
+//! axis 2's target *at axis 1's target*, so axis 2's recorded target is where the stage is only
+//! while axis 1 also holds the command it was computed with. When the controller refused a
+//! move for another axis' value, or axis 1 was stopped or referenced, axis 2 may hold the very
+//! command the proxy sent (a clamped one, near a travel end, is common to many targets) and
+//! still not be at the recorded target: keeping that record moved it ≈ 50 nm on the coupled
+//! 2-DoF setup, to a target neither the host asked for nor the controller reported (issue 21's
+//! stateful fuzz). So an axis the host does not name stays where the controller's targets put
+//! it, in calibrated coordinates — after `FRF 1`, `MOV 1 0` keeps axis 2 where it is, not at
+//! the host's earlier target for it (which would move it, unasked). For one axis, or a model
+//! without coupling, the two rules agree (to the inverse's rounding).
+//!
 //! Controller → host: replies to `POS?`, `#3` and `MOV?` are mapped back to calibrated
 //! coordinates (a `MOV?` value equal to the command sent maps back to its target exactly; other
 //! values through the model's own inverse, `Fold::inverse_from`, started at the target, see
@@ -363,6 +379,11 @@ impl Proxy {
     /// due.
     pub fn has_work(&self) -> bool {
         let st = &self.st;
+        if st.link_lost {
+            // nothing is processed until the line is quiet (`poll` ends that): a caller that
+            // loops while there is work would spin
+            return false;
+        }
         let answer_due = !st.rx.active()
             && matches!(
                 st.queue.front(),

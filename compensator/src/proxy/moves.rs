@@ -7,7 +7,8 @@
 //! A target the command does not give — the base of an `MVR`, the other axes of a coupled
 //! model — is always read from the controller (`MOV?`, the line waits for the answer): the
 //! base is what the controller did, never what the proxy asked for (the controller may have
-//! refused that move, or stopped).
+//! refused that move, or stopped). The proxy's own record stands in for the controller's
+//! targets only as a whole (see the module documentation, *Bases*).
 
 use super::controller::NotReady;
 use super::travel::{self, Edge, Limit};

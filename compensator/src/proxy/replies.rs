@@ -636,10 +636,13 @@ impl ProxyState {
 
     /// `MOV?` reply to the proxy's own query for the line held under `generation`: the
     /// targets the controller holds, as calibrated positions, for every model axis (the bases
-    /// of that line's move). Where the controller holds exactly the command the proxy sent,
-    /// the base is the target the host asked for; elsewhere the controller did something else
-    /// (refused the move, stopped, referenced), the proxy forgets its record of that axis and
-    /// the base is the calibrated position of the controller's target.
+    /// of that line's move). The proxy's record of what it sent is one point of the model's
+    /// map — the commands `q` of the targets `x`, every model axis at once — so it is the base
+    /// only where the controller holds the whole of `q`: then the base is the targets the host
+    /// asked for. Otherwise (the controller refused the move, or stopped or referenced an axis,
+    /// or the proxy forgot one) the proxy forgets the record and the base of every model axis
+    /// is the calibrated position of the controller's targets, the model's inverse of all of
+    /// them (see the module documentation, *Bases*).
     fn reseed<C: Corrector>(&mut self, c: Option<&C>, lines: &[u8], generation: u8) {
         if self.reseed != Reseed::Asked || generation != self.reseed_gen {
             // a reply for a line that no longer waits (a stop cancelled it): never used
@@ -663,37 +666,24 @@ impl ProxyState {
                 None => return,
             }
         }
-        // where the controller holds the command sent, its base is the target the host asked
-        // for; elsewhere the calibrated position of the controller's targets
-        let mut base = Targets::default();
-        let mut differ = 0u8;
-        for a in 0..n {
-            match (self.targets.q(a), q[a]) {
-                (Some(sent), Some(held)) if sent == held => {
-                    base.set(a, self.targets.x[a], sent);
-                }
-                _ => differ |= 1 << a,
-            }
+        if (0..n).all(|a| self.targets.q(a).is_some() && self.targets.q(a) == q[a]) {
+            // the controller holds every command the proxy sent: the host's targets
+            self.reseed = Reseed::Got(self.targets);
+            return;
         }
-        if differ != 0 {
-            for a in 0..n {
-                if differ >> a & 1 != 0 {
-                    self.forget(Some(a));
-                }
-            }
-            let Some((_, delta)) = c.inverse(&qf, &self.dir, &self.hyst, None) else {
-                self.counters.inverse_failures = self.counters.inverse_failures.wrapping_add(1);
+        // a coupled model's command of one axis depends on the others' targets: an axis whose
+        // command still holds is not at its recorded target once another axis' changed
+        self.forget(None);
+        let Some((_, delta)) = c.inverse(&qf, &self.dir, &self.hyst, None) else {
+            self.counters.inverse_failures = self.counters.inverse_failures.wrapping_add(1);
+            return;
+        };
+        let mut base = Targets::default();
+        for a in 0..n {
+            let (Some(d), Some(qa)) = (gcs::f32_to_micros(delta[a]), q[a]) else {
                 return;
             };
-            for a in 0..n {
-                if differ >> a & 1 == 0 {
-                    continue;
-                }
-                let (Some(d), Some(qa)) = (gcs::f32_to_micros(delta[a]), q[a]) else {
-                    return;
-                };
-                base.set(a, qa.saturating_sub(d), qa);
-            }
+            base.set(a, qa.saturating_sub(d), qa);
         }
         self.reseed = Reseed::Got(base);
     }
@@ -729,7 +719,12 @@ impl ProxyState {
             {
                 // the host holds the beginning of a reply whose end will never come: it gets
                 // an end (a line end, an empty last line after a continued one), so that the
-                // next reply is not read as this one's continuation
+                // next reply is not read as this one's continuation. A line cut after a space
+                // (relayed as it came) would read as continued with one LF: it gets two
+                let raw = !matches!(en.e, Expect::Map { .. }) || self.rx.line_over;
+                if raw && self.rx.prev == b' ' {
+                    let _ = out.to_host.push(b'\n');
+                }
                 let _ = out.to_host.push(b'\n');
             }
             if !matches!(en.e, Expect::Marker | Expect::Discard | Expect::Unsolicited) {

@@ -20,7 +20,13 @@
 //! A controller that stops (a blackout: reboot, power, cable) loses what it was sending and
 //! what is sent to it, and stays silent until the proxy has given up the replies it lost — a
 //! PI controller answers every query it accepts and is silent for seconds when it stops; the
-//! proxy must notice within its reply timeout.
+//! proxy must notice within its reply timeout. Link faults (a stream of their own, see
+//! [`run_with`]): bytes lost on the stage link anywhere in what the controller is sending, which
+//! the board reports (a UART overrun or framing error, [`Proxy::stage_bytes_lost`]) while the
+//! controller keeps running; a host connection dropped in the middle of a line; a controller
+//! that stops in the middle of a reply. Bytes lost unnoticed are not among them: a query lost on
+//! its way to a controller that answers the next one cannot be told from GCS's bytes (the
+//! proxy's stated contract).
 //!
 //! Deterministic: a run is a seed ([`run`]). `tests/proxy_fuzz.rs` runs bounded seeds in CI;
 //! its ignored benchmark runs ≥ 10 million steps (BENCHMARKS.md).
@@ -151,6 +157,13 @@ pub struct Stats {
     pub drops: u64,
     /// Controller blackouts (it ignored its input for a while, as while it reboots).
     pub blackouts: u64,
+    /// Bytes from the controller lost on the stage link (a UART overrun or framing error,
+    /// which the board reports): the proxy was told.
+    pub link_losses: u64,
+    /// Host connections dropped in the middle of a line.
+    pub cut_lines: u64,
+    /// Replies cut short by the controller stopping in the middle of them.
+    pub cut_replies: u64,
     /// Times the proxy gave up waiting and resynchronised.
     pub resyncs: u64,
     /// Queries the proxy found unanswered.
@@ -179,6 +192,9 @@ impl std::ops::AddAssign for Stats {
         self.lines_checked += o.lines_checked;
         self.drops += o.drops;
         self.blackouts += o.blackouts;
+        self.link_losses += o.link_losses;
+        self.cut_lines += o.cut_lines;
+        self.cut_replies += o.cut_replies;
         self.resyncs += o.resyncs;
         self.unanswered += o.unanswered;
         self.refused += o.refused;
@@ -377,6 +393,17 @@ impl Rig {
         }
     }
 
+    /// The stage link loses `len` bytes `at` bytes into what the controller is sending (all of
+    /// them when fewer are on their way; none: noise on an idle line), and the board tells the
+    /// proxy — a UART overrun or framing error — after the bytes before them arrived. The
+    /// controller keeps running: what it sends after them still comes.
+    fn lose_stage_bytes(&mut self, at: usize, len: usize) {
+        self.deliver(at);
+        let n = len.min(self.stage_rx.len());
+        self.stage_rx.drain(..n);
+        self.proxy.stage_bytes_lost(self.now_ms);
+    }
+
     /// Replies the proxy counts as due will never come.
     fn lose_replies(&mut self) {
         let resyncs = self.proxy.counters.resyncs;
@@ -436,9 +463,43 @@ struct Blackout {
     lost: Option<(u32, u32)>,
 }
 
-/// Run `steps` steps of seed `seed` on `setup`; the first violation stops it.
+/// The host drops its connection (DTR falls) and opens it again, after the controller sent
+/// the proxy up to `n` more bytes: what happened before is checked first.
+fn drop_connection(
+    rig: &mut Rig,
+    oracle: &mut Oracle,
+    gen: &mut gen::Gen,
+    n: usize,
+) -> Result<oracle::Checked, String> {
+    rig.deliver(n);
+    oracle.lost(&std::mem::take(&mut rig.lost));
+    let k = oracle.check(&mut rig.ctl, &mut rig.host_rx, false)?;
+    rig.host_tx.clear();
+    rig.proxy.new_session();
+    oracle.new_session();
+    gen.new_session();
+    rig.host_rx.clear();
+    Ok(k)
+}
+
+/// Run `steps` steps of seed `seed` on `setup`, link faults included; the first violation
+/// stops it.
 pub fn run(setup: &Setup, seed: u64, steps: u64) -> Result<Stats, Box<Violation>> {
+    run_with(setup, seed, steps, true)
+}
+
+/// Run `steps` steps of seed `seed` on `setup`; the first violation stops it. Without
+/// `link_faults` the run is the one the fuzz made before it had them (bytes lost on the stage
+/// link, host lines cut by a dropped connection, replies cut by a controller that stops, each
+/// drawn from a stream of their own): the replays of earlier findings stay replays.
+pub fn run_with(
+    setup: &Setup,
+    seed: u64,
+    steps: u64,
+    link_faults: bool,
+) -> Result<Stats, Box<Violation>> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut faults = ChaCha8Rng::seed_from_u64(seed ^ 0x6c69_6e6b_2d66_6175);
     let mut rig = Rig::new(setup);
     let mut oracle = Oracle::new(setup);
     let mut gen = gen::Gen::new(setup.model.axes());
@@ -446,8 +507,57 @@ pub fn run(setup: &Setup, seed: u64, steps: u64) -> Result<Stats, Box<Violation>
     let mut trace: VecDeque<String> = VecDeque::new();
     let mut resyncs = 0u32;
     for step in 0..steps {
-        let action = rng.gen_range(0..1000u32);
+        let fault = if link_faults {
+            faults.gen_range(0..1000u32)
+        } else {
+            1000
+        };
+        let action = if fault < 12 {
+            1000
+        } else {
+            rng.gen_range(0..1000u32)
+        };
         let note = match action {
+            1000 => match fault {
+                0..=4 => {
+                    // bytes lost on the stage link, anywhere in what is on its way
+                    let at = faults.gen_range(0..=rig.stage_rx.len());
+                    let len = faults.gen_range(1..24);
+                    rig.lose_stage_bytes(at, len);
+                    stats.link_losses += 1;
+                    format!("stage link lost {len} bytes after {at}")
+                }
+                5..=8 => {
+                    // the host's connection drops in the middle of a line: the proxy took
+                    // the beginning of it (single characters in it acted at once)
+                    let item = oracle.prepare(gen.item(&mut faults));
+                    let cut = faults.gen_range(0..item.len().max(1));
+                    let part = item[..cut].to_vec();
+                    stats.host_items += 1;
+                    oracle.host_sent(&part);
+                    rig.host_tx.extend(&part);
+                    rig.feed_host(usize::MAX);
+                    let n = faults.gen_range(0..16);
+                    drop_connection(&mut rig, &mut oracle, &mut gen, n)
+                        .map_err(|what| violation(setup.name, seed, step, what, &trace))
+                        .map(|k| stats.count(k))?;
+                    stats.cut_lines += 1;
+                    format!(
+                        "host {:?}, connection dropped",
+                        part.escape_ascii().to_string()
+                    )
+                }
+                _ => {
+                    // the controller stops in the middle of what it is sending
+                    let at = faults.gen_range(0..=rig.stage_rx.len());
+                    rig.deliver(at);
+                    let ms = faults.gen_range(100..3_000);
+                    rig.black_out(ms);
+                    stats.blackouts += 1;
+                    stats.cut_replies += 1;
+                    format!("controller silent for {ms} ms after {at} bytes")
+                }
+            },
             0..=399 => {
                 if oracle.host_queries_pending() >= 12 {
                     // room for every query's reply in the proxy (16 host queries in flight)
@@ -495,19 +605,11 @@ pub fn run(setup: &Setup, seed: u64, steps: u64) -> Result<Stats, Box<Violation>
                 format!("wait {ms} ms")
             }
             990..=994 => {
-                // the host closes the port (DTR falls) and opens it again; what happened
-                // before is checked first
-                rig.deliver(rng.gen_range(0..16));
-                oracle.lost(&std::mem::take(&mut rig.lost));
-                let k = oracle
-                    .check(&mut rig.ctl, &mut rig.host_rx, false)
-                    .map_err(|what| violation(setup.name, seed, step, what, &trace))?;
-                stats.count(k);
-                rig.host_tx.clear();
-                rig.proxy.new_session();
-                oracle.new_session();
-                gen.new_session();
-                rig.host_rx.clear();
+                // the host closes the port (DTR falls) and opens it again
+                let n = rng.gen_range(0..16);
+                drop_connection(&mut rig, &mut oracle, &mut gen, n)
+                    .map_err(|what| violation(setup.name, seed, step, what, &trace))
+                    .map(|k| stats.count(k))?;
                 stats.drops += 1;
                 "connection dropped".to_string()
             }

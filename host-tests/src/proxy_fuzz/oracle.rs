@@ -558,6 +558,12 @@ impl Oracle {
                         q[a] = v;
                     }
                     for x in matched {
+                        // a clamped command is the correction of no target asked for: its
+                        // base is the inverse of what the controller holds
+                        let exact = self.command(&x);
+                        if (0..self.n).any(|a| (exact[a] - q[a]).abs() > TOL_UM) {
+                            continue;
+                        }
                         if self.sent.len() == 16 {
                             self.sent.pop_front();
                         }
@@ -583,32 +589,20 @@ impl Oracle {
     }
 
     /// The calibrated positions a move may start from when the controller holds the targets
-    /// `before`: per model axis, the inverse of the commands it holds, or — where it holds
-    /// exactly an axis' command of a corrected move it received lately — that axis' target in
-    /// the move (the proxy's documented rule, per axis, as `tests/proxy_property.rs` defines
-    /// it: an axis keeps the host's target while the controller holds its command; near an end
-    /// of the travel many targets clamp to one command). Every combination.
+    /// `before`: the inverse of the commands it holds, or — where it holds exactly every model
+    /// axis' command of a corrected move it received lately — that move's targets. A record
+    /// holds only as a whole: with a coupled model an axis' command is the correction of its
+    /// target at the other axes' targets, so one axis' target of a move is where the stage is
+    /// only while the other axes hold that move's commands too. (This oracle took a base per
+    /// axis, every combination, as the proxy did: that accepted bases that are neither targets
+    /// the host asked for nor the calibrated position of anything the controller held.)
     fn bases(&self, before: &[f64]) -> Vec<[f64; MAX_AXES]> {
         let xb = self.inverse(before);
         let mut out = vec![xb];
-        for a in 0..self.n {
-            let mut alternatives: Vec<f64> = Vec::new();
-            for (q, x) in &self.sent {
-                if q[a] == before[a] && x[a] != xb[a] && !alternatives.contains(&x[a]) {
-                    alternatives.push(x[a]);
-                }
+        for (q, x) in &self.sent {
+            if q[..self.n] == before[..self.n] && !out.contains(x) {
+                out.push(*x);
             }
-            let more: Vec<[f64; MAX_AXES]> = out
-                .iter()
-                .flat_map(|b| {
-                    alternatives.iter().map(move |&x| {
-                        let mut b = *b;
-                        b[a] = x;
-                        b
-                    })
-                })
-                .collect();
-            out.extend(more);
         }
         out
     }
@@ -875,16 +869,22 @@ fn axis_value(line: &[u8]) -> Option<(&str, &str, &str)> {
 }
 
 /// `got` is the beginning of reply `r` (for position replies: whole lines, values mapped,
-/// each line's `prefix axis=` as the controller's) ended by an LF of the proxy's.
+/// each line's `prefix axis=` as the controller's) ended by an LF of the proxy's (two after a
+/// space: one would continue the line).
 fn cut_reply(kind: QKind, r: &[u8], got: &[u8]) -> bool {
     let Some(body) = got.strip_suffix(b"\n") else {
         return false;
     };
+    if kind != QKind::Map {
+        let body = match body.strip_suffix(b" \n") {
+            Some(b) => &body[..b.len() + 1],
+            None if body.ends_with(b" ") => return false,
+            None => body,
+        };
+        return !body.is_empty() && body.len() < r.len() && r.starts_with(body);
+    }
     if body.is_empty() || body.len() >= r.len() {
         return false;
-    }
-    if kind != QKind::Map {
-        return r.starts_with(body);
     }
     let rl: Vec<&[u8]> = r.split_inclusive(|&b| b == b'\n').collect();
     let gl: Vec<&[u8]> = body.split_inclusive(|&b| b == b'\n').collect();
@@ -895,12 +895,13 @@ fn cut_reply(kind: QKind, r: &[u8], got: &[u8]) -> bool {
         })
 }
 
-/// An `ERR?` answer: one line whose last token is an integer.
+/// The proxy's own answer to an `ERR?`: one line whose last token is a non-zero integer (the
+/// proxy answers only when it has an error of its own; a `0` is the controller's).
 fn is_error_answer(r: &[u8]) -> bool {
     let s = String::from_utf8_lossy(r);
     s.lines().count() == 1
         && s.trim()
             .split(' ')
             .next_back()
-            .is_some_and(|t| t.parse::<i32>().is_ok())
+            .is_some_and(|t| t.parse::<i32>().is_ok_and(|c| c != 0))
 }

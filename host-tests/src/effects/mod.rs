@@ -406,9 +406,19 @@ impl Theta {
         }
     }
 
-    /// As an estimate (value ± σ).
+    /// As an estimate (value ± σ); on a bound of the searched range it is a bound, not a
+    /// value ± σ: its σ is then NaN (not known), and [`Theta::bound_note`] says which bound.
     pub fn estimate(&self) -> Estimate {
-        Estimate::new(&self.name, self.value, self.sigma)
+        Estimate::new(&self.name, self.value, self.sigma_unless_bound())
+    }
+
+    /// σ, or NaN when the value sits on a bound of its searched range.
+    pub fn sigma_unless_bound(&self) -> f64 {
+        if self.bound_note().is_some() {
+            f64::NAN
+        } else {
+            self.sigma
+        }
     }
 }
 

@@ -602,7 +602,7 @@ impl super::Candidate for Candidate {
             out.push(super::Estimate::new(
                 &format!("{which}_s_{name}"),
                 t.tau.value,
-                t.tau.sigma,
+                t.tau.sigma_unless_bound(),
             ));
             out.push(super::Estimate::new(
                 &format!(

@@ -97,9 +97,11 @@ pub struct Data {
 /// as they are asked for. Clones share the cache: [`Data::with_smoothing`] keeps `t_s`.
 #[derive(Clone, Default)]
 pub(crate) struct CosineCache {
-    /// Column k − 1 is order k; (t₀ bits, last t bits, rows) they were computed on.
-    cols: std::sync::Arc<std::sync::Mutex<(Vec<std::sync::Arc<Vec<f64>>>, (u64, u64, usize))>>,
+    cols: std::sync::Arc<std::sync::Mutex<KeptCosines>>,
 }
+
+/// Column k − 1 is order k; (t₀ bits, last t bits, rows) they were computed on.
+type KeptCosines = (Vec<std::sync::Arc<Vec<f64>>>, (u64, u64, usize));
 
 impl std::fmt::Debug for CosineCache {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {

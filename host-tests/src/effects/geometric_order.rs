@@ -59,8 +59,8 @@ const MIN_SHARE_OF_POSE_STRUCTURE: f64 = 0.5;
 const MAX_POSES_COMPARED: usize = 60;
 
 /// One indicator column per distinct commanded pose of this axis but the first, when there
-/// are few enough poses.
-fn pose_indicators(d: &Data, ch: usize) -> Option<Vec<Vec<f64>>> {
+/// are few enough poses; on `rows` only (the search's rows: the comparison needs no more).
+fn pose_indicators(d: &Data, ch: usize, rows: &[usize]) -> Option<Vec<Vec<f64>>> {
     let u = d.channels[ch].u.as_ref()?;
     let keys: Vec<i64> = u.iter().map(|x| (x * 1e6).round() as i64).collect();
     let mut poses = keys.clone();
@@ -72,7 +72,11 @@ fn pose_indicators(d: &Data, ch: usize) -> Option<Vec<Vec<f64>>> {
     Some(
         poses[1..]
             .iter()
-            .map(|p| keys.iter().map(|k| f64::from(u8::from(k == p))).collect())
+            .map(|p| {
+                rows.iter()
+                    .map(|&i| f64::from(u8::from(keys[i] == *p)))
+                    .collect()
+            })
             .collect(),
     )
 }
@@ -104,12 +108,11 @@ impl super::Candidate for Candidate {
         // a smooth higher-order shape must carry most of what depends on the pose at all: if a
         // free offset per pose explains far more, the structure sits at particular poses (a
         // defect, a scale error at one mark) and no polynomial is its name
-        if let Some(poses) = pose_indicators(s.d, s.ch) {
+        if let Some(poses) = pose_indicators(s.d, s.ch, &s.basis.rows) {
             let r0 = s.basis.rss();
             let refs: Vec<&[f64]> = regs.iter().map(|c| c.as_slice()).collect();
             let by_poly = r0 - s.basis.rss_with(&refs);
-            let prefs: Vec<&[f64]> = poses.iter().map(|c| c.as_slice()).collect();
-            let by_pose = r0 - s.basis.rss_with(&prefs);
+            let by_pose = r0 - s.basis.rss_with_gathered(poses);
             if by_poly < MIN_SHARE_OF_POSE_STRUCTURE * by_pose {
                 return Ok(None);
             }

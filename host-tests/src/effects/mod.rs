@@ -141,6 +141,143 @@ fn lag_run(t_s: &[f64], x: &[f64], tau_s: f64, y0: Option<f64>, mut emit: impl F
     }
 }
 
+/// The sample intervals of a time axis sorted into classes, found once for the many lag
+/// filters `explain` runs over the same time stamps: a log's intervals take few distinct
+/// values, so the filter's factor 1 − e^(−dt/τ) is worked out once per class and τ, and the
+/// sample loop reads it by index — no interval to subtract, compare or look up per sample.
+pub(crate) struct Intervals {
+    /// Class of the interval ending at each sample (entry 0: the first sample, unused).
+    class: Vec<u16>,
+    /// The interval of each class, s (its bits are what [`Lag`] keys its factors by).
+    dt_s: Vec<f64>,
+}
+
+/// Most classes [`Intervals`] keeps (a log with more distinct intervals runs [`Lag`] itself).
+const MAX_INTERVAL_CLASSES: usize = 4096;
+
+impl Intervals {
+    /// The classes of `t_s`'s intervals, or None when it has more than
+    /// [`MAX_INTERVAL_CLASSES`] distinct ones.
+    pub(crate) fn of(t_s: &[f64]) -> Option<Self> {
+        let mut class = vec![0u16; t_s.len()];
+        let mut dt_s: Vec<f64> = Vec::new();
+        let mut index: std::collections::HashMap<u64, u16> = Default::default();
+        let (mut last_bits, mut last_class) = (None, 0u16);
+        for k in 1..t_s.len() {
+            let dt = t_s[k] - t_s[k - 1];
+            let bits = dt.to_bits();
+            if last_bits != Some(bits) {
+                last_class = match index.get(&bits) {
+                    Some(&c) => c,
+                    None => {
+                        if dt_s.len() >= MAX_INTERVAL_CLASSES {
+                            return None;
+                        }
+                        let c = dt_s.len() as u16;
+                        dt_s.push(dt);
+                        index.insert(bits, c);
+                        c
+                    }
+                };
+                last_bits = Some(bits);
+            }
+            class[k] = last_class;
+        }
+        Some(Self { class, dt_s })
+    }
+}
+
+/// [`lag_series_at`] on time stamps whose intervals are `iv` (from [`Intervals::of`] of the
+/// same `t_s`): the same branches and arithmetic as [`Lag`], bit for bit.
+pub(crate) fn lag_series_at_classes(
+    iv: &Intervals,
+    x: &[f64],
+    tau_s: f64,
+    y0: Option<f64>,
+    rows: &[usize],
+) -> Vec<f64> {
+    let mut out = vec![0.0; rows.len()];
+    let mut next = 0;
+    lag_run_classes(iv, x, tau_s, y0, |k, y| {
+        while next < rows.len() && rows[next] == k {
+            out[next] = y;
+            next += 1;
+        }
+    });
+    out
+}
+
+/// [`lag_series`] on time stamps whose intervals are `iv` (see [`lag_series_at_classes`]).
+pub(crate) fn lag_series_classes(
+    iv: &Intervals,
+    x: &[f64],
+    tau_s: f64,
+    y0: Option<f64>,
+) -> Vec<f64> {
+    let mut out = vec![0.0; x.len()];
+    lag_run_classes(iv, x, tau_s, y0, |k, y| out[k] = y);
+    out
+}
+
+/// [`lag_run`] with the intervals' classes: what [`Lag::update`] does for each kind of
+/// interval — a non-finite one restarts at the reading, one ≤ 0 holds, a positive one
+/// smooths with its class's factor (computed as [`Lag`] computes it).
+fn lag_run_classes(
+    iv: &Intervals,
+    x: &[f64],
+    tau_s: f64,
+    y0: Option<f64>,
+    mut emit: impl FnMut(usize, f64),
+) {
+    if x.is_empty() {
+        return;
+    }
+    debug_assert_eq!(iv.class.len(), x.len());
+    // the factor per class; NaN marks a restart (non-finite interval), 0 with `hold` a hold
+    const RESTART: u8 = 1;
+    const HOLD: u8 = 2;
+    let kind: Vec<u8> = iv
+        .dt_s
+        .iter()
+        .map(|&dt| {
+            if tau_s <= 0.0 || !dt.is_finite() {
+                RESTART
+            } else if dt > 0.0 {
+                0
+            } else {
+                HOLD
+            }
+        })
+        .collect();
+    let alpha: Vec<f64> = iv
+        .dt_s
+        .iter()
+        .zip(&kind)
+        .map(|(&dt, &k)| {
+            if k == 0 {
+                1.0 - libm::exp(-dt / tau_s)
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    // the first sample as [`lag_run`] takes it
+    let mut state = match y0 {
+        Some(y0) if tau_s > 0.0 => y0,
+        _ => x[0],
+    };
+    emit(0, state);
+    for k in 1..x.len() {
+        let c = iv.class[k] as usize;
+        match kind[c] {
+            0 => state += alpha[c] * (x[k] - state),
+            RESTART => state = x[k],
+            _ => {}
+        }
+        emit(k, state);
+    }
+}
+
 /// Entries of [`Lag`]'s table of smoothing factors (64: the slot is a hash's top 6 bits).
 const LAG_ALPHAS: usize = 64;
 
@@ -269,9 +406,19 @@ impl Theta {
         }
     }
 
-    /// As an estimate (value ± σ).
+    /// As an estimate (value ± σ); on a bound of the searched range it is a bound, not a
+    /// value ± σ: its σ is then NaN (not known), and [`Theta::bound_note`] says which bound.
     pub fn estimate(&self) -> Estimate {
-        Estimate::new(&self.name, self.value, self.sigma)
+        Estimate::new(&self.name, self.value, self.sigma_unless_bound())
+    }
+
+    /// σ, or NaN when the value sits on a bound of its searched range.
+    pub fn sigma_unless_bound(&self) -> f64 {
+        if self.bound_note().is_some() {
+            f64::NAN
+        } else {
+            self.sigma
+        }
     }
 }
 
@@ -594,6 +741,19 @@ mod tests {
                 let at = lag_series_at(&t, &x, tau, y0, &rows);
                 for (r, a) in rows.iter().zip(&at) {
                     assert_eq!(a.to_bits(), model[*r].to_bits(), "τ {tau}, row {r}");
+                }
+                let iv = Intervals::of(&t).expect("fewer intervals than the classes hold");
+                let classed = lag_series_classes(&iv, &x, tau, y0);
+                for (k, (a, b)) in classed.iter().zip(&model).enumerate() {
+                    assert_eq!(a.to_bits(), b.to_bits(), "classes: τ {tau}, y0 {y0:?}, {k}");
+                }
+                let at = lag_series_at_classes(&iv, &x, tau, y0, &rows);
+                for (r, a) in rows.iter().zip(&at) {
+                    assert_eq!(
+                        a.to_bits(),
+                        model[*r].to_bits(),
+                        "classes: τ {tau}, row {r}"
+                    );
                 }
             }
         }

@@ -5,7 +5,10 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{lag_series, lag_series_at, zeros, Detail, LagTerm, Proposal};
+use super::{
+    lag_series, lag_series_at, lag_series_at_classes, lag_series_classes, zeros, Detail, Intervals,
+    LagTerm, Proposal,
+};
 use crate::explain::data::Data;
 use crate::explain::fit::{bartlett_n_eff, cross_validate, gather};
 use crate::explain::search::{dot, Basis, Search};
@@ -281,14 +284,21 @@ fn drop_implausible(
 /// readings): it tells a delay from mere denoising.
 ///
 /// Taken at `rows` (ascending) only; `rev_t` is the time reversed and negated.
-fn zero_phase_twin(d: &Data, rev_t: &[f64], sensor: usize, tau_s: f64, rows: &[usize]) -> Vec<f64> {
+fn zero_phase_twin(cache: &LagCache, sensor: usize, tau_s: f64, rows: &[usize]) -> Vec<f64> {
+    let d = cache.d;
     let t = tau_s / 2f64.sqrt();
-    let mut rev_x = lag_series(&d.t_s, &d.temps[sensor].1, t, None);
+    let mut rev_x = match &cache.fwd {
+        Some(iv) => lag_series_classes(iv, &d.temps[sensor].1, t, None),
+        None => lag_series(&d.t_s, &d.temps[sensor].1, t, None),
+    };
     rev_x.reverse();
     // the backward pass at the reversed rows (ascending in reversed time), then back in order
     let n = d.rows();
     let rev_rows: Vec<usize> = rows.iter().rev().map(|&r| n - 1 - r).collect();
-    let mut back = lag_series_at(rev_t, &rev_x, t, None, &rev_rows);
+    let mut back = match &cache.rev {
+        Some(iv) => lag_series_at_classes(iv, &rev_x, t, None, &rev_rows),
+        None => lag_series_at(&cache.rev_t, &rev_x, t, None, &rev_rows),
+    };
     back.reverse();
     back
 }
@@ -313,15 +323,22 @@ struct LagCache<'a> {
     cols: std::cell::RefCell<std::collections::HashMap<(usize, u64), Vec<f64>>>,
     /// Time reversed and negated, for the backward pass of [`zero_phase_twin`].
     rev_t: Vec<f64>,
+    /// The classes of `d.t_s`'s intervals and of `rev_t`'s (None: too many distinct ones).
+    fwd: Option<Intervals>,
+    rev: Option<Intervals>,
 }
 
 impl<'a> LagCache<'a> {
     fn new(d: &'a Data, rows: &'a [usize]) -> Self {
+        let rev_t: Vec<f64> = d.t_s.iter().rev().map(|x| -x).collect();
+        let rev = Intervals::of(&rev_t);
         Self {
             d,
             rows,
             cols: Default::default(),
-            rev_t: d.t_s.iter().rev().map(|x| -x).collect(),
+            rev_t,
+            fwd: Intervals::of(&d.t_s),
+            rev,
         }
     }
 
@@ -332,7 +349,10 @@ impl<'a> LagCache<'a> {
             return c.clone();
         }
         let d = self.d;
-        let g = lag_series_at(&d.t_s, &d.temps[sensor].1, tau_s, None, self.rows);
+        let g = match &self.fwd {
+            Some(iv) => lag_series_at_classes(iv, &d.temps[sensor].1, tau_s, None, self.rows),
+            None => lag_series_at(&d.t_s, &d.temps[sensor].1, tau_s, None, self.rows),
+        };
         let mut cols = self.cols.borrow_mut();
         if cols.len() < CACHED_COLUMNS {
             cols.insert(key, g.clone());
@@ -342,7 +362,7 @@ impl<'a> LagCache<'a> {
 
     /// [`zero_phase_twin`] on the fitted rows.
     fn twin_on_rows(&self, sensor: usize, tau_s: f64) -> Vec<f64> {
-        zero_phase_twin(self.d, &self.rev_t, sensor, tau_s, self.rows)
+        zero_phase_twin(self, sensor, tau_s, self.rows)
     }
 }
 
@@ -582,7 +602,7 @@ impl super::Candidate for Candidate {
             out.push(super::Estimate::new(
                 &format!("{which}_s_{name}"),
                 t.tau.value,
-                t.tau.sigma,
+                t.tau.sigma_unless_bound(),
             ));
             out.push(super::Estimate::new(
                 &format!(

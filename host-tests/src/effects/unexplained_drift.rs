@@ -141,8 +141,9 @@ impl super::Candidate for Candidate {
             .collect();
         // the cosines of order K are the first K of every higher order: computed once, up to
         // the highest order tried, and shared (the same values as computing each order apart)
-        let top: Vec<usize> = (1..=orders.iter().copied().max().unwrap_or(0)).collect();
-        let mut cosines: Vec<Vec<f64>> = in_parallel(&top, |&j| cosine_column(&d.t_s, j));
+        // (and kept with the data for the next naming round and channel)
+        let top = orders.iter().copied().max().unwrap_or(0);
+        let cosines = d.cosines.first(&d.t_s, top, cosine_column);
         // each order judged on its own held-out design, side by side; taken in order
         let judged = in_parallel(&orders, |&k| -> Result<(f64, Design), ExplainError> {
             let blocks = (k as f64 / GAP_PER_SCALE).floor() as usize;
@@ -161,9 +162,8 @@ impl super::Candidate for Candidate {
         }
         Ok(best.map(|(_, k, design)| {
             let lo = span / ORDERS[ORDERS.len() - 1] as f64;
-            cosines.truncate(k);
             Proposal {
-                regs: cosines,
+                regs: cosines[..k].iter().map(|c| c.to_vec()).collect(),
                 thetas: vec![super::Theta {
                     name: "time_scale_s".into(),
                     value: span / k as f64,

@@ -88,6 +88,54 @@ pub struct Data {
     pub uniform_dt_s: Option<f64>,
     /// Data faults found before any physics (see [`super::faults`]).
     pub faults: Vec<super::faults::DataFault>,
+    /// Columns of `unexplained_drift`'s cosine basis over `t_s`, computed once and shared by
+    /// every naming round, channel and denoised copy (they depend on the time stamps alone).
+    pub(crate) cosines: CosineCache,
+}
+
+/// The cosines cos(πk(t − t₀)/T), k = 1, 2, …, over a recording's time, the first orders kept
+/// as they are asked for. Clones share the cache: [`Data::with_smoothing`] keeps `t_s`.
+#[derive(Clone, Default)]
+pub(crate) struct CosineCache {
+    cols: std::sync::Arc<std::sync::Mutex<KeptCosines>>,
+}
+
+/// Column k − 1 is order k; (t₀ bits, last t bits, rows) they were computed on.
+type KeptCosines = (Vec<std::sync::Arc<Vec<f64>>>, (u64, u64, usize));
+
+impl std::fmt::Debug for CosineCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let n = self.cols.lock().map_or(0, |c| c.0.len());
+        write!(f, "CosineCache({n} orders)")
+    }
+}
+
+impl CosineCache {
+    /// Orders 1..=`top` over `t_s`, computing those not yet kept with `column(t_s, order)`
+    /// (side by side). `t_s` is checked against what the kept columns were computed on (its
+    /// ends and length): a `Data` whose time was changed after preparation starts afresh.
+    pub(crate) fn first(
+        &self,
+        t_s: &[f64],
+        top: usize,
+        column: impl Fn(&[f64], usize) -> Vec<f64> + Sync,
+    ) -> Vec<std::sync::Arc<Vec<f64>>> {
+        let key = (
+            t_s.first().map_or(0, |t| t.to_bits()),
+            t_s.last().map_or(0, |t| t.to_bits()),
+            t_s.len(),
+        );
+        let mut kept = self.cols.lock().unwrap_or_else(|e| e.into_inner());
+        if kept.1 != key {
+            *kept = (Vec::new(), key);
+        }
+        if kept.0.len() < top {
+            let missing: Vec<usize> = (kept.0.len() + 1..=top).collect();
+            let new = super::in_parallel(&missing, |&j| std::sync::Arc::new(column(t_s, j)));
+            kept.0.extend(new);
+        }
+        kept.0[..top].to_vec()
+    }
 }
 
 /// Centred moving average over ±`half` samples (shrinking at the ends); NaN-free input assumed.
@@ -305,18 +353,19 @@ impl Data {
             .map(|&c| (c.to_string(), rec.column(c).unwrap_or_default().to_vec()))
             .collect();
         let mut temp_repairs = Vec::new();
-        for (name, v) in temps.iter_mut() {
+        // each sensor on its own, side by side (a million-row log: seconds of sorting); the
+        // repairs taken in column order
+        let glitches = super::in_parallel(&temps, |(_, v)| {
             let q = robust::quantisation_step(v);
-            let bad = robust::glitch_rows(v, q, max_glitch_run(n), None);
+            robust::glitch_rows(v, q, max_glitch_run(n), None)
+        });
+        for ((name, v), bad) in temps.iter_mut().zip(glitches) {
             if !bad.is_empty() {
                 interpolate_over(v, &bad);
                 temp_repairs.push((name.clone(), bad));
             }
         }
-        let temp_update_s = temps
-            .iter()
-            .map(|(_, v)| robust::update_interval_s(&t_s, v))
-            .collect();
+        let temp_update_s = super::in_parallel(&temps, |(_, v)| robust::update_interval_s(&t_s, v));
         let mut aux: Vec<(String, Vec<f64>)> = rec
             .aux_columns()
             .iter()
@@ -353,9 +402,10 @@ impl Data {
             ))
         });
         let dts: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
+        // the order statistic alone (the same element a full sort puts there)
         let mut sorted = dts.clone();
-        sorted.sort_by(f64::total_cmp);
-        let med = sorted[sorted.len() / 2];
+        let mid = sorted.len() / 2;
+        let med = *sorted.select_nth_unstable_by(mid, f64::total_cmp).1;
         let uniform_dt_s = (med > 0.0
             && dts.iter().all(|d| (d - med).abs() <= 1e-6 * med.max(1.0)))
         .then_some(med);
@@ -374,6 +424,7 @@ impl Data {
             against_simulation: sim.is_some(),
             uniform_dt_s,
             faults: inspection.faults,
+            cosines: CosineCache::default(),
         })
     }
 

@@ -26,6 +26,7 @@ pub mod data;
 pub mod events;
 pub mod faults;
 pub mod fit;
+pub mod jackknife;
 pub mod locate;
 pub mod misspec;
 pub mod nnls;
@@ -550,6 +551,7 @@ fn explain_channel_once(
             basis,
             n_eff,
             design: &design,
+            sigmas: true,
         };
         let round = Round {
             y,
@@ -625,6 +627,32 @@ fn explain_channel_once(
             noise_sigma_um: f.ls.rmse() * infl,
         };
         let mut params: Vec<Estimate> = sc.cand.params(d, ch, &fitted);
+        // where the model is nonlinear, the profile's σ assumes white residuals and holds the
+        // linear coefficients to the θ found: a block jackknife over time measures the spread
+        // the data allow, and the larger of the two is stated
+        let mut jackknifed = false;
+        if jackknife::nonlinear(&sc.proposal)
+            && jackknife::affordable(d)
+            && params.iter().any(|p| p.sigma.is_finite() && p.sigma > 0.0)
+        {
+            let spread = jackknife::sigmas(
+                d,
+                ch,
+                &model.with(&[]),
+                y,
+                &rows,
+                &design,
+                n_eff,
+                sc.cand,
+                &params,
+            )?;
+            for (p, j) in params.iter_mut().zip(spread) {
+                if let Some(sj) = j.filter(|sj| *sj > p.sigma) {
+                    p.sigma = sj;
+                    jackknifed = true;
+                }
+            }
+        }
         // how much the model's prediction changed by adding the effect
         let change: Vec<f64> = cur_fit
             .residuals
@@ -658,6 +686,12 @@ fn explain_channel_once(
         for note in sc.proposal.thetas.iter().filter_map(|t| t.bound_note()) {
             evidence.push_str("; ");
             evidence.push_str(&note);
+        }
+        if jackknifed {
+            evidence.push_str(&format!(
+                "; σ from a jackknife over {} time blocks (the parameters searched again without each), where larger than the profile's",
+                jackknife::BLOCKS
+            ));
         }
         effects.push(EffectReport {
             name: sc.cand.name(),

@@ -15,7 +15,8 @@ pub fn quantisation_step(v: &[f64]) -> Option<f64> {
     if n < 20 {
         return None;
     }
-    u.sort_by(f64::total_cmp);
+    // unstable is the same order: values equal under total_cmp are the same bits
+    u.sort_unstable_by(f64::total_cmp);
     let span = u[n - 1] - u[0];
     if span <= 0.0 {
         return None;
@@ -25,9 +26,10 @@ pub fn quantisation_step(v: &[f64]) -> Option<f64> {
         return None;
     }
     let gaps: Vec<f64> = u.windows(2).map(|w| w[1] - w[0]).collect();
+    // the order statistic alone (the same element a full sort puts there)
     let mut sorted = gaps.clone();
-    sorted.sort_by(f64::total_cmp);
-    let q = sorted[sorted.len() / 20];
+    let k = sorted.len() / 20;
+    let q = *sorted.select_nth_unstable_by(k, f64::total_cmp).1;
     if q <= 0.0 {
         return None;
     }
@@ -64,8 +66,9 @@ pub fn update_interval_s(t_s: &[f64], v: &[f64]) -> f64 {
         return dt_med;
     }
     let mut gaps: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
-    gaps.sort_by(f64::total_cmp);
-    gaps[gaps.len() / 10].max(dt_med)
+    // the order statistic alone (the same element a full sort puts there)
+    let k = gaps.len() / 10;
+    gaps.select_nth_unstable_by(k, f64::total_cmp).1.max(dt_med)
 }
 
 /// Rows of short excursions: the series jumps away from where it was by far more than its
@@ -103,8 +106,9 @@ pub fn glitch_rows(
         return Vec::new();
     }
     let mut abs_d: Vec<f64> = moves.iter().map(|x| x.abs()).collect();
-    abs_d.sort_by(f64::total_cmp);
-    let p90 = abs_d[(abs_d.len() * 9) / 10];
+    // the order statistic alone (the same element a full sort puts there)
+    let k90 = (abs_d.len() * 9) / 10;
+    let p90 = *abs_d.select_nth_unstable_by(k90, f64::total_cmp).1;
     let mut dev: Vec<f64> = {
         let mut dd = moves.clone();
         let m = median(&mut dd);

@@ -215,6 +215,9 @@ pub struct Search<'a> {
     pub n_eff: f64,
     /// The standard held-out design.
     pub design: &'a Design,
+    /// Whether [`Search::minimise`] works out profile widths (false: the values alone, for the
+    /// jackknife's repeated searches, whose spread is the uncertainty).
+    pub sigmas: bool,
 }
 
 impl Search<'_> {
@@ -266,7 +269,7 @@ impl Search<'_> {
                 best_t = xm.exp();
             }
         }
-        let sigma = if sigma {
+        let sigma = if sigma && self.sigmas {
             profile_sigma(best_t, best_rss, self.n_eff, lo, hi, &mut rss)
         } else {
             f64::NAN

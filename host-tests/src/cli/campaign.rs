@@ -390,6 +390,8 @@ fn print_outcome(o: &campaign::Outcome, out: &std::path::Path) {
             c,
             o.bus_transactions.unwrap_or(0)
         );
+    } else {
+        println!("\nwall {:.1} s", o.wall_s);
     }
     println!(
         "wrote {}: recording.csv, plan.json, campaign.json, static.blob, adaptive.blob, report/{}",

@@ -175,12 +175,7 @@ impl Stm32Bench {
             stage: stage.clone(),
             offset_s,
         }));
-        let board = Stm32::start_on(
-            buses,
-            bus,
-            Stage::with_controller(ctl, board_time),
-            None,
-        );
+        let board = Stm32::start_on(buses, bus, Stage::with_controller(ctl, board_time), None);
         // the USB cable is in from power-on (the host enumerates the board once it is up)
         board.usb.attach();
         let stop_reference = Arc::new(AtomicBool::new(false));
@@ -320,7 +315,9 @@ pub fn open(
         other => {
             return Err(CampaignError::NotReady {
                 step: resume_at,
-                what: format!("the STM32 bench runs virtual campaigns on the stm32 board, not {other:?}"),
+                what: format!(
+                    "the STM32 bench runs virtual campaigns on the stm32 board, not {other:?}"
+                ),
             })
         }
     };

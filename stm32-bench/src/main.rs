@@ -8,7 +8,10 @@ use nanocal::campaign::state::VirtualBoard;
 use nanocal::cli::campaign::CampaignArgs;
 
 #[derive(Parser)]
-#[command(version, about = "nanocal campaigns on the emulated B-L475E-IOT01A (run by `nanocal campaign --virtual --board stm32`)")]
+#[command(
+    version,
+    about = "nanocal campaigns on the emulated B-L475E-IOT01A (run by `nanocal campaign --virtual --board stm32`)"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

@@ -623,7 +623,8 @@ impl<'a> Runner<'a> {
         // the next step's (a no-model → static test boundary at pose 0 made 250 nm of
         // repeatability on the emulated STM32 board, whose moves land milliseconds after the
         // step's start). Before, the sample went one way or the other by when it arrived.
-        let samples = self.links
+        let samples = self
+            .links
             .reference
             .until(t_end_s - crate::dwell::STEP_EDGE_S, now)?;
         for (t, pos) in samples {

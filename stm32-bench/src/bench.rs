@@ -36,13 +36,6 @@ pub const SETUP_S: f64 = nanocal::virtual_bench::bench::VirtualBench::SETUP_S;
 /// own time (a flash erase during an upload) comes within it.
 const REPLY_WITHIN_S: f64 = 10.0;
 
-/// Board time the bench lets the compensator take to forward a move to the controller after it
-/// answered the host, s: a line takes ≈ 2 ms on UART4, the proxy's work ≈ 0.1 ms.
-const STAGE_LINE_WITHIN_S: f64 = 0.05;
-
-/// Step of that wait, board time, s (the bench looks whether the line arrived this often).
-const STAGE_LINE_STEP_S: f64 = 0.0005;
-
 fn ps(s: f64) -> u64 {
     (s * PS as f64).round() as u64
 }
@@ -277,21 +270,9 @@ impl BenchDriver for Stm32Bench {
     }
 
     fn stage_commands(&mut self) -> Option<Vec<(f64, Vec<f64>)>> {
-        // The controller runs on the board's thread, which is paused: it has acted on every
-        // byte the board sent. But the compensator answers the host (`ERR?`, its status) while
-        // it is still writing the corrected `MOV` to UART4 (≈ 2 ms for a line at 115,200 Bd):
-        // the campaign asks right after its move, so the board runs on until the controller
-        // has a command it has not handed out yet, within STAGE_LINE_WITHIN_S of board time
-        // (none after that: nothing was forwarded).
-        let clock = self.board.clock().clone();
-        let deadline = clock.last_pause().now_ps + ps(STAGE_LINE_WITHIN_S);
-        while self.stage.lock().unwrap().commands().len() == self.commands_seen {
-            let now = clock.last_pause().now_ps;
-            if now >= deadline || clock.stopped() {
-                break;
-            }
-            clock.run_to(deadline.min(now + ps(STAGE_LINE_STEP_S)));
-        }
+        // the controller runs on the board's thread, which is paused: it has acted on every
+        // byte the board sent (the compensator forwards the `MOV` before it answers the `ERR?`
+        // that follows it, so the move is there when the campaign asks)
         let st = self.stage.lock().unwrap();
         let new = st.commands()[self.commands_seen..].to_vec();
         self.commands_seen = st.commands().len();

@@ -271,8 +271,9 @@ impl BenchDriver for Stm32Bench {
 
     fn stage_commands(&mut self) -> Option<Vec<(f64, Vec<f64>)>> {
         // the controller runs on the board's thread, which is paused: it has acted on every
-        // byte the board sent (the compensator forwards the `MOV` before it answers the `ERR?`
-        // that follows it, so the move is there when the campaign asks)
+        // byte the board sent. The campaign asks after the move's `ERR?` and a status read: the
+        // move was always there by then (a campaign of 4 training cycles that waited up to
+        // 50 ms of board time for a late one never found one)
         let st = self.stage.lock().unwrap();
         let new = st.commands()[self.commands_seen..].to_vec();
         self.commands_seen = st.commands().len();

@@ -272,6 +272,11 @@ pub fn dwell_average(rec: &Recording, opts: &DwellOptions) -> Result<Dwells, Dwe
     Ok(out)
 }
 
+/// Rows this close before a step's start belong to the step (steps start at sums of
+/// non-integer durations; rows come on whole sample periods), s. The campaign records its rows
+/// by the same edge (`campaign::run`).
+pub const STEP_EDGE_S: f64 = 1e-9;
+
 /// One dwell per step of a plan ([`crate::plan::Step`]): the rows whose time lies in
 /// `[t_start_s, t_end_s)` of the step, shifted by `t_offset_s` (the recording time of the plan's
 /// start), averaged over the step's last `average_last_s`, with the step's direction of
@@ -298,8 +303,8 @@ pub fn step_average(
             });
         }
         let (t0, t1) = (s.t_start_s + t_offset_s, s.t_end_s() + t_offset_s);
-        start += t[start..].partition_point(|&v| v < t0 - 1e-9);
-        let end = start + t[start..].partition_point(|&v| v < t1 - 1e-9);
+        start += t[start..].partition_point(|&v| v < t0 - STEP_EDGE_S);
+        let end = start + t[start..].partition_point(|&v| v < t1 - STEP_EDGE_S);
         if end == start {
             return Err(DwellError::EmptyStep { step: i, t_s: t0 });
         }

@@ -11,7 +11,7 @@
 //!   the reset takes the compensator's ports away (USB) and they must be reopened.
 
 use nanocal::campaign::run::{CampaignError, Progress, Quiet};
-use nanocal::campaign::state::{BenchSpec, State};
+use nanocal::campaign::state::{BenchSpec, State, VirtualBoard};
 use nanocal::campaign::{self, Config, Faults, Outcome, RECORDING};
 use nanocal::plan::{Phase, Plan, TestKind};
 use nanocal::virtual_bench::have_qemu;
@@ -57,7 +57,10 @@ fn config(out: &Path, plan: Option<Plan>, faults: Faults) -> Config {
     Config {
         plan,
         out: out.to_path_buf(),
-        bench: Some(BenchSpec::Virtual { seed: 3 }),
+        bench: Some(BenchSpec::Virtual {
+            seed: 3,
+            board: VirtualBoard::Qemu,
+        }),
         sample_period_ms: None,
         fold_period_ms: None,
         safe_pose_um: None,
@@ -476,7 +479,10 @@ fn the_validate_and_return_loop_finds_the_lag_and_the_hysteresis_and_improves() 
         Faults::default(),
     );
     // the README's run (`--shorten 40,5,4 --target-accuracy-nm 15 --loop-tests 4`, seed 1)
-    cfg.bench = Some(BenchSpec::Virtual { seed: 1 });
+    cfg.bench = Some(BenchSpec::Virtual {
+        seed: 1,
+        board: VirtualBoard::Qemu,
+    });
     cfg.target_accuracy_nm = Some(15.0);
     cfg.loop_tests = Some(4);
     cfg.max_loops = 1;

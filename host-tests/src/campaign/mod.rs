@@ -25,7 +25,7 @@ use nanocal_interface::settings::{AuxSource, Settings};
 use recorder::{Layout, Recorder};
 use reference::{ClockMap, ClockMode};
 use run::{CampaignError, Links, Progress, Reopen, Runner};
-use state::{BenchSpec, Stage, State};
+use state::{BenchSpec, Stage, State, VirtualBoard};
 pub use state::{LoopRecord, LoopState, LoopStop};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -149,7 +149,17 @@ fn open(
     let axes = plan.training.axes();
     let plan_start = steps.get(resume_at).map_or(0.0, |s| s.t_start_s);
     match spec {
-        BenchSpec::Virtual { seed } => {
+        BenchSpec::Virtual {
+            board: VirtualBoard::Stm32,
+            ..
+        } => Err(CampaignError::NotReady {
+            step: resume_at,
+            what: "the emulated STM32 board runs in its own process (it links GPL code): `nanocal campaign --virtual --board stm32` starts it, or give the bench to `campaign::run_on`".into(),
+        }),
+        BenchSpec::Virtual {
+            seed,
+            board: VirtualBoard::Qemu,
+        } => {
             if !crate::virtual_bench::have_qemu() {
                 return Err(CampaignError::NotReady {
                     step: resume_at,
@@ -252,7 +262,7 @@ fn configure(
     }
     let mut s = settings.expect("ran")?;
     let twin_names = match spec {
-        BenchSpec::Virtual { seed } => {
+        BenchSpec::Virtual { seed, .. } => {
             let twin = virtual_twin(plan, *seed)?;
             let names: Vec<String> = twin
                 .cfg
@@ -334,9 +344,39 @@ fn configure(
     Ok((layout, s.sample_period_ms, s.fold_period_ms))
 }
 
+/// Opens a bench the caller supplies (see [`run_on`]): given the bench's specification (as
+/// given, or as the resumed campaign's state holds it), the plan, the steps the bench
+/// will play (the plan's, and every block a validate-and-return loop may add) and the step the
+/// campaign starts at (after a resume), the bench's driver, the compensator's two ports, the
+/// reference instrument and how to reopen the ports.
+pub type OpenBench<'a> =
+    &'a mut dyn FnMut(&BenchSpec, &Plan, &[Step], usize) -> Result<Links, CampaignError>;
+
 /// Run (or resume) a campaign.
 pub fn run(
     cfg: &Config,
+    stop: Arc<AtomicBool>,
+    progress: &mut dyn Progress,
+) -> Result<Outcome, CampaignError> {
+    run_inner(cfg, None, stop, progress)
+}
+
+/// Run (or resume) a campaign on a bench the caller opens: any [`bench::BenchDriver`] with
+/// its ports and reference (issue 20: "campaign takes any bench driver"). `cfg.bench` is what
+/// the state records and what the compensator is configured for (a virtual bench's twin names
+/// its sensors), as in [`run`]; only opening the bench is the caller's.
+pub fn run_on(
+    cfg: &Config,
+    open_bench: OpenBench<'_>,
+    stop: Arc<AtomicBool>,
+    progress: &mut dyn Progress,
+) -> Result<Outcome, CampaignError> {
+    run_inner(cfg, Some(open_bench), stop, progress)
+}
+
+fn run_inner(
+    cfg: &Config,
+    mut open_bench: Option<OpenBench<'_>>,
     stop: Arc<AtomicBool>,
     progress: &mut dyn Progress,
 ) -> Result<Outcome, CampaignError> {
@@ -412,7 +452,14 @@ pub fn run(
                 }
                 None => steps.clone(),
             };
-            let opened = open(&spec, &plan, &bench_steps, resume_at, &cfg.faults)?;
+            let opened = match open_bench.as_mut() {
+                Some(f) => Opened {
+                    links: f(&spec, &plan, &bench_steps, resume_at)?,
+                    vbench_pid: None,
+                    transactions: None,
+                },
+                None => open(&spec, &plan, &bench_steps, resume_at, &cfg.faults)?,
+            };
             let Opened {
                 mut links,
                 vbench_pid,

@@ -616,7 +616,17 @@ impl<'a> Runner<'a> {
     /// way); keeps the samples of its averaging window.
     fn collect(&mut self, t_end_s: f64, window_from_s: f64) -> Result<(), CampaignError> {
         let now = self.t_now();
-        let samples = self.links.reference.until(t_end_s, now)?;
+        // A sample at a step's start (within rounding: steps start at sums of non-integer
+        // durations, samples come on whole periods) is the next step's first row, as
+        // `dwell::step_average` reads the recording (rows from `t_start − STEP_EDGE_S`): written here
+        // with the previous step's command, the file-based validation took that command for
+        // the next step's (a no-model → static test boundary at pose 0 made 250 nm of
+        // repeatability on the emulated STM32 board, whose moves land milliseconds after the
+        // step's start). Before, the sample went one way or the other by when it arrived.
+        let samples = self
+            .links
+            .reference
+            .until(t_end_s - crate::dwell::STEP_EDGE_S, now)?;
         for (t, pos) in samples {
             if t < 0.0 {
                 continue; // before the plan
@@ -1092,7 +1102,9 @@ impl<'a> Runner<'a> {
                 // a resumed campaign: the rows before step k are on disk (and step k − 1's KMZ
                 // was sent); what the instrument sent of that time since is not a second row
                 let now = self.t_now();
-                self.links.reference.until(step.t_start_s, now)?;
+                self.links
+                    .reference
+                    .until(step.t_start_s - crate::dwell::STEP_EDGE_S, now)?;
             } else if k > 0 {
                 let prev = &self.steps[k - 1];
                 let from = prev.t_end_s() - prev.average_last_s;

@@ -40,7 +40,38 @@ pub enum BenchSpec {
     Virtual {
         /// Seed of the twin's room and noise.
         seed: u64,
+        /// The board the firmware runs on (absent in a state written before there was a
+        /// choice, and for QEMU, so those states keep their bytes).
+        #[serde(default, skip_serializing_if = "VirtualBoard::is_qemu")]
+        board: VirtualBoard,
     },
+}
+
+/// The board under the virtual bench's firmware.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VirtualBoard {
+    /// The QEMU `mps2-an386` board with the QEMU firmware (in this process's library).
+    #[default]
+    Qemu,
+    /// The emulated B-L475E-IOT01A with the shipped STM32 image: GPL (it links Unicorn), so it
+    /// runs in its own process, the `stm32-bench` binary.
+    Stm32,
+}
+
+impl VirtualBoard {
+    /// The default board.
+    pub fn is_qemu(&self) -> bool {
+        *self == VirtualBoard::Qemu
+    }
+
+    /// Its name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            VirtualBoard::Qemu => "qemu",
+            VirtualBoard::Stm32 => "stm32",
+        }
+    }
 }
 
 /// Where the campaign stands.
@@ -295,13 +326,36 @@ impl State {
 mod tests {
     use super::*;
 
+    /// A QEMU campaign's bench keeps the bytes it had before boards were a choice (and an older
+    /// state reads as QEMU); an STM32 one names its board and reads back as such.
+    #[test]
+    fn the_virtual_board_is_named_only_when_it_is_the_stm32() {
+        let qemu = BenchSpec::Virtual {
+            seed: 3,
+            board: VirtualBoard::Qemu,
+        };
+        let text = serde_json::to_string(&qemu).unwrap();
+        assert_eq!(text, r#"{"virtual":{"seed":3}}"#);
+        assert_eq!(serde_json::from_str::<BenchSpec>(&text).unwrap(), qemu);
+        let stm32 = BenchSpec::Virtual {
+            seed: 3,
+            board: VirtualBoard::Stm32,
+        };
+        let text = serde_json::to_string(&stm32).unwrap();
+        assert_eq!(text, r#"{"virtual":{"seed":3,"board":"stm32"}}"#);
+        assert_eq!(serde_json::from_str::<BenchSpec>(&text).unwrap(), stm32);
+    }
+
     #[test]
     fn state_round_trips_and_a_foreign_file_is_refused() {
         let dir = std::env::temp_dir().join(format!("nanocal-state-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let s = State {
             version: VERSION,
-            bench: BenchSpec::Virtual { seed: 3 },
+            bench: BenchSpec::Virtual {
+                seed: 3,
+                board: VirtualBoard::Qemu,
+            },
             layout: Layout {
                 axes: vec!["x".into()],
                 temps: vec!["cs0".into()],

@@ -10,7 +10,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::campaign::run::Progress;
-use crate::campaign::state::BenchSpec;
+use crate::campaign::state::{BenchSpec, State, VirtualBoard};
 use crate::campaign::{self, Config};
 use crate::plan::{Plan, TestKind};
 
@@ -47,6 +47,12 @@ pub struct CampaignArgs {
     /// interferometer and sensors.
     #[arg(long = "virtual")]
     pub virtual_bench: bool,
+    /// The virtual bench's board: `qemu` (the QEMU firmware on mps2-an386, in this process) or
+    /// `stm32` (the shipped STM32 image on the emulated B-L475E-IOT01A, in the `stm32-bench`
+    /// process: it links GPL code, which this program does not). A resumed campaign keeps its
+    /// board.
+    #[arg(long, value_parser = ["qemu", "stm32"], requires = "virtual_bench")]
+    pub board: Option<String>,
     /// Seed of the virtual bench's room and noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -129,8 +135,97 @@ impl Progress for Bars {
     }
 }
 
+/// The virtual board the campaign runs on: `--board` with `--virtual` (QEMU by default), or on
+/// `--resume` without `--virtual` the one the campaign's state names; None on a real bench.
+pub fn board_of(args: &CampaignArgs) -> anyhow::Result<Option<VirtualBoard>> {
+    if args.virtual_bench {
+        return Ok(Some(match args.board.as_deref() {
+            Some("stm32") => VirtualBoard::Stm32,
+            _ => VirtualBoard::Qemu,
+        }));
+    }
+    if args.resume && args.device.is_none() {
+        if let Ok(st) = State::load(&args.out) {
+            if let BenchSpec::Virtual { board, .. } = st.bench {
+                return Ok(Some(board));
+            }
+        }
+    }
+    Ok(None)
+}
+
+/// Environment variable naming the `stm32-bench` binary (default: beside this executable).
+pub const STM32_BENCH_ENV: &str = "NANOCAL_STM32_BENCH";
+
+/// The `stm32-bench` binary: [`STM32_BENCH_ENV`], or beside this executable; a missing one is
+/// an error saying how to build it.
+fn stm32_bench_exe() -> anyhow::Result<PathBuf> {
+    if let Some(p) = std::env::var_os(STM32_BENCH_ENV) {
+        let p = PathBuf::from(p);
+        anyhow::ensure!(
+            p.is_file(),
+            "{STM32_BENCH_ENV}={}: no such file",
+            p.display()
+        );
+        return Ok(p);
+    }
+    let me = std::env::current_exe().context("where this executable is")?;
+    let dir = me.parent().context("this executable's folder")?;
+    let exe = dir.join(format!("stm32-bench{}", std::env::consts::EXE_SUFFIX));
+    if exe.is_file() {
+        return Ok(exe);
+    }
+    // a `cargo run --release` nanocal sits in …/release/, a debug one in …/debug/
+    let release = if dir.ends_with("release") {
+        " --release"
+    } else {
+        ""
+    };
+    anyhow::bail!(
+        "the emulated STM32 board runs in its own program, `stm32-bench` (GPL-2.0: it links the Unicorn emulator, which this MIT/Apache program does not), and there is none at {} — build it with `cd host-tests && cargo build{release} -p nanocal-stm32-bench` (in the repository), or name it with {STM32_BENCH_ENV}",
+        exe.display()
+    )
+}
+
+/// Runs the campaign on the emulated STM32 board: the `stm32-bench` process with this
+/// command line from `campaign` on; its exit status is ours.
+fn run_stm32_process() -> anyhow::Result<()> {
+    let exe = stm32_bench_exe()?;
+    let args: Vec<std::ffi::OsString> = std::env::args_os()
+        .skip(1)
+        .skip_while(|a| a != "campaign")
+        .collect();
+    anyhow::ensure!(
+        !args.is_empty(),
+        "the STM32 campaign runs from the `nanocal campaign` command line"
+    );
+    // Ctrl-C reaches both processes (one process group): stm32-bench parks the stage and keeps
+    // the campaign; this one waits for it
+    let _ = ctrlc::set_handler(|| {});
+    let status = std::process::Command::new(&exe)
+        .args(&args)
+        .status()
+        .with_context(|| format!("running {}", exe.display()))?;
+    if !status.success() {
+        std::process::exit(status.code().unwrap_or(1));
+    }
+    Ok(())
+}
+
 /// Runs `nanocal campaign`.
 pub fn run(args: CampaignArgs) -> anyhow::Result<()> {
+    if board_of(&args)? == Some(VirtualBoard::Stm32) {
+        return run_stm32_process();
+    }
+    run_on(args, None)
+}
+
+/// Runs `nanocal campaign` on a bench `open_bench` opens (None: as the arguments say — a real
+/// bench or the QEMU one); the `stm32-bench` binary gives its emulated board here.
+pub fn run_on(
+    args: CampaignArgs,
+    open_bench: Option<campaign::OpenBench<'_>>,
+) -> anyhow::Result<()> {
     let plan = match (&args.plan, args.resume) {
         (Some(p), _) => {
             let mut plan = load_plan(p)?;
@@ -154,7 +249,10 @@ pub fn run(args: CampaignArgs) -> anyhow::Result<()> {
         _ => 1.0,
     };
     let bench = if args.virtual_bench {
-        Some(BenchSpec::Virtual { seed: args.seed })
+        Some(BenchSpec::Virtual {
+            seed: args.seed,
+            board: board_of(&args)?.unwrap_or_default(),
+        })
     } else {
         match (&args.device, &args.gcs, &args.reference) {
             (Some(d), Some(g), Some(r)) => Some(BenchSpec::Real {
@@ -204,7 +302,10 @@ pub fn run(args: CampaignArgs) -> anyhow::Result<()> {
         .expect("static template"),
     );
     let mut progress = Bars { bar };
-    let outcome = campaign::run(&cfg, stop.clone(), &mut progress);
+    let outcome = match open_bench {
+        Some(f) => campaign::run_on(&cfg, f, stop.clone(), &mut progress),
+        None => campaign::run(&cfg, stop.clone(), &mut progress),
+    };
     progress.bar.finish_and_clear();
     let o = outcome.map_err(|e| {
         anyhow::anyhow!(
@@ -289,6 +390,8 @@ fn print_outcome(o: &campaign::Outcome, out: &std::path::Path) {
             c,
             o.bus_transactions.unwrap_or(0)
         );
+    } else {
+        println!("\nwall {:.1} s", o.wall_s);
     }
     println!(
         "wrote {}: recording.csv, plan.json, campaign.json, static.blob, adaptive.blob, report/{}",

@@ -122,13 +122,22 @@ impl Clock for PlanClock {
 /// at once and exactly (closed loop on the E-727's capacitive sensors); where the stage really
 /// goes is the twin's business ([`TwinStage`]), which learns every target the moment the
 /// controller accepts it.
-struct TwinPlant {
+pub struct TwinPlant {
     ideal: IdealPlant,
     targets: Vec<f64>,
     stage: Arc<Mutex<TwinStage>>,
 }
 
 impl TwinPlant {
+    /// The stage at rest at `first_um`, telling `stage` every target.
+    pub fn new(first_um: &[f64], stage: Arc<Mutex<TwinStage>>) -> Self {
+        Self {
+            ideal: IdealPlant::new(first_um),
+            targets: first_um.to_vec(),
+            stage,
+        }
+    }
+
     fn tell(&self, t_s: f64) {
         self.stage
             .lock()
@@ -156,6 +165,109 @@ impl Plant for TwinPlant {
     }
 }
 
+/// The simulated E-727 of a campaign on the twin: its axes rest at the plan's first pose
+/// (`traj`'s first dwell), servo on, the stage is `stage` ([`TwinPlant`]); `clock` is plan
+/// time (the controller stamps what it receives with it).
+pub fn twin_controller(
+    traj: &Trajectory,
+    axes_n: usize,
+    stage: Arc<Mutex<TwinStage>>,
+    clock: Arc<dyn Clock>,
+) -> Controller {
+    let first: Vec<f64> = traj
+        .dwells
+        .first()
+        .map(|d| d.cmd_um.clone())
+        .unwrap_or(vec![0.0; axes_n]);
+    let mut cfg = Config::e727(axes_n).ready();
+    for (a, ax) in cfg.axes.iter_mut().enumerate() {
+        ax.start = first[a];
+    }
+    Controller::new(cfg, Box::new(TwinPlant::new(&first, stage)), clock)
+}
+
+/// The sensor chips of a campaign on the twin: a MAX31856 per recorded sensor reading the
+/// twin's room at the board's clock (bench time − `offset_s` = plan time), the LPS22HB (its
+/// pressure set from the twin by [`twin_pressure`] before each I2C transaction) and the force
+/// input at mid-scale.
+pub fn twin_buses(twin: &Twin, stage: &Arc<Mutex<TwinStage>>, offset_s: f64, stream: u64) -> Buses {
+    let mut buses = Buses::default();
+    let noise: Vec<f64> = twin
+        .cfg
+        .sensors
+        .iter()
+        .filter(|s| s.recorded)
+        .map(|s| s.noise_c)
+        .collect();
+    let n_sensors = stage.lock().unwrap().sensors().len();
+    for (i, &noise_c) in noise.iter().enumerate().take(n_sensors) {
+        let st = stage.clone();
+        let source = TempSource(Arc::new(move |bench_s: f64| {
+            st.lock().unwrap().spot_c(i, bench_s - offset_s)
+        }));
+        let chip = Max31856::new(20.0).following(source, noise_c, stream ^ (i as u64 + 1));
+        buses.spi.push(Some(Box::new(chip)));
+    }
+    buses.i2c.insert(
+        super::chips::lps22hb::ADDRESS,
+        Box::new(Lps22hb::new(1013.25)),
+    );
+    buses.adc = vec![Some(2048), None, None, None];
+    buses
+}
+
+/// Set the LPS22HB on `buses` to the twin's air pressure at plan time `plan_s`.
+pub fn twin_pressure(buses: &mut Buses, stage: &Mutex<TwinStage>, plan_s: f64) {
+    let p = stage.lock().unwrap().pressure_hpa(plan_s);
+    if let Some(chip) = buses.i2c.get_mut(&super::chips::lps22hb::ADDRESS) {
+        if let Some(baro) = chip_as_lps(chip.as_mut()) {
+            baro.pressure_hpa = p;
+        }
+    }
+}
+
+/// The board's clock as the interferometer follows it: the QEMU board's [`BenchLink`], or the
+/// emulated STM32 board's clock (the `stm32-bench` binary).
+pub trait BoardTime: Send + Sync {
+    /// Board time, s.
+    fn now_s(&self) -> f64;
+    /// Wait (up to `timeout`) until board time moved past generation `seen`; the current
+    /// generation.
+    fn wait_advanced(&self, seen: u64, timeout: Duration) -> u64;
+    /// The board stopped for good.
+    fn stopped(&self) -> bool;
+}
+
+impl BoardTime for BenchLink {
+    fn now_s(&self) -> f64 {
+        BenchLink::now_s(self)
+    }
+    fn wait_advanced(&self, seen: u64, timeout: Duration) -> u64 {
+        BenchLink::wait_advanced(self, seen, timeout)
+    }
+    fn stopped(&self) -> bool {
+        BenchLink::stopped(self)
+    }
+}
+
+/// The twin as the interferometer: a TCP server on 127.0.0.1 (its port is returned) sending the
+/// twin's measured positions in plan time (bench time − `offset_s`) as board time passes, none
+/// from plan time `silent_from_s` on; it ends when `stop` is set or the board stops.
+pub fn spawn_interferometer(
+    time: Arc<dyn BoardTime>,
+    stage: Arc<Mutex<TwinStage>>,
+    offset_s: f64,
+    silent_from_s: f64,
+    stop: Arc<AtomicBool>,
+) -> u16 {
+    let listener = TcpListener::bind("127.0.0.1:0").expect("interferometer port");
+    let port = listener.local_addr().expect("bound").port();
+    std::thread::spawn(move || {
+        serve_interferometer(listener, time, stage, offset_s, silent_from_s, stop)
+    });
+    port
+}
+
 impl VirtualBench {
     /// Boot the firmware with the twin around it. `traj` is the plan's schedule as dwells (plan
     /// time 0 at the twin's absolute time `start_abs_s`); the board boots at plan time
@@ -177,23 +289,10 @@ impl VirtualBench {
         let stage = Arc::new(Mutex::new(TwinStage::new(twin, traj, start_abs_s, stream)));
         let offset_s = -plan_at_boot_s;
         // an E-727 whose axes rest at the plan's first pose, servo on
-        let first: Vec<f64> = traj
-            .dwells
-            .first()
-            .map(|d| d.cmd_um.clone())
-            .unwrap_or(vec![0.0; axes_n]);
-        let mut cfg = Config::e727(axes_n).ready();
-        for (a, ax) in cfg.axes.iter_mut().enumerate() {
-            ax.start = first[a];
-        }
-        let plant = TwinPlant {
-            ideal: IdealPlant::new(&first),
-            targets: first,
-            stage: stage.clone(),
-        };
-        let ctl = Controller::new(
-            cfg,
-            Box::new(plant),
+        let ctl = twin_controller(
+            traj,
+            axes_n,
+            stage.clone(),
             Arc::new(PlanClock {
                 link: link.clone(),
                 offset_s,
@@ -202,28 +301,7 @@ impl VirtualBench {
         let stage_sim = StageSim::serve_controller(qemu.connect(1), ctl);
 
         // the sensor chips read the twin's room at the board's clock
-        let mut buses = Buses::default();
-        let noise: Vec<f64> = twin
-            .cfg
-            .sensors
-            .iter()
-            .filter(|s| s.recorded)
-            .map(|s| s.noise_c)
-            .collect();
-        let n_sensors = stage.lock().unwrap().sensors().len();
-        for (i, &noise_c) in noise.iter().enumerate().take(n_sensors) {
-            let st = stage.clone();
-            let source = TempSource(Arc::new(move |bench_s: f64| {
-                st.lock().unwrap().spot_c(i, bench_s - offset_s)
-            }));
-            let chip = Max31856::new(20.0).following(source, noise_c, stream ^ (i as u64 + 1));
-            buses.spi.push(Some(Box::new(chip)));
-        }
-        buses.i2c.insert(
-            super::chips::lps22hb::ADDRESS,
-            Box::new(Lps22hb::new(1013.25)),
-        );
-        buses.adc = vec![Some(2048), None, None, None];
+        let buses = twin_buses(twin, &stage, offset_s, stream);
         let buses = Arc::new(Mutex::new(buses));
         let (b, st) = (buses.clone(), stage.clone());
         let open_tc = faults.thermocouple_open;
@@ -239,26 +317,19 @@ impl VirtualBench {
                 }
             }
             if op == BusOp::I2c {
-                let p = st.lock().unwrap().pressure_hpa(now_s - offset_s);
-                if let Some(chip) = b.i2c.get_mut(&super::chips::lps22hb::ADDRESS) {
-                    if let Some(baro) = chip_as_lps(chip.as_mut()) {
-                        baro.pressure_hpa = p;
-                    }
-                }
+                twin_pressure(&mut b, &st, now_s - offset_s);
             }
             b.serve(op, target, out, n_in, now_s)
         }));
 
-        let listener = TcpListener::bind("127.0.0.1:0").expect("interferometer port");
-        let reference_port = listener.local_addr().expect("bound").port();
         let stop_reference = Arc::new(AtomicBool::new(false));
-        {
-            let (link, stage, stop) = (link.clone(), stage.clone(), stop_reference.clone());
-            let silent_from_s = faults.reference_silent_from_s.unwrap_or(f64::INFINITY);
-            std::thread::spawn(move || {
-                serve_interferometer(listener, link, stage, offset_s, silent_from_s, stop)
-            });
-        }
+        let reference_port = spawn_interferometer(
+            link.clone(),
+            stage.clone(),
+            offset_s,
+            faults.reference_silent_from_s.unwrap_or(f64::INFINITY),
+            stop_reference.clone(),
+        );
         clock.lockstep();
         let sent = [Arc::new(AtomicU64::new(0)), Arc::new(AtomicU64::new(0))];
         Self {
@@ -404,7 +475,7 @@ fn chip_as_lps(chip: &mut dyn super::chips::I2cChip) -> Option<&mut Lps22hb> {
 
 fn serve_interferometer(
     listener: TcpListener,
-    link: Arc<BenchLink>,
+    link: Arc<dyn BoardTime>,
     stage: Arc<Mutex<TwinStage>>,
     offset_s: f64,
     silent_from_s: f64,

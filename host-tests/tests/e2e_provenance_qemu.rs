@@ -10,13 +10,15 @@
 
 mod fw_sim;
 
-use fw_sim::{nanocal_cli, stage_value, wait_until, Config, Qemu, SensorSim, StageSim, HANG};
+use fw_sim::{
+    in_service, nanocal_cli, stage_value, upload_with_cli, Config, Qemu, SensorSim, StageSim, HANG,
+};
 use nanocal::published::published_1dof;
 use nanocal_interface::led::LedState;
-use nanocal_interface::status::{ChannelStatus, Flags, StageCheck, Status};
+use nanocal_interface::status::{Flags, StageCheck};
 use nanocal_interface::GcsErrorCode;
 use nanocal_model::provenance::{serial_of_idn, ProvenanceUnit};
-use nanocal_model::{blob, Model, Provenance, SlowInputs, StageSerial, MAX_AXES};
+use nanocal_model::{Model, Provenance, SlowInputs, StageSerial, MAX_AXES};
 
 /// Temperatures inside the published model's envelope, exact on the MAX31856's grid.
 const TEMPS_C: [f32; 4] = [22.0, 22.125, 21.875, 22.25];
@@ -50,42 +52,6 @@ fn fitted_model() -> Model {
     m
 }
 
-fn upload(q: &Qemu, model: &Model) {
-    let mut b = vec![0u8; blob::MAX_BLOB_LEN];
-    let n = blob::encode(model, &mut b).unwrap();
-    let path = std::env::temp_dir().join(format!(
-        "nanocal-e2e-provenance-{}.blob",
-        std::process::id()
-    ));
-    std::fs::write(&path, &b[..n]).unwrap();
-    let out = nanocal_cli(&[
-        "device",
-        "upload",
-        "--port",
-        &q.cli_spec(),
-        path.to_str().unwrap(),
-    ]);
-    let _ = std::fs::remove_file(&path);
-    assert!(out.contains("in service"), "{out}");
-}
-
-/// The status once the model `id` is folded on readings of every sensor.
-fn in_service(q: &mut Qemu, id: u32) -> Status {
-    let clk = q.clock();
-    let mut c = q.client();
-    wait_until("model folded on every sensor", &clk, 20.0, || {
-        let s = c.status().ok()?;
-        let ok = s.flags.contains(Flags::MODEL)
-            && s.model_id == id
-            && !s.flags.contains(Flags::WARMING_UP)
-            && s.sensor_bits[..4]
-                .iter()
-                .all(|b| b.state == ChannelStatus::Ok)
-            && s.folds >= 2;
-        ok.then_some(s)
-    })
-}
-
 fn serial(s: &str) -> Option<StageSerial> {
     StageSerial::new(s.as_bytes())
 }
@@ -104,7 +70,7 @@ fn a_model_is_not_applied_to_another_stage_under_qemu() {
     let mut host = q.gcs_host();
     drop(q.client()); // the board is up and answering
     let model = fitted_model();
-    upload(&q, &model);
+    upload_with_cli(&q, &model, "provenance");
     let s = in_service(&mut q, model.id());
     // nothing read of the controller yet: no move has been corrected
     assert_eq!(s.stage, StageCheck::NotRead, "{s:?}");
@@ -196,7 +162,7 @@ fn a_model_is_not_applied_to_another_stage_under_qemu() {
         .id(0x0019_0402)
         .build()
         .unwrap();
-    upload(&q, &same);
+    upload_with_cli(&q, &same, "provenance");
     in_service(&mut q, same.id());
     host.send("MOV 1 200");
     let fwd = stage.drain_until(|l| l.starts_with("MOV "), HANG);

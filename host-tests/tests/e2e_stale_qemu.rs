@@ -9,14 +9,14 @@
 
 mod fw_sim;
 
-use fw_sim::nanocal_cli;
+use fw_sim::{in_service, nanocal_cli, upload_with_cli};
 
 use fw_sim::{stage_value, wait_until, Qemu, SensorSim, StageSim, HANG};
 use nanocal::published::published_1dof;
 use nanocal_compensator::stale::KmzCheck;
 use nanocal_interface::led::LedState;
-use nanocal_interface::status::{ChannelStatus, Flags, StaleReasons, Status};
-use nanocal_model::{blob, AxisBound, Model, SlowInputs, MAX_AXES};
+use nanocal_interface::status::{Flags, StaleReasons};
+use nanocal_model::{AxisBound, Model, SlowInputs, MAX_AXES};
 
 /// Temperatures inside the published model's envelope (21–23 °C), exact on the MAX31856's
 /// 1/128 °C grid.
@@ -49,42 +49,6 @@ fn bounded_model(id: u32) -> Model {
     m
 }
 
-fn upload(q: &Qemu, model: &Model, name: &str) {
-    let mut b = vec![0u8; blob::MAX_BLOB_LEN];
-    let n = blob::encode(model, &mut b).unwrap();
-    let path = std::env::temp_dir().join(format!(
-        "nanocal-e2e-stale-{name}-{}.blob",
-        std::process::id()
-    ));
-    std::fs::write(&path, &b[..n]).unwrap();
-    let out = nanocal_cli(&[
-        "device",
-        "upload",
-        "--port",
-        &q.cli_spec(),
-        path.to_str().unwrap(),
-    ]);
-    let _ = std::fs::remove_file(&path);
-    assert!(out.contains("in service"), "{out}");
-}
-
-/// The status once the model `id` is folded on readings of every sensor.
-fn in_service(q: &mut Qemu, id: u32) -> Status {
-    let clk = q.clock();
-    let mut c = q.client();
-    wait_until("model folded on every sensor", &clk, 20.0, || {
-        let s = c.status().ok()?;
-        let ok = s.flags.contains(Flags::MODEL)
-            && s.model_id == id
-            && !s.flags.contains(Flags::WARMING_UP)
-            && s.sensor_bits[..4]
-                .iter()
-                .all(|b| b.state == ChannelStatus::Ok)
-            && s.folds >= 2;
-        ok.then_some(s)
-    })
-}
-
 #[test]
 fn a_kmz_outside_the_prediction_interval_raises_model_stale_under_qemu() {
     let Some(mut q) =
@@ -99,7 +63,7 @@ fn a_kmz_outside_the_prediction_interval_raises_model_stale_under_qemu() {
     drop(q.client()); // the board is up and answering
     let mut model = bounded_model(0x0019_0001);
     let k = nanocal_interface::settings::DEFAULT_STALE_K;
-    upload(&q, &model, "a");
+    upload_with_cli(&q, &model, "stale-a");
     let s = in_service(&mut q, model.id());
     assert!(!s.flags.contains(Flags::MODEL_STALE), "{s:?}");
     assert!(s.stale.is_empty() && s.stale_since_ms == 0);
@@ -161,7 +125,7 @@ fn a_kmz_outside_the_prediction_interval_raises_model_stale_under_qemu() {
 
     // a new model starts afresh
     let warm = bounded_model(0x0019_0002);
-    upload(&q, &warm, "b");
+    upload_with_cli(&q, &warm, "stale-b");
     let s = in_service(&mut q, warm.id());
     assert!(!s.flags.contains(Flags::MODEL_STALE), "{s:?}");
 
@@ -188,7 +152,7 @@ fn a_kmz_outside_the_prediction_interval_raises_model_stale_under_qemu() {
     ]);
     assert!(cfg.contains("extrapolation margin 0.5 °C"), "{cfg}");
     let again = bounded_model(0x0019_0003);
-    upload(&q, &again, "c");
+    upload_with_cli(&q, &again, "stale-c");
     let s = in_service(&mut q, again.id());
     let folds = s.folds;
     let mut c = q.client();

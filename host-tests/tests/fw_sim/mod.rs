@@ -101,3 +101,40 @@ pub fn nanocal_cli(args: &[&str]) -> String {
     );
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
+
+/// Upload `model` with the `nanocal device upload` CLI (through [`Qemu::cli_spec`]), `tag`
+/// naming its temporary blob file; the CLI must say the model is in service.
+pub fn upload_with_cli(q: &Qemu, model: &nanocal_model::Model, tag: &str) {
+    let mut b = vec![0u8; nanocal_model::blob::MAX_BLOB_LEN];
+    let n = nanocal_model::blob::encode(model, &mut b).unwrap();
+    let path = std::env::temp_dir().join(format!("nanocal-e2e-{tag}-{}.blob", std::process::id()));
+    std::fs::write(&path, &b[..n]).unwrap();
+    let out = nanocal_cli(&[
+        "device",
+        "upload",
+        "--port",
+        &q.cli_spec(),
+        path.to_str().unwrap(),
+    ]);
+    let _ = std::fs::remove_file(&path);
+    assert!(out.contains("in service"), "{out}");
+}
+
+/// The status once the model `id` is in service, folded at least twice on readings of the
+/// first four sensors (all of them ok) and warmed up.
+pub fn in_service(q: &mut Qemu, id: u32) -> nanocal_interface::status::Status {
+    use nanocal_interface::status::{ChannelStatus, Flags};
+    let clk = q.clock();
+    let mut c = q.client();
+    wait_until("model folded on every sensor", &clk, 20.0, || {
+        let s = c.status().ok()?;
+        let ok = s.flags.contains(Flags::MODEL)
+            && s.model_id == id
+            && !s.flags.contains(Flags::WARMING_UP)
+            && s.sensor_bits[..4]
+                .iter()
+                .all(|b| b.state == ChannelStatus::Ok)
+            && s.folds >= 2;
+        ok.then_some(s)
+    })
+}

@@ -22,13 +22,38 @@ pub const MAX_SERIAL: usize = 24;
 /// identifier has at most 8 characters too).
 pub const MAX_AXIS_NAME: usize = 8;
 
+/// Up to `N` ASCII bytes held inline (no heap): the storage of [`StageSerial`] and
+/// [`AxisName`], which each check their own rule before they hold any.
+#[derive(Clone, Copy, PartialEq, Eq, Hash)]
+struct ShortAscii<const N: usize> {
+    bytes: [u8; N],
+    len: u8,
+}
+
+impl<const N: usize> ShortAscii<N> {
+    /// `text`, already checked: ASCII and at most `N` bytes.
+    fn holding(text: &[u8]) -> Self {
+        let mut bytes = [0; N];
+        bytes[..text.len()].copy_from_slice(text);
+        Self {
+            bytes,
+            len: text.len() as u8,
+        }
+    }
+
+    fn as_bytes(&self) -> &[u8] {
+        &self.bytes[..self.len as usize]
+    }
+
+    fn as_str(&self) -> &str {
+        core::str::from_utf8(self.as_bytes()).unwrap_or("")
+    }
+}
+
 /// A stage serial: 1 to [`MAX_SERIAL`] printable ASCII bytes without a comma, not starting or
 /// ending with a space.
 #[derive(Clone, Copy, PartialEq, Eq, Hash)]
-pub struct StageSerial {
-    bytes: [u8; MAX_SERIAL],
-    len: u8,
-}
+pub struct StageSerial(ShortAscii<MAX_SERIAL>);
 
 impl StageSerial {
     /// The serial `text`, when it is one (see the type).
@@ -40,25 +65,17 @@ impl StageSerial {
                 .all(|&b| (0x20..=0x7E).contains(&b) && b != b',')
             && text[0] != b' '
             && text[text.len() - 1] != b' ';
-        if !ok {
-            return None;
-        }
-        let mut bytes = [0; MAX_SERIAL];
-        bytes[..text.len()].copy_from_slice(text);
-        Some(Self {
-            bytes,
-            len: text.len() as u8,
-        })
+        ok.then(|| Self(ShortAscii::holding(text)))
     }
 
     /// The serial's bytes.
     pub fn as_bytes(&self) -> &[u8] {
-        &self.bytes[..self.len as usize]
+        self.0.as_bytes()
     }
 
     /// The serial as text (always ASCII).
     pub fn as_str(&self) -> &str {
-        core::str::from_utf8(self.as_bytes()).unwrap_or("")
+        self.0.as_str()
     }
 }
 
@@ -87,36 +104,25 @@ pub fn serial_of_idn(line: &[u8]) -> Option<StageSerial> {
 
 /// An axis name as the recording spelt it (1 to [`MAX_AXIS_NAME`] printable ASCII bytes).
 #[derive(Clone, Copy, PartialEq, Eq, Hash)]
-pub struct AxisName {
-    bytes: [u8; MAX_AXIS_NAME],
-    len: u8,
-}
+pub struct AxisName(ShortAscii<MAX_AXIS_NAME>);
 
 impl AxisName {
     /// The name `text`, when it is one.
     pub fn new(text: &[u8]) -> Option<Self> {
-        if text.is_empty()
-            || text.len() > MAX_AXIS_NAME
-            || !text.iter().all(|&b| (0x21..=0x7E).contains(&b))
-        {
-            return None;
-        }
-        let mut bytes = [0; MAX_AXIS_NAME];
-        bytes[..text.len()].copy_from_slice(text);
-        Some(Self {
-            bytes,
-            len: text.len() as u8,
-        })
+        let ok = !text.is_empty()
+            && text.len() <= MAX_AXIS_NAME
+            && text.iter().all(|&b| (0x21..=0x7E).contains(&b));
+        ok.then(|| Self(ShortAscii::holding(text)))
     }
 
     /// The name's bytes.
     pub fn as_bytes(&self) -> &[u8] {
-        &self.bytes[..self.len as usize]
+        self.0.as_bytes()
     }
 
     /// The name as text (always ASCII).
     pub fn as_str(&self) -> &str {
-        core::str::from_utf8(self.as_bytes()).unwrap_or("")
+        self.0.as_str()
     }
 }
 

@@ -98,7 +98,7 @@ pub struct ExtensionTerm {
 }
 
 /// Candidate terms beyond the spec's tokens: an effect `explain` found, in the form the blob
-/// carries it ([`crate::effects::BlobTerms`]): lag filters, play operators, and term shapes
+/// carries it ([`crate::explain::contract::BlobTerms`]): lag filters, play operators, and term shapes
 /// (paper 001 §II step 5: back to step 1 with more sources of inaccuracy in the model).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Extension {
@@ -114,7 +114,7 @@ pub struct Extension {
 
 impl Extension {
     /// The extension that carries what explain found (`blob`, its deployable form).
-    pub fn from_blob_terms(name: &str, blob: &crate::effects::BlobTerms) -> Self {
+    pub fn from_blob_terms(name: &str, blob: &crate::explain::contract::BlobTerms) -> Self {
         let terms = blob
             .terms
             .iter()

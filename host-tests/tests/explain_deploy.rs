@@ -8,16 +8,15 @@
 mod explain_common;
 use explain_common::*;
 
-use nanocal::effects::{
-    candidates, hysteresis, thermal_lag, BlobContext, Detail, EffectSpec, Fitted, LagTerm,
-    PlayBank, Proposal, Theta,
-};
+use nanocal::effects::{candidates, hysteresis, thermal_lag, EffectSpec};
+use nanocal::explain::contract::{BlobContext, Detail, Fitted, LagTerm, PlayBank, Proposal};
+use nanocal::explain::estimate::Theta;
 use nanocal::model::{blob, Factor, ModelBuilder};
 
 fn build_with(
     ctx: &BlobContext,
     aux: usize,
-    b: &nanocal::effects::BlobTerms,
+    b: &nanocal::explain::contract::BlobTerms,
 ) -> nanocal::model::Model {
     let mut mb = ModelBuilder::new(ctx.axes as usize, ctx.temps as usize, aux).unwrap();
     let mut first_lag = None;

@@ -4,11 +4,12 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
-use super::Proposal;
+use super::SimContext;
+use crate::explain::contract::{self, Proposal};
 use crate::explain::data::Data;
+use crate::explain::error::ExplainError;
+use crate::explain::estimate::Estimate;
 use crate::explain::search::Search;
-use crate::explain::ExplainError;
-use crate::twin::SimContext;
 
 /// The effect's name.
 pub const NAME: &str = "air_refraction";
@@ -31,7 +32,7 @@ impl Params {
     pub fn produce(&self, ctx: &SimContext) -> Vec<Vec<f64>> {
         let mut out = zeros(ctx);
         let a = self.axis;
-        let p0 = ctx.cfg.room.pressure_mean_hpa;
+        let p0 = ctx.pressure_mean_hpa;
         for k in 0..ctx.t_s.len() {
             let path_um = self.dead_path_mm * 1e3 + ctx.pos_um[a][k];
             out[a][k] = path_um * DN_DP_PER_HPA * (ctx.pressure_hpa[k] - p0);
@@ -55,7 +56,7 @@ fn regressors(d: &Data, ch: usize) -> Vec<Vec<f64>> {
     out
 }
 
-impl super::Candidate for Candidate {
+impl contract::Candidate for Candidate {
     fn name(&self) -> &'static str {
         NAME
     }
@@ -75,7 +76,7 @@ impl super::Candidate for Candidate {
     fn propose(&self, s: &Search) -> Result<Option<Proposal>, ExplainError> {
         Ok(Some(Proposal::linear(regressors(s.d, s.ch))))
     }
-    fn params(&self, d: &Data, ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+    fn params(&self, d: &Data, ch: usize, f: &contract::Fitted) -> Vec<Estimate> {
         let c = &d.channels[ch];
         let centre = c.cmd_um.as_ref().map_or(0.0, |cmd| {
             let lo = cmd.iter().cloned().fold(f64::INFINITY, f64::min);
@@ -84,19 +85,23 @@ impl super::Candidate for Candidate {
         });
         let l_mm = (f.coeffs[0] / DN_DP_PER_HPA - centre) * 1e-3;
         vec![
-            super::Estimate::new("sensitivity_nm_per_hpa", f.coeffs[0] * 1e3, f.se[0] * 1e3),
-            super::Estimate::new("dead_path_mm", l_mm, f.se[0] / DN_DP_PER_HPA * 1e-3),
+            Estimate::new("sensitivity_nm_per_hpa", f.coeffs[0] * 1e3, f.se[0] * 1e3),
+            Estimate::new("dead_path_mm", l_mm, f.se[0] / DN_DP_PER_HPA * 1e-3),
         ]
     }
-    fn blob_terms(&self, ctx: &super::BlobContext, _f: &super::Fitted) -> Option<super::BlobTerms> {
+    fn blob_terms(
+        &self,
+        ctx: &contract::BlobContext,
+        _f: &contract::Fitted,
+    ) -> Option<contract::BlobTerms> {
         let p = nanocal_model::Factor::Aux(ctx.pressure_aux?);
-        Some(super::BlobTerms {
+        Some(contract::BlobTerms {
             lags: Vec::new(),
             plays: Vec::new(),
             play: Vec::new(),
             terms: vec![
-                super::term(ctx.output, [0; 3], p, 0),
-                super::term(ctx.output, super::powers(ctx.output, 1), p, 0),
+                contract::term(ctx.output, [0; 3], p, 0),
+                contract::term(ctx.output, contract::powers(ctx.output, 1), p, 0),
             ],
         })
     }

@@ -4,11 +4,12 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
-use super::Proposal;
+use super::SimContext;
+use crate::explain::contract::{self, Proposal};
 use crate::explain::data::Data;
+use crate::explain::error::ExplainError;
+use crate::explain::estimate::Estimate;
 use crate::explain::search::Search;
-use crate::explain::ExplainError;
-use crate::twin::SimContext;
 
 /// The effect's name.
 pub const NAME: &str = "axis_coupling";
@@ -30,7 +31,7 @@ impl Params {
     /// error_to = c × (x_from − centre) + q × u_from².
     pub fn produce(&self, ctx: &SimContext) -> Vec<Vec<f64>> {
         let mut out = zeros(ctx);
-        let (lo, hi) = ctx.cfg.travel_um[self.from_axis];
+        let (lo, hi) = ctx.travel_um[self.from_axis];
         let c = 0.5 * (lo + hi);
         for k in 0..ctx.t_s.len() {
             let u = ctx.u[self.from_axis][k];
@@ -64,7 +65,7 @@ fn regressors(d: &Data, ch: usize) -> Vec<Vec<f64>> {
     out
 }
 
-impl super::Candidate for Candidate {
+impl contract::Candidate for Candidate {
     fn name(&self) -> &'static str {
         NAME
     }
@@ -80,41 +81,45 @@ impl super::Candidate for Candidate {
     fn propose(&self, s: &Search) -> Result<Option<Proposal>, ExplainError> {
         Ok(Some(Proposal::linear(regressors(s.d, s.ch))))
     }
-    fn params(&self, d: &Data, ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+    fn params(&self, d: &Data, ch: usize, f: &contract::Fitted) -> Vec<Estimate> {
         let b = others(d, ch)[0];
         let h = d.channels[b].half_range_um;
         vec![
-            super::Estimate::new("from_axis", b as f64, 0.0),
-            super::Estimate::new("nm_per_um", f.coeffs[0] / h * 1e3, f.se[0] / h * 1e3),
-            super::Estimate::new("quadratic_nm", f.coeffs[1] * 1e3, f.se[1] * 1e3),
-            super::Estimate::new("cross_nm", f.coeffs[2] * 1e3, f.se[2] * 1e3),
+            Estimate::new("from_axis", b as f64, 0.0),
+            Estimate::new("nm_per_um", f.coeffs[0] / h * 1e3, f.se[0] / h * 1e3),
+            Estimate::new("quadratic_nm", f.coeffs[1] * 1e3, f.se[1] * 1e3),
+            Estimate::new("cross_nm", f.coeffs[2] * 1e3, f.se[2] * 1e3),
         ]
     }
-    fn blob_terms(&self, ctx: &super::BlobContext, _f: &super::Fitted) -> Option<super::BlobTerms> {
+    fn blob_terms(
+        &self,
+        ctx: &contract::BlobContext,
+        _f: &contract::Fitted,
+    ) -> Option<contract::BlobTerms> {
         let mut terms = Vec::new();
         for b in (0..ctx.axes).filter(|&b| b != ctx.output) {
-            let mut cross = super::powers(b, 1);
+            let mut cross = contract::powers(b, 1);
             cross[ctx.output as usize] = 1;
-            terms.push(super::term(
+            terms.push(contract::term(
                 ctx.output,
-                super::powers(b, 1),
+                contract::powers(b, 1),
                 nanocal_model::Factor::None,
                 0,
             ));
-            terms.push(super::term(
+            terms.push(contract::term(
                 ctx.output,
-                super::powers(b, 2),
+                contract::powers(b, 2),
                 nanocal_model::Factor::None,
                 0,
             ));
-            terms.push(super::term(
+            terms.push(contract::term(
                 ctx.output,
                 cross,
                 nanocal_model::Factor::None,
                 0,
             ));
         }
-        (!terms.is_empty()).then_some(super::BlobTerms {
+        (!terms.is_empty()).then_some(contract::BlobTerms {
             lags: Vec::new(),
             plays: Vec::new(),
             play: Vec::new(),

@@ -4,11 +4,12 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
-use super::Proposal;
+use super::SimContext;
+use crate::explain::contract::{self, Proposal};
 use crate::explain::data::Data;
+use crate::explain::error::ExplainError;
+use crate::explain::estimate::Estimate;
 use crate::explain::search::Search;
-use crate::explain::ExplainError;
-use crate::twin::SimContext;
 
 /// The effect's name.
 pub const NAME: &str = "creep";
@@ -87,10 +88,10 @@ fn median_dwell_s(d: &Data, steps: &[(usize, f64)]) -> f64 {
         .windows(2)
         .map(|w| w[1] - w[0])
         .collect();
-    crate::explain::fit::median(&mut starts)
+    crate::explain::stats::median(&mut starts)
 }
 
-impl super::Candidate for Candidate {
+impl contract::Candidate for Candidate {
     fn name(&self) -> &'static str {
         NAME
     }
@@ -113,16 +114,16 @@ impl super::Candidate for Candidate {
         let steps = &s.d.channels[s.ch].steps;
         let lo = (0.1 * s.d.median_dt_s).max(1e-3);
         let hi = median_dwell_s(s.d, steps).max(10.0 * lo);
-        Ok(Some(super::one_theta(s, "t0_s", lo, hi, 8, |t0| {
+        Ok(Some(contract::one_theta(s, "t0_s", lo, hi, 8, |t0| {
             vec![basis(s.d, steps, t0)]
         })))
     }
-    fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+    fn params(&self, _d: &Data, _ch: usize, f: &contract::Fitted) -> Vec<Estimate> {
         let t0 = &f.proposal.thetas[0];
         vec![
-            super::Estimate::new("gamma", f.coeffs[0], f.se[0]),
+            Estimate::new("gamma", f.coeffs[0], f.se[0]),
             t0.estimate(),
-            super::Estimate::new(
+            Estimate::new(
                 "nm_per_um_per_decade",
                 f.coeffs[0] * std::f64::consts::LN_10 * 1e3,
                 f.se[0] * std::f64::consts::LN_10 * 1e3,

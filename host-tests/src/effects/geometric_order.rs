@@ -4,11 +4,12 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
-use super::Proposal;
+use super::SimContext;
+use crate::explain::contract::{self, Proposal};
 use crate::explain::data::Data;
+use crate::explain::error::ExplainError;
+use crate::explain::estimate::Estimate;
 use crate::explain::search::Search;
-use crate::explain::ExplainError;
-use crate::twin::SimContext;
 
 /// The effect's name.
 pub const NAME: &str = "geometric_order";
@@ -90,7 +91,7 @@ fn regressors(d: &Data, ch: usize) -> Vec<Vec<f64>> {
         .collect()
 }
 
-impl super::Candidate for Candidate {
+impl contract::Candidate for Candidate {
     fn name(&self) -> &'static str {
         NAME
     }
@@ -119,24 +120,28 @@ impl super::Candidate for Candidate {
         }
         Ok(Some(Proposal::linear(regs)))
     }
-    fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+    fn params(&self, _d: &Data, _ch: usize, f: &contract::Fitted) -> Vec<Estimate> {
         f.coeffs
             .iter()
             .zip(f.se)
             .enumerate()
-            .map(|(j, (c, s))| super::Estimate::new(&format!("u{}_nm", 4 + j), c * 1e3, s * 1e3))
+            .map(|(j, (c, s))| Estimate::new(&format!("u{}_nm", 4 + j), c * 1e3, s * 1e3))
             .collect()
     }
-    fn blob_terms(&self, ctx: &super::BlobContext, _f: &super::Fitted) -> Option<super::BlobTerms> {
-        Some(super::BlobTerms {
+    fn blob_terms(
+        &self,
+        ctx: &contract::BlobContext,
+        _f: &contract::Fitted,
+    ) -> Option<contract::BlobTerms> {
+        Some(contract::BlobTerms {
             lags: Vec::new(),
             plays: Vec::new(),
             play: Vec::new(),
             terms: (4..=6)
                 .map(|p| {
-                    super::term(
+                    contract::term(
                         ctx.output,
-                        super::powers(ctx.output, p),
+                        contract::powers(ctx.output, p),
                         nanocal_model::Factor::None,
                         0,
                     )

@@ -7,13 +7,15 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{zeros, Detail, PlayBank, Proposal};
+use super::zeros;
+use super::SimContext;
+use crate::explain::contract::{self, Detail, PlayBank, Proposal};
 use crate::explain::data::Data;
+use crate::explain::error::ExplainError;
+use crate::explain::estimate::Estimate;
 use crate::explain::nnls::nnls;
 use crate::explain::search::Search;
 use crate::explain::units::length_um;
-use crate::explain::ExplainError;
-use crate::twin::SimContext;
 
 /// The effect's name.
 pub const NAME: &str = "hysteresis";
@@ -279,7 +281,7 @@ type BestDrive = (
     crate::explain::search::Basis,
 );
 
-impl super::Candidate for Candidate {
+impl contract::Candidate for Candidate {
     fn name(&self) -> &'static str {
         NAME
     }
@@ -387,7 +389,7 @@ impl super::Candidate for Candidate {
             evidence_units: Some(reversals(&x) as f64),
         }))
     }
-    fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+    fn params(&self, _d: &Data, _ch: usize, f: &contract::Fitted) -> Vec<Estimate> {
         let Detail::Play(bank) = &f.proposal.detail else {
             return Vec::new();
         };
@@ -396,10 +398,10 @@ impl super::Candidate for Candidate {
         let hw = full_loop_half_width_um(&bank.thresholds_um, w, a);
         let hw_sigma = (f.noise_sigma_um * bank.half_width_per_noise).hypot(bank.grid_spread_um);
         vec![
-            super::Estimate::new("half_width_nm", hw * 1e3, hw_sigma * 1e3),
-            super::Estimate::new("loop_sense", bank.sense, f64::NAN),
-            super::Estimate::new("operators", bank.thresholds_um.len() as f64, f64::NAN),
-            super::Estimate::new(
+            Estimate::new("half_width_nm", hw * 1e3, hw_sigma * 1e3),
+            Estimate::new("loop_sense", bank.sense, f64::NAN),
+            Estimate::new("operators", bank.thresholds_um.len() as f64, f64::NAN),
+            Estimate::new(
                 if bank.drive.is_some() {
                     "drive_stroke"
                 } else {
@@ -410,7 +412,7 @@ impl super::Candidate for Candidate {
             ),
         ]
     }
-    fn summary(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> String {
+    fn summary(&self, _d: &Data, _ch: usize, f: &contract::Fitted) -> String {
         let Detail::Play(bank) = &f.proposal.detail else {
             return String::new();
         };
@@ -440,7 +442,11 @@ impl super::Candidate for Candidate {
             ops.join(", ")
         )
     }
-    fn blob_terms(&self, ctx: &super::BlobContext, f: &super::Fitted) -> Option<super::BlobTerms> {
+    fn blob_terms(
+        &self,
+        ctx: &contract::BlobContext,
+        f: &contract::Fitted,
+    ) -> Option<contract::BlobTerms> {
         let Detail::Play(bank) = &f.proposal.detail else {
             return None;
         };
@@ -453,17 +459,17 @@ impl super::Candidate for Candidate {
             .iter()
             .map(|&r| (ctx.output, r))
             .collect();
-        Some(super::BlobTerms {
+        Some(contract::BlobTerms {
             lags: Vec::new(),
             terms: (0..plays.len() as u8)
-                .map(|k| super::term(ctx.output, [0; 3], nanocal_model::Factor::Play(k), 0))
+                .map(|k| contract::term(ctx.output, [0; 3], nanocal_model::Factor::Play(k), 0))
                 .collect(),
             plays,
             play: bank
                 .thresholds_um
                 .iter()
                 .zip(f.coeffs)
-                .map(|(&threshold_um, &weight)| super::PlayOperator {
+                .map(|(&threshold_um, &weight)| contract::PlayOperator {
                     axis: ctx.output,
                     threshold_um,
                     weight,

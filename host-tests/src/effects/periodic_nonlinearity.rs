@@ -4,11 +4,12 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
-use super::Proposal;
+use super::SimContext;
+use crate::explain::contract::{self, Proposal};
 use crate::explain::data::Data;
+use crate::explain::error::ExplainError;
+use crate::explain::estimate::{Estimate, Theta};
 use crate::explain::search::Search;
-use crate::explain::ExplainError;
-use crate::twin::SimContext;
 
 /// The effect's name.
 pub const NAME: &str = "periodic_nonlinearity";
@@ -79,7 +80,7 @@ fn regressors(d: &Data, ch: usize, p_nm: f64) -> Vec<Vec<f64>> {
     ]
 }
 
-impl super::Candidate for Candidate {
+impl contract::Candidate for Candidate {
     fn name(&self) -> &'static str {
         NAME
     }
@@ -105,37 +106,37 @@ impl super::Candidate for Candidate {
         Ok(best.map(|(_, p, regs)| Proposal {
             regs,
             // a choice from a list, not a searched range: no bounds to hit
-            thetas: vec![super::Theta {
+            thetas: vec![Theta {
                 name: "period_nm".into(),
                 value: p,
                 sigma: 0.0,
                 lo: 0.0,
                 hi: f64::INFINITY,
             }],
-            detail: super::Detail::None,
+            detail: contract::Detail::None,
             design: None,
             evidence_units: None,
         }))
     }
-    fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+    fn params(&self, _d: &Data, _ch: usize, f: &contract::Fitted) -> Vec<Estimate> {
         let c = f.coeffs;
         let a1 = c[0].hypot(c[1]) * 1e3;
         let a2 = c[2].hypot(c[3]) * 1e3;
         let s1 = 0.5 * (f.se[0] + f.se[1]) * 1e3;
         let s2 = 0.5 * (f.se[2] + f.se[3]) * 1e3;
         vec![
-            super::Estimate::new(
+            Estimate::new(
                 "period_nm",
                 f.proposal.theta().unwrap_or(HENE_HALF_WAVELENGTH_NM),
                 0.0,
             ),
-            super::Estimate::new("amplitude_nm", a1, s1),
-            super::Estimate::new(
+            Estimate::new("amplitude_nm", a1, s1),
+            Estimate::new(
                 "phase_rad",
                 c[1].atan2(c[0]),
                 if a1 > 0.0 { s1 / a1 } else { f64::NAN },
             ),
-            super::Estimate::new("second_harmonic_nm", a2, s2),
+            Estimate::new("second_harmonic_nm", a2, s2),
         ]
     }
 }

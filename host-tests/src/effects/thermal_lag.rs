@@ -5,16 +5,17 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::SimContext;
 use super::{
-    lag_series, lag_series_at, lag_series_at_classes, lag_series_classes, zeros, Detail, Intervals,
-    LagTerm, Proposal,
+    lag_series, lag_series_at, lag_series_at_classes, lag_series_classes, zeros, Intervals,
 };
+use crate::explain::contract::{self, Detail, LagTerm, Proposal};
 use crate::explain::data::Data;
+use crate::explain::error::ExplainError;
+use crate::explain::estimate::{Estimate, Theta};
 use crate::explain::fit::{bartlett_n_eff, cross_validate, gather};
-use crate::explain::search::{dot, Basis, Search};
+use crate::explain::search::{dot, log_grid, Basis, Search};
 use crate::explain::units::{duration, sig3};
-use crate::explain::ExplainError;
-use crate::twin::SimContext;
 
 /// The effect's name.
 pub const NAME: &str = "thermal_lag";
@@ -64,7 +65,7 @@ impl Params {
                 None => first,
             };
             for (a, o) in out.iter_mut().enumerate() {
-                let k = ctx.cfg.thermal_um_per_c[a][i];
+                let k = ctx.thermal_um_per_c[a][i];
                 for (j, v) in o.iter_mut().enumerate() {
                     *v += k * (response[j] - spot[j]);
                 }
@@ -388,7 +389,7 @@ fn best_tau(
     taken: &[f64],
     sigma: bool,
     near: Option<f64>,
-) -> Option<(super::Theta, f64)> {
+) -> Option<(Theta, f64)> {
     let (lo, hi) = tau_range(s.d, sensor);
     if hi.is_nan() || lo.is_nan() || hi <= 4.0 * lo {
         return None;
@@ -410,7 +411,7 @@ fn best_tau(
     (clear(taken, theta.value) && rss < basis.rss()).then_some((theta, rss))
 }
 
-impl super::Candidate for Candidate {
+impl contract::Candidate for Candidate {
     fn name(&self) -> &'static str {
         NAME
     }
@@ -435,7 +436,7 @@ impl super::Candidate for Candidate {
             if hi.is_nan() || lo.is_nan() || hi <= 4.0 * lo {
                 continue;
             }
-            for tau in super::log_grid(lo, hi, SCREEN_POINTS) {
+            for tau in log_grid(lo, hi, SCREEN_POINTS) {
                 let g = cache.on_rows(sensor, tau);
                 let norm0 = g.iter().map(|v| v * v).sum::<f64>().sqrt();
                 screen.push(Screened {
@@ -572,7 +573,7 @@ impl super::Candidate for Candidate {
             evidence_units: None,
         }))
     }
-    fn params(&self, d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+    fn params(&self, d: &Data, _ch: usize, f: &contract::Fitted) -> Vec<Estimate> {
         let Detail::Lags(terms) = &f.proposal.detail else {
             return Vec::new();
         };
@@ -599,12 +600,12 @@ impl super::Candidate for Candidate {
                 "tau"
             };
             seen.push(t.sensor);
-            out.push(super::Estimate::new(
+            out.push(Estimate::new(
                 &format!("{which}_s_{name}"),
                 t.tau.value,
                 t.tau.sigma_unless_bound(),
             ));
-            out.push(super::Estimate::new(
+            out.push(Estimate::new(
                 &format!(
                     "{}_um_per_c_{name}",
                     if which == "tau2" { "gain2" } else { "gain" }
@@ -615,7 +616,7 @@ impl super::Candidate for Candidate {
         }
         out
     }
-    fn summary(&self, d: &Data, _ch: usize, f: &super::Fitted) -> String {
+    fn summary(&self, d: &Data, _ch: usize, f: &contract::Fitted) -> String {
         let Detail::Lags(terms) = &f.proposal.detail else {
             return String::new();
         };
@@ -654,7 +655,11 @@ impl super::Candidate for Candidate {
             .collect();
         format!("lags: {}", parts.join("; "))
     }
-    fn blob_terms(&self, ctx: &super::BlobContext, f: &super::Fitted) -> Option<super::BlobTerms> {
+    fn blob_terms(
+        &self,
+        ctx: &contract::BlobContext,
+        f: &contract::Fitted,
+    ) -> Option<contract::BlobTerms> {
         let Detail::Lags(terms) = &f.proposal.detail else {
             return None;
         };
@@ -663,13 +668,13 @@ impl super::Candidate for Candidate {
             .filter(|t| t.sensor < ctx.temps as usize)
             .take(nanocal_model::MAX_LAGS)
             .collect();
-        (!usable.is_empty()).then(|| super::BlobTerms {
+        (!usable.is_empty()).then(|| contract::BlobTerms {
             lags: usable
                 .iter()
                 .map(|t| (t.sensor as u8, t.tau.value))
                 .collect(),
             terms: (0..usable.len() as u8)
-                .map(|k| super::term(ctx.output, [0; 3], nanocal_model::Factor::Lagged(k), 0))
+                .map(|k| contract::term(ctx.output, [0; 3], nanocal_model::Factor::Lagged(k), 0))
                 .collect(),
             plays: Vec::new(),
             play: Vec::new(),

@@ -4,11 +4,12 @@
 use serde::{Deserialize, Serialize};
 
 use super::zeros;
-use super::Proposal;
+use super::SimContext;
+use crate::explain::contract::{self, Proposal};
 use crate::explain::data::Data;
+use crate::explain::error::ExplainError;
+use crate::explain::estimate::Estimate;
 use crate::explain::search::Search;
-use crate::explain::ExplainError;
-use crate::twin::SimContext;
 
 /// The effect's name.
 pub const NAME: &str = "thermal_position_interaction";
@@ -27,10 +28,10 @@ impl Params {
     pub fn produce(&self, ctx: &SimContext) -> Vec<Vec<f64>> {
         let mut out = zeros(ctx);
         let a = self.axis;
-        let lo = ctx.cfg.travel_um[a].0;
+        let lo = ctx.travel_um[a].0;
         let ns = ctx.spot_c.len().max(1) as f64;
         for k in 0..ctx.t_s.len() {
-            let dt: f64 = ctx.spot_c.iter().map(|s| s[k]).sum::<f64>() / ns - ctx.cfg.temp_ref_c;
+            let dt: f64 = ctx.spot_c.iter().map(|s| s[k]).sum::<f64>() / ns - ctx.temp_ref_c;
             out[a][k] = self.alpha_ppm_per_c * 1e-6 * (ctx.cmd_um[a][k] - lo) * dt;
         }
         out
@@ -63,7 +64,7 @@ fn regressors(d: &Data, ch: usize) -> Vec<Vec<f64>> {
     out
 }
 
-impl super::Candidate for Candidate {
+impl contract::Candidate for Candidate {
     fn name(&self) -> &'static str {
         NAME
     }
@@ -79,24 +80,28 @@ impl super::Candidate for Candidate {
     fn propose(&self, s: &Search) -> Result<Option<Proposal>, ExplainError> {
         Ok(Some(Proposal::linear(regressors(s.d, s.ch))))
     }
-    fn params(&self, d: &Data, ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+    fn params(&self, d: &Data, ch: usize, f: &contract::Fitted) -> Vec<Estimate> {
         let h = d.channels[ch].half_range_um;
-        vec![super::Estimate::new(
+        vec![Estimate::new(
             "alpha_ppm_per_c",
             f.coeffs[0] / h * 1e6,
             f.se[0] / h * 1e6,
         )]
     }
-    fn blob_terms(&self, ctx: &super::BlobContext, _f: &super::Fitted) -> Option<super::BlobTerms> {
-        Some(super::BlobTerms {
+    fn blob_terms(
+        &self,
+        ctx: &contract::BlobContext,
+        _f: &contract::Fitted,
+    ) -> Option<contract::BlobTerms> {
+        Some(contract::BlobTerms {
             lags: Vec::new(),
             plays: Vec::new(),
             play: Vec::new(),
             terms: (0..ctx.temps)
                 .map(|i| {
-                    super::term(
+                    contract::term(
                         ctx.output,
-                        super::powers(ctx.output, 1),
+                        contract::powers(ctx.output, 1),
                         nanocal_model::Factor::Temp(i),
                         0,
                     )

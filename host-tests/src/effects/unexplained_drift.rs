@@ -5,14 +5,15 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::Proposal;
+use super::SimContext;
 use super::{lag_series, zeros};
+use crate::explain::contract::{self, Proposal};
 use crate::explain::data::Data;
+use crate::explain::error::in_parallel;
+use crate::explain::error::ExplainError;
+use crate::explain::estimate::{Estimate, Theta};
 use crate::explain::fit::{cross_validate, Design};
-use crate::explain::in_parallel;
 use crate::explain::search::Search;
-use crate::explain::ExplainError;
-use crate::twin::SimContext;
 
 /// The effect's name.
 pub const NAME: &str = "unexplained_drift";
@@ -103,7 +104,7 @@ const GAP_PER_SCALE: f64 = 1.25;
 /// Most rows the choice of K is made on.
 const CHOICE_ROWS: usize = 20_000;
 
-impl super::Candidate for Candidate {
+impl contract::Candidate for Candidate {
     fn name(&self) -> &'static str {
         NAME
     }
@@ -164,27 +165,27 @@ impl super::Candidate for Candidate {
             let lo = span / ORDERS[ORDERS.len() - 1] as f64;
             Proposal {
                 regs: cosines[..k].iter().map(|c| c.to_vec()).collect(),
-                thetas: vec![super::Theta {
+                thetas: vec![Theta {
                     name: "time_scale_s".into(),
                     value: span / k as f64,
                     sigma: f64::NAN,
                     lo,
                     hi: span / ORDERS[0] as f64,
                 }],
-                detail: super::Detail::None,
+                detail: contract::Detail::None,
                 design: Some(design),
                 evidence_units: None,
             }
         }))
     }
-    fn params(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> Vec<super::Estimate> {
+    fn params(&self, _d: &Data, _ch: usize, f: &contract::Fitted) -> Vec<Estimate> {
         let gap = f.proposal.design.as_ref().map_or(f64::NAN, |d| d.gap_s);
         vec![
             f.proposal.thetas[0].estimate(),
-            super::Estimate::new("held_out_gap_s", gap, f64::NAN),
+            Estimate::new("held_out_gap_s", gap, f64::NAN),
         ]
     }
-    fn summary(&self, _d: &Data, _ch: usize, f: &super::Fitted) -> String {
+    fn summary(&self, _d: &Data, _ch: usize, f: &contract::Fitted) -> String {
         let t = &f.proposal.thetas[0];
         let gap = f.proposal.design.as_ref().map_or(f64::NAN, |d| d.gap_s);
         format!(

@@ -5,9 +5,10 @@
 
 use crate::recording::Recording;
 
+use super::error::ExplainError;
 use super::robust;
+use super::stats::centred_mean;
 use super::units::TimeUnit;
-use super::ExplainError;
 
 /// One measured channel (a `meas_<axis>` column) and what drove it.
 #[derive(Clone, Debug)]
@@ -131,31 +132,11 @@ impl CosineCache {
         }
         if kept.0.len() < top {
             let missing: Vec<usize> = (kept.0.len() + 1..=top).collect();
-            let new = super::in_parallel(&missing, |&j| std::sync::Arc::new(column(t_s, j)));
+            let new = super::error::in_parallel(&missing, |&j| std::sync::Arc::new(column(t_s, j)));
             kept.0.extend(new);
         }
         kept.0[..top].to_vec()
     }
-}
-
-/// Centred moving average over ±`half` samples (shrinking at the ends); NaN-free input assumed.
-/// Zero-phase: it uses later samples, so it is for diagnosis only.
-pub fn centred_mean(x: &[f64], half: usize) -> Vec<f64> {
-    if half == 0 {
-        return x.to_vec();
-    }
-    let n = x.len();
-    let mut pre = vec![0.0; n + 1];
-    for i in 0..n {
-        pre[i + 1] = pre[i] + x[i];
-    }
-    (0..n)
-        .map(|i| {
-            let h = half.min(i).min(n - 1 - i);
-            let (a, b) = (i - h, i + h + 1);
-            (pre[b] - pre[a]) / (b - a) as f64
-        })
-        .collect()
 }
 
 /// Most rows a glitch may last to be told from a change of level.
@@ -286,9 +267,9 @@ impl Data {
                     v.dedup();
                     v.len()
                 });
-                super::fit::median(&mut lens) >= 3.0
+                super::stats::median(&mut lens) >= 3.0
                     || (3 * poses <= n
-                        && super::fit::median(&mut sizes) >= 0.02 * 2.0 * half_range_um)
+                        && super::stats::median(&mut sizes) >= 0.02 * 2.0 * half_range_um)
             };
             let quant_step_um = robust::quantisation_step(&meas_um);
             let changed = robust::changed(&meas_um);
@@ -355,7 +336,7 @@ impl Data {
         let mut temp_repairs = Vec::new();
         // each sensor on its own, side by side (a million-row log: seconds of sorting); the
         // repairs taken in column order
-        let glitches = super::in_parallel(&temps, |(_, v)| {
+        let glitches = super::error::in_parallel(&temps, |(_, v)| {
             let q = robust::quantisation_step(v);
             robust::glitch_rows(v, q, max_glitch_run(n), None)
         });
@@ -365,7 +346,8 @@ impl Data {
                 temp_repairs.push((name.clone(), bad));
             }
         }
-        let temp_update_s = super::in_parallel(&temps, |(_, v)| robust::update_interval_s(&t_s, v));
+        let temp_update_s =
+            super::error::in_parallel(&temps, |(_, v)| robust::update_interval_s(&t_s, v));
         let mut aux: Vec<(String, Vec<f64>)> = rec
             .aux_columns()
             .iter()

@@ -11,8 +11,8 @@
 //! it), before the row is pinned down on the samples.
 
 use super::data::Data;
-use super::fit::median;
 use super::locate::NoiseFloor;
+use super::stats::median;
 
 /// Most units the scan runs over (longer series are merged into blocks first).
 pub const MAX_SCAN_UNITS: usize = 5000;

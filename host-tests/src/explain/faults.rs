@@ -10,10 +10,10 @@ use serde::Serialize;
 
 use crate::recording::{ColumnRole, Recording};
 
-use super::fit::median;
+use super::error::ExplainError;
 use super::robust::{glitch_rows, quantisation_step, rows_in_words, update_interval_s};
+use super::stats::median;
 use super::units::duration;
-use super::ExplainError;
 
 /// What kind of data fault.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -636,7 +636,7 @@ pub fn inspect(rec: &Recording) -> Result<Inspection, ExplainError> {
     let mut unusable: Vec<(usize, Vec<bool>)> = Vec::new();
     // each column judged on its own, side by side (a million-row log: seconds of sorting);
     // the faults taken in column order
-    let found = super::in_parallel(&judged, |&j| {
+    let found = super::error::in_parallel(&judged, |&j| {
         let x = &columns[j].1;
         let peers: Vec<&[f64]> = (0..columns.len())
             .filter(|&k| k != j)

@@ -4,7 +4,8 @@
 
 use crate::linalg::{lstsq, LeastSquares};
 
-use super::ExplainError;
+use super::error::ExplainError;
+use super::stats::{centred_mean, median};
 
 /// Number of contiguous time blocks of the default held-out design.
 pub const CV_BLOCKS: usize = 80;
@@ -178,7 +179,7 @@ pub fn round_effective_n(r: &[f64], units: usize) -> f64 {
         return n as f64;
     }
     let half = (n / 160).max(1);
-    let slow = crate::explain::data::centred_mean(&v, half);
+    let slow = centred_mean(&v, half);
     let hp: Vec<f64> = v.iter().zip(&slow).map(|(a, b)| a - b).collect();
     let c0: f64 = hp.iter().map(|x| x * x).sum();
     let c1: f64 = hp.windows(2).map(|w| w[0] * w[1]).sum();
@@ -371,14 +372,4 @@ pub fn noise_floor(r: &[f64], changed: Option<&[bool]>) -> f64 {
     let med = median(&mut d);
     let mut dev: Vec<f64> = d.iter().map(|x| (x - med).abs()).collect();
     1.4826 * median(&mut dev) / std::f64::consts::SQRT_2
-}
-
-/// Median (reorders the slice).
-pub fn median(v: &mut [f64]) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    let m = v.len() / 2;
-    v.select_nth_unstable_by(m, f64::total_cmp);
-    v[m]
 }

@@ -10,7 +10,8 @@
 //! allow: autocorrelation within a block is kept whole, and the linear coefficients move with
 //! the nonlinear ones.
 
-use crate::effects::{Candidate, Detail, Estimate, Fitted, Proposal};
+use super::contract::{Candidate, Detail, Fitted, Proposal};
+use super::estimate::Estimate;
 
 use super::fit::{fit_rows, Design};
 use super::search::{Basis, Search};

@@ -2,7 +2,8 @@
 //! temperature rate, auxiliary channels — against a noise floor estimated from the data.
 
 use super::data::Data;
-use super::fit::{median, noise_floor};
+use super::fit::noise_floor;
+use super::stats::median;
 
 /// A place where the residual is larger than its noise allows.
 #[derive(Clone, Debug, PartialEq)]

@@ -22,7 +22,10 @@
 //!    before/after, residual plots; the headline says whether nothing significant remains or
 //!    structure remains that no candidate explains, and where.
 
+pub mod contract;
 pub mod data;
+pub mod error;
+pub mod estimate;
 pub mod events;
 pub mod faults;
 pub mod fit;
@@ -34,34 +37,22 @@ pub mod plot;
 pub mod report;
 pub mod robust;
 pub mod search;
+pub mod stats;
 pub mod targeted;
 pub mod units;
 
-use crate::effects::{candidates, Candidate, Estimate, Fitted, Proposal};
-use crate::linalg::LinalgError;
-use crate::recording::RecordingError;
+use crate::effects::candidates;
+use contract::{Candidate, Fitted, Proposal};
+use estimate::Estimate;
 
 pub use data::Data;
+pub(crate) use error::in_parallel;
+pub use error::ExplainError;
 pub use faults::{DataFault, FaultKind};
 pub use locate::{Finding, NoiseFloor};
 pub use report::{ChannelReport, EffectReport, Report};
 
 use fit::{Cv, Design, Fit};
-
-/// Errors of explain.
-#[derive(Debug, thiserror::Error)]
-#[non_exhaustive]
-pub enum ExplainError {
-    /// The recording is not usable.
-    #[error("{0}")]
-    Input(String),
-    /// Reading a recording failed.
-    #[error(transparent)]
-    Recording(#[from] RecordingError),
-    /// A least-squares problem failed.
-    #[error("least squares: {0}")]
-    Linalg(#[from] LinalgError),
-}
 
 /// Thresholds of the naming step.
 #[derive(Clone, Debug)]
@@ -135,41 +126,6 @@ fn unexplained_drift_name() -> &'static str {
     crate::effects::unexplained_drift::NAME
 }
 
-/// `f` over `items` on up to the machine's cores (a shared queue: a long item does not hold up
-/// the rest), the results in the items' order — as `items.iter().map(f)` gives them when each
-/// item's work is its own.
-pub(crate) fn in_parallel<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
-    let threads = std::thread::available_parallelism()
-        .map_or(1, |t| t.get())
-        .min(items.len());
-    if threads <= 1 {
-        return items.iter().map(f).collect();
-    }
-    let next = std::sync::atomic::AtomicUsize::new(0);
-    let slots: Vec<std::sync::Mutex<Option<R>>> =
-        items.iter().map(|_| std::sync::Mutex::new(None)).collect();
-    std::thread::scope(|scope| {
-        for _ in 0..threads {
-            scope.spawn(|| loop {
-                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                let Some(item) = items.get(i) else {
-                    break;
-                };
-                let r = f(item);
-                *slots[i].lock().unwrap_or_else(|e| e.into_inner()) = Some(r);
-            });
-        }
-    });
-    slots
-        .into_iter()
-        .map(|m| {
-            m.into_inner()
-                .unwrap_or_else(|e| e.into_inner())
-                .expect("every item was worked out (a worker's panic ends the scope first)")
-        })
-        .collect()
-}
-
 /// Most events (steps of the residual) located per channel.
 pub const MAX_EVENTS: usize = 3;
 
@@ -193,7 +149,7 @@ fn choose_smoothing(
         return Ok(d.clone());
     }
     let mut upd: Vec<f64> = d.temp_update_s.clone();
-    let base = fit::median(&mut upd).max(d.median_dt_s);
+    let base = stats::median(&mut upd).max(d.median_dt_s);
     let mut widths = vec![0.0];
     let mut w = 2.0 * base;
     while w <= MAX_SMOOTHING_S.min(d.duration_s() / 20.0) {
@@ -397,9 +353,9 @@ fn model_outliers(r: &[f64], floor: &NoiseFloor) -> Vec<usize> {
     if v.len() < 50 {
         return Vec::new();
     }
-    let med = fit::median(&mut v);
+    let med = stats::median(&mut v);
     let mut dev: Vec<f64> = v.iter().map(|x| (x - med).abs()).collect();
-    let sigma = 1.4826 * fit::median(&mut dev);
+    let sigma = 1.4826 * stats::median(&mut dev);
     let thr = (10.0 * sigma).max(5.0 * floor.sample_um);
     let out: Vec<usize> = (0..r.len())
         .filter(|&i| r[i].is_finite() && (r[i] - med).abs() > thr)
@@ -976,8 +932,8 @@ fn explain_channel_once(
 }
 
 /// Where channel `ch` sits in a shared model built from this recording.
-pub fn blob_context(d: &Data, ch: usize) -> crate::effects::BlobContext {
-    crate::effects::BlobContext {
+pub fn blob_context(d: &Data, ch: usize) -> contract::BlobContext {
+    contract::BlobContext {
         output: ch as u8,
         axes: d.channels.len() as u8,
         temps: d.temps.len().min(nanocal_model::MAX_TEMPS) as u8,

@@ -5,13 +5,14 @@ use std::fmt::Write as _;
 
 use serde::Serialize;
 
+use super::contract::PlayOperator;
 use super::data::Data;
+use super::estimate::Estimate;
 use super::faults::DataFault;
 use super::locate::{Finding, NoiseFloor};
 use super::robust::rows_in_words;
 use super::units::{duration, length_um, sig3, TimeUnit};
 use super::Trial;
-use crate::effects::{Estimate, PlayOperator};
 
 /// A named effect with its parameters and evidence.
 #[derive(Clone, Debug)]
@@ -28,7 +29,7 @@ pub struct EffectReport {
     pub deploy: &'static str,
     /// The shared-model terms (and lag filters, play operators) that carry it into the blob,
     /// if deployable.
-    pub blob: Option<crate::effects::BlobTerms>,
+    pub blob: Option<super::contract::BlobTerms>,
     /// Physical parameters with 1σ.
     pub params: Vec<Estimate>,
     /// Held-out RMS before adding the effect, nm (standard held-out design).

@@ -3,7 +3,7 @@
 //! (a mis-trigger, a homing error, a dropped reading) — found robustly, so that none of them is
 //! mistaken for physics.
 
-use super::fit::median;
+use super::stats::median;
 
 /// The quantisation step of a series, if its values sit on a grid (ADC or encoder resolution,
 /// a coarse sensor's printed decimals): the common step of the gaps between its distinct values,

@@ -5,7 +5,7 @@
 //! of a new QR. Gram–Schmidt is applied twice ("twice is enough", Giraud et al., Numer. Math.
 //! 101, 2005), which keeps the basis orthonormal to working precision.
 
-use crate::effects::Theta;
+use super::estimate::Theta;
 use crate::explain::data::Data;
 use crate::explain::fit::{gather, Design};
 
@@ -232,7 +232,7 @@ impl Search<'_> {
         sigma: bool,
         mut rss: impl FnMut(f64) -> f64,
     ) -> (Theta, f64) {
-        let grid = crate::effects::log_grid(lo, hi, points);
+        let grid = log_grid(lo, hi, points);
         let vals: Vec<f64> = grid.iter().map(|&t| rss(t)).collect();
         let bi = (0..grid.len())
             .min_by(|&a, &b| vals[a].total_cmp(&vals[b]))
@@ -339,6 +339,16 @@ pub fn profile_sigma(
         _ => return f64::INFINITY,
     };
     theta * width
+}
+
+/// Log-spaced grid of `k` values from `lo` to `hi`.
+pub fn log_grid(lo: f64, hi: f64, k: usize) -> Vec<f64> {
+    if !(hi > lo && lo > 0.0) || k < 2 {
+        return vec![lo.max(hi)];
+    }
+    (0..k)
+        .map(|i| lo * (hi / lo).powf(i as f64 / (k - 1) as f64))
+        .collect()
 }
 
 #[cfg(test)]

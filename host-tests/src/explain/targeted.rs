@@ -244,7 +244,7 @@ fn control_periods(p: f64) -> Vec<f64> {
                 .any(|&c| (q / c - 1.0).abs() < 0.08)
         })
     };
-    crate::effects::log_grid(p / 1.6, p * 1.6, 3 * CONTROLS)
+    super::search::log_grid(p / 1.6, p * 1.6, 3 * CONTROLS)
         .into_iter()
         .filter(|&q| !near(q))
         .step_by(2)

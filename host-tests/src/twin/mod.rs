@@ -18,7 +18,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::effects::EffectSpec;
+use crate::effects::{EffectSpec, SimContext};
 use crate::recording::{Recording, RecordingError};
 pub use room::{Ramp, Room, RoomConfig, SensorConfig};
 pub use trajectory::{Dwell, Trajectory};
@@ -109,33 +109,6 @@ impl TwinConfig {
         let (lo, hi) = self.travel_um[axis];
         (x_um - 0.5 * (lo + hi)) / (0.5 * (hi - lo))
     }
-}
-
-/// Everything an effect may look at while the twin produces it.
-#[derive(Debug)]
-pub struct SimContext<'a> {
-    /// The configuration being simulated.
-    pub cfg: &'a TwinConfig,
-    /// Time since the start of this recording, s.
-    pub t_s: Vec<f64>,
-    /// Absolute time (since the room's origin), s.
-    pub t_abs_s: Vec<f64>,
-    /// Commanded position per axis, µm.
-    pub cmd_um: Vec<Vec<f64>>,
-    /// Scaled command per axis, [-1, 1].
-    pub u: Vec<Vec<f64>>,
-    /// Direction of the last move per axis (+1 forward, -1 backward; +1 before the first move).
-    pub dir: Vec<Vec<f64>>,
-    /// Moves per axis: (first sample index at the new pose, step in µm).
-    pub steps: Vec<Vec<(usize, f64)>>,
-    /// True (noise-free) temperature of each sensor's spot, °C.
-    pub spot_c: Vec<Vec<f64>>,
-    /// True barometric pressure, hPa.
-    pub pressure_hpa: Vec<f64>,
-    /// True stage position per axis, µm (filled before interferometer effects run).
-    pub pos_um: Vec<Vec<f64>>,
-    /// A seed for effects that draw random events.
-    pub seed: u64,
 }
 
 /// A simulated recording as plain named columns in the shared layout.
@@ -258,7 +231,11 @@ impl Twin {
             }
         }
         let mut ctx = SimContext {
-            cfg,
+            axes: cfg.axes,
+            travel_um: &cfg.travel_um,
+            thermal_um_per_c: &cfg.thermal_um_per_c,
+            temp_ref_c: cfg.temp_ref_c,
+            pressure_mean_hpa: cfg.room.pressure_mean_hpa,
             t_s: t_s.clone(),
             t_abs_s,
             cmd_um: cmd_um.clone(),

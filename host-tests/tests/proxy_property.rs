@@ -339,6 +339,7 @@ fn run(model: &Model, lines: &[Line]) -> Result<Checked, TestCaseError> {
         let q_meant = command(model, &x_meant);
         let mut moved = false;
         let mut clamped = false;
+        let mut sent = [false; MAX_AXES];
         let mut q_sent = q_meant;
         for e in r.events() {
             match e {
@@ -366,6 +367,7 @@ fn run(model: &Model, lines: &[Line]) -> Result<Checked, TestCaseError> {
                     );
                     clamped |= want != q_meant[axis];
                     q_sent[axis] = value;
+                    sent[axis] = true;
                     checked.targets += 1;
                     moved = true;
                 }
@@ -380,6 +382,30 @@ fn run(model: &Model, lines: &[Line]) -> Result<Checked, TestCaseError> {
             }
         }
         if moved {
+            // a model axis whose correction clamps to the command the controller already holds
+            // is not sent again (coupling moved its correction, not past the clamp): it stays
+            // clamped, and the move's record is the calibrated position of what is held
+            for a in 0..n {
+                let (lo, hi) = travel(model, &cfg, a);
+                let want = q_meant[a].clamp(lo, hi);
+                if !sent[a] && want != q_meant[a] {
+                    prop_assert!(
+                        (q_meant[a] - want).abs() <= CLAMP_UM + 1e-3,
+                        "{shown:?}: axis {a} not sent, but the correction of {} is {}, outside \
+                         the travel [{lo}, {hi}]",
+                        x_meant[a],
+                        q_meant[a]
+                    );
+                    prop_assert!(
+                        (r.ctl.target(a) - want).abs() <= 1e-3,
+                        "{shown:?}: axis {a} not sent, holds {}, the correction of {} clamps to {want}",
+                        r.ctl.target(a),
+                        x_meant[a]
+                    );
+                    clamped = true;
+                    q_sent[a] = r.ctl.target(a);
+                }
+            }
             // a corrected move sets every model axis' calibrated target (a clamped one: the
             // calibrated position of the command sent)
             let x_set = if clamped {

@@ -218,7 +218,11 @@ fn upload_accepts_a_good_blob_and_rejects_everything_else() {
 // ---------------------------------------------------------------- no panics on external input
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(2_000))]
+    #![proptest_config(ProptestConfig {
+        // the same cases on every run (deterministic tests; a new case goes in by its seed)
+        rng_seed: proptest::test_runner::RngSeed::Fixed(0x6e61_6e6f_6361_6c00),
+        ..ProptestConfig::with_cases(2_000)
+    })]
 
     #[test]
     fn management_decoder_and_upload_never_panic(

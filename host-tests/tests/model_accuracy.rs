@@ -31,7 +31,11 @@ fn fast_path_error_um(model: &Model, x_um: [f64; MAX_AXES], slow: &SlowInputs) -
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(20_000))]
+    #![proptest_config(ProptestConfig {
+        // the same cases on every run (deterministic tests; a new case goes in by its seed)
+        rng_seed: proptest::test_runner::RngSeed::Fixed(0x6e61_6e6f_6361_6c00),
+        ..ProptestConfig::with_cases(20_000)
+    })]
 
     #[test]
     fn published_1dof_f32_matches_f64_within_0_05_nm(

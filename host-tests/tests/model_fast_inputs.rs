@@ -64,7 +64,11 @@ fn slow(pressure_hpa: f64) -> SlowInputs {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(3_000))]
+    #![proptest_config(ProptestConfig {
+        // the same cases on every run (deterministic tests; a new case goes in by its seed)
+        rng_seed: proptest::test_runner::RngSeed::Fixed(0x6e61_6e6f_6361_6c00),
+        ..ProptestConfig::with_cases(3_000)
+    })]
 
     #[test]
     fn fast_path_with_a_force_matches_the_f64_reference(

@@ -14,7 +14,11 @@ fn slow_with_temps(temps: &[f64]) -> SlowInputs {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(5_000))]
+    #![proptest_config(ProptestConfig {
+        // the same cases on every run (deterministic tests; a new case goes in by its seed)
+        rng_seed: proptest::test_runner::RngSeed::Fixed(0x6e61_6e6f_6361_6c00),
+        ..ProptestConfig::with_cases(5_000)
+    })]
 
     #[test]
     fn inverse_undoes_correct_1dof(x_um in 0.0f32..=480.0, t in 21.0f64..=23.0, dir in -1i8..=1) {

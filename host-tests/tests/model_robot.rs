@@ -26,7 +26,11 @@ fn the_robot_model_has_the_published_size_and_folds() {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(5_000))]
+    #![proptest_config(ProptestConfig {
+        // the same cases on every run (deterministic tests; a new case goes in by its seed)
+        rng_seed: proptest::test_runner::RngSeed::Fixed(0x6e61_6e6f_6361_6c00),
+        ..ProptestConfig::with_cases(5_000)
+    })]
 
     #[test]
     fn the_robot_model_keeps_f64_to_0_05_nm(

@@ -471,7 +471,11 @@ fn run(model: &Model, lines: &[Line]) -> Result<Checked, TestCaseError> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(400))]
+    #![proptest_config(ProptestConfig {
+        // the same cases on every run (deterministic tests; a new case goes in by its seed)
+        rng_seed: proptest::test_runner::RngSeed::Fixed(0x6e61_6e6f_6361_6c00),
+        ..ProptestConfig::with_cases(400)
+    })]
 
     #[test]
     fn a_compensating_proxy_sends_only_corrected_targets_1dof(

@@ -562,6 +562,17 @@ pub(crate) fn lines_of(text: &[u8]) -> impl Iterator<Item = &[u8]> {
     text.split(|&b| b == b'\n').filter(|l| !l.is_empty())
 }
 
+/// The error code in the controller's reply to `ERR?` (the last token of its first line, after
+/// an address prefix if any), when it is an integer.
+pub(crate) fn error_code(reply: &[u8]) -> Option<i32> {
+    lines_of(reply)
+        .next()
+        .and_then(|l| gcs::tokens(l).last())
+        .and_then(|t| gcs::parse_micros(t).ok())
+        .filter(|v| v % gcs::MICROS_PER_UNIT == 0)
+        .and_then(|v| i32::try_from(v / gcs::MICROS_PER_UNIT).ok())
+}
+
 /// A reply token without the spaces and CR around it.
 pub(crate) fn trim(s: &[u8]) -> &[u8] {
     let s = s.strip_suffix(b"\r").unwrap_or(s);

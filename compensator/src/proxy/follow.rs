@@ -277,12 +277,7 @@ impl ProxyState {
     /// The controller's answer to the proxy's own `ERR?` (`Info::FollowCheck` or
     /// `Info::FollowDone`).
     pub(super) fn follow_reply(&mut self, info: Info, lines: &[u8]) {
-        let code = super::controller::lines_of(lines)
-            .next()
-            .and_then(|l| gcs::tokens(l).last())
-            .and_then(|t| gcs::parse_micros(t).ok())
-            .filter(|v| v % gcs::MICROS_PER_UNIT == 0)
-            .and_then(|v| i32::try_from(v / gcs::MICROS_PER_UNIT).ok());
+        let code = super::controller::error_code(lines);
         match info {
             Info::FollowCheck(g) => {
                 let was = self.follow.phase;

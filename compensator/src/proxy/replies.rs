@@ -618,18 +618,10 @@ impl ProxyState {
                 self.read_fact(Info::Idn, lines, self.rx.total_lines)
             }
             Info::Version | Info::Axes => self.read_fact(info, lines, self.rx.total_lines),
-            Info::Error => {
-                // (after an address prefix, if any)
-                let code = lines_of(lines)
-                    .next()
-                    .and_then(|l| gcs::tokens(l).last())
-                    .map(gcs::parse_micros);
-                if !matches!(code, Some(Ok(0))) {
-                    // the controller may have refused a move the proxy sent (servo off, not
-                    // referenced, limits): the targets it holds are not the ones sent
-                    self.forget(None);
-                }
-            }
+            // a non-zero code (after an address prefix, if any): the controller may have
+            // refused a move the proxy sent (servo off, not referenced, limits), so the targets
+            // it holds are not the ones sent
+            Info::Error if super::controller::error_code(lines) != Some(0) => self.forget(None),
             _ => {}
         }
     }

@@ -218,11 +218,20 @@ fn fw_bench_latency_throughput() {
             && s.folds >= 2)
             .then_some(())
     });
-    // the first move waits for the controller's syntax version and unit: not measured
+    // the first move waits for the controller's identity, syntax version, unit and travel:
+    // not measured
     host.send("MOV 1 10");
-    for want in ["CSV?", "PUN? 1", "MOV 1 "] {
+    let mut asked = vec![];
+    loop {
         let l = stage.next_line(Duration::from_secs(10));
-        assert!(l.starts_with(want), "{l}");
+        if l.starts_with("MOV 1 ") {
+            break;
+        }
+        assert!(l.contains('?') && asked.len() < 16, "{l} after {asked:?}");
+        asked.push(l);
+    }
+    for want in ["*IDN?", "CSV?", "PUN? 1"] {
+        assert!(asked.iter().any(|l| l == want), "{want} not in {asked:?}");
     }
 
     let one_way = |host: &mut fw_sim::GcsHost, k: usize| {

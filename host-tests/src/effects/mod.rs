@@ -113,16 +113,37 @@ pub fn lag_series_at(
     y0: Option<f64>,
     rows: &[usize],
 ) -> Vec<f64> {
-    let mut out = vec![0.0; rows.len()];
-    let mut next = 0;
-    lag_run(t_s, x, tau_s, y0, |k, y| {
-        // rows ascending: every row is met once, in order
-        while next < rows.len() && rows[next] == k {
-            out[next] = y;
-            next += 1;
+    let mut at = AtRows::new(rows);
+    lag_run(t_s, x, tau_s, y0, |k, y| at.take(k, y));
+    at.out
+}
+
+/// The outputs of a run at `rows` (ascending), taken as the run hands each sample's output over
+/// in order.
+struct AtRows<'a> {
+    rows: &'a [usize],
+    next: usize,
+    out: Vec<f64>,
+}
+
+impl<'a> AtRows<'a> {
+    fn new(rows: &'a [usize]) -> Self {
+        Self {
+            rows,
+            next: 0,
+            out: vec![0.0; rows.len()],
         }
-    });
-    out
+    }
+
+    /// Sample `k`'s output `y`.
+    #[inline]
+    fn take(&mut self, k: usize, y: f64) {
+        // rows ascending: every row is met once, in order
+        while self.next < self.rows.len() && self.rows[self.next] == k {
+            self.out[self.next] = y;
+            self.next += 1;
+        }
+    }
 }
 
 /// Runs the lag over the series, handing each sample's output to `emit(k, y)` in order.
@@ -196,15 +217,9 @@ pub(crate) fn lag_series_at_classes(
     y0: Option<f64>,
     rows: &[usize],
 ) -> Vec<f64> {
-    let mut out = vec![0.0; rows.len()];
-    let mut next = 0;
-    lag_run_classes(iv, x, tau_s, y0, |k, y| {
-        while next < rows.len() && rows[next] == k {
-            out[next] = y;
-            next += 1;
-        }
-    });
-    out
+    let mut at = AtRows::new(rows);
+    lag_run_classes(iv, x, tau_s, y0, |k, y| at.take(k, y));
+    at.out
 }
 
 /// [`lag_series`] on time stamps whose intervals are `iv` (see [`lag_series_at_classes`]).

@@ -347,27 +347,44 @@ impl ProxyState {
         }
         self.ctrl.changed();
         let mut ok = self.ensure_idn(out);
+        // a fact is marked asked only when its query went out: one the full queue kept back
+        // stays unknown and is asked at the next held line — marked asked without its query,
+        // nothing would ever answer it and every held line would wait for it for ever
+        // (the `gcs_proxy` fuzz target's `learn-with-a-full-queue` input: the proxy stopped
+        // taking the host's bytes)
         if self.ctrl.version == Fact::Unknown {
-            ok &= self.ask(Info::Version, b"CSV?", 0, true, out);
-            self.ctrl.version = Fact::Asked;
+            ok &= self.ask_fact(Info::Version, b"CSV?", 0, true, out, |c| &mut c.version);
         }
         if self.ctrl.axes == Fact::Unknown {
-            ok &= self.ask(Info::Axes, b"SAI?", 0, false, out);
-            self.ctrl.axes = Fact::Asked;
+            ok &= self.ask_fact(Info::Axes, b"SAI?", 0, false, out, |c| &mut c.axes);
         }
         if self.ctrl.units == Fact::Unknown {
-            ok &= self.ask(Info::Units, b"PUN?", n, true, out);
-            self.ctrl.units = Fact::Asked;
+            ok &= self.ask_fact(Info::Units, b"PUN?", n, true, out, |c| &mut c.units);
         }
         if self.ctrl.tmn == Fact::Unknown {
-            ok &= self.ask(Info::TravelMin, b"TMN?", n, true, out);
-            self.ctrl.tmn = Fact::Asked;
+            ok &= self.ask_fact(Info::TravelMin, b"TMN?", n, true, out, |c| &mut c.tmn);
         }
         if self.ctrl.tmx == Fact::Unknown {
-            ok &= self.ask(Info::TravelMax, b"TMX?", n, true, out);
-            self.ctrl.tmx = Fact::Asked;
+            ok &= self.ask_fact(Info::TravelMax, b"TMX?", n, true, out, |c| &mut c.tmx);
         }
         ok
+    }
+
+    /// [`ask`](Self::ask) for one fact, marked asked only if its query went out.
+    fn ask_fact<T>(
+        &mut self,
+        info: Info,
+        word: &[u8],
+        axes: usize,
+        maybe: bool,
+        out: &mut Output,
+        fact: fn(&mut ControllerInfo) -> &mut Fact<T>,
+    ) -> bool {
+        let sent = self.ask(info, word, axes, maybe, out);
+        if sent {
+            *fact(&mut self.ctrl) = Fact::Asked;
+        }
+        sent
     }
 
     /// True while a fact a held move needs is on its way.
@@ -579,4 +596,53 @@ pub(crate) fn trim(s: &[u8]) -> &[u8] {
     let start = s.iter().position(|&b| b != b' ').unwrap_or(s.len());
     let end = s.iter().rposition(|&b| b != b' ').map_or(start, |e| e + 1);
     &s[start..end.max(start)]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::queue::{Entry, Expect, Info};
+    use super::super::{Output, Proxy};
+    use super::Fact;
+
+    /// Whatever room the queue has left, a fact is marked asked only with its query on the
+    /// way: a fact marked asked with no query for it is never answered, and a held line waits
+    /// for it for ever (the `gcs_proxy` fuzz target's `learn-with-a-full-queue` input).
+    #[test]
+    fn a_fact_is_asked_only_with_its_query_in_the_queue() {
+        for room in 0..16 {
+            let mut p = Proxy::default();
+            let st = &mut p.st;
+            while st.queue.room() > room {
+                st.expect(Entry::new(Expect::Marker, false, false));
+            }
+            let mut out = Output::new();
+            let all_sent = st.learn(1, &mut out);
+            let c = &st.ctrl;
+            let asked = [
+                c.idn == Fact::Asked,
+                c.version == Fact::Asked,
+                c.axes == Fact::Asked,
+                c.units == Fact::Asked,
+                c.tmn == Fact::Asked,
+                c.tmx == Fact::Asked,
+            ];
+            let mut queued = [false; 6];
+            while let Some(en) = st.queue.pop() {
+                if let Expect::Internal(info) = en.e {
+                    let i = match info {
+                        Info::Idn => 0,
+                        Info::Version => 1,
+                        Info::Axes => 2,
+                        Info::Units => 3,
+                        Info::TravelMin => 4,
+                        Info::TravelMax => 5,
+                        _ => continue,
+                    };
+                    queued[i] = true;
+                }
+            }
+            assert_eq!(asked, queued, "room {room}");
+            assert_eq!(all_sent, queued.iter().all(|&q| q), "room {room}");
+        }
+    }
 }

@@ -14,9 +14,9 @@
 
 use std::time::Instant;
 
+use nanocal::data::recording::Recording;
 use nanocal::effects::{hysteresis, thermal_lag, EffectSpec};
 use nanocal::explain::{explain, Data, Settings};
-use nanocal::recording::Recording;
 use nanocal::twin::{Trajectory, Twin, TwinConfig};
 
 /// One benchmark case: what to simulate and the target.

@@ -6,7 +6,7 @@
 use std::hint::black_box;
 use std::time::Instant;
 
-use nanocal::published::{coupled_2dof, published_1dof};
+use nanocal::papers::published::{coupled_2dof, published_1dof};
 use nanocal_model::reference::{delta_robot_78, ROBOT_HALF_STROKE_UM};
 use nanocal_model::{
     AuxKind, AuxSpec, Factor, FastInputs, HysteresisState, Input, Model, ModelBuilder, SlowInputs,

@@ -11,7 +11,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Instant;
 
-use nanocal::stepwise::{stepwise, StepwiseOptions};
+use nanocal::numerics::stepwise::{stepwise, StepwiseOptions};
 
 /// Peak resident set size of this process, bytes (Linux `/proc/self/status` VmHWM).
 fn vm_hwm_bytes() -> Option<u64> {

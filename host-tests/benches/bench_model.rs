@@ -1,7 +1,7 @@
 //! Benchmark of the shared model on the host: the f32 fast path's worst error against the f64
 //! reference over a dense grid of the training envelope (along a walk with reversals for a
 //! model with hysteresis, over force values for a model with a fast input), and native timings
-//! of fold, correct and inverse. Run: `cargo run --release --bin bench_model` in host-tests/.
+//! of fold, correct and inverse. Run: `cargo bench --bench bench_model` in host-tests/.
 
 use std::hint::black_box;
 use std::time::Instant;

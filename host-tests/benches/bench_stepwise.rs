@@ -2,7 +2,7 @@
 //! side by side with the Octave reference implementation (`ms_stepwisefit`, timed inside Octave
 //! on the same data), with the peak memory of this process (VmHWM) against the design matrix.
 //!
-//! Run: `cargo run --release --bin bench_stepwise -- [--rows N] [--cols P] [--no-octave]`
+//! Run: `cargo bench --bench bench_stepwise -- [--rows N] [--cols P] [--no-octave]`
 
 #![allow(clippy::needless_range_loop)] // column-wise data generation reads best with indices
 

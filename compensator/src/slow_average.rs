@@ -10,7 +10,7 @@
 //! `nanocal_interface::settings::Settings::fold_period_ms`) stays far below the thermal time constants.
 //!
 //! The rule, which the firmware's sensor task (`src/app/sensors.rs`) and the host's replay of it
-//! (`nanocal::device_path::DeviceSlowPath`) both run through this type:
+//! (`nanocal::device::device_path::DeviceSlowPath`) both run through this type:
 //! - every sample cycle adds each channel's good reading of that cycle ([`SlowAverage::add`]);
 //! - a fold is due at the first cycle, and then at the first cycle at least one fold period
 //!   after the last fold ([`SlowAverage::due`]);

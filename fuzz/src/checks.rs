@@ -8,7 +8,7 @@
 
 use crate::proxy_rig::Rig;
 use nanocal::campaign::reference::{parse_line, CsvTail, LineSource, ReferenceSource, TimedRead};
-use nanocal::recording::Recording;
+use nanocal::data::recording::Recording;
 use nanocal::virtual_bench::{AxisConfig, Config, Event};
 use nanocal_compensator::upload::Upload;
 use nanocal_interface::mgmt::{self, Decoder, Kind, Reader, Request};
@@ -352,7 +352,7 @@ pub fn upload(input: &[u8]) {
     // built once: a run is many thousand inputs a second
     static GOOD: OnceLock<(Model, Vec<u8>)> = OnceLock::new();
     let (model, good) = GOOD.get_or_init(|| {
-        let model = nanocal::published::published_1dof().expect("published model");
+        let model = nanocal::papers::published::published_1dof().expect("published model");
         let mut good = vec![0u8; MAX_BLOB_LEN];
         let n = encode(&model, &mut good).unwrap();
         good.truncate(n);
@@ -774,7 +774,7 @@ fn csv_tail(bytes: &[u8], axes: usize, to_um: f64) {
     let _ = std::fs::remove_file(&path);
 }
 
-/// Recording CSV (`nanocal::recording`): parsing never panics; what parses has named, distinct
+/// Recording CSV (`nanocal::data::recording`): parsing never panics; what parses has named, distinct
 /// columns of equal length and writes back to CSV that parses to the same values (bit for
 /// bit; NaN stays NaN).
 pub fn recording_csv(input: &[u8]) {

@@ -1,6 +1,6 @@
 //! The blob's bytes: golden bytes for format versions 4, 3, 2 and 1, round trips, CRC check value.
 
-use nanocal::published::{coupled_2dof, published_1dof};
+use nanocal::papers::published::{coupled_2dof, published_1dof};
 use nanocal_model::blob::{self, BlobError, FORMAT_VERSION, MAX_BLOB_LEN};
 use nanocal_model::bound::packed_len;
 use nanocal_model::provenance::{self, Provenance, ProvenanceUnit};

@@ -1,6 +1,6 @@
 //! The decoder rejects anything malformed with a typed error and never panics, whatever the bytes.
 
-use nanocal::published::{coupled_2dof, published_1dof};
+use nanocal::papers::published::{coupled_2dof, published_1dof};
 use nanocal_model::blob::{self, BlobError, HEADER_LEN, MAX_BLOB_LEN};
 use nanocal_model::{AuxKind, AuxSpec, Factor, Input, Model, ModelBuilder, ModelError, Term};
 use proptest::prelude::*;

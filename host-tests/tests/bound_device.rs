@@ -1,14 +1,14 @@
 //! The prediction bound in the blob (format version 3, `nanocal_model::bound`): `fit` writes
 //! it, and the f32 half-width the device's code computes from the blob agrees with the host's
-//! f64 prediction interval (`nanocal::uncertainty::PredictionBand`) inside and outside the
+//! f64 prediction interval (`nanocal::numerics::uncertainty::PredictionBand`) inside and outside the
 //! training envelope.
 
 use std::process::Command;
 
-use nanocal::dwell::dwell_average;
+use nanocal::data::dwell::dwell_average;
+use nanocal::data::recording::Recording;
 use nanocal::fit::{band_regressors, encode_blob, fit_recording, FitOptions};
-use nanocal::recording::Recording;
-use nanocal::uncertainty::t_quantile;
+use nanocal::numerics::uncertainty::t_quantile;
 use nanocal_model::{blob, Input, MAX_AXES};
 
 fn twin_training() -> Recording {

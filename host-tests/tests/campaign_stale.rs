@@ -16,7 +16,7 @@
 //! the full published run's figures. Without qemu-system-arm the test is skipped with a loud
 //! message, except in CI.
 
-use nanocal::plan::Plan;
+use nanocal::data::plan::Plan;
 use nanocal::virtual_bench::have_qemu;
 use std::process::Command;
 

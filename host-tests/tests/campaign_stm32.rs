@@ -7,7 +7,7 @@
 use nanocal::campaign::run::Quiet;
 use nanocal::campaign::state::{BenchSpec, VirtualBoard};
 use nanocal::campaign::{self, Config, Faults};
-use nanocal::plan::{Plan, TestKind};
+use nanocal::data::plan::{Plan, TestKind};
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 

@@ -13,7 +13,7 @@
 use nanocal::campaign::run::{CampaignError, Progress, Quiet};
 use nanocal::campaign::state::{BenchSpec, State, VirtualBoard};
 use nanocal::campaign::{self, Config, Faults, Outcome, RECORDING};
-use nanocal::plan::{Phase, Plan, TestKind};
+use nanocal::data::plan::{Phase, Plan, TestKind};
 use nanocal::virtual_bench::have_qemu;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};

@@ -4,7 +4,7 @@
 //! blob's is an error.
 
 use nanocal::device::{format_status, Client, DeviceError};
-use nanocal::published::published_1dof;
+use nanocal::papers::published::published_1dof;
 use nanocal_interface::identity::ResetCause;
 use nanocal_interface::mgmt::{self, Decoder, Hello, Kind, Reply, Request, Writer};
 use nanocal_interface::status::{Flags, Status};

@@ -49,7 +49,7 @@ fn e2e_first_conversion_absent_chip_brownout_and_dead_bus() {
     let sensors = SensorSim::start(q.link(), &TEMPS_C);
     let mut host = q.gcs_host();
     let mut c = q.client();
-    let model = nanocal::published::published_1dof().unwrap();
+    let model = nanocal::papers::published::published_1dof().unwrap();
     c.upload(&blob_of(&model)).unwrap();
     // defect: moves went out before the sensors' first conversions (fold at 0 °C). A move
     // right after the upload is either refused (no fold of the new model yet) or corrected

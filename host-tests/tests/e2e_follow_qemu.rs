@@ -17,7 +17,7 @@
 mod fw_sim;
 
 use fw_sim::{nanocal_cli, next_move, stage_value, wait_until, Qemu, SensorSim, StageSim, HANG};
-use nanocal::published::published_1dof;
+use nanocal::papers::published::published_1dof;
 use nanocal_interface::status::{ChannelStatus, Flags};
 use nanocal_model::{blob, Model, SlowInputs, MAX_AXES};
 use std::time::{Duration, Instant};

@@ -22,7 +22,7 @@ mod fw_sim;
 use fw_sim::nanocal_cli;
 
 use fw_sim::{wait_until, Qemu, SensorSim, StageSim, HANG};
-use nanocal::published::published_1dof;
+use nanocal::papers::published::published_1dof;
 use nanocal_interface::bench_link as bl;
 use nanocal_interface::identity::ResetCause;
 use nanocal_interface::mgmt::{Decoder, Kind, Reply, Request, FRAME_TIMEOUT_MS, MAX_FRAME};

@@ -15,7 +15,7 @@ mod fw_sim;
 mod pipython_session;
 
 use fw_sim::{wait_until, Qemu, SensorSim, StageSim};
-use nanocal::published::published_1dof;
+use nanocal::papers::published::published_1dof;
 use nanocal_interface::status::Flags;
 use nanocal_model::blob;
 use pipython_session::{controller, TEMPS_C};

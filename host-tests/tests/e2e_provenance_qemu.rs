@@ -13,7 +13,7 @@ mod fw_sim;
 use fw_sim::{
     in_service, nanocal_cli, stage_value, upload_with_cli, Config, Qemu, SensorSim, StageSim, HANG,
 };
-use nanocal::published::published_1dof;
+use nanocal::papers::published::published_1dof;
 use nanocal_interface::led::LedState;
 use nanocal_interface::status::{Flags, StageCheck};
 use nanocal_interface::GcsErrorCode;

@@ -13,7 +13,7 @@ mod fw_sim;
 
 use fw_sim::{stage_value, wait_until, Qemu, SensorSim, StageSim, HANG};
 use nanocal::device::DeviceError;
-use nanocal::published::published_1dof;
+use nanocal::papers::published::published_1dof;
 use nanocal_compensator::sensor::max31856;
 use nanocal_interface::mgmt::Refusal;
 use nanocal_interface::status::{ChannelStatus, Flags, SensorFault};
@@ -386,7 +386,7 @@ fn e2e_coupled_2dof_under_qemu() {
     let _sensors = SensorSim::start(q.link(), &TEMPS_C);
     let mut host = q.gcs_host();
     let mut c = q.client();
-    let model = nanocal::published::coupled_2dof().unwrap();
+    let model = nanocal::papers::published::coupled_2dof().unwrap();
     let mut b = vec![0u8; blob::MAX_BLOB_LEN];
     let n = blob::encode(&model, &mut b).unwrap();
     c.upload(&b[..n]).unwrap();

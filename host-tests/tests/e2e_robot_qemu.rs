@@ -8,13 +8,13 @@
 mod fw_sim;
 
 use fw_sim::{next_move, wait_until, Config, Qemu, SensorSim, StageSim};
-use nanocal::design::DesignSpec;
+use nanocal::data::plan::Plan;
+use nanocal::fit::design::DesignSpec;
 use nanocal::fit::{fit_dwells, FitOptions, Selection};
-use nanocal::plan::Plan;
-use nanocal::procedure::ProcedureData;
-use nanocal::stepwise::StepwiseOptions;
+use nanocal::numerics::stepwise::StepwiseOptions;
 use nanocal::twin::delta::{DeltaConfig, DeltaTwin};
 use nanocal::twin::execute::run_plan;
+use nanocal::validate::procedure::ProcedureData;
 use nanocal_compensator::sensor::Chip;
 use nanocal_interface::status::Flags;
 use nanocal_model::reference::{delta_robot_78, ROBOT_HALF_STROKE_UM, ROBOT_TEMPS};

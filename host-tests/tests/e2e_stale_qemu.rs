@@ -12,7 +12,7 @@ mod fw_sim;
 use fw_sim::{in_service, nanocal_cli, upload_with_cli};
 
 use fw_sim::{stage_value, wait_until, Qemu, SensorSim, StageSim, HANG};
-use nanocal::published::published_1dof;
+use nanocal::papers::published::published_1dof;
 use nanocal_compensator::stale::KmzCheck;
 use nanocal_interface::led::LedState;
 use nanocal_interface::status::{Flags, StaleReasons};

@@ -13,7 +13,7 @@
 mod stm32_sim;
 
 use nanocal::device::DeviceError;
-use nanocal::published::published_1dof;
+use nanocal::papers::published::published_1dof;
 use nanocal_compensator::sensor::max31856;
 use nanocal_interface::identity::ResetCause;
 use nanocal_interface::mgmt::Refusal;

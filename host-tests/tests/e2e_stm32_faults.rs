@@ -8,7 +8,7 @@ mod stm32_sim;
 
 use embassy_futures::block_on;
 use nanocal::device::DeviceError;
-use nanocal::published::published_1dof;
+use nanocal::papers::published::published_1dof;
 use nanocal_compensator::l4flash::L4Nor;
 use nanocal_compensator::store::Store;
 use nanocal_interface::identity::ResetCause;

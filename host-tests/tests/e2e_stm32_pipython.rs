@@ -13,7 +13,7 @@
 mod pipython_session;
 mod stm32_sim;
 
-use nanocal::published::published_1dof;
+use nanocal::papers::published::published_1dof;
 use nanocal_interface::status::Flags;
 use nanocal_model::blob;
 use pipython_session::{controller, TEMPS_C};

@@ -23,7 +23,7 @@
 mod stm32_sim;
 
 use embassy_futures::block_on;
-use nanocal::published::published_1dof;
+use nanocal::papers::published::published_1dof;
 use nanocal_compensator::l4flash::L4Nor;
 use nanocal_compensator::store::Store;
 use nanocal_interface::status::{Flags, Status};
@@ -255,7 +255,7 @@ fn stm32_power_cut_at_every_flash_operation_of_an_upload_and_a_kmz_update() {
 fn stm32_upload_onto_a_store_full_of_kmz_updates() {
     let model_a = published_1dof().unwrap();
     let blob_a = bytes(&model_a);
-    let blob_b = bytes(&nanocal::published::coupled_2dof().unwrap());
+    let blob_b = bytes(&nanocal::papers::published::coupled_2dof().unwrap());
     let (sim, updates) = store_full_of_kmz_updates(&model_a, &blob_a, &blob_b);
     let (b, mut c, s) = boot_on(sim);
     assert_eq!(s.model_id, model_a.id());
@@ -317,7 +317,7 @@ fn store_full_of_kmz_updates(model_a: &Model, blob_a: &[u8], blob_b: &[u8]) -> (
 fn stm32_boot_on_a_full_store_cut_while_a_page_is_freed_keeps_the_watchdog_fed() {
     let model_a = published_1dof().unwrap();
     let blob_a = bytes(&model_a);
-    let blob_b = bytes(&nanocal::published::coupled_2dof().unwrap());
+    let blob_b = bytes(&nanocal::papers::published::coupled_2dof().unwrap());
     let (full, _) = store_full_of_kmz_updates(&model_a, &blob_a, &blob_b);
     let (b, _, s) = boot_on(full.clone_sim());
     assert_eq!(s.model_id, model_a.id());

@@ -241,7 +241,9 @@ fn a_found_hysteresis_hands_over_a_play_operator_bank() {
         .collect();
     let refs: Vec<&[f64]> = poly.iter().map(|c| c.as_slice()).collect();
     let d: Vec<f64> = found.iter().zip(&hidden).map(|(a, b)| a - b).collect();
-    let diff = nanocal::linalg::lstsq(&refs, &d, true).unwrap().residuals;
+    let diff = nanocal::numerics::linalg::lstsq(&refs, &d, true)
+        .unwrap()
+        .residuals;
     let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
     assert!(
         rms(&diff) < 0.15 * rms(&hidden),

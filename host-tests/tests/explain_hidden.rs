@@ -217,7 +217,7 @@ fn geometric_order_is_named() {
             .map(|p| u.iter().map(|x| x.powi(p)).collect())
             .collect();
         let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
-        let ls = nanocal::linalg::lstsq(&refs, &h, true).unwrap();
+        let ls = nanocal::numerics::linalg::lstsq(&refs, &h, true).unwrap();
         let non_cubic_rms = (ls.rss / h.len() as f64).sqrt();
         let got = param(
             effect(&rep, "x", "geometric_order").unwrap(),

@@ -1,8 +1,8 @@
 //! Explain refuses unusable recordings with errors that say what was expected, what was found
 //! and where; reports what a logger got wrong as data faults with their rows; and works on recordings without commands (several measured channels, thermal only).
 
+use nanocal::data::recording::Recording;
 use nanocal::explain::{explain, Data, FaultKind, Settings};
-use nanocal::recording::Recording;
 
 fn rec(cols: Vec<(&str, Vec<f64>)>) -> Recording {
     Recording::from_columns(cols.into_iter().map(|(n, v)| (n.to_string(), v)).collect()).unwrap()

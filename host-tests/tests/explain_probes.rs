@@ -3,8 +3,8 @@
 //! coarser grid, glitches, irregular time stamps, the time axis stretched from seconds to
 //! weeks — and explain must still say the same physics, in the record's own time unit.
 
+use nanocal::data::recording::Recording;
 use nanocal::explain::{explain, Data, Report, Settings};
-use nanocal::recording::Recording;
 
 fn read(rel: &str) -> Vec<(String, Vec<f64>)> {
     let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -2,8 +2,8 @@
 //! says what physics is in it). Every assertion names what the data's README tells us the
 //! machine does, so a pass means explain found that physics, not that it reproduced itself.
 
+use nanocal::data::recording::Recording;
 use nanocal::explain::{explain, ChannelReport, Data, EffectReport, Report, Settings};
-use nanocal::recording::Recording;
 
 fn data(rel: &str) -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR"))

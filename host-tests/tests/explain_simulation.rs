@@ -4,9 +4,9 @@
 mod explain_common;
 use explain_common::*;
 
+use nanocal::data::recording::Recording;
 use nanocal::effects::{hysteresis, EffectSpec};
 use nanocal::explain::{explain, Data, Settings};
-use nanocal::recording::Recording;
 use nanocal::twin::{Trajectory, Twin, TwinConfig};
 
 #[test]

@@ -2,8 +2,8 @@
 //! channels, no commanded motion. Explain must find that the displacement lags the
 //! temperatures, estimate the lag, and show the residual drop on held-out data.
 
+use nanocal::data::recording::Recording;
 use nanocal::explain::{explain, Data, Settings};
-use nanocal::recording::Recording;
 
 fn spindle() -> Recording {
     let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -1,10 +1,10 @@
 //! 2-DoF: the published 0:10:80 µm grid for training and the six validation points, on the
 //! digital twin; coupled model with cross-axis terms, n-D ISO 9283 (AP = barycentre distance).
-use nanocal::design::DesignSpec;
-use nanocal::dwell::{dwell_average, DwellOptions};
+use nanocal::data::dwell::{dwell_average, DwellOptions};
+use nanocal::data::recording::Recording;
+use nanocal::fit::design::DesignSpec;
 use nanocal::fit::{fit_dwells, FitOptions, Selection};
-use nanocal::recording::Recording;
-use nanocal::stepwise::StepwiseOptions;
+use nanocal::numerics::stepwise::StepwiseOptions;
 use nanocal::twin::{Trajectory, Twin, TwinConfig};
 use nanocal::validate::{validate, Compensation, ValidationData, ValidationOptions};
 

@@ -42,11 +42,11 @@ fn fit_validate_report_round_trip_on_the_twin() {
     let (train, val) = nanocal::twin::examples::published_1dof(5);
     let tr = dir.join("training.csv");
     let va = dir.join("validation.csv");
-    nanocal::recording::Recording::from_columns(train.columns)
+    nanocal::data::recording::Recording::from_columns(train.columns)
         .unwrap()
         .write_path(&tr)
         .unwrap();
-    nanocal::recording::Recording::from_columns(val.columns)
+    nanocal::data::recording::Recording::from_columns(val.columns)
         .unwrap()
         .write_path(&va)
         .unwrap();
@@ -191,7 +191,7 @@ fn bad_input_exits_non_zero_with_the_line() {
 #[test]
 fn validate_refuses_a_corrupt_or_truncated_blob_in_words() {
     let dir = tmp("badblob");
-    let model = nanocal::published::published_1dof().unwrap();
+    let model = nanocal::papers::published::published_1dof().unwrap();
     let mut bytes = vec![0u8; nanocal_model::blob::MAX_BLOB_LEN];
     let n = nanocal_model::blob::encode(&model, &mut bytes).unwrap();
     bytes.truncate(n);
@@ -247,9 +247,9 @@ fn a_published_plan_through_simulate_fit_and_validate() {
         .arg(&dir)
         .output()
         .unwrap());
-    let plan: nanocal::plan::Plan =
+    let plan: nanocal::data::plan::Plan =
         serde_json::from_slice(&std::fs::read(dir.join("plan.json")).unwrap()).unwrap();
-    assert_eq!(plan, nanocal::plan::Plan::paper000_2dof());
+    assert_eq!(plan, nanocal::data::plan::Plan::paper000_2dof());
     let blob = dir.join("eq22.blob");
     let text = ok(nanocal()
         .arg("fit")

@@ -20,7 +20,7 @@ fn tmp(name: &str) -> PathBuf {
 fn training(dir: &Path) -> PathBuf {
     let (train, _) = nanocal::twin::examples::published_1dof(5);
     let tr = dir.join("training.csv");
-    nanocal::recording::Recording::from_columns(train.columns)
+    nanocal::data::recording::Recording::from_columns(train.columns)
         .unwrap()
         .write_path(&tr)
         .unwrap();

@@ -1,10 +1,10 @@
 //! Fitting recovers a known model: data generated from the published 1-DoF model (raw units).
-use nanocal::design::DesignSpec;
-use nanocal::dwell::{dwell_average, DwellOptions};
+use nanocal::data::dwell::{dwell_average, DwellOptions};
+use nanocal::data::recording::Recording;
+use nanocal::fit::design::DesignSpec;
 use nanocal::fit::{encode_blob, fit_recording, predict, FitOptions, Selection};
-use nanocal::published::published_1dof_raw;
-use nanocal::recording::Recording;
-use nanocal::stepwise::StepwiseOptions;
+use nanocal::numerics::stepwise::StepwiseOptions;
+use nanocal::papers::published::published_1dof_raw;
 use nanocal_model::{blob, MAX_TEMPS};
 
 struct Lcg(u64);
@@ -109,7 +109,8 @@ fn stepwise_fit_selects_the_true_terms_and_predictions_match_regression() {
     // the fitted value of each dwell IS the model's evaluation (coefficients not rewritten)
     let d = dwell_average(&rec, &DwellOptions::default()).unwrap();
     let st = ax.stepwise.as_ref().unwrap();
-    let x: Vec<Vec<f64>> = nanocal::design::regressors(&ax.candidates, &rep.frame.raw_inputs(&d));
+    let x: Vec<Vec<f64>> =
+        nanocal::fit::design::regressors(&ax.candidates, &rep.frame.raw_inputs(&d));
     for i in 0..d.len() {
         let mut yhat = st.intercept;
         for (j, col) in x.iter().enumerate() {
@@ -131,7 +132,7 @@ fn stepwise_fit_selects_the_true_terms_and_predictions_match_regression() {
 /// fitted model on its training dwells leaves only the noise.
 #[test]
 fn lagged_temperature_term_is_selected_and_deployed() {
-    use nanocal::dwell::Dwells;
+    use nanocal::data::dwell::Dwells;
     use nanocal::validate::{validate, Compensation, ValidationData, ValidationOptions};
     use nanocal_model::LagFilter;
     let n = 400;

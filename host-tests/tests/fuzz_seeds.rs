@@ -11,7 +11,7 @@ mod proxy_rig;
 #[allow(dead_code)]
 mod checks;
 
-use nanocal::published::{coupled_2dof, published_1dof};
+use nanocal::papers::published::{coupled_2dof, published_1dof};
 use nanocal_interface::mgmt::{self, Kind, Writer};
 use nanocal_interface::settings::{AuxSource, Settings};
 use nanocal_interface::status::Status;

@@ -11,7 +11,7 @@
 mod fw_sim;
 
 use fw_sim::{bench_elf, have_qemu, qemu_elf, repo_root, Elf, Qemu, SensorSim, StageSim};
-use nanocal::published::published_1dof;
+use nanocal::papers::published::published_1dof;
 use nanocal_model::blob;
 use std::process::Command;
 use std::time::{Duration, Instant};

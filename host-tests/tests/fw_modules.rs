@@ -2,7 +2,7 @@
 //! (GCS and the proxy: `gcs_proxy.rs`, `proxy_property.rs`; sensors: `fw_sensors.rs`; the
 //! store: `fw_store.rs`.)
 
-use nanocal::published::published_1dof;
+use nanocal::papers::published::published_1dof;
 use nanocal_compensator::fault::{ChannelState, Faults, Policy};
 use nanocal_compensator::sensor::SensorFault;
 use nanocal_compensator::upload::{Upload, UploadError};

@@ -559,7 +559,7 @@ fn a_model_needing_more_chip_selects_than_wired_is_refused() {
 
 #[test]
 fn a_model_using_an_input_the_board_cannot_supply_is_refused() {
-    let model = nanocal::published::published_1dof().unwrap();
+    let model = nanocal::papers::published::published_1dof().unwrap();
     let board = Board {
         barometer: true,
         adc_channels: 1,

@@ -8,7 +8,7 @@
 //! ~40 bytes and the erase count per page is measured).
 
 use embassy_futures::block_on;
-use nanocal::published::{coupled_2dof, published_1dof};
+use nanocal::papers::published::{coupled_2dof, published_1dof};
 use nanocal_compensator::l4flash::{L4Nor, L4Sim, PAGE};
 use nanocal_compensator::store::Store;
 use nanocal_interface::settings::Settings;

@@ -8,7 +8,7 @@
 
 mod proxy_rig;
 
-use nanocal::published::{coupled_2dof, published_1dof};
+use nanocal::papers::published::{coupled_2dof, published_1dof};
 use nanocal::virtual_bench::{Config, Event};
 use nanocal_compensator::command::{self, Action};
 use nanocal_compensator::gcs::{self, LineBuf};

@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 use std::process::Command;
 
-use nanocal::recording::Recording;
+use nanocal::data::recording::Recording;
 
 fn nanocal() -> Command {
     Command::new(env!("CARGO_BIN_EXE_nanocal"))

@@ -1,15 +1,15 @@
 //! Validation on the digital twin's published example: both compensations beat no model by far,
 //! KMZ bookkeeping, tests of cycles, and an in-sample model leaves only the regression residual.
-use nanocal::design::DesignSpec;
-use nanocal::dwell::{dwell_average, DwellOptions};
+use nanocal::data::dwell::{dwell_average, DwellOptions};
+use nanocal::data::recording::Recording;
+use nanocal::fit::design::DesignSpec;
 use nanocal::fit::{adaptive_from_static, fit_dwells, FitOptions, Selection};
-use nanocal::recording::Recording;
 use nanocal::validate::{
     roles_from_cycles, validate, Compensation, Role, ValidateError, ValidationData,
     ValidationOptions,
 };
 
-fn example() -> (nanocal::dwell::Dwells, ValidationData) {
+fn example() -> (nanocal::data::dwell::Dwells, ValidationData) {
     let (train, val) = nanocal::twin::examples::published_1dof(3);
     let opts = DwellOptions::default();
     let dt = dwell_average(&Recording::from_columns(train.columns).unwrap(), &opts).unwrap();
@@ -135,7 +135,7 @@ fn mismatched_inputs_are_reported() {
         ..Default::default()
     };
     let m = fit_dwells(&dt, &opts).unwrap();
-    let no_temps = ValidationData::from_dwells(nanocal::dwell::Dwells {
+    let no_temps = ValidationData::from_dwells(nanocal::data::dwell::Dwells {
         channels: Vec::new(),
         ..dv.dwells.clone()
     });
@@ -171,7 +171,7 @@ fn mismatched_inputs_are_reported() {
 /// ignoring the lag would leave micrometres.
 #[test]
 fn lag_filters_of_the_model_are_run_over_the_dwells() {
-    use nanocal::dwell::Dwells;
+    use nanocal::data::dwell::Dwells;
     use nanocal_model::{Factor, Input, LagFilter, ModelBuilder, SlowInputs, Term};
     let mut b = ModelBuilder::new(1, 1, 0)
         .unwrap()

@@ -1,7 +1,9 @@
 //! The firmware's f32 fast path against the host's f64 reference, and the raw-unit expansion
 //! against the published formulas, everywhere in the training envelope.
 
-use nanocal::published::{coupled_2dof, coupled_2dof_raw, published_1dof, published_1dof_raw};
+use nanocal::papers::published::{
+    coupled_2dof, coupled_2dof_raw, published_1dof, published_1dof_raw,
+};
 use nanocal_model::{FastInputs, HysteresisState, Model, SlowInputs, MAX_AXES};
 use proptest::prelude::*;
 

@@ -1,6 +1,6 @@
 //! The inverse map (position replies) and its failure modes; the adaptive KMZ offset; envelope flags.
 
-use nanocal::published::{coupled_2dof, published_1dof};
+use nanocal::papers::published::{coupled_2dof, published_1dof};
 use nanocal_model::{
     Factor, FastInputs, HysteresisState, Input, InverseError, ModelBuilder, SlowInputs, Term,
     MAX_AXES,
@@ -98,7 +98,7 @@ fn kmz_reference_measurement_re_zeroes_the_model() {
     let q_after = model.eval_f64(&measured, &[0; MAX_AXES], &slow);
     assert!((q_after[0] - q_sent[0]).abs() < 1e-9);
     // The correction moved by the drift times the local slope dq/dx of the published cubic.
-    let [a3, a2, a1] = nanocal::published::one_dof::A;
+    let [a3, a2, a1] = nanocal::papers::published::one_dof::A;
     let slope = 3.0 * a3 * 240f64.powi(2) + 2.0 * a2 * 240.0 + a1;
     assert!(
         (model.kmz_offset_um(0) + 0.37 * slope).abs() < 1e-6,

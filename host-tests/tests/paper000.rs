@@ -3,16 +3,16 @@
 //! and adaptive (Eq. 14) models, tests of the plan's compensation, R_s and R_t, and the 2-DoF
 //! model of Eq. 22.
 
-use nanocal::design::DesignSpec;
-use nanocal::device_path::SlowPeriods;
+use nanocal::data::plan::{Phase, Plan, TestKind};
+use nanocal::device::device_path::SlowPeriods;
+use nanocal::fit::design::DesignSpec;
 use nanocal::fit::{adaptive_from_static, fit_dwells, FitOptions, Selection};
-use nanocal::plan::{Phase, Plan, TestKind};
-use nanocal::procedure::ProcedureData;
-use nanocal::stepwise::StepwiseOptions;
+use nanocal::numerics::stepwise::StepwiseOptions;
 use nanocal::twin::examples::{
     paper000_1dof_controlled_twin, paper000_1dof_twin, paper000_2dof_twin, TRAINING_START_S,
 };
 use nanocal::twin::execute::run_plan;
+use nanocal::validate::procedure::ProcedureData;
 use nanocal_model::Factor;
 
 fn data(twin: &nanocal::twin::Twin, plan: &Plan) -> ProcedureData {

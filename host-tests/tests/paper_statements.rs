@@ -2,16 +2,16 @@
 //! words it checks. Paper 000 is Tan, Clévy, Chaillet, "Calibration of Nanopositioning Stages";
 //! paper 001 is Lubrano, Bouri, Clavel, "Ultra-high-precision Industrial Robots Calibration".
 
-use nanocal::design::{DesignFrame, DesignSpec};
-use nanocal::dwell::Dwells;
+use nanocal::data::dwell::Dwells;
+use nanocal::data::plan::{Phase, Plan, TestKind};
+use nanocal::fit::design::{DesignFrame, DesignSpec};
 use nanocal::fit::{fit_dwells, FitOptions, Selection};
-use nanocal::iso9283::pose_stats;
-use nanocal::plan::{Phase, Plan, TestKind};
-use nanocal::procedure::ProcedureData;
-use nanocal::published::{one_dof, published_1dof_raw};
-use nanocal::stepwise::StepwiseOptions;
+use nanocal::numerics::stepwise::StepwiseOptions;
+use nanocal::papers::published::{one_dof, published_1dof_raw};
 use nanocal::twin::examples::{paper000_1dof_controlled_twin, TRAINING_START_S};
 use nanocal::twin::execute::run_plan;
+use nanocal::validate::iso9283::pose_stats;
+use nanocal::validate::procedure::ProcedureData;
 use nanocal_model::{Factor, MAX_TEMPS};
 
 /// A deterministic uniform draw in [0, 1).
@@ -138,7 +138,7 @@ fn dwells(q: impl Fn(f64, &[f64; MAX_TEMPS]) -> f64, noise_um: f64, seed: u64) -
         channels: (0..4).map(|i| (format!("temp_{i}"), Vec::new())).collect(),
         rows_averaged: Vec::new(),
     };
-    let poses = nanocal::plan::up_and_down(&nanocal::plan::grid(0.0, 30.0, 480.0));
+    let poses = nanocal::data::plan::up_and_down(&nanocal::data::plan::grid(0.0, 30.0, 480.0));
     for i in 0..n {
         let x = poses[i % poses.len()][0] + 0.05 * (r.next() - 0.5);
         let mut t = [0.0; MAX_TEMPS];
@@ -318,10 +318,11 @@ fn item6_the_robot_model_has_the_papers_78_parameters() {
 /// 1.005: re-zeroing the model would move λ_KMZ 0.5 % more).
 #[test]
 fn item4_lambda_kmz_moves_by_the_difference_of_two_readings() {
-    use nanocal::kmz::KmzDrift;
+    use nanocal::data::kmz::KmzDrift;
     use nanocal_model::{HysteresisState, SlowInputs, MAX_AXES};
     let mut m =
-        nanocal::fit::adaptive_from_static(&nanocal::published::published_1dof().unwrap()).unwrap();
+        nanocal::fit::adaptive_from_static(&nanocal::papers::published::published_1dof().unwrap())
+            .unwrap();
     let slow = SlowInputs::default();
     let h = HysteresisState::new();
     let dir = [-1i8; MAX_AXES];
@@ -361,7 +362,7 @@ fn item4_the_kmz_is_the_first_visit_every_3_75_h() {
         (start(1) - start(0) - 1.25 * 3600.0).abs() < 1e-6,
         "a test takes 1.25 h"
     );
-    let kmz: Vec<&nanocal::plan::Step> = steps
+    let kmz: Vec<&nanocal::data::plan::Step> = steps
         .iter()
         .filter(|s| matches!(s.phase, Phase::Kmz { .. }))
         .collect();

@@ -7,7 +7,7 @@
 
 mod proxy_rig;
 
-use nanocal::published::published_1dof;
+use nanocal::papers::published::published_1dof;
 use nanocal_compensator::proxy::{FoldCorrector, FollowConfig, Gate};
 use nanocal_model::{Model, MAX_AXES};
 use proxy_rig::{everything, slow, value, Rig};

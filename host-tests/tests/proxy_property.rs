@@ -23,7 +23,7 @@
 
 mod proxy_rig;
 
-use nanocal::published::{coupled_2dof, published_1dof};
+use nanocal::papers::published::{coupled_2dof, published_1dof};
 use nanocal::virtual_bench::{Config, Event};
 use nanocal_compensator::proxy::travel::CLAMP_UM;
 use nanocal_model::{Model, MAX_AXES};

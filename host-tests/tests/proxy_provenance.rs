@@ -6,7 +6,7 @@
 
 mod proxy_rig;
 
-use nanocal::published::published_1dof;
+use nanocal::papers::published::published_1dof;
 use nanocal::virtual_bench::{Event, DEFAULT_SERIAL};
 use nanocal_compensator::proxy::GcsErrorCode;
 use nanocal_interface::status::StageCheck;

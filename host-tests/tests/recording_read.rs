@@ -1,5 +1,5 @@
 //! Recording reader/writer: layout roles, round trip, and errors that name line and column.
-use nanocal::recording::{ColumnRole, Recording, RecordingError};
+use nanocal::data::recording::{ColumnRole, Recording, RecordingError};
 
 #[test]
 fn roles_and_extra_columns() {

@@ -57,7 +57,7 @@ fn validate_writes_a_self_contained_report_that_a_browser_renders_on_a4() {
     let tr = dir.join("training.csv");
     let va = dir.join("validation.csv");
     for (p, c) in [(&tr, train), (&va, val)] {
-        nanocal::recording::Recording::from_columns(c.columns)
+        nanocal::data::recording::Recording::from_columns(c.columns)
             .unwrap()
             .write_path(p)
             .unwrap();

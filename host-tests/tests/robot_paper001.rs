@@ -1,11 +1,11 @@
 //! Paper 001's robot on the digital twin: the delta robot's plan, recording and the candidate
 //! design its stepwise fit selects from.
 
-use nanocal::design::{DesignFrame, DesignSpec};
-use nanocal::plan::Plan;
-use nanocal::procedure::ProcedureData;
+use nanocal::data::plan::Plan;
+use nanocal::fit::design::{DesignFrame, DesignSpec};
 use nanocal::twin::delta::{DeltaConfig, DeltaGeometry, DeltaTwin};
 use nanocal::twin::execute::run_plan;
+use nanocal::validate::procedure::ProcedureData;
 
 fn shortened_run() -> ProcedureData {
     let plan = Plan::paper001_robot().shortened(2, 1, 1);
@@ -97,10 +97,10 @@ fn the_robot_candidates_need_ten_temperature_inputs() {
 /// a model with 10 temperature inputs; with fewer, the fit must refuse in words.
 #[test]
 fn the_robot_model_reaches_the_papers_ninety_percent_figure() {
+    use nanocal::data::plan::TestKind;
     use nanocal::fit::{encode_blob, fit_dwells, FitOptions, Selection};
-    use nanocal::iso9283::ninety_percent_per_axis;
-    use nanocal::plan::TestKind;
-    use nanocal::stepwise::StepwiseOptions;
+    use nanocal::numerics::stepwise::StepwiseOptions;
+    use nanocal::validate::iso9283::ninety_percent_per_axis;
     use nanocal_model::{
         blob, Factor, FastInputs, HysteresisState, SlowInputs, MAX_AXES, MAX_TEMPS,
     };

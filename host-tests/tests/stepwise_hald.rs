@@ -1,6 +1,6 @@
 //! Stepwise regression on the Hald cement data against MATLAB's documented result.
-use nanocal::recording::Recording;
-use nanocal::stepwise::{stepwise, Action, StepwiseOptions};
+use nanocal::data::recording::Recording;
+use nanocal::numerics::stepwise::{stepwise, Action, StepwiseOptions};
 
 fn hald() -> Recording {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/hald-cement/hald.csv");

@@ -8,8 +8,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use nanocal::recording::Recording;
-use nanocal::stepwise::{stepwise, Action, StepwiseOptions};
+use nanocal::data::recording::Recording;
+use nanocal::numerics::stepwise::{stepwise, Action, StepwiseOptions};
 
 /// The reference's driver: `../shared/peers/octave-stepwise/` beside the repository, or the
 /// folder `NANOCAL_OCTAVE_STEPWISE` names (a git worktree elsewhere).

@@ -2,8 +2,8 @@
 //! stepwise` uses for the full fit and its held-out refits, one pass over the data) equals
 //! `stepwise` run on the same rows, NaN rows and constant columns included.
 use nanocal::cli::stepwise::Blocks;
-use nanocal::linalg::{compress_parts, merge_parts};
-use nanocal::stepwise::{stepwise, stepwise_compressed, StepwiseOptions, StepwiseResult};
+use nanocal::numerics::linalg::{compress_parts, merge_parts};
+use nanocal::numerics::stepwise::{stepwise, stepwise_compressed, StepwiseOptions, StepwiseResult};
 
 /// Deterministic design: 6 candidates (one constant, two correlated), y on three of them, a few
 /// NaN rows.

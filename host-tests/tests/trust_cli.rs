@@ -153,11 +153,11 @@ fn write_twin(dir: &std::path::Path) -> (PathBuf, PathBuf) {
     let (train, val) = nanocal::twin::examples::published_1dof(5);
     let tr = dir.join("training.csv");
     let va = dir.join("validation.csv");
-    nanocal::recording::Recording::from_columns(train.columns)
+    nanocal::data::recording::Recording::from_columns(train.columns)
         .unwrap()
         .write_path(&tr)
         .unwrap();
-    nanocal::recording::Recording::from_columns(val.columns)
+    nanocal::data::recording::Recording::from_columns(val.columns)
         .unwrap()
         .write_path(&va)
         .unwrap();
@@ -333,7 +333,7 @@ fn fit_reports_uncertainty_validate_reports_coverage_and_the_table_reads_back() 
         )),
         "{text}"
     );
-    let rows = nanocal::error_table::parse_csv(&text).unwrap();
+    let rows = nanocal::validate::error_table::parse_csv(&text).unwrap();
     assert!(rows.len() > 10);
     let mut slow = nanocal_model::SlowInputs::default();
     for (t, v) in temps.iter().enumerate() {

@@ -10,13 +10,13 @@
 
 mod proxy_rig;
 
-use nanocal::design::DesignSpec;
-use nanocal::device_path::{DeviceSlowPath, SlowPeriods};
+use nanocal::data::plan::{Plan, TestKind};
+use nanocal::device::device_path::{DeviceSlowPath, SlowPeriods};
+use nanocal::fit::design::DesignSpec;
 use nanocal::fit::{fit_dwells, FitOptions, Selection};
-use nanocal::plan::{Plan, TestKind};
-use nanocal::procedure::ProcedureData;
 use nanocal::twin::examples::{paper000_1dof_twin, TRAINING_START_S};
 use nanocal::twin::execute::run_plan;
+use nanocal::validate::procedure::ProcedureData;
 use nanocal_compensator::proxy::{Corrector, FoldCorrector};
 use proxy_rig::{everything, Rig};
 

@@ -9,8 +9,8 @@ mod device_models;
 mod proxy_rig;
 
 use device_models::{hysteresis_model, TEMP_C, WALK_UM};
-use nanocal::device_path::SensorStream;
-use nanocal::dwell::Dwells;
+use nanocal::data::dwell::Dwells;
+use nanocal::device::device_path::SensorStream;
 use nanocal::validate::{validate, Compensation, ValidationData, ValidationOptions};
 use nanocal_compensator::proxy::FoldCorrector;
 use nanocal_model::{FastInputs, HysteresisState};

@@ -8,7 +8,7 @@
 //! design's columns centred and scaled (`z = [1, (x − mean)/scale]`) and `Z = Q R`,
 //! `h = ‖R⁻ᵀ z₀‖²`: one forward substitution through the triangular factor — for `P` regressors
 //! `(P+1)(P+2)/2` multiply-adds, no matrix inverse, no square root but the last. The host
-//! computes the same in f64 (`nanocal::uncertainty::PredictionBand`); the fit writes `R`, the
+//! computes the same in f64 (`nanocal::numerics::uncertainty::PredictionBand`); the fit writes `R`, the
 //! centring, `s` and the t quantile into the blob (format version 3) and the device reads them
 //! here. An axis with more than [`MAX_BOUND_TERMS`] terms carries no bound (the device then
 //! has no interval for it, and says so).

@@ -161,7 +161,7 @@ fn model_2dof() -> Option<Model> {
     b.offset_um(0, 40.0).offset_um(1, 40.0).build().ok()
 }
 
-/// The published 1-DoF piezo-stage model (`host-tests/src/published.rs`, paper 000): a cubic in
+/// The published 1-DoF piezo-stage model (`host-tests/src/papers/published.rs`, paper 000): a cubic in
 /// the position, four temperatures, an offset — a calibration map close to the identity, as
 /// every physical one is. The position replies are mapped through it.
 fn model_published() -> Option<Model> {

@@ -16,8 +16,8 @@ use nanocal::campaign::gcs::GcsLink;
 use nanocal::campaign::reference::{self, ClockMap, ClockMode};
 use nanocal::campaign::run::{CampaignError, Links};
 use nanocal::campaign::state::{BenchSpec, VirtualBoard};
+use nanocal::data::plan::{Plan, Step};
 use nanocal::device::Client;
-use nanocal::plan::{Plan, Step};
 use nanocal::virtual_bench::bench::{
     spawn_interferometer, twin_buses, twin_controller, twin_pressure, BoardTime,
 };

@@ -6,10 +6,10 @@
 //! is not reached (paper 001 §II, step 5: back to step 1 with a richer model).
 
 use super::run::{CampaignError, Models};
-use crate::device_path::SlowPeriods;
-use crate::plan::{Phase, Plan, Step, TestKind};
-use crate::procedure::ProcedureData;
-use crate::recording::Recording;
+use crate::data::plan::{Phase, Plan, Step, TestKind};
+use crate::data::recording::Recording;
+use crate::device::device_path::SlowPeriods;
+use crate::validate::procedure::ProcedureData;
 use crate::validate::{validate_roles, Compensation, Role, ValidationOptions, ValidationReport};
 use nanocal_model::Model;
 use std::path::Path;

@@ -25,12 +25,12 @@
 use super::analysis::{explain_report, recording_from, two_tables};
 use super::run::{static_blob, CampaignError, Models, MODEL_IDS};
 use super::state::{LoopRecord, LoopState, LoopStop, State};
-use crate::design::{DesignSpec, Extension};
-use crate::device_path::SlowPeriods;
+use crate::data::plan::{Phase, Plan, Step, TestKind};
+use crate::data::recording::Recording;
+use crate::device::device_path::SlowPeriods;
+use crate::fit::design::{DesignSpec, Extension};
 use crate::fit::{encode_blob, fit_dwells, parameter_count, FitOptions, Selection};
-use crate::plan::{Phase, Plan, Step, TestKind};
-use crate::procedure::ProcedureData;
-use crate::recording::Recording;
+use crate::validate::procedure::ProcedureData;
 use nanocal_model::Model;
 use std::path::Path;
 
@@ -238,7 +238,9 @@ pub fn decide(
             &tdata.training(),
             &FitOptions {
                 spec,
-                selection: Selection::Stepwise(crate::stepwise::StepwiseOptions::default()),
+                selection: Selection::Stepwise(
+                    crate::numerics::stepwise::StepwiseOptions::default(),
+                ),
                 dwell: Default::default(),
                 id: model_id(l),
             },

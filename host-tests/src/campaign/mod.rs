@@ -17,8 +17,8 @@ pub mod reference;
 pub mod run;
 pub mod state;
 
+use crate::data::plan::{Plan, Step};
 use crate::device::Client;
-use crate::plan::{Plan, Step};
 use bench::{ReferenceReader, WallClock};
 use gcs::GcsLink;
 use nanocal_interface::settings::{AuxSource, Settings};
@@ -65,7 +65,7 @@ pub struct Config {
     /// `cs0`, `cs1`, …).
     pub sensor_names: Option<Vec<String>>,
     /// Candidate terms of the static model (default by axes: paper 000's 1-DoF or Eq. 22).
-    pub design: Option<crate::design::DesignSpec>,
+    pub design: Option<crate::fit::design::DesignSpec>,
     /// Run `explain` at the end.
     pub explain: bool,
     /// The desired accuracy of the validate-and-return loop (paper 001 §II step 5): the worst
@@ -535,8 +535,8 @@ fn run_inner(
             state.save(dir)?;
             let gcs_axes: Vec<String> = (1..=axes).map(|a| a.to_string()).collect();
             let design = cfg.design.clone().unwrap_or_else(|| match axes {
-                2 => crate::design::DesignSpec::published_2dof(),
-                _ => crate::design::DesignSpec::published_static(),
+                2 => crate::fit::design::DesignSpec::published_2dof(),
+                _ => crate::fit::design::DesignSpec::published_static(),
             });
             let mut runner = Runner::new(
                 dir,
@@ -561,7 +561,7 @@ fn run_inner(
                     return Err(e);
                 }
             }
-            let periods = crate::device_path::SlowPeriods {
+            let periods = crate::device::device_path::SlowPeriods {
                 sample_s: f64::from(runner.state.sample_period_ms) / 1000.0,
                 fold_s: f64::from(runner.state.fold_period_ms) / 1000.0,
             };
@@ -588,7 +588,7 @@ fn run_with_loops(
     runner: &mut Runner,
     dir: &Path,
     plan: &Plan,
-    periods: crate::device_path::SlowPeriods,
+    periods: crate::device::device_path::SlowPeriods,
     progress: &mut dyn Progress,
 ) -> Result<(), CampaignError> {
     loop {
@@ -631,7 +631,7 @@ fn finish(
     progress: &mut dyn Progress,
 ) -> Result<Outcome, CampaignError> {
     progress.note("validating: the table from the stage's commands and the file-based validate");
-    let periods = crate::device_path::SlowPeriods {
+    let periods = crate::device::device_path::SlowPeriods {
         sample_s: f64::from(state.sample_period_ms) / 1000.0,
         fold_s: f64::from(state.fold_period_ms) / 1000.0,
     };

@@ -183,7 +183,7 @@ impl Recorder {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::recording::Recording;
+    use crate::data::recording::Recording;
 
     #[test]
     fn rows_read_back_and_a_resume_cuts_the_unfinished_step() {

@@ -20,9 +20,9 @@ use super::gcs::{GcsError, GcsLink};
 use super::recorder::{Recorder, RecorderError, Row};
 use super::reference::ReferenceError;
 use super::state::{Interruption, Stage, StaleEvent, State, StateError, UploadedModel};
+use crate::data::plan::{Phase, Plan, Step, TestKind};
 use crate::device::{Client, DeviceError};
 use crate::fit::{adaptive_from_static, encode_blob};
-use crate::plan::{Phase, Plan, Step, TestKind};
 use nanocal_interface::status::{ChannelStatus, Flags, Status};
 use nanocal_interface::GcsErrorCode;
 use nanocal_model::{Model, ModelBuilder, MAX_AXES};
@@ -226,24 +226,24 @@ pub fn fit_models(
     dir: &Path,
     recording: &Path,
     steps: &[Step],
-    spec: crate::design::DesignSpec,
+    spec: crate::fit::design::DesignSpec,
 ) -> Result<Models, CampaignError> {
     use crate::fit::{fit_dwells, FitOptions, Selection};
     let fit_err = |e: String| CampaignError::Fit(e);
-    let rec =
-        crate::recording::Recording::read_path(recording).map_err(|e| fit_err(e.to_string()))?;
+    let rec = crate::data::recording::Recording::read_path(recording)
+        .map_err(|e| fit_err(e.to_string()))?;
     let training: Vec<Step> = steps
         .iter()
         .filter(|s| s.phase == Phase::Training)
         .cloned()
         .collect();
-    let data = crate::procedure::ProcedureData::new(&rec, &training, 0.0)
+    let data = crate::validate::procedure::ProcedureData::new(&rec, &training, 0.0)
         .map_err(|e| fit_err(e.to_string()))?;
     let fit = fit_dwells(
         &data.training(),
         &FitOptions {
             spec,
-            selection: Selection::Stepwise(crate::stepwise::StepwiseOptions::default()),
+            selection: Selection::Stepwise(crate::numerics::stepwise::StepwiseOptions::default()),
             dwell: Default::default(),
             id: MODEL_IDS.0,
         },
@@ -378,7 +378,7 @@ pub struct Runner<'a> {
     /// GCS axis identifiers, per plan axis.
     pub axes: Vec<String>,
     /// Design of the static model.
-    pub spec: crate::design::DesignSpec,
+    pub spec: crate::fit::design::DesignSpec,
     recorder: Recorder,
     stop: Arc<AtomicBool>,
     models: Option<Models>,
@@ -443,7 +443,7 @@ impl<'a> Runner<'a> {
         state: State,
         links: Links,
         axes: Vec<String>,
-        spec: crate::design::DesignSpec,
+        spec: crate::fit::design::DesignSpec,
         recorder: Recorder,
         stop: Arc<AtomicBool>,
     ) -> Result<Self, CampaignError> {
@@ -626,7 +626,7 @@ impl<'a> Runner<'a> {
         let samples = self
             .links
             .reference
-            .until(t_end_s - crate::dwell::STEP_EDGE_S, now)?;
+            .until(t_end_s - crate::data::dwell::STEP_EDGE_S, now)?;
         for (t, pos) in samples {
             if t < 0.0 {
                 continue; // before the plan
@@ -661,7 +661,7 @@ impl<'a> Runner<'a> {
 
     /// Step `k` is over (its window collected): a KMZ step computes λ_KMZ from its reading
     /// (paper 000 §3.4: the difference of two readings at the KMZ pose,
-    /// [`crate::kmz::KmzDrift`]) and sends it to the compensator.
+    /// [`crate::data::kmz::KmzDrift`]) and sends it to the compensator.
     fn finish(&mut self, k: usize) -> Result<(), CampaignError> {
         if let Phase::Kmz { .. } = self.steps[k].phase {
             let x = self.window_mean().ok_or_else(|| CampaignError::NotReady {
@@ -679,7 +679,7 @@ impl<'a> Runner<'a> {
             xm[..n].copy_from_slice(&x);
             dir[..n].copy_from_slice(&self.steps[k].approach[..n]);
             let mut model = models.adaptive_with(self.state.kmz_um.as_deref());
-            let mut drift = crate::kmz::KmzDrift::new(self.state.kmz_first);
+            let mut drift = crate::data::kmz::KmzDrift::new(self.state.kmz_first);
             let slow = nanocal_model::SlowInputs::default();
             let kmz = drift.measure(
                 &mut model,
@@ -689,7 +689,7 @@ impl<'a> Runner<'a> {
                 &slow,
                 &nanocal_model::HysteresisState::new(),
             );
-            let (rq, rx) = crate::kmz::set_kmz_request(&model, &kmz, &xm, &slow);
+            let (rq, rx) = crate::data::kmz::set_kmz_request(&model, &kmz, &xm, &slow);
             let held = self.device(move |c| c.set_kmz(rq, rx))?;
             self.state.kmz_first = drift.first();
             self.state.kmz_um = Some(held[..n].to_vec());
@@ -1104,7 +1104,7 @@ impl<'a> Runner<'a> {
                 let now = self.t_now();
                 self.links
                     .reference
-                    .until(step.t_start_s - crate::dwell::STEP_EDGE_S, now)?;
+                    .until(step.t_start_s - crate::data::dwell::STEP_EDGE_S, now)?;
             } else if k > 0 {
                 let prev = &self.steps[k - 1];
                 let from = prev.t_end_s() - prev.average_last_s;

@@ -151,9 +151,9 @@ pub struct State {
     /// λ_KMZ per axis last measured and sent to the compensator, µm.
     pub kmz_um: Option<Vec<f64>>,
     /// The first KMZ re-measurement, which later ones are differences to
-    /// ([`crate::kmz::KmzDrift`]).
+    /// ([`crate::data::kmz::KmzDrift`]).
     #[serde(default)]
-    pub kmz_first: Option<crate::kmz::KmzReading>,
+    pub kmz_first: Option<crate::data::kmz::KmzReading>,
     /// KMZ re-measurements so far.
     pub kmz_updates: usize,
     /// Device resets seen.
@@ -192,7 +192,7 @@ pub struct LoopState {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LoopRecord {
     /// What explain named and the model now carries (lag filters, play operators, terms).
-    pub added: Vec<crate::design::Extension>,
+    pub added: Vec<crate::fit::design::Extension>,
     /// explain's words on each, with its held-out RMS before → after, on the validation the
     /// loop started from.
     pub evidence: Vec<String>,

@@ -12,7 +12,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use crate::campaign::run::Progress;
 use crate::campaign::state::{BenchSpec, State, VirtualBoard};
 use crate::campaign::{self, Config};
-use crate::plan::{Plan, TestKind};
+use crate::data::plan::{Plan, TestKind};
 
 /// Run a calibration campaign: training with the compensator in bypass, the fit, validation
 /// tests with each compensation in the compensator, KMZ re-measured at the interval, the report
@@ -269,7 +269,7 @@ pub fn run_on(
     let design = args
         .design
         .as_deref()
-        .map(crate::design::DesignSpec::parse)
+        .map(crate::fit::design::DesignSpec::parse)
         .transpose()
         .map_err(|e| anyhow::anyhow!("--design: {e}"))?;
     let cfg = Config {
@@ -485,11 +485,11 @@ pub fn loops_table(lp: &campaign::LoopState) -> String {
     s
 }
 
-/// The campaign's self-contained `report.html` ([`crate::html_report`]): the table from what
+/// The campaign's self-contained `report.html` ([`crate::report::html_report`]): the table from what
 /// the stage received, the compensator's `MODEL_STALE` rises, explain's advice, the plots,
 /// the files with their CRC and the command.
 pub fn html_report(o: &campaign::Outcome, out: &std::path::Path) -> anyhow::Result<String> {
-    use crate::html_report::{command_line, file_fingerprint, inline_plots, ReportContent};
+    use crate::report::html_report::{command_line, file_fingerprint, inline_plots, ReportContent};
     let a = &o.analysis;
     let rows: Vec<&crate::validate::ValidationReport> = a.campaign.iter().collect();
     let mut provenance: Vec<(String, String)> = [

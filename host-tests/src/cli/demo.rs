@@ -9,22 +9,22 @@ use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::design::DesignSpec;
-use crate::device_path::{SlowPeriods, DEVICE_FOLD_PERIOD_S, DEVICE_SAMPLE_PERIOD_S};
-use crate::dwell::Dwells;
+use crate::data::dwell::Dwells;
+use crate::data::plan::{Plan, TestKind};
+use crate::data::recording::Recording;
+use crate::device::device_path::{SlowPeriods, DEVICE_FOLD_PERIOD_S, DEVICE_SAMPLE_PERIOD_S};
+use crate::fit::design::DesignSpec;
 use crate::fit::{
     adaptive_from_static, encode_blob, fit_dwells, parameter_count, FitOptions, FitReport,
     Selection,
 };
-use crate::iso9283::{per_pose_approach, TestStats};
-use crate::plan::{Plan, TestKind};
-use crate::procedure::ProcedureData;
-use crate::recording::Recording;
+use crate::numerics::stepwise::StepwiseOptions;
 use crate::report::write_report;
-use crate::stepwise::StepwiseOptions;
 use crate::twin::examples::{self, TRAINING_START_S};
 use crate::twin::execute::{run_plan, PlanRun};
 use crate::twin::Columns;
+use crate::validate::iso9283::{per_pose_approach, TestStats};
+use crate::validate::procedure::ProcedureData;
 use crate::validate::ValidationReport;
 
 /// Run paper 000's published procedures on the digital twin and print this project's figures
@@ -99,7 +99,7 @@ impl DemoArgs {
     }
 }
 
-/// Writes `dir/report.html` ([`crate::html_report`]) for one of the demo's stages: its
+/// Writes `dir/report.html` ([`crate::report::html_report`]) for one of the demo's stages: its
 /// validation table and plots, the files in `dir` it rests on with their CRC, the command.
 fn demo_html(
     dir: &std::path::Path,
@@ -107,7 +107,7 @@ fn demo_html(
     reports: &[&crate::validate::ValidationReport],
     files: &[&str],
 ) -> anyhow::Result<()> {
-    use crate::html_report::{command_line, file_fingerprint, inline_plots, ReportContent};
+    use crate::report::html_report::{command_line, file_fingerprint, inline_plots, ReportContent};
     let mut provenance: Vec<(String, String)> = files
         .iter()
         .map(|f| (f.to_string(), file_fingerprint(&dir.join(f))))
@@ -407,7 +407,7 @@ fn forward_backward_gap_um(t: &TestStats) -> (f64, usize) {
 /// a_1 … a_3 on x³, x², x; b_1 … b_4 on the four temperatures; λ (µm). Stepwise selects among
 /// these raw candidates, so a term it drops is that power of x itself.
 fn table1(f: &FitReport) -> String {
-    use crate::published::one_dof::{A, B_UM_PER_C, LAMBDA_UM};
+    use crate::papers::published::one_dof::{A, B_UM_PER_C, LAMBDA_UM};
     let Some(ax) = f.axes.first() else {
         return String::new();
     };
@@ -600,8 +600,8 @@ pub const ROBOT_PAPER_SPLIT: &str = "paper001";
 /// Paper 001 on the delta-robot twin: run the plan, fit stepwise among [`ROBOT_CANDIDATES`],
 /// validate, and report the selected terms and the 90 % figure per motor coordinate.
 fn robot(args: &DemoArgs, dir: &Path) -> anyhow::Result<String> {
-    use crate::iso9283::ninety_percent_per_axis;
     use crate::twin::delta::{DeltaConfig, DeltaTwin};
+    use crate::validate::iso9283::ninety_percent_per_axis;
     use std::fmt::Write;
     let plan = Plan::paper001_robot();
     let twin = DeltaTwin::new(DeltaConfig::paper001(args.seed), 3.0 * 86_400.0, args.seed);

@@ -5,8 +5,8 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::Args;
 
+use crate::data::recording::Recording;
 use crate::explain::{explain, plot, Data, Settings};
-use crate::recording::Recording;
 
 /// Arguments of `nanocal explain`.
 #[derive(Args, Debug)]

@@ -5,11 +5,11 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 
-use crate::error_table::{table, to_csv, Conditions};
+use crate::validate::error_table::{table, to_csv, Conditions};
 
 /// Write a model's correction of one axis as a bidirectional error table: per commanded
 /// position, the forward and backward error, with "error = reference − commanded" and the
-/// temperatures it holds at stated in the file's header (`crate::error_table`).
+/// temperatures it holds at stated in the file's header (`crate::validate::error_table`).
 #[derive(Args, Debug)]
 pub struct ExportTableArgs {
     /// Model blob (from `nanocal fit`).

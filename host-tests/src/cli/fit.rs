@@ -5,11 +5,11 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 
-use crate::design::DesignSpec;
-use crate::dwell::{dwell_average, DwellOptions};
+use crate::data::dwell::{dwell_average, DwellOptions};
+use crate::data::recording::Recording;
+use crate::fit::design::DesignSpec;
 use crate::fit::{encode_blob, fit_dwells, FitOptions, FitReport, Selection};
-use crate::recording::Recording;
-use crate::stepwise::StepwiseOptions;
+use crate::numerics::stepwise::StepwiseOptions;
 
 /// Fit a calibration model (command as a function of measured position, temperatures, …) to a
 /// training recording in the shared layout, and write it as a model blob.
@@ -81,13 +81,13 @@ pub fn run(args: FitArgs) -> anyhow::Result<()> {
     let rec = Recording::read_path(&args.recording)?;
     // checked before the fit's work, so a typo costs nothing
     let fit_date_s = match &args.fit_date {
-        Some(t) => crate::provenance::parse_fit_date(t)?,
+        Some(t) => crate::fit::provenance::parse_fit_date(t)?,
         None => std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_secs() as i64),
     };
     if let Some(line) = &args.stage_idn {
-        crate::provenance::provenance(b"", &[], Some(line), 0)?;
+        crate::fit::provenance::provenance(b"", &[], Some(line), 0)?;
     }
     let recording_bytes = std::fs::read(&args.recording)
         .with_context(|| format!("reading {}", args.recording.display()))?;
@@ -113,7 +113,7 @@ pub fn run(args: FitArgs) -> anyhow::Result<()> {
     };
     let mut rep =
         fit_dwells(&d, &opts).with_context(|| format!("fitting {}", args.recording.display()))?;
-    let provenance = crate::provenance::provenance(
+    let provenance = crate::fit::provenance::provenance(
         &recording_bytes,
         &rep.frame.axes,
         args.stage_idn.as_deref(),
@@ -122,7 +122,10 @@ pub fn run(args: FitArgs) -> anyhow::Result<()> {
     rep.model.set_provenance(provenance);
     bar.finish_and_clear();
     print!("{}", summary(&rep));
-    println!("{}", crate::provenance::describe(rep.model.provenance()));
+    println!(
+        "{}",
+        crate::fit::provenance::describe(rep.model.provenance())
+    );
     let held_out = if args.blocks > 0 {
         let bar = crate::cli::validate::spinner(format!(
             "held-out accuracy: refitting without each of {} blocks of time",
@@ -258,7 +261,7 @@ fn provenance_json(p: &nanocal_model::Provenance) -> serde_json::Value {
         "axes": p.axes.iter().flatten().map(|a| a.as_str()).collect::<Vec<_>>(),
         "unit": p.unit.name(),
         "fit_date_utc_s": p.fit_date_s,
-        "fit_date_utc": crate::provenance::format_utc(p.fit_date_s),
+        "fit_date_utc": crate::fit::provenance::format_utc(p.fit_date_s),
         "training_data_fnv1a64": format!("{:016x}", p.data_fnv64),
     })
 }
@@ -267,7 +270,7 @@ fn provenance_json(p: &nanocal_model::Provenance) -> serde_json::Value {
 /// stepwise selected them, the prediction band over the model's own terms, and the summaries.
 pub fn report_json(
     rep: &FitReport,
-    held_out: Option<&[crate::uncertainty::HeldOut]>,
+    held_out: Option<&[crate::numerics::uncertainty::HeldOut]>,
 ) -> serde_json::Value {
     use crate::cli::trust::{held_out_json, spread_json, vif_json};
     let axes: Vec<serde_json::Value> = rep

@@ -6,8 +6,8 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use clap::Args;
 
-use crate::gcsarray::GcsArray;
-use crate::recording::Recording;
+use crate::data::gcsarray::GcsArray;
+use crate::data::recording::Recording;
 
 /// Import a PI data-recorder file (GCSArray text as PI's software and PIPython's
 /// `pitools.savegcsarray` write it, or the text of a `DRR?` reply as PIPython's `qDRR` reads

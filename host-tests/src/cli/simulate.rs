@@ -86,7 +86,7 @@ pub struct SimulateArgs {
 
 /// Runs a published plan on its twin and writes the recordings and the plan.
 fn run_published(which: PublishedPlan, seed: u64, out: &std::path::Path) -> Result<()> {
-    use crate::plan::Plan;
+    use crate::data::plan::Plan;
     use crate::twin::delta::{DeltaConfig, DeltaTwin};
     use crate::twin::execute::run_plan;
     let start = examples::TRAINING_START_S;

@@ -5,9 +5,9 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use clap::Args;
 
-use crate::linalg::{compress_parts, merge_parts, Compressed, CompressedPart};
-use crate::recording::Recording;
-use crate::stepwise::{stepwise_compressed, Action, StepwiseOptions, StepwiseResult};
+use crate::data::recording::Recording;
+use crate::numerics::linalg::{compress_parts, merge_parts, Compressed, CompressedPart};
+use crate::numerics::stepwise::{stepwise_compressed, Action, StepwiseOptions, StepwiseResult};
 
 /// Stepwise linear regression with MATLAB `stepwisefit` semantics: every numeric column other
 /// than the response (and those listed in `--exclude`) is a candidate term; the intercept is
@@ -229,9 +229,9 @@ pub struct Trust {
     /// Why there is no interval, if there is none.
     pub pi_error: Option<String>,
     /// VIF of the final model's columns.
-    pub vif: Vec<crate::uncertainty::Vif>,
+    pub vif: Vec<crate::numerics::uncertainty::Vif>,
     /// Held-out accuracy (stepwise rerun without each block), if asked.
-    pub held_out: Option<crate::uncertainty::HeldOut>,
+    pub held_out: Option<crate::numerics::uncertainty::HeldOut>,
     /// Why there is no held-out accuracy although it was asked for (too few rows, …).
     pub held_out_error: Option<String>,
 }
@@ -247,7 +247,7 @@ impl Trust {
         opts: &StepwiseOptions,
         blocks: &Blocks,
     ) -> anyhow::Result<Self> {
-        use crate::uncertainty::{variance_inflation, HeldOut, PredictionBand};
+        use crate::numerics::uncertainty::{variance_inflation, HeldOut, PredictionBand};
         let sel: Vec<usize> = (0..names.len()).filter(|&j| res.inmodel[j]).collect();
         // rows the fit used (no NaN in y or any candidate)
         let used = &blocks.used;
@@ -379,7 +379,9 @@ impl Blocks {
             .collect();
         let ranges = match blocks {
             0 => None,
-            k => Some(crate::uncertainty::time_blocks(used.len(), k).map_err(|e| e.to_string())),
+            k => Some(
+                crate::numerics::uncertainty::time_blocks(used.len(), k).map_err(|e| e.to_string()),
+            ),
         };
         // block b starts at the input row of its first used row; NaN rows go with either
         // neighbour and are left out there as in the full fit

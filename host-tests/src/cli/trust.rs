@@ -1,7 +1,7 @@
 //! Printing and JSON of what a fit knows about itself (shared by `fit` and `stepwise`): the
-//! prediction interval, variance inflation, held-out accuracy ([`crate::uncertainty`]).
+//! prediction interval, variance inflation, held-out accuracy ([`crate::numerics::uncertainty`]).
 
-use crate::uncertainty::{collinearity_warnings, HeldOut, Vif};
+use crate::numerics::uncertainty::{collinearity_warnings, HeldOut, Vif};
 
 fn num(v: f64) -> serde_json::Value {
     if v.is_finite() {
@@ -59,7 +59,7 @@ pub fn vif_json(vifs: &[Vif], what: &str) -> serde_json::Value {
                 "correlation": v.partner.as_ref().map(|p| num(p.1))})
         })
         .collect();
-    serde_json::json!({"columns": cols, "threshold": crate::uncertainty::VIF_WARN,
+    serde_json::json!({"columns": cols, "threshold": crate::numerics::uncertainty::VIF_WARN,
         "warnings": collinearity_warnings(vifs, what)})
 }
 

@@ -7,10 +7,10 @@ use anyhow::Context;
 use clap::Args;
 use nanocal_model::Model;
 
-use crate::device_path::{SlowPeriods, DEVICE_FOLD_PERIOD_S, DEVICE_SAMPLE_PERIOD_S};
-use crate::dwell::DwellOptions;
-use crate::iso9283::TestStats;
-use crate::recording::Recording;
+use crate::data::dwell::DwellOptions;
+use crate::data::recording::Recording;
+use crate::device::device_path::{SlowPeriods, DEVICE_FOLD_PERIOD_S, DEVICE_SAMPLE_PERIOD_S};
+use crate::validate::iso9283::TestStats;
 use crate::validate::{
     comparison_table, validate, Compensation, ValidationData, ValidationOptions, ValidationReport,
 };
@@ -86,7 +86,7 @@ pub fn uncertainty_lines(fit: &serde_json::Value) -> Vec<String> {
 pub fn read_bands(
     path: &Path,
     model: &Model,
-) -> anyhow::Result<Vec<crate::uncertainty::PredictionBand>> {
+) -> anyhow::Result<Vec<crate::numerics::uncertainty::PredictionBand>> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     let v: serde_json::Value =
@@ -117,7 +117,7 @@ pub fn read_bands(
             if let Some(e) = ax["prediction_band_error"].as_str() {
                 anyhow::bail!("{}: axis {a} has no prediction band: {e}", path.display());
             }
-            let band: crate::uncertainty::PredictionBand =
+            let band: crate::numerics::uncertainty::PredictionBand =
                 serde_json::from_value(ax["prediction_band"].clone()).with_context(|| {
                     format!("{}: axis {a}: bad `prediction_band`", path.display())
                 })?;
@@ -234,8 +234,8 @@ impl ValidationInputs {
         rec: &Recording,
         path: &Path,
     ) -> anyhow::Result<(ValidationData, [ValidationReport; 3])> {
-        use crate::plan::{Phase, Plan, TestKind};
-        use crate::procedure::ProcedureData;
+        use crate::data::plan::{Phase, Plan, TestKind};
+        use crate::validate::procedure::ProcedureData;
         let text =
             std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
         let plan: Plan = serde_json::from_str(&text)
@@ -425,7 +425,7 @@ pub fn run(args: ValidateArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The self-contained HTML report of a validation ([`crate::html_report`]).
+/// The self-contained HTML report of a validation ([`crate::report::html_report`]).
 fn html_report(
     args: &ValidateArgs,
     data: &crate::validate::ValidationData,
@@ -433,7 +433,7 @@ fn html_report(
     coverage: Option<crate::validate::Coverage>,
     fit_report: &serde_json::Value,
 ) -> anyhow::Result<String> {
-    use crate::html_report::{command_line, file_fingerprint, inline_plots, ReportContent};
+    use crate::report::html_report::{command_line, file_fingerprint, inline_plots, ReportContent};
     let model = read_model(&args.inputs.model)?;
     let explain = if data.dwells.len() >= 50 {
         let rec = data.dwells.to_recording();

@@ -3,6 +3,8 @@
 //! stream. The protocol itself (frames, typed requests and replies, status layout, result
 //! codes) is `nanocal_interface`'s, shared with the firmware.
 
+pub mod device_path;
+
 pub use nanocal_interface::mgmt::Hello;
 use nanocal_interface::mgmt::{self, Decoder, InputCode, Kind, Refusal, Reply, Request};
 use nanocal_interface::settings::Settings;

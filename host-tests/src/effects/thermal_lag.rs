@@ -249,7 +249,7 @@ fn drop_implausible(
     let temps: Vec<Vec<f64>> = s.d.temps.iter().map(|(_, t)| gather(t, rows)).collect();
     let trefs: Vec<&[f64]> = temps.iter().map(|c| c.as_slice()).collect();
     let y = gather(s.y, rows);
-    let stat = crate::linalg::lstsq(&trefs, &y, true)?;
+    let stat = crate::numerics::linalg::lstsq(&trefs, &y, true)?;
     let fitted: Vec<f64> = y.iter().zip(&stat.residuals).map(|(a, r)| a - r).collect();
     let scale = std_dev(&fitted);
     while !terms.is_empty() {
@@ -260,7 +260,7 @@ fn drop_implausible(
             .chain(cols.iter().map(|c| gather(c, rows)))
             .collect();
         let refs: Vec<&[f64]> = g.iter().map(|c| c.as_slice()).collect();
-        let ls = crate::linalg::lstsq(&refs, &y, true)?;
+        let ls = crate::numerics::linalg::lstsq(&refs, &y, true)?;
         let m = s.model.len();
         let worst = (0..terms.len())
             .map(|j| {

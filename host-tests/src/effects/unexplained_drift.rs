@@ -73,20 +73,7 @@ pub fn telegraph(t_abs_s: &[f64], mean_period_s: f64, rng: &mut ChaCha8Rng) -> V
 /// judged on held-out gaps longer than its own time scale (1.25 × T/K).
 pub struct Candidate;
 
-/// Cosines cos(πk(t − t₀)/T), k = 1..K, over the recording's time (T its duration).
-pub fn cosine_basis(t_s: &[f64], k: usize) -> Vec<Vec<f64>> {
-    cosine_columns(t_s, 1..=k).collect()
-}
-
-/// The cosines of orders `orders` of [`cosine_basis`] (the same values, column by column).
-fn cosine_columns(
-    t_s: &[f64],
-    orders: std::ops::RangeInclusive<usize>,
-) -> impl Iterator<Item = Vec<f64>> + '_ {
-    orders.map(move |j| cosine_column(t_s, j))
-}
-
-/// The cosine of order `j` of [`cosine_basis`].
+/// The cosine of order `j` over the recording's time, cos(πj(t − t₀)/T) (T its duration).
 fn cosine_column(t_s: &[f64], j: usize) -> Vec<f64> {
     let t0 = t_s.first().copied().unwrap_or(0.0);
     let span = (t_s.last().copied().unwrap_or(1.0) - t0).max(1e-9);

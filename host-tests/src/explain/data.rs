@@ -3,7 +3,7 @@
 //! real recordings bring found first: quantised readings, channels held between slower
 //! reports, glitches (excluded from fitting and reported with their rows).
 
-use crate::recording::Recording;
+use crate::data::recording::Recording;
 
 use super::error::ExplainError;
 use super::robust;

@@ -1,8 +1,8 @@
 //! Explain's error and its parallel map: a leaf every part of explain and every effect may
 //! import without importing the engine (explain/mod.rs), which imports the effects.
 
-use crate::linalg::LinalgError;
-use crate::recording::RecordingError;
+use crate::data::recording::RecordingError;
+use crate::numerics::linalg::LinalgError;
 
 /// Errors of explain.
 #[derive(Debug, thiserror::Error)]

@@ -126,7 +126,7 @@ fn input_steps(x: &[f64], j: usize, w: usize) -> Option<f64> {
 
 /// RSS of least squares of `y` on the columns `x` (with an intercept).
 fn rss_of(x: &[&[f64]], y: &[f64]) -> Option<(f64, Vec<f64>, Vec<f64>)> {
-    let ls = crate::linalg::lstsq(x, y, true).ok()?;
+    let ls = crate::numerics::linalg::lstsq(x, y, true).ok()?;
     let se = ls.std_errors();
     Some((ls.rss, ls.coeffs, se))
 }
@@ -337,7 +337,7 @@ pub fn without_pose_structure(d: &Data, ch: usize, r: &[f64]) -> Vec<f64> {
         }
     }
     let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
-    match crate::linalg::lstsq(&refs, r, true) {
+    match crate::numerics::linalg::lstsq(&refs, r, true) {
         Ok(ls) => (0..n)
             .map(|i| {
                 if r[i].is_finite() {

@@ -8,7 +8,7 @@
 
 use serde::Serialize;
 
-use crate::recording::{ColumnRole, Recording};
+use crate::data::recording::{ColumnRole, Recording};
 
 use super::error::ExplainError;
 use super::robust::{glitch_rows, quantisation_step, rows_in_words, update_interval_s};
@@ -445,7 +445,7 @@ fn peers_say_moved(x: &[f64], a: usize, b: usize, peers: &[&[f64]]) -> Option<bo
         .map(|(_, p)| rows.iter().map(|&i| p[i]).collect())
         .collect();
     let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
-    let ls = crate::linalg::lstsq(&refs, &xs, true).ok()?;
+    let ls = crate::numerics::linalg::lstsq(&refs, &xs, true).ok()?;
     let predict = |i: usize| {
         ls.intercept
             + scored

@@ -2,7 +2,7 @@
 //! cross-validation with a held-out design, an information criterion corrected for
 //! autocorrelated residuals.
 
-use crate::linalg::{lstsq, LeastSquares};
+use crate::numerics::linalg::{lstsq, LeastSquares};
 
 use super::error::ExplainError;
 use super::stats::{centred_mean, median};

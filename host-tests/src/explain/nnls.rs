@@ -4,7 +4,7 @@
 //! [`crate::explain::search::Basis::reduce`]); each passive-set subproblem is solved by the
 //! host's Householder QR.
 
-use crate::linalg::lstsq;
+use crate::numerics::linalg::lstsq;
 
 /// Solves min |b − A w|, w ≥ 0, for A given as columns (each of length `b.len()`).
 pub fn nnls(a: &[Vec<f64>], b: &[f64]) -> Vec<f64> {

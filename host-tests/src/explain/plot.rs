@@ -1,10 +1,10 @@
-//! Residual plots before/after (PNG and SVG through the host's [`crate::plot`]).
+//! Residual plots before/after (PNG and SVG through the host's [`crate::report::plot`]).
 
 use std::path::{Path, PathBuf};
 
 use super::data::Data;
 use super::report::ChannelReport;
-use crate::plot::{write_chart, Chart, PlotError, Series, Style};
+use crate::report::plot::{write_chart, Chart, PlotError, Series, Style};
 
 fn series(name: &str, x: &[f64], r_um: &[f64], style: Style) -> Series {
     let step = (x.len() / 5000).max(1);

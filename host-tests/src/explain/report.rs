@@ -300,7 +300,7 @@ pub struct JsonFault {
     pub needs_check: bool,
 }
 
-/// ISO 9283 accuracy and repeatability (host's [`crate::iso9283`]) of a held-out residual `r`
+/// ISO 9283 accuracy and repeatability (host's [`crate::validate::iso9283`]) of a held-out residual `r`
 /// (µm) on a commanded channel: one visit per dwell (its mean), poses split by direction of
 /// approach (forward and backward are different poses, as the literature reports them). Only
 /// where the procedure revisits poses: the command holds dwells and at least two
@@ -331,14 +331,14 @@ pub fn iso_accuracy(d: &Data, ch: usize, r: &[f64]) -> Option<IsoAccuracy> {
         errors.push(vec![vals.iter().sum::<f64>() / vals.len() as f64, 0.0]);
     }
     // the direction rides along as a second coordinate (error 0) only to split the groups
-    let poses: Vec<_> = crate::iso9283::per_pose(&targets, &errors)
+    let poses: Vec<_> = crate::validate::iso9283::per_pose(&targets, &errors)
         .into_iter()
         .filter(|p| p.n >= 2)
         .collect();
     if poses.len() < 2 {
         return None;
     }
-    let (acc, rep) = crate::iso9283::max_over_poses(&poses);
+    let (acc, rep) = crate::validate::iso9283::max_over_poses(&poses);
     Some(IsoAccuracy {
         max_accuracy_nm: acc * 1e3,
         max_repeatability_nm: rep * 1e3,

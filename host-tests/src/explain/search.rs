@@ -367,13 +367,13 @@ mod tests {
         let rows: Vec<usize> = (0..n).collect();
         let b = Basis::new(&[&x1], &y, rows);
         let with = b.rss_with(&[&x2, &x3]);
-        let ls = crate::linalg::lstsq(&[&x1, &x2, &x3], &y, true).unwrap();
+        let ls = crate::numerics::linalg::lstsq(&[&x1, &x2, &x3], &y, true).unwrap();
         assert!(
             (with - ls.rss).abs() < 1e-9 * ls.rss.max(1e-12),
             "{with} vs {}",
             ls.rss
         );
-        let base = crate::linalg::lstsq(&[&x1], &y, true).unwrap();
+        let base = crate::numerics::linalg::lstsq(&[&x1], &y, true).unwrap();
         assert!((b.rss() - base.rss).abs() < 1e-9 * base.rss);
         // a spanned column changes nothing
         let dup: Vec<f64> = x1.iter().map(|v| 3.0 * v + 1.0).collect();

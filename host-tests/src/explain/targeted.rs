@@ -369,7 +369,7 @@ pub fn run(d: &Data, ch: usize, cols: &[&[f64]], y: &[f64], rows: &[usize]) -> V
         }
         let statistic = chi2(&beta, &cov);
         let p_value = if null_dof.is_finite() {
-            crate::stats::f_pvalue(statistic / k as f64, k as f64, null_dof)
+            crate::numerics::stats::f_pvalue(statistic / k as f64, k as f64, null_dof)
         } else {
             chi2_tail(statistic, k)
         };

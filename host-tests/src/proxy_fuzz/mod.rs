@@ -34,7 +34,7 @@
 mod gen;
 mod oracle;
 
-use crate::published::{coupled_2dof, published_1dof};
+use crate::papers::published::{coupled_2dof, published_1dof};
 use crate::virtual_bench::{Config, Controller, IdealPlant, ManualClock};
 use nanocal_compensator::proxy::{FoldCorrector, Output, Proxy, REPLY_TIMEOUT_MS};
 use nanocal_model::{Model, SlowInputs, MAX_AXES};

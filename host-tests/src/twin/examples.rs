@@ -53,7 +53,7 @@ pub fn published_1dof_twin(seed: u64) -> Twin {
     Twin::new(cfg, 5.0 * 86_400.0, seed)
 }
 
-/// Paper 000's 1-DoF stage for its published procedure ([`crate::plan::Plan::paper000_1dof`]),
+/// Paper 000's 1-DoF stage for its published procedure ([`crate::data::plan::Plan::paper000_1dof`]),
 /// built from what the paper reports of its stage and room:
 /// - geometric error "up to 400 nm" (Fig. 2, §3.1) from a cubic (≈ 390 nm over 0–480 µm);
 /// - thermal drift: the negated coefficients of its static model (Table 1: −2.978, 3.142,
@@ -77,7 +77,7 @@ pub fn published_1dof_twin(seed: u64) -> Twin {
 pub fn paper000_1dof_twin(seed: u64) -> Twin {
     let mut cfg = TwinConfig::published_1dof();
     cfg.geometric_nm = vec![vec![90.0, -120.0, 110.0]];
-    let mut k: Vec<f64> = crate::published::one_dof::B_UM_PER_C
+    let mut k: Vec<f64> = crate::papers::published::one_dof::B_UM_PER_C
         .iter()
         .map(|b| -b)
         .collect();
@@ -93,8 +93,10 @@ pub fn paper000_1dof_twin(seed: u64) -> Twin {
         slope_nm: 0.0,
         ..Default::default()
     }));
-    let validation_start_s =
-        TRAINING_START_S + crate::plan::Plan::paper000_1dof().training.duration_s();
+    let validation_start_s = TRAINING_START_S
+        + crate::data::plan::Plan::paper000_1dof()
+            .training
+            .duration_s();
     cfg.room.ramps.push(Ramp {
         start_s: validation_start_s + 60.0 * 3600.0,
         duration_s: 48.0 * 3600.0,
@@ -153,7 +155,7 @@ pub fn paper000_1dof_controlled_twin(seed: u64) -> Twin {
 }
 
 /// Paper 000's 2-DoF stage (a P-611.3 NanoCube over 0–80 µm, §5) for
-/// [`crate::plan::Plan::paper000_2dof`]: the room and sensors of [`TwinConfig::published_2dof`],
+/// [`crate::data::plan::Plan::paper000_2dof`]: the room and sensors of [`TwinConfig::published_2dof`],
 /// a gain error of ≈ 1 % (± 400 nm over the stroke) and a cubic on each axis, cross-talk of 4
 /// and 3 nm per µm of the other axis (≈ 0.2° non-orthogonality) with some curvature, so that the
 /// uncompensated 2-D error is of the paper's ≈ 1.2–1.4 µm; repeatability, structural lag and

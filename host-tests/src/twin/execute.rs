@@ -12,7 +12,7 @@
 
 use super::delta::DeltaTwin;
 use super::{Columns, Dwell, Trajectory, Twin};
-use crate::plan::{Phase, Plan, Step};
+use crate::data::plan::{Phase, Plan, Step};
 
 /// Something that turns a command trajectory into a recording in the shared layout.
 pub trait Simulator {

@@ -18,8 +18,8 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use crate::data::recording::{Recording, RecordingError};
 use crate::effects::{EffectSpec, SimContext};
-use crate::recording::{Recording, RecordingError};
 pub use room::{Ramp, Room, RoomConfig, SensorConfig};
 pub use trajectory::{Dwell, Trajectory};
 

@@ -126,7 +126,7 @@ impl Trajectory {
 
     /// Published 2-DoF validation points (0,0), (45,45), (75,15), (75,75), (15,75), (15,15).
     pub fn published_validation_2dof(dwell_s: f64, cycles: usize, rest_s: f64) -> Self {
-        let pts = crate::plan::PAPER000_2DOF_POINTS_UM;
+        let pts = crate::data::plan::PAPER000_2DOF_POINTS_UM;
         let mut dwells = Vec::new();
         for _ in 0..cycles {
             for &(x, y) in &pts {

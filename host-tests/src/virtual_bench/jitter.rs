@@ -97,8 +97,8 @@ pub fn measure(
     let mut gcs = GcsLink::new(vb.gcs(), "virtual:gcs");
     let stop = AtomicBool::new(false);
     let e = |e: &dyn std::fmt::Display| e.to_string();
-    let model = crate::published::published_1dof().map_err(|m| format!("{m:?}"))?;
-    let b = crate::published::one_dof::B_UM_PER_C;
+    let model = crate::papers::published::published_1dof().map_err(|m| format!("{m:?}"))?;
+    let b = crate::papers::published::one_dof::B_UM_PER_C;
     let b_norm = b.iter().map(|v| v * v).sum::<f64>().sqrt();
     let sigma_c = reading_noise_c(&twin);
     let sensors = twin.cfg.sensors.iter().filter(|s| s.recorded).count();

@@ -1,9 +1,9 @@
 //! Shared helpers of the explain proof tests: simulate with the twin, explain, look up results.
 #![allow(dead_code)]
 
+use nanocal::data::recording::Recording;
 use nanocal::effects::EffectSpec;
 use nanocal::explain::{explain, ChannelReport, Data, EffectReport, Report, Settings};
-use nanocal::recording::Recording;
 use nanocal::twin::{Columns, Trajectory, Twin, TwinConfig};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

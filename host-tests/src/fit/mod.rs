@@ -4,19 +4,22 @@
 //! The model maps a calibrated target position `x` to the command `q` to send, so each output
 //! axis regresses the command `cmd_<axis>` on the candidate terms evaluated at the measured
 //! position `meas_*` (and temperatures, aux, direction of approach). The regressors are the
-//! papers' raw candidates (`x`, `x²`, `x³`, `t_i`, …: [`crate::design`]), so the terms are
+//! papers' raw candidates (`x`, `x²`, `x³`, `t_i`, …: [`crate::fit::design`]), so the terms are
 //! selected as the papers select them and the coefficients are the papers' (paper 000 Table 1:
 //! a_1 … a_3, b_1 … b_4, λ). They go into the blob converted exactly into its centred and
 //! scaled basis ([`nanocal_model::ModelBuilder::add_raw_term`]); the intercept is λ.
 
+pub mod design;
+pub mod provenance;
+
 use nanocal_model::{Model, ModelError, MAX_AXES};
 
-use crate::design::{regressors, Candidate, DesignError, DesignFrame, DesignSpec};
-use crate::dwell::{dwell_average, DwellError, DwellOptions, Dwells};
-use crate::linalg::{lstsq, LinalgError};
-use crate::recording::Recording;
-use crate::stepwise::{stepwise, StepwiseError, StepwiseOptions, StepwiseResult};
-use crate::uncertainty::{
+use crate::data::dwell::{dwell_average, DwellError, DwellOptions, Dwells};
+use crate::data::recording::Recording;
+use crate::fit::design::{regressors, Candidate, DesignError, DesignFrame, DesignSpec};
+use crate::numerics::linalg::{lstsq, LinalgError};
+use crate::numerics::stepwise::{stepwise, StepwiseError, StepwiseOptions, StepwiseResult};
+use crate::numerics::uncertainty::{
     time_blocks, variance_inflation, HeldOut, PredictionBand, UncertaintyError, Vif,
 };
 
@@ -314,7 +317,7 @@ pub fn band_regressors(
 }
 
 /// Held-out accuracy per output axis, by `blocks` contiguous blocks of dwells in time order
-/// ([`crate::uncertainty`] says why not random rows): each block is predicted by the whole
+/// ([`crate::numerics::uncertainty`] says why not random rows): each block is predicted by the whole
 /// procedure — design, selection, fit — run on the other blocks; the error is the recorded
 /// command minus the predicted one, µm. A block at either end of the recording is an
 /// extrapolation in time (and often in temperature): that is the honest case.
@@ -362,7 +365,7 @@ pub fn device_bound(band: &PredictionBand) -> Option<nanocal_model::AxisBound> {
     if p > nanocal_model::MAX_BOUND_TERMS {
         return None;
     }
-    let t95 = crate::uncertainty::t_quantile(0.975, band.dfe as f64);
+    let t95 = crate::numerics::uncertainty::t_quantile(0.975, band.dfe as f64);
     let f32s = |v: &[f64]| v.iter().map(|x| *x as f32).collect::<Vec<f32>>();
     let r_packed: Vec<f32> = (0..=p)
         .flat_map(|i| (i..=p).map(move |j| (i, j)))

@@ -19,7 +19,7 @@
 //! axis' command. A step that repeats the previous pose (a turning point held for a second
 //! step, the 0 µm that ends one cycle and starts the next) is the same physical approach as the
 //! step before it and keeps its direction; before the first motion every axis counts as forward
-//! (+1, as the digital twin and [`crate::dwell::dwell_average`] take it).
+//! (+1, as the digital twin and [`crate::data::dwell::dwell_average`] take it).
 //!
 //! Paper 000's 1-DoF cycle (0, 30, …, 480, 480, 450, …, 0: 34 steps) is then, from the second
 //! cycle on, 17 forward (30 … 480 and the held 480) and 17 backward (450 … 0 and the held 0 that

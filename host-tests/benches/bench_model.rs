@@ -1,12 +1,12 @@
 //! Benchmark of the shared model on the host: the f32 fast path's worst error against the f64
 //! reference over a dense grid of the training envelope (along a walk with reversals for a
 //! model with hysteresis, over force values for a model with a fast input), and native timings
-//! of fold, correct and inverse. Run: `cargo run --release --bin bench_model` in host-tests/.
+//! of fold, correct and inverse. Run: `cargo bench --bench bench_model` in host-tests/.
 
 use std::hint::black_box;
 use std::time::Instant;
 
-use nanocal::published::{coupled_2dof, published_1dof};
+use nanocal::papers::published::{coupled_2dof, published_1dof};
 use nanocal_model::reference::{delta_robot_78, ROBOT_HALF_STROKE_UM};
 use nanocal_model::{
     AuxKind, AuxSpec, Factor, FastInputs, HysteresisState, Input, Model, ModelBuilder, SlowInputs,

@@ -2,7 +2,7 @@
 //!
 //! Each dwell of the validation recording is a visit of the commanded pose `cmd`. Without a
 //! model the stage goes to `meas`, so the error is `meas − cmd`. With a model the device folds
-//! its sensor readings at its own cadence ([`crate::device_path`]: readings averaged over the
+//! its sensor readings at its own cadence ([`crate::device::device_path`]: readings averaged over the
 //! fold period, lag filters, f32 readings) and maps targets through the f32 fast path; the user target for which the
 //! device would have sent `cmd` is `x̂ = fold.inverse(cmd)` with the fold in force when the
 //! move was sent (the start of the dwell), and the stage, having received `cmd`, went to
@@ -21,7 +21,7 @@
 //! Adaptive (KMZ, paper 000 §3.4, Eq. 14): at the dwells whose [`Role`] is a KMZ
 //! re-measurement — a plan's KMZ steps, or, in a recording of cycles, a visit of the reference
 //! pose once `interval_s` has passed since the last — λ_KMZ is re-measured from the
-//! difference of the reference readings at the KMZ pose ([`crate::kmz::KmzDrift`]). A KMZ that
+//! difference of the reference readings at the KMZ pose ([`crate::data::kmz::KmzDrift`]). A KMZ that
 //! is a visit of its test (the first visit of the test, at the reference pose) is counted as
 //! paper 000's Eq. 17–18 count it: "λ_KMZ is only measured at the first zero position, so
 //! λ_KMZ = −D₁(t)" — its error is evaluated with the λ_KMZ it gave, the drift of that visit
@@ -30,19 +30,23 @@
 //! Visits are grouped into **tests** (paper 000 §4.2: a test is one block of cycles, 15 cycles
 //! in 1.25 h): per test, Acc and Rep are the maxima over its poses (Eq. 6–7, ISO 9283
 //! 7.2.1/7.2.2, forward and backward approaches separate poses), and over the tests R_s and R_t
-//! (Eq. 20–21) in µm and µm/h ([`crate::iso9283`]).
+//! (Eq. 20–21) in µm and µm/h ([`crate::validate::iso9283`]).
+
+pub mod error_table;
+pub mod iso9283;
+pub mod procedure;
 
 use nanocal_compensator::gcs;
 use nanocal_compensator::proxy::{travel, Corrector, FoldCorrector};
 use nanocal_model::{FastInputs, HysteresisState, Model, SlowInputs, MAX_AXES};
 
-use crate::device_path::{DeviceSlowPath, SensorStream, SlowPeriods};
-use crate::dwell::{dwell_average, DwellError, DwellOptions, Dwells};
-use crate::iso9283::{
+use crate::data::dwell::{dwell_average, DwellError, DwellOptions, Dwells};
+use crate::data::recording::Recording;
+use crate::device::device_path::{DeviceSlowPath, SensorStream, SlowPeriods};
+use crate::validate::iso9283::{
     distribution, per_pose_approach, space_robustness_um, time_robustness_um_per_h,
     ErrorDistribution, TestStats,
 };
-use crate::recording::Recording;
 
 /// Errors of a validation.
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -374,7 +378,7 @@ pub fn validate_roles(
     let mut inverse_failures = 0;
     // the device's play-operator memory, as the commands sent left it
     let mut hyst = HysteresisState::new();
-    let mut kmz_drift = crate::kmz::KmzDrift::default();
+    let mut kmz_drift = crate::data::kmz::KmzDrift::default();
     for (i, role) in roles.iter().enumerate() {
         let (test, kmz, extra) = match *role {
             Role::Skip => {
@@ -588,10 +592,10 @@ fn summarise(
     let max = |v: &[f64]| v.iter().copied().fold(f64::NAN, f64::max);
     let summary = TestSummary {
         first_acc_um: acc.first().copied().unwrap_or(f64::NAN),
-        median_acc_um: crate::iso9283::percentile(&acc, 50.0),
+        median_acc_um: crate::validate::iso9283::percentile(&acc, 50.0),
         max_acc_um: max(&acc),
         min_acc_um: acc.iter().copied().fold(f64::NAN, f64::min),
-        median_rep_um: crate::iso9283::percentile(&rep, 50.0),
+        median_rep_um: crate::validate::iso9283::percentile(&rep, 50.0),
         max_rep_um: max(&rep),
         max_acc_forward_um: max(&fwd),
         max_acc_backward_um: max(&bwd),
@@ -693,9 +697,9 @@ impl Coverage {
 pub fn coverage(
     report: &ValidationReport,
     model: &Model,
-    bands: &[crate::uncertainty::PredictionBand],
+    bands: &[crate::numerics::uncertainty::PredictionBand],
     level: f64,
-) -> Result<Coverage, crate::uncertainty::UncertaintyError> {
+) -> Result<Coverage, crate::numerics::uncertainty::UncertaintyError> {
     let mut inside = 0;
     let mut n = 0;
     let mut widths = Vec::new();

@@ -19,8 +19,8 @@
 
 #![allow(clippy::needless_range_loop)] // index loops read best in numerical kernels
 
-use crate::linalg::{compress, lstsq, Mat};
-use crate::stats::t_pvalue_two_sided;
+use crate::numerics::linalg::{compress, lstsq, Mat};
+use crate::numerics::stats::t_pvalue_two_sided;
 
 /// Errors of the uncertainty computations.
 #[derive(Debug, Clone, thiserror::Error, PartialEq)]

@@ -38,7 +38,7 @@ use nanocal_model::{
     SlowInputs, Term, MAX_AUX, MAX_AXES, MAX_TEMPS,
 };
 
-use crate::dwell::Dwells;
+use crate::data::dwell::Dwells;
 
 /// Errors building a design.
 #[derive(Debug, thiserror::Error)]

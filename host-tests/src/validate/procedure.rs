@@ -8,10 +8,10 @@
 
 use nanocal_model::Model;
 
-use crate::device_path::{SensorStream, SlowPeriods};
-use crate::dwell::{step_average, DwellError, Dwells};
-use crate::plan::{KmzPlan, Phase, Step, TestKind};
-use crate::recording::Recording;
+use crate::data::dwell::{step_average, DwellError, Dwells};
+use crate::data::plan::{KmzPlan, Phase, Step, TestKind};
+use crate::data::recording::Recording;
+use crate::device::device_path::{SensorStream, SlowPeriods};
 use crate::validate::{
     validate_roles, Compensation, Role, ValidateError, ValidationData, ValidationOptions,
     ValidationReport,

@@ -15,7 +15,7 @@
 //!   reported in original units. Rows with a NaN anywhere are left out.
 //!
 //! Numerics: QR, never normal equations. The data `[1 X y]` are compressed once by a streaming
-//! Householder QR to their `(p+2) × (p+2)` triangular factor `R` ([`crate::linalg::compress`],
+//! Householder QR to their `(p+2) × (p+2)` triangular factor `R` ([`crate::numerics::linalg::compress`],
 //! O(n p²), multi-threaded). Because `[1 X y] = Q R` with orthonormal `Q`, every regression on a
 //! subset of the columns — coefficients, residual norms, added-variable projections, `(XᵀX)⁻¹` —
 //! is the same computed on the columns of `R`, so each step is a pivoted Householder QR of a
@@ -24,8 +24,8 @@
 
 #![allow(clippy::needless_range_loop)] // index loops read best in numerical kernels
 
-use crate::linalg::{compress, Compressed, Mat, PivotedQr};
-use crate::stats::t_pvalue_two_sided;
+use crate::numerics::linalg::{compress, Compressed, Mat, PivotedQr};
+use crate::numerics::stats::t_pvalue_two_sided;
 
 /// Errors of [`stepwise`].
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -214,8 +214,8 @@ pub fn stepwise(
 /// [`compress_parts`] of `[x… y]` — a fit on a subset of row ranges without another pass over
 /// the data. Same result as [`stepwise`] on those rows (up to rounding).
 ///
-/// [`merge_parts`]: crate::linalg::merge_parts
-/// [`compress_parts`]: crate::linalg::compress_parts
+/// [`merge_parts`]: crate::numerics::linalg::merge_parts
+/// [`compress_parts`]: crate::numerics::linalg::compress_parts
 pub fn stepwise_compressed(
     comp: Compressed,
     opts: &StepwiseOptions,
@@ -325,7 +325,7 @@ fn run(
             let r_squared_adjusted =
                 1.0 - (c.ss_resid / c.dfe as f64) / (c.ss_total / (n as f64 - 1.0));
             let fstat = ((c.ss_total - c.ss_resid) / c.df0 as f64) / (c.rmse * c.rmse);
-            let fpval = crate::stats::f_pvalue(fstat, c.df0 as f64, c.dfe as f64);
+            let fpval = crate::numerics::stats::f_pvalue(fstat, c.df0 as f64, c.dfe as f64);
             return StepwiseResult {
                 b: c.b,
                 se: c.se,

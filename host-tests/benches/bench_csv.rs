@@ -4,12 +4,12 @@
 //! values written as instruments write them (6 decimals, like the digital twin), and values
 //! written with full round-trip precision (17 significant digits; the slower exact path).
 //!
-//! Run: `cargo run --release --bin bench_csv -- [--rows N]`
+//! Run: `cargo bench --bench bench_csv -- [--rows N]`
 
 use std::fmt::Write as _;
 use std::time::Instant;
 
-use nanocal::recording::Recording;
+use nanocal::data::recording::Recording;
 
 fn arg(name: &str) -> Option<String> {
     let args: Vec<String> = std::env::args().collect();

@@ -15,8 +15,8 @@
 use nanocal_compensator::slow_average::SlowAverage;
 use nanocal_model::{FastInputs, LagBank, LagSpec, SlowInputs, MAX_AUX, MAX_TEMPS};
 
-use crate::dwell::Dwells;
-use crate::recording::Recording;
+use crate::data::dwell::Dwells;
+use crate::data::recording::Recording;
 
 /// The device's default sample period, s: the compensator's `Settings::default()
 /// .sample_period_ms` (250 ms; a management setting, 50 ms – 60 s).
@@ -83,7 +83,7 @@ fn is_slow_channel(name: &str) -> bool {
 impl SensorStream {
     /// Every `temp_*` column of `rec` (in file order) and every other non-position column as
     /// aux, sampled at the recording's `t` (row index as seconds without one) — the convention
-    /// of [`crate::design`].
+    /// of [`crate::fit::design`].
     pub fn from_recording(rec: &Recording) -> Self {
         let t_s = match rec.time_s() {
             Some(t) => t.to_vec(),

@@ -4,7 +4,7 @@
 //! on the same file, each a whole process, timed from outside (wall and CPU of the child).
 //! The reference is looked for beside the repository, or where `NANOCAL_OCTAVE_STEPWISE` says.
 //!
-//! Run: `cargo build --release && cargo run --release --bin bench_stepwise_file -- [--rows N]
+//! Run: `cargo bench --bench bench_stepwise_file -- [--rows N]
 //! [--cols P] [--runs K] [--no-octave]` (default 200,000 × 40 candidates + the response, values
 //! with 6 decimals as instruments write them, 3 runs of each side; best and median printed).
 
@@ -135,14 +135,8 @@ fn main() {
     let p: usize = arg("--cols").map_or(40, |v| v.parse().expect("--cols P"));
     let runs: usize = arg("--runs").map_or(3, |v| v.parse().expect("--runs K"));
     let octave = !std::env::args().any(|a| a == "--no-octave");
-    let nanocal: PathBuf = std::env::current_exe()
-        .expect("this benchmark's path")
-        .with_file_name("nanocal");
-    assert!(
-        nanocal.is_file(),
-        "{} is missing: run `cargo build --release` first",
-        nanocal.display()
-    );
+    // cargo builds the CLI, in this benchmark's profile, before it runs a benchmark
+    let nanocal = PathBuf::from(env!("CARGO_BIN_EXE_nanocal"));
     let dir = std::env::temp_dir().join(format!("nanocal-bench-file-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");
     let csv = dir.join("design.csv");

@@ -2,7 +2,7 @@
 //! side by side with the Octave reference implementation (`ms_stepwisefit`, timed inside Octave
 //! on the same data), with the peak memory of this process (VmHWM) against the design matrix.
 //!
-//! Run: `cargo run --release --bin bench_stepwise -- [--rows N] [--cols P] [--no-octave]`
+//! Run: `cargo bench --bench bench_stepwise -- [--rows N] [--cols P] [--no-octave]`
 
 #![allow(clippy::needless_range_loop)] // column-wise data generation reads best with indices
 
@@ -11,7 +11,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Instant;
 
-use nanocal::stepwise::{stepwise, StepwiseOptions};
+use nanocal::numerics::stepwise::{stepwise, StepwiseOptions};
 
 /// Peak resident set size of this process, bytes (Linux `/proc/self/status` VmHWM).
 fn vm_hwm_bytes() -> Option<u64> {

@@ -1,7 +1,7 @@
 //! Benchmark of the command jitter the device's thermal fold puts on commands, through the QEMU
 //! firmware on the virtual bench (`nanocal::virtual_bench::jitter`): one reading a fold (the
 //! firmware before issue 18 folded each 250 ms reading) against the readings of a fold period
-//! averaged. Run: `cargo run --release --bin bench_jitter` in host-tests/ (needs QEMU ≥ 10,
+//! averaged. Run: `cargo bench --bench bench_jitter` in host-tests/ (needs QEMU ≥ 10,
 //! `bash .ci/firmware.sh`).
 
 use nanocal::virtual_bench::jitter::{measure, Periods};

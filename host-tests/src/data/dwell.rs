@@ -6,7 +6,7 @@
 //! dwell (at least the last row). The direction of approach of each axis is the sign of the last
 //! command change on that axis (+1 before the first move, as the digital twin does).
 
-use crate::recording::{Recording, RecordingError};
+use crate::data::recording::{Recording, RecordingError};
 
 /// Errors of [`dwell_average`] and [`step_average`].
 #[derive(Debug, thiserror::Error)]
@@ -277,14 +277,14 @@ pub fn dwell_average(rec: &Recording, opts: &DwellOptions) -> Result<Dwells, Dwe
 /// by the same edge (`campaign::run`).
 pub const STEP_EDGE_S: f64 = 1e-9;
 
-/// One dwell per step of a plan ([`crate::plan::Step`]): the rows whose time lies in
+/// One dwell per step of a plan ([`crate::data::plan::Step`]): the rows whose time lies in
 /// `[t_start_s, t_end_s)` of the step, shifted by `t_offset_s` (the recording time of the plan's
 /// start), averaged over the step's last `average_last_s`, with the step's direction of
 /// approach. Steps are kept even when they repeat the previous pose (a turning point is two
 /// steps, as the plan counts it); a step without rows is an error.
 pub fn step_average(
     rec: &Recording,
-    steps: &[crate::plan::Step],
+    steps: &[crate::data::plan::Step],
     t_offset_s: f64,
 ) -> Result<Dwells, DwellError> {
     let cols = Columns::of(rec)?;

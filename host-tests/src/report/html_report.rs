@@ -6,7 +6,7 @@
 use std::fmt::Write;
 use std::path::Path;
 
-use crate::plot::PlotError;
+use crate::report::plot::PlotError;
 use crate::validate::{Coverage, ValidationReport};
 
 /// Everything the report shows.

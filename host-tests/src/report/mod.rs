@@ -2,9 +2,12 @@
 //! drift vs temperature, accuracy per pose in the first test (paper 000 Fig. 11), error over
 //! time, and every test's accuracy over time (Fig. 12) for each compensation.
 
+pub mod html_report;
+pub mod plot;
+
 use std::path::{Path, PathBuf};
 
-use crate::plot::{write_chart, Chart, PlotError, Series, Style};
+use crate::report::plot::{write_chart, Chart, PlotError, Series, Style};
 use crate::validate::ValidationReport;
 
 fn nm(v: f64) -> f64 {
@@ -202,7 +205,7 @@ pub fn write_pose_figures(
     dir: &Path,
     reports: &[&ValidationReport],
 ) -> Result<Vec<PathBuf>, PlotError> {
-    let firsts: Vec<(&ValidationReport, &crate::iso9283::TestStats)> = reports
+    let firsts: Vec<(&ValidationReport, &crate::validate::iso9283::TestStats)> = reports
         .iter()
         .filter_map(|r| r.tests.first().map(|t| (*r, t)))
         .collect();

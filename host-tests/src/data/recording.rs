@@ -11,7 +11,7 @@
 //! (1-based, counting the header as line 1) and column (1-based, with the column's name).
 //!
 //! ```
-//! use nanocal::recording::Recording;
+//! use nanocal::data::recording::Recording;
 //! let rec = Recording::parse(b"t,cmd_x,meas_x,temp_a\n0,0,0.1,22.0\n1,30,30.2,22.1\n").unwrap();
 //! assert_eq!(rec.rows(), 2);
 //! assert_eq!(rec.axes(), vec!["x".to_string()]);

@@ -17,6 +17,7 @@ pub mod html_report;
 pub mod iso9283;
 pub mod kmz;
 pub mod linalg;
+pub mod memory;
 pub mod plan;
 pub mod plot;
 pub mod procedure;

@@ -27,7 +27,7 @@ fn get<'a>(ps: &'a [Estimate], name: &str) -> &'a Estimate {
 fn no_zero_sigma(ps: &[Estimate], what: &str) {
     for p in ps {
         assert!(
-            !(p.sigma <= 0.0),
+            p.sigma.is_nan() || p.sigma > 0.0,
             "{what}: {} = {} stated with σ = {}",
             p.name,
             p.value,

@@ -315,8 +315,7 @@ pub(crate) fn lag_many_at_classes(
     debug_assert_eq!(iv.class.len(), x.len());
     for chunk in taus.chunks(LAG_LANES) {
         // a short last chunk repeats its last τ in the spare lanes (their outputs dropped)
-        let lane_tau: [f64; LAG_LANES] =
-            std::array::from_fn(|j| chunk[j.min(chunk.len() - 1)]);
+        let lane_tau: [f64; LAG_LANES] = std::array::from_fn(|j| chunk[j.min(chunk.len() - 1)]);
         // per class: what `lag_run_classes` does with a positive τ (a restart after a
         // non-finite interval, a hold after one ≤ 0, else smoothing by the factor)
         const SMOOTH: u8 = 0;

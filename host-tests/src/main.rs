@@ -38,6 +38,8 @@ enum Command {
 }
 
 fn main() -> anyhow::Result<()> {
+    // explain's million-row vectors: freed memory stays in the process for the next one
+    nanocal::cli::memory::reuse_freed_memory();
     match Cli::parse().command {
         Command::Limits => {
             use nanocal::model::{blob, limits, FOLD_CAPACITY};

@@ -6,6 +6,7 @@ pub mod explain;
 pub mod export;
 pub mod fit;
 pub mod import;
+pub mod memory;
 pub mod report;
 pub mod simulate;
 pub mod stepwise;

@@ -293,6 +293,93 @@ fn lag_run_classes(
     }
 }
 
+/// Lags run side by side by [`lag_many_at_classes`].
+const LAG_LANES: usize = 4;
+
+/// [`lag_series_at_classes`] (no start value) for several positive time constants at once:
+/// one pass over the samples runs [`LAG_LANES`] filters side by side. Each filter's step
+/// waits on its own last state (a multiply, a subtract and an add in a chain), so a filter
+/// alone leaves the core mostly idle; independent filters fill it. Every filter does the same
+/// arithmetic in the same order as alone, bit for bit. Entry j is `taus[j]`'s.
+pub(crate) fn lag_many_at_classes(
+    iv: &Intervals,
+    x: &[f64],
+    taus: &[f64],
+    rows: &[usize],
+) -> Vec<Vec<f64>> {
+    debug_assert!(taus.iter().all(|&t| t > 0.0));
+    let mut outs: Vec<Vec<f64>> = Vec::with_capacity(taus.len());
+    if x.is_empty() {
+        return taus.iter().map(|_| vec![0.0; rows.len()]).collect();
+    }
+    debug_assert_eq!(iv.class.len(), x.len());
+    for chunk in taus.chunks(LAG_LANES) {
+        // a short last chunk repeats its last τ in the spare lanes (their outputs dropped)
+        let lane_tau: [f64; LAG_LANES] = std::array::from_fn(|j| chunk[j.min(chunk.len() - 1)]);
+        // per class: what `lag_run_classes` does with a positive τ (a restart after a
+        // non-finite interval, a hold after one ≤ 0, else smoothing by the factor)
+        const SMOOTH: u8 = 0;
+        const RESTART: u8 = 1;
+        const HOLD: u8 = 2;
+        let kind: Vec<u8> = iv
+            .dt_s
+            .iter()
+            .map(|&dt| {
+                if !dt.is_finite() {
+                    RESTART
+                } else if dt > 0.0 {
+                    SMOOTH
+                } else {
+                    HOLD
+                }
+            })
+            .collect();
+        let alpha: Vec<[f64; LAG_LANES]> = iv
+            .dt_s
+            .iter()
+            .zip(&kind)
+            .map(|(&dt, &k)| {
+                std::array::from_fn(|j| {
+                    if k == SMOOTH {
+                        1.0 - libm::exp(-dt / lane_tau[j])
+                    } else {
+                        0.0
+                    }
+                })
+            })
+            .collect();
+        let mut at: [Vec<f64>; LAG_LANES] = std::array::from_fn(|_| vec![0.0; rows.len()]);
+        let mut next = 0;
+        let mut state = [x[0]; LAG_LANES];
+        let mut take = |k: usize, state: &[f64; LAG_LANES], next: &mut usize| {
+            while *next < rows.len() && rows[*next] == k {
+                for j in 0..LAG_LANES {
+                    at[j][*next] = state[j];
+                }
+                *next += 1;
+            }
+        };
+        take(0, &state, &mut next);
+        for k in 1..x.len() {
+            let c = iv.class[k] as usize;
+            match kind[c] {
+                SMOOTH => {
+                    let a = &alpha[c];
+                    let xk = x[k];
+                    for j in 0..LAG_LANES {
+                        state[j] += a[j] * (xk - state[j]);
+                    }
+                }
+                RESTART => state = [x[k]; LAG_LANES],
+                _ => {}
+            }
+            take(k, &state, &mut next);
+        }
+        outs.extend(at.into_iter().take(chunk.len()));
+    }
+    outs
+}
+
 /// Entries of [`Lag`]'s table of smoothing factors (64: the slot is a hash's top 6 bits).
 const LAG_ALPHAS: usize = 64;
 
@@ -395,6 +482,39 @@ mod tests {
                 _ => filter.update(v, t_s[k] - t_s[k - 1]),
             })
             .collect()
+    }
+
+    #[test]
+    fn lags_side_by_side_are_each_lag_alone_bit_for_bit() {
+        // irregular 1 kHz clock with a repeated, a backward and a missing time stamp, a
+        // missing reading; τ counts that fill the lanes, leave one short, and one alone
+        let mut t: Vec<f64> = (0..5_000)
+            .map(|k| 1000.0 + k as f64 * 1e-3 + ((k * k) % 1009) as f64 * 1e-9)
+            .collect();
+        t[500] = t[499];
+        t[900] = t[899] - 0.01;
+        t[1200] = f64::NAN;
+        let mut x: Vec<f64> = (0..t.len())
+            .map(|k| 21.0 + (k as f64 * 1e-3).sin() + ((k * 31) % 7) as f64 * 1e-3)
+            .collect();
+        x[4_990] = f64::NAN;
+        let iv = Intervals::of(&t).expect("fewer intervals than the classes hold");
+        let rows: Vec<usize> = (0..t.len()).step_by(7).chain([4_999]).collect();
+        for taus in [
+            vec![2e-3, 0.7, 120.0, 1e6],
+            vec![0.05, 3.0, 17.0, 250.0, 1e4, 0.3],
+            vec![42.0],
+        ] {
+            let many = lag_many_at_classes(&iv, &x, &taus, &rows);
+            assert_eq!(many.len(), taus.len());
+            for (tau, got) in taus.iter().zip(&many) {
+                let alone = lag_series_at_classes(&iv, &x, *tau, None, &rows);
+                assert_eq!(got.len(), alone.len());
+                for (r, (a, b)) in rows.iter().zip(got.iter().zip(&alone)) {
+                    assert_eq!(a.to_bits(), b.to_bits(), "τ {tau}, row {r}");
+                }
+            }
+        }
     }
 
     #[test]

@@ -7,13 +7,14 @@ use serde::{Deserialize, Serialize};
 
 use super::SimContext;
 use super::{
-    lag_series, lag_series_at, lag_series_at_classes, lag_series_classes, zeros, Intervals,
+    lag_many_at_classes, lag_series, lag_series_at, lag_series_at_classes, lag_series_classes,
+    zeros, Intervals,
 };
 use crate::explain::contract::{self, Detail, LagTerm, Proposal};
 use crate::explain::data::Data;
 use crate::explain::error::ExplainError;
 use crate::explain::estimate::{Estimate, Theta};
-use crate::explain::fit::{bartlett_n_eff, cross_validate, gather};
+use crate::explain::fit::{bartlett_n_eff, cross_validate_score, gather};
 use crate::explain::search::{dot, log_grid, Basis, Search};
 use crate::explain::units::{duration, sig3};
 
@@ -361,6 +362,32 @@ impl<'a> LagCache<'a> {
         g
     }
 
+    /// Fill the cache with `sensor`'s lags at every τ of `taus` not yet kept, the filters
+    /// run side by side ([`lag_many_at_classes`]: the same values as [`LagCache::on_rows`]
+    /// computes one at a time).
+    fn prefill(&self, sensor: usize, taus: &[f64]) {
+        let Some(iv) = &self.fwd else {
+            return;
+        };
+        let missing: Vec<f64> = {
+            let cols = self.cols.borrow();
+            taus.iter()
+                .copied()
+                .filter(|&t| t > 0.0 && !cols.contains_key(&(sensor, t.to_bits())))
+                .collect()
+        };
+        if missing.is_empty() {
+            return;
+        }
+        let lags = lag_many_at_classes(iv, &self.d.temps[sensor].1, &missing, self.rows);
+        let mut cols = self.cols.borrow_mut();
+        for (t, g) in missing.iter().zip(lags) {
+            if cols.len() < CACHED_COLUMNS {
+                cols.insert((sensor, t.to_bits()), g);
+            }
+        }
+    }
+
     /// [`zero_phase_twin`] on the fitted rows.
     fn twin_on_rows(&self, sensor: usize, tau_s: f64) -> Vec<f64> {
         zero_phase_twin(self, sensor, tau_s, self.rows)
@@ -399,6 +426,8 @@ fn best_tau(
         Some(t) => ((t / step).max(lo), (t * step).min(hi), 3),
         None => (lo, hi, SCREEN_POINTS),
     };
+    // the grid's lags side by side, as the search will ask for them
+    cache.prefill(sensor, &log_grid(a, b, points));
     let (mut theta, rss) = s.minimise("tau_s", (a, b), points, sigma, |tau| {
         if clear(taken, tau) {
             basis.rss_with_gathered(vec![cache.on_rows(sensor, tau)])
@@ -436,7 +465,9 @@ impl contract::Candidate for Candidate {
             if hi.is_nan() || lo.is_nan() || hi <= 4.0 * lo {
                 continue;
             }
-            for tau in log_grid(lo, hi, SCREEN_POINTS) {
+            let grid = log_grid(lo, hi, SCREEN_POINTS);
+            cache.prefill(sensor, &grid);
+            for tau in grid {
                 let g = cache.on_rows(sensor, tau);
                 let norm0 = g.iter().map(|v| v * v).sum::<f64>().sqrt();
                 screen.push(Screened {
@@ -519,10 +550,10 @@ impl contract::Candidate for Candidate {
                 let mut all: Vec<&[f64]> = s.model.clone();
                 all.extend(cols.iter().map(|c| c.as_slice()));
                 if cv_cur.is_nan() {
-                    cv_cur = cross_validate(&all, s.y, s.design, &s.basis.rows)?.rms_um;
+                    cv_cur = cross_validate_score(&all, s.y, s.design, &s.basis.rows)?.rms_um;
                 }
                 all.push(&col);
-                let cv_new = cross_validate(&all, s.y, s.design, &s.basis.rows)?.rms_um;
+                let cv_new = cross_validate_score(&all, s.y, s.design, &s.basis.rows)?.rms_um;
                 if cv_new.is_nan() || cv_new >= cv_cur * (1.0 - MIN_TERM_CV_GAIN) {
                     break;
                 }

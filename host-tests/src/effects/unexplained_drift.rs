@@ -12,7 +12,7 @@ use crate::explain::data::Data;
 use crate::explain::error::in_parallel;
 use crate::explain::error::ExplainError;
 use crate::explain::estimate::{Estimate, Theta};
-use crate::explain::fit::{cross_validate, Design};
+use crate::explain::fit::{cross_validate_score, Design};
 use crate::explain::search::Search;
 
 /// The effect's name.
@@ -137,9 +137,9 @@ impl contract::Candidate for Candidate {
             let blocks = (k as f64 / GAP_PER_SCALE).floor() as usize;
             let design = Design::blocks(&d.t_s, blocks, crate::explain::fit::CV_FOLDS);
             let mut cols = s.model.clone();
-            let cur = cross_validate(&cols, s.y, &design, &choice_rows)?;
+            let cur = cross_validate_score(&cols, s.y, &design, &choice_rows)?;
             cols.extend(cosines[..k].iter().map(|c| c.as_slice()));
-            let new = cross_validate(&cols, s.y, &design, &choice_rows)?;
+            let new = cross_validate_score(&cols, s.y, &design, &choice_rows)?;
             Ok((new.rms_um / cur.rms_um, design))
         });
         for (outcome, &k) in judged.into_iter().zip(&orders) {

@@ -169,7 +169,7 @@ fn choose_smoothing(
             .chain(temps.iter().map(|(_, v)| v))
             .map(|c| c.as_slice())
             .collect();
-        fit::cross_validate(&refs, &d.channels[ch].y_um, design, rows)
+        fit::cross_validate_score(&refs, &d.channels[ch].y_um, design, rows)
     });
     for (cv, &w) in cvs.into_iter().zip(&widths) {
         options.push((cv?.rms_um, w));
@@ -710,7 +710,7 @@ fn explain_channel_once(
             let alt_cv = fit::cross_validate(&alt_cols, y, &design, &rows)?;
             // the named form's own standing on the same footing
             let named = without(&model.cols[a..b]);
-            let named_cv = fit::cross_validate(&named.with(&[]), y, &design, &rows)?;
+            let named_cv = fit::cross_validate_score(&named.with(&[]), y, &design, &rows)?;
             if !matches!(
                 alt_cv
                     .rms_um

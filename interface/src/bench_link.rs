@@ -289,7 +289,10 @@ mod tests {
         assert_eq!(ring_head(ring_to_host(3)), 0x138);
         assert_eq!(ring_byte(ring_to_board(1), 1025), 0xC01);
         assert_eq!(SHARED_LEN, 0x2400);
-        assert!(RING_LEN.is_power_of_two(), "the u32 counters wrap on a multiple of it");
+        assert!(
+            RING_LEN.is_power_of_two(),
+            "the u32 counters wrap on a multiple of it"
+        );
         assert_eq!(ring_used(3, u32::MAX - 1), 5);
     }
 

@@ -462,7 +462,11 @@ impl VirtualBench {
             if rings != 0 {
                 let m = RingPort::new(link.clone(), 3, PORT_READ_TIMEOUT);
                 let g = RingPort::new(link.clone(), 0, PORT_READ_TIMEOUT);
-                super::qemu::apply_line_state(&link, nanocal_interface::bench_link::LINE_HOST, true);
+                super::qemu::apply_line_state(
+                    &link,
+                    nanocal_interface::bench_link::LINE_HOST,
+                    true,
+                );
                 return Ok((counted(m, &sent[1], &mark), counted(g, &sent[0], &mark)));
             }
             let m = std::os::unix::net::UnixStream::connect(&path)?;
@@ -658,17 +662,6 @@ impl BenchDriver for VirtualBench {
                     };
                     if since.elapsed() > wait {
                         self.link.count_nudge();
-                        if std::env::var_os("C60_DEBUG").is_some() {
-                            eprintln!(
-                                "nudge: answered {answered} sent {:?} rx {:?} tx {:?} stage in {} out {} now {:.3}",
-                                self.sent.iter().map(|s| s.load(Ordering::Acquire)).collect::<Vec<_>>(),
-                                [0, 1, 3].map(|p| self.link.rx_bytes(p)),
-                                [0, 1, 3].map(|p| self.link.tx_bytes(p)),
-                                self.stage_sim.bytes_in(),
-                                self.stage_sim.bytes_out(),
-                                self.link.now_s()
-                            );
-                        }
                         let next = self.link.now_s() + NUDGE_S;
                         if let Err(e) = self.clock.advance_to(next, Duration::from_secs(60)) {
                             result = Err(e.into());

@@ -992,3 +992,73 @@ impl Write for RingPort {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The board's side of a ring, as `src/qemu/link.rs` reads and writes it (same offsets,
+    /// producer writes bytes then head, consumer reads bytes then tail).
+    fn board_read(page: &Page, port: usize) -> Vec<u8> {
+        let k = bl::ring_to_board(port);
+        let (head, tail) = (page.u32(bl::ring_head(k)), page.u32(bl::ring_tail(k)));
+        let n = bl::ring_used(head, tail);
+        let out = (0..n)
+            .map(|i| page.bytes(bl::ring_byte(k, tail.wrapping_add(i as u32)), 1)[0])
+            .collect();
+        page.set_u32(bl::ring_tail(k), head);
+        out
+    }
+
+    fn board_write(page: &Page, port: usize, b: &[u8]) {
+        let k = bl::ring_to_host(port);
+        let head = page.u32(bl::ring_head(k));
+        for (i, &v) in b.iter().enumerate() {
+            page.set_bytes(bl::ring_byte(k, head.wrapping_add(i as u32)), &[v]);
+        }
+        page.set_u32(bl::ring_head(k), head.wrapping_add(b.len() as u32));
+    }
+
+    #[test]
+    fn ring_ports_carry_bytes_both_ways_across_the_wrap_and_ring_only_a_halted_board() {
+        let path = std::env::temp_dir().join(format!("nanocal-ring-{}", std::process::id()));
+        let page = Page::create(&path).unwrap();
+        let (ours, mut board_line) = UnixStream::pair().unwrap();
+        board_line
+            .set_read_timeout(Some(Duration::from_millis(200)))
+            .unwrap();
+        let link = BenchLink::start(page, ours);
+        BenchClock::new(link.clone()).lockstep();
+        // start near the counters' wrap and the ring's end
+        for k in 0..bl::RINGS {
+            link.page().set_u32(bl::ring_head(k), u32::MAX - 5);
+            link.page().set_u32(bl::ring_tail(k), u32::MAX - 5);
+        }
+        let mut port = RingPort::new(link.clone(), 3, Duration::from_millis(20));
+        port.write_all(b"STATUS?\n").unwrap();
+        assert_eq!(board_read(link.page(), 3), b"STATUS?\n");
+        let mut b = [0u8; 64];
+        assert_eq!(
+            port.read(&mut b).unwrap_err().kind(),
+            std::io::ErrorKind::WouldBlock,
+            "nothing from the board yet"
+        );
+        board_write(link.page(), 3, b"reply\n");
+        let n = port.read(&mut b).unwrap();
+        assert_eq!(&b[..n], b"reply\n");
+        // a full ring takes no more; the board reading makes room
+        let big = vec![7u8; bl::RING_LEN + 10];
+        assert_eq!(link.ring_write(0, &big), bl::RING_LEN);
+        assert_eq!(link.ring_write(0, &big), 0);
+        assert_eq!(board_read(link.page(), 0).len(), bl::RING_LEN);
+        // no doorbell while the board runs; one when it is halted
+        let mut one = [0u8; 1];
+        assert!(board_line.read(&mut one).is_err(), "no doorbell yet");
+        link.page().set_u32(bl::HALTED, 1);
+        assert_eq!(link.ring_write(0, b"x"), 1);
+        board_line.read_exact(&mut one).unwrap();
+        assert_eq!(one[0], bl::RING_HORIZON);
+        assert_eq!(link.crossings().ring_rings, 1);
+        link.shutdown();
+    }
+}

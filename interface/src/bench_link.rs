@@ -38,7 +38,27 @@
 //! 0x084  37 B  board       BUS_REQ: the request frame (`crate::bus` layout, A5 … )
 //! 0x0C0  u32   host        BUS_REP_SEQ: set to BUS_REQ_SEQ when the reply is posted (after its bytes)
 //! 0x0C4  37 B  host        BUS_REP: the reply frame (`crate::bus` layout, 5A …)
+//! 0x0EC  u32   host        RING_PORTS: bit n set: serial n is carried by the page's rings
+//!                          instead of its UART (read by the board at boot; layout 5)
+//! 0x0F0  u32   board       HALTED: 1 while the board halts (WFI) waiting for the bench
+//! 0x0F4  u32   board       HALTS: times the board halted waiting for the bench (a counter)
+//! 0x0F8  u32   board       RX_ARMED: bit n set while the board's reader of a ring port waits
+//! 0x100  u32×2 ×8          RING[k] head (producer), tail (consumer), k = 2·n + d: serial n,
+//!                          d = 0 host → board, d = 1 board → host
+//! 0x400  1 KiB ×8          RING[k]'s bytes (index: counter mod RING_LEN)
 //! ```
+//!
+//! **Rings (layout 5).** QEMU's CMSDK UART holds one byte: every byte into the board is a
+//! hand-over between QEMU's I/O thread and its vCPU (a wake-up of the board when it sleeps),
+//! every byte out is a `sendmsg` and a wake-up of the reader. The published campaign moves
+//! ≈ 350 bytes a step that way (a `MOV`, an `ERR?`, the stage's copies of both, a ≈ 300-byte
+//! status). A bench that sets [`RING_PORTS`] before the board boots gets those ports as byte
+//! rings in this memory instead: the board reads and writes them as its UART drivers would
+//! (same tasks, same proxy and management code; counted in RX_BYTES/TX_BYTES as before), and
+//! it polls them while it spins before a halt; the host rings [`RING_HORIZON`] only when it
+//! finds the board halted ([`HALTED`]) after it wrote. Each ring has one producer and one
+//! consumer: the producer writes the bytes, then (after a barrier) its head; the consumer
+//! reads them, then its tail.
 //! All fields little-endian. Bench ticks count [`TICK_HZ`] from the start of the bench (QEMU's
 //! start), across resets of the board; the board's own `Instant` is its uptime.
 //!
@@ -69,10 +89,12 @@ pub const TICK_HZ: u64 = 1_000_000;
 pub const GUEST_ADDR: usize = 0x2100_0000;
 /// Size of the page, bytes.
 pub const PAGE_LEN: usize = 0x100;
+/// End of the whole shared area (page, ring heads and ring bytes), bytes from [`GUEST_ADDR`].
+pub const SHARED_LEN: usize = RING_DATA + RINGS * RING_LEN;
 /// Magic value at [`MAGIC`].
 pub const MAGIC_VALUE: u32 = 0x4B4C_434E; // "NCLK"
 /// Layout version at [`VERSION`].
-pub const VERSION_VALUE: u32 = 4;
+pub const VERSION_VALUE: u32 = 5;
 
 /// Offset of the magic.
 pub const MAGIC: usize = 0x000;
@@ -126,6 +148,49 @@ pub const BUS_REQ: usize = 0x084;
 pub const BUS_REP_SEQ: usize = 0x0C0;
 /// Offset of the bus reply frame.
 pub const BUS_REP: usize = 0x0C4;
+/// Offset of the mask of serial ports carried by rings (see the module's *Rings*).
+pub const RING_PORTS: usize = 0x0EC;
+/// Offset of the board's "halted, waiting for the bench" flag.
+pub const HALTED: usize = 0x0F0;
+/// Offset of the board's count of halts.
+pub const HALTS: usize = 0x0F4;
+/// Offset of the mask of ring ports whose reader waits.
+pub const RX_ARMED: usize = 0x0F8;
+/// Offset of the rings' heads and tails: ring k's head at `RING_HEADS + 8·k`, tail 4 after.
+pub const RING_HEADS: usize = 0x100;
+/// Offset of the rings' bytes: ring k's at `RING_DATA + k·RING_LEN`.
+pub const RING_DATA: usize = 0x400;
+/// Bytes a ring holds.
+pub const RING_LEN: usize = 1024;
+/// Serial ports that can be carried by rings (0..RING_SERIALS).
+pub const RING_SERIALS: usize = 4;
+/// Rings: one each way per ring serial port.
+pub const RINGS: usize = 2 * RING_SERIALS;
+/// Ring of serial `port` in direction host → board.
+pub const fn ring_to_board(port: usize) -> usize {
+    2 * port
+}
+/// Ring of serial `port` in direction board → host.
+pub const fn ring_to_host(port: usize) -> usize {
+    2 * port + 1
+}
+/// Offset of ring `k`'s head (producer's count of bytes written, wrapping).
+pub const fn ring_head(k: usize) -> usize {
+    RING_HEADS + 8 * k
+}
+/// Offset of ring `k`'s tail (consumer's count of bytes read, wrapping).
+pub const fn ring_tail(k: usize) -> usize {
+    RING_HEADS + 8 * k + 4
+}
+/// Offset of byte `count` (a head or tail value) of ring `k`.
+pub const fn ring_byte(k: usize, count: u32) -> usize {
+    RING_DATA + k * RING_LEN + (count as usize % RING_LEN)
+}
+/// Bytes in a ring between `tail` and `head` (wrapping counters).
+pub const fn ring_used(head: u32, tail: u32) -> usize {
+    head.wrapping_sub(tail) as usize
+}
+
 /// Longest frame in the mailbox (header + data).
 pub const FRAME_LEN: usize = crate::bus::FRAME_LEN;
 
@@ -194,6 +259,10 @@ mod tests {
             (BUS_REQ, FRAME_LEN),
             (BUS_REP_SEQ, 4),
             (BUS_REP, FRAME_LEN),
+            (RING_PORTS, 4),
+            (HALTED, 4),
+            (HALTS, 4),
+            (RX_ARMED, 4),
         ];
         for (i, &(a, n)) in fields.iter().enumerate() {
             assert!(a + n <= PAGE_LEN);
@@ -215,6 +284,16 @@ mod tests {
         );
         assert_eq!(TX_HOLD + 4, BUS_REQ_SEQ, "and ends at the bus mailbox");
         assert_eq!(ticks_to_s(250_000), 0.25);
+        // layout 5: the rings after the page, heads before bytes, none overlapping
+        assert!(ring_tail(RINGS - 1) + 4 <= RING_DATA);
+        assert_eq!(ring_head(ring_to_host(3)), 0x138);
+        assert_eq!(ring_byte(ring_to_board(1), 1025), 0xC01);
+        assert_eq!(SHARED_LEN, 0x2400);
+        assert!(
+            RING_LEN.is_power_of_two(),
+            "the u32 counters wrap on a multiple of it"
+        );
+        assert_eq!(ring_used(3, u32::MAX - 1), 5);
     }
 
     #[test]

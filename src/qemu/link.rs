@@ -99,3 +99,74 @@ pub fn count_rx(port: usize, n: u32) {
         write_u32(off, read_u32(off).wrapping_add(n));
     }
 }
+
+/// True when the bench asked for serial `port` on the page's rings (`bench_link::RING_PORTS`;
+/// read at boot, before the UART drivers are made).
+pub fn ring_port(port: usize) -> bool {
+    port < bl::RING_SERIALS && present() && read_u32(bl::RING_PORTS) & (1 << port) != 0
+}
+
+/// Take up to `buf.len()` bytes from serial `port`'s ring into the board; the count taken.
+pub fn ring_read(port: usize, buf: &mut [u8]) -> usize {
+    let k = bl::ring_to_board(port);
+    let head = read_u32(bl::ring_head(k));
+    let tail = read_u32(bl::ring_tail(k));
+    let n = bl::ring_used(head, tail).min(bl::RING_LEN).min(buf.len());
+    if n == 0 {
+        return 0;
+    }
+    // the bytes were written before the head we read (the host's release store)
+    barrier();
+    for (i, b) in buf[..n].iter_mut().enumerate() {
+        *b = read_u8(bl::ring_byte(k, tail.wrapping_add(i as u32)));
+    }
+    barrier();
+    write_u32(bl::ring_tail(k), tail.wrapping_add(n as u32));
+    n
+}
+
+/// True when serial `port`'s ring into the board holds bytes.
+pub fn ring_readable(port: usize) -> bool {
+    let k = bl::ring_to_board(port);
+    read_u32(bl::ring_head(k)) != read_u32(bl::ring_tail(k))
+}
+
+/// Put as many of `buf`'s bytes as there is room for into serial `port`'s ring to the host;
+/// the count put.
+pub fn ring_write(port: usize, buf: &[u8]) -> usize {
+    let k = bl::ring_to_host(port);
+    let head = read_u32(bl::ring_head(k));
+    let tail = read_u32(bl::ring_tail(k));
+    let room = bl::RING_LEN - bl::ring_used(head, tail).min(bl::RING_LEN);
+    let n = room.min(buf.len());
+    if n == 0 {
+        return 0;
+    }
+    for (i, &b) in buf[..n].iter().enumerate() {
+        write_u8(bl::ring_byte(k, head.wrapping_add(i as u32)), b);
+    }
+    // counted before the host can see them (as the UART driver counts a write it has done)
+    count_tx(port, n as u32);
+    barrier();
+    write_u32(bl::ring_head(k), head.wrapping_add(n as u32));
+    n
+}
+
+/// True when serial `port`'s ring to the host has room.
+pub fn ring_writable(port: usize) -> bool {
+    let k = bl::ring_to_host(port);
+    bl::ring_used(read_u32(bl::ring_head(k)), read_u32(bl::ring_tail(k))) < bl::RING_LEN
+}
+
+/// Mark (`on`) or clear the board's reader of ring port `port` as waiting
+/// (`bench_link::RX_ARMED`). Thread mode, or with interrupts masked.
+pub fn rx_armed(port: usize, on: bool) {
+    let bit = 1u32 << port;
+    let m = read_u32(bl::RX_ARMED);
+    write_u32(bl::RX_ARMED, if on { m | bit } else { m & !bit });
+}
+
+/// The mask of ring ports whose reader waits.
+pub fn rx_armed_mask() -> u32 {
+    read_u32(bl::RX_ARMED)
+}

@@ -70,8 +70,10 @@ impl Driver for BenchClock {
     }
 }
 
-/// Busy wait for the bench's next byte before halting, µs of QEMU's clock.
-const SPIN_BEFORE_WFI_US: u32 = 100;
+/// Busy wait for the bench's next byte or horizon before halting, µs of QEMU's clock: a halt
+/// and the doorbell that ends it cost QEMU a hand-over between its threads each; the campaign's
+/// own work between two exchanges (rows, state) takes a few hundred µs.
+const SPIN_BEFORE_WFI_US: u32 = 500;
 
 /// SysTick period without the page: 1 ms.
 const SYSTICK_TICKS: u64 = bl::TICK_HZ / 1000;
@@ -88,8 +90,11 @@ pub fn init(mut syst: SYST) {
             link::write_u64(bl::BOOT_AT, boot_at);
             link::write_u64(bl::NEXT_ALARM, u64::MAX);
             link::write_u32(bl::WAITING, 0);
-            // no writer of this boot waits yet (one of the last may have, when it reset)
+            // no writer or ring reader of this boot waits yet (one of the last may have, when
+            // it reset), nor is it halted
             link::write_u32(bl::TX_WAITING, 0);
+            link::write_u32(bl::RX_ARMED, 0);
+            link::write_u32(bl::HALTED, 0);
             link::barrier();
             link::write_u32(bl::BOOTS, link::read_u32(bl::BOOTS).wrapping_add(1));
         }
@@ -153,6 +158,11 @@ pub fn idle() {
     critical_section::with(|cs| {
         let d = &DRIVER;
         let linked = d.linked.borrow(cs).get();
+        // bytes in a ring for a waiting reader (or room for a waiting writer): its task runs
+        // first, at this instant, as a UART byte's interrupt would have made it
+        if linked && uart::ring_wake() {
+            return;
+        }
         let boot_at = d.boot_at.borrow(cs).get();
         let now = d.now.borrow(cs).get();
         let next = d.next_at.borrow(cs).get();
@@ -202,14 +212,26 @@ pub fn idle() {
                     rung.set(boot_at + now);
                     uart::ring(bl::RING_WAITING);
                 }
-                // the bench usually sends its next byte at once: a short busy wait for it saves
-                // QEMU halting and waking this CPU for every byte of a command
-                if !board::wait_for_interrupt_busy(SPIN_BEFORE_WFI_US)
+                // the bench usually sends its next bytes at once: a short busy wait for them
+                // (an interrupt, or bytes in a ring) saves QEMU halting and waking this CPU
+                // (or the horizon moving: the bench rings for that only when the board is halted)
+                let moved_or_ready =
+                    || link::read_u64(bl::HORIZON) != horizon_bench || uart::ring_ready();
+                if !board::wait_for_interrupt_busy(SPIN_BEFORE_WFI_US, moved_or_ready)
                     && link::read_u64(bl::HORIZON) == horizon_bench
                 {
-                    board::watchdog_pause();
-                    cortex_m::asm::wfi();
-                    board::watchdog_resume();
+                    // the bench rings for ring bytes and a new horizon only when it sees the
+                    // board halted: mark it, then look once more (the bench writes its bytes or
+                    // the horizon, then looks at the mark)
+                    link::write_u32(bl::HALTED, 1);
+                    link::barrier();
+                    if !uart::ring_ready() && link::read_u64(bl::HORIZON) == horizon_bench {
+                        link::write_u32(bl::HALTS, link::read_u32(bl::HALTS).wrapping_add(1));
+                        board::watchdog_pause();
+                        cortex_m::asm::wfi();
+                        board::watchdog_resume();
+                    }
+                    link::write_u32(bl::HALTED, 0);
                 }
             }
             link::write_u32(bl::WAITING, 0);

@@ -18,10 +18,17 @@
 //! is marked in the bench's page (`bench_link::TX_WAITING`): while the bench runs freely the
 //! board's clock holds for it (`super::time`), so QEMU's delay in passing bytes on is no board
 //! time.
+//!
+//! A port the bench asked for on the page's rings (`bench_link::RING_PORTS`, layout 5) reads and
+//! writes its ring instead of the UART's data register, many bytes at a time: the same halves,
+//! the same tasks above them. Its reader marks itself waiting in the page (`RX_ARMED`), and
+//! [`ring_wake`] (the clock's idle loop) wakes it when bytes are in; its writer waits for room
+//! as the UART's does (`TX_WAITING`).
 
 use core::convert::Infallible;
 use core::future::poll_fn;
 use core::ptr::{read_volatile, write_volatile};
+use core::sync::atomic::{AtomicU32, Ordering};
 use core::task::Poll;
 use cortex_m::peripheral::NVIC;
 use embassy_sync::waitqueue::AtomicWaker;
@@ -85,6 +92,8 @@ fn write(n: usize, off: usize, v: u32) {
 /// One UART, taken once per index.
 pub struct Uart {
     n: usize,
+    /// Carried by the bench's ring (`bench_link::RING_PORTS`), not the UART.
+    ring: bool,
 }
 
 impl Uart {
@@ -102,29 +111,96 @@ impl Uart {
             NVIC::unmask(Irq(RX_IRQS[n]));
             NVIC::unmask(Irq(RX_IRQS[n] + TX_IRQ_OFFSET));
         }
-        Self { n }
+        let ring = super::link::ring_port(n);
+        MADE.fetch_or(1 << n, Ordering::Relaxed);
+        if ring {
+            RING_MASK.fetch_or(1 << n, Ordering::Relaxed);
+        }
+        Self { n, ring }
     }
 
     /// Split into receive and transmit halves.
     pub fn split(self) -> (UartRx, UartTx) {
-        (UartRx { n: self.n }, UartTx { n: self.n })
+        (
+            UartRx {
+                n: self.n,
+                ring: self.ring,
+            },
+            UartTx {
+                n: self.n,
+                ring: self.ring,
+            },
+        )
     }
 }
 
 /// Receive half.
 pub struct UartRx {
     n: usize,
+    /// Carried by the bench's ring, not the UART.
+    ring: bool,
 }
 
 /// Transmit half.
 pub struct UartTx {
     n: usize,
+    /// Carried by the bench's ring, not the UART.
+    ring: bool,
+}
+
+/// UARTs made (bit n: serial n): only theirs are looked at by [`rx_armed`] (an MMIO read each).
+static MADE: AtomicU32 = AtomicU32::new(0);
+
+/// Ports carried by rings (bit n: serial n).
+static RING_MASK: AtomicU32 = AtomicU32::new(0);
+
+/// Wake the ring ports' readers that wait and have bytes, and writers that wait and have
+/// room; true if any was woken (the executor has work: the clock must not move on). Call
+/// from the clock's idle loop (interrupts masked).
+pub fn ring_wake() -> bool {
+    let mask = RING_MASK.load(Ordering::Relaxed);
+    if mask == 0 {
+        return false;
+    }
+    let mut woke = false;
+    let armed = super::link::rx_armed_mask() & mask;
+    let tx_waiting = super::link::read_u32(nanocal_interface::bench_link::TX_WAITING) & mask;
+    for n in 0..nanocal_interface::bench_link::RING_SERIALS {
+        if armed & (1 << n) != 0 && super::link::ring_readable(n) {
+            super::link::rx_armed(n, false);
+            WAKERS[n].wake();
+            woke = true;
+        }
+        if tx_waiting & (1 << n) != 0 && super::link::ring_writable(n) {
+            TX_WAKERS[n].wake();
+            woke = true;
+        }
+    }
+    woke
+}
+
+/// True when a ring port's reader or writer could go on (see [`ring_wake`]), without waking
+/// it: the busy wait before a halt looks at this.
+pub fn ring_ready() -> bool {
+    let mask = RING_MASK.load(Ordering::Relaxed);
+    if mask == 0 {
+        return false;
+    }
+    let armed = super::link::rx_armed_mask() & mask;
+    let tx_waiting = super::link::read_u32(nanocal_interface::bench_link::TX_WAITING) & mask;
+    (0..nanocal_interface::bench_link::RING_SERIALS).any(|n| {
+        (armed & (1 << n) != 0 && super::link::ring_readable(n))
+            || (tx_waiting & (1 << n) != 0 && super::link::ring_writable(n))
+    })
 }
 
 /// True while a reader waits on UART `n` (its receive interrupt is armed: `read` found nothing
-/// and sleeps until a byte comes).
+/// and sleeps until a byte comes). A ring port's reader is never held for here: its bytes are
+/// in the ring at once ([`ring_wake`]).
 pub fn rx_armed(n: usize) -> bool {
-    n < COUNT && read(n, CTRL) & CTRL_RX_INT != 0
+    n < COUNT
+        && (MADE.load(Ordering::Relaxed) & !RING_MASK.load(Ordering::Relaxed)) & (1 << n) != 0
+        && read(n, CTRL) & CTRL_RX_INT != 0
 }
 
 /// Call from `DefaultHandler`: wakes the reader of the UART whose RX line fired, the writer
@@ -163,6 +239,25 @@ impl embedded_io_async::Read for UartRx {
             return Ok(0);
         }
         let n = self.n;
+        if self.ring {
+            return poll_fn(|cx| {
+                let got = super::link::ring_read(n, buf);
+                if got > 0 {
+                    super::link::rx_armed(n, false);
+                    super::link::count_rx(n, got as u32);
+                    return Poll::Ready(Ok(got));
+                }
+                WAKERS[n].register(cx.waker());
+                super::link::rx_armed(n, true);
+                super::link::barrier();
+                // bytes may have come between the look and the mark
+                if super::link::ring_readable(n) {
+                    cx.waker().wake_by_ref();
+                }
+                Poll::Pending
+            })
+            .await;
+        }
         poll_fn(|cx| {
             let mut got = 0;
             while got < buf.len() && read(n, STATE) & STATE_RX_FULL != 0 {
@@ -234,8 +329,37 @@ impl UartTx {
     }
 }
 
+impl UartTx {
+    /// Put `buf` into the ring, waiting for room as the UART's writer does.
+    async fn ring_write(&self, buf: &[u8]) {
+        let n = self.n;
+        let mut done = super::link::ring_write(n, buf);
+        if done == buf.len() {
+            return;
+        }
+        let _waiting = TxWaiting::new(n);
+        poll_fn(|cx| {
+            done += super::link::ring_write(n, &buf[done..]);
+            if done == buf.len() {
+                return Poll::Ready(());
+            }
+            TX_WAKERS[n].register(cx.waker());
+            super::link::barrier();
+            if super::link::ring_writable(n) {
+                cx.waker().wake_by_ref();
+            }
+            Poll::Pending
+        })
+        .await
+    }
+}
+
 impl embedded_io_async::Write for UartTx {
     async fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
+        if self.ring {
+            self.ring_write(buf).await;
+            return Ok(buf.len());
+        }
         for &b in buf {
             self.room().await;
             write(self.n, DATA, u32::from(b));

@@ -8,7 +8,7 @@
 
 use super::chips::{max31856::TempSource, Lps22hb, Max31856};
 use super::controller::{Clock, Config, Controller, IdealPlant, Plant, StageSim};
-use super::link::{BenchClock, BenchLink};
+use super::link::{BenchClock, BenchLink, RingPort};
 use super::qemu::Qemu;
 use super::sensors::Buses;
 use super::twin_stage::TwinStage;
@@ -35,10 +35,45 @@ const STUCK_AFTER: Duration = Duration::from_millis(5);
 /// to answer (a reply the board finishes only after waiting for its own time).
 const ANSWERED_GRACE: Duration = Duration::from_millis(500);
 
-/// A stream that counts the bytes written into the board.
+/// How often an exchange looks at the board while the host talks to it (the host's own reads
+/// pump the stage's ring meanwhile).
+const EXCHANGE_LOOK: Duration = Duration::from_micros(100);
+
+/// A stream that counts the bytes written into the board, and marks what the board had
+/// replied when the newest request went ([`ReplyMark`]).
 struct Counted<S> {
     inner: S,
     sent: Arc<AtomicU64>,
+    mark: Arc<ReplyMark>,
+}
+
+/// The bytes the board had written to the host (GCS and management ports) when the host last
+/// wrote to it: an exchange knows the board has started to answer its newest request when that
+/// count has moved on. Marked by the writer itself, at the write: an exchange loop that looked
+/// only from time to time missed requests answered in full between two of its looks (through
+/// the rings, most are), and let the board's time run on as if it were still waiting.
+struct ReplyMark {
+    link: Arc<BenchLink>,
+    replied: std::sync::atomic::AtomicU32,
+}
+
+impl ReplyMark {
+    /// Bytes the board has written to the host so far.
+    fn replied_now(&self) -> u32 {
+        COUNTED
+            .iter()
+            .fold(0u32, |n, &p| n.wrapping_add(self.link.tx_bytes(p)))
+    }
+
+    /// A request goes now.
+    fn mark(&self) {
+        self.replied.store(self.replied_now(), Ordering::Release);
+    }
+
+    /// The board has written to the host since the newest request went.
+    fn answered(&self) -> bool {
+        self.replied_now() != self.replied.load(Ordering::Acquire)
+    }
 }
 
 impl<S: Read> Read for Counted<S> {
@@ -52,6 +87,7 @@ impl<S: Write> Write for Counted<S> {
         // counted before they go (the bench must never see the board as having read them all
         // while they are on their way), corrected for what did not go
         self.sent.fetch_add(b.len() as u64, Ordering::AcqRel);
+        self.mark.mark();
         let r = self.inner.write(b);
         let n = *r.as_ref().unwrap_or(&0);
         self.sent.fetch_sub((b.len() - n) as u64, Ordering::AcqRel);
@@ -67,10 +103,15 @@ const PORT_READ_TIMEOUT: Duration = Duration::from_millis(50);
 
 /// A socket to the board as the bench's port: the bytes written are counted into `sent` (the
 /// bench waits until the board has read them).
-fn counted<S: Read + Write + Send + 'static>(inner: S, sent: &Arc<AtomicU64>) -> Box<dyn Port> {
+fn counted<S: Read + Write + Send + 'static>(
+    inner: S,
+    sent: &Arc<AtomicU64>,
+    mark: &Arc<ReplyMark>,
+) -> Box<dyn Port> {
     Box::new(Counted {
         inner,
         sent: sent.clone(),
+        mark: mark.clone(),
     })
 }
 
@@ -100,10 +141,25 @@ pub struct VirtualBench {
     /// Commands already handed to the campaign.
     commands_seen: usize,
     sent: [Arc<AtomicU64>; 2],
+    mark: Arc<ReplyMark>,
     /// Bench time of plan time 0, s.
     offset_s: f64,
     reference_port: u16,
     stop_reference: Arc<AtomicBool>,
+    /// Serial ports on the page's rings ([`ring_ports`]).
+    rings: u32,
+}
+
+/// The serial ports a campaign's board is started with on the page's rings: the host link (0),
+/// the stage link (1) and the management port (3) — every byte of a step — unless
+/// `NANOCAL_BENCH_UART=1` asks for QEMU's UARTs (for comparison: the same campaign through the
+/// sockets and the UARTs' interrupts, ≈ 3× the wall time).
+fn ring_ports() -> u32 {
+    if std::env::var_os("NANOCAL_BENCH_UART").is_some_and(|v| v == "1") {
+        0
+    } else {
+        0b1011
+    }
 }
 
 /// The board's clock in plan time: the simulated controller stamps what it receives with it.
@@ -281,8 +337,8 @@ impl VirtualBench {
         plan_at_boot_s: f64,
         faults: &Faults,
     ) -> Self {
-        let mut qemu = Qemu::start(&[]);
-        let _ = &mut qemu;
+        let rings = ring_ports();
+        let mut qemu = Qemu::start_with_rings(&[], rings);
         let link = qemu.link();
         let clock = qemu.clock();
         let axes_n = twin.cfg.axes;
@@ -298,7 +354,11 @@ impl VirtualBench {
                 offset_s,
             }),
         );
-        let stage_sim = StageSim::serve_controller(qemu.connect(1), ctl);
+        let stage_sim = if rings == 0 {
+            StageSim::serve_controller(qemu.connect(1), ctl)
+        } else {
+            StageSim::on_ring(&link, 1, ctl)
+        };
 
         // the sensor chips read the twin's room at the board's clock
         let buses = twin_buses(twin, &stage, offset_s, stream);
@@ -332,6 +392,10 @@ impl VirtualBench {
         );
         clock.lockstep();
         let sent = [Arc::new(AtomicU64::new(0)), Arc::new(AtomicU64::new(0))];
+        let mark = Arc::new(ReplyMark {
+            link: link.clone(),
+            replied: std::sync::atomic::AtomicU32::new(0),
+        });
         Self {
             qemu,
             link,
@@ -343,6 +407,8 @@ impl VirtualBench {
             offset_s,
             reference_port,
             stop_reference,
+            rings,
+            mark,
         }
     }
 
@@ -351,19 +417,29 @@ impl VirtualBench {
 
     /// The compensator's management port (a counted stream).
     pub fn management(&mut self) -> Box<dyn Port> {
+        if self.rings & (1 << 3) != 0 {
+            let r = RingPort::new(self.link.clone(), 3, PORT_READ_TIMEOUT);
+            return counted(r, &self.sent[1], &self.mark);
+        }
         let s =
             std::os::unix::net::UnixStream::connect(self.mgmt_path()).expect("management socket");
         s.set_read_timeout(Some(PORT_READ_TIMEOUT)).ok();
-        counted(s, &self.sent[1])
+        counted(s, &self.sent[1], &self.mark)
     }
 
     /// The compensator's GCS port (a counted stream).
     pub fn gcs(&mut self) -> Box<dyn Port> {
+        if self.rings & 1 != 0 {
+            // the host opens the port: a new session on the board
+            self.qemu.set_dtr(true);
+            let r = RingPort::new(self.link.clone(), 0, PORT_READ_TIMEOUT);
+            return counted(r, &self.sent[0], &self.mark);
+        }
         let s = self.qemu.connect(0);
         // the host opens the port: a new session on the board
         self.qemu.set_dtr(true);
         s.set_read_timeout(Some(PORT_READ_TIMEOUT)).ok();
-        counted(s, &self.sent[0])
+        counted(s, &self.sent[0], &self.mark)
     }
 
     /// Path of the board's management socket.
@@ -380,7 +456,19 @@ impl VirtualBench {
         let gcs_port = self.qemu.serial_port(0);
         let sent = self.sent.clone();
         let link = self.link.clone();
+        let rings = self.rings;
+        let mark = self.mark.clone();
         Box::new(move || {
+            if rings != 0 {
+                let m = RingPort::new(link.clone(), 3, PORT_READ_TIMEOUT);
+                let g = RingPort::new(link.clone(), 0, PORT_READ_TIMEOUT);
+                super::qemu::apply_line_state(
+                    &link,
+                    nanocal_interface::bench_link::LINE_HOST,
+                    true,
+                );
+                return Ok((counted(m, &sent[1], &mark), counted(g, &sent[0], &mark)));
+            }
             let m = std::os::unix::net::UnixStream::connect(&path)?;
             m.set_read_timeout(Some(PORT_READ_TIMEOUT))?;
             let g = TcpStream::connect(("127.0.0.1", gcs_port))?;
@@ -388,7 +476,7 @@ impl VirtualBench {
             g.set_read_timeout(Some(PORT_READ_TIMEOUT))?;
             // the host opens the port again: a new session on the board
             super::qemu::apply_line_state(&link, nanocal_interface::bench_link::LINE_HOST, true);
-            Ok((counted(m, &sent[1]), counted(g, &sent[0])))
+            Ok((counted(m, &sent[1], &mark), counted(g, &sent[0], &mark)))
         })
     }
 
@@ -443,6 +531,7 @@ impl VirtualBench {
         let start = Instant::now();
         let mut stuck_since = None;
         while !self.settled() || self.stage_sim.bytes_in() as u32 != self.link.tx_bytes(1) {
+            self.link.pump();
             self.wake_if_stuck(&mut stuck_since);
             if start.elapsed() > Duration::from_secs(10) {
                 return Err(BenchError::Other(format!(
@@ -459,6 +548,9 @@ impl VirtualBench {
 
 impl Drop for VirtualBench {
     fn drop(&mut self) {
+        if std::env::var_os("NANOCAL_CAMPAIGN_PROFILE").is_some() {
+            eprintln!("virtual bench crossings: {:?}", self.link.crossings());
+        }
         if self.link.pokes() > 0 {
             eprintln!(
                 "virtual bench: woke the board {} time(s) for input stuck on its way in (QEMU's UART)",
@@ -541,24 +633,26 @@ impl BenchDriver for VirtualBench {
 
     fn exchange(&mut self, op: &mut (dyn FnMut() + Send)) -> Result<(), BenchError> {
         let mut result = Ok(());
+        // nothing asked yet
+        self.mark.mark();
+        // the exchange's end wakes the loop below at once; it looks every EXCHANGE_LOOK
+        // otherwise (a loop that woke every 20 µs took a core from the board and the op)
+        let done = (Mutex::new(false), std::sync::Condvar::new());
         std::thread::scope(|sc| {
-            let h = sc.spawn(op);
+            let h = sc.spawn(|| {
+                op();
+                *done.0.lock().unwrap() = true;
+                done.1.notify_all();
+            });
             let mut idle_since: Option<Instant> = None;
-            // what the board had sent when the host last wrote to it
-            let mut request: Option<(u64, u32)> = None;
             let mut stuck_since: Option<Instant> = None;
             while !h.is_finished() {
-                let sent: u64 = self.sent.iter().map(|s| s.load(Ordering::Acquire)).sum();
-                let replied: u32 = COUNTED
-                    .iter()
-                    .fold(0u32, |n, &p| n.wrapping_add(self.link.tx_bytes(p)));
-                if request.is_none_or(|(s, _)| s != sent) {
-                    request = Some((sent, replied));
-                }
+                self.link.pump();
                 // the board has started to answer the newest request: it needs no more time,
                 // and the fold it answered with must stay the one the next command meets
-                let answered = request.is_some_and(|(_, r)| r != replied);
-                if self.settled() {
+                let answered = self.mark.answered();
+                // a board that waits for the stage's reply does not wait for its own time
+                if self.settled() && self.stage_sim.bytes_in() as u32 == self.link.tx_bytes(1) {
                     // the board took the request in and waits: for its own time (a flash erase)
                     let since = *idle_since.get_or_insert_with(Instant::now);
                     let wait = if answered {
@@ -567,6 +661,7 @@ impl BenchDriver for VirtualBench {
                         Duration::from_micros(50)
                     };
                     if since.elapsed() > wait {
+                        self.link.count_nudge();
                         let next = self.link.now_s() + NUDGE_S;
                         if let Err(e) = self.clock.advance_to(next, Duration::from_secs(60)) {
                             result = Err(e.into());
@@ -578,7 +673,10 @@ impl BenchDriver for VirtualBench {
                     idle_since = None;
                     self.wake_if_stuck(&mut stuck_since);
                 }
-                std::thread::sleep(Duration::from_micros(20));
+                let g = done.0.lock().unwrap();
+                if !*g {
+                    let _ = done.1.wait_timeout(g, EXCHANGE_LOOK).unwrap();
+                }
             }
         });
         result

@@ -23,9 +23,13 @@ use super::input_watch::InputWatch;
 
 /// Size of the file behind the board's PSRAM (QEMU's mps2 machines have exactly 16 MiB).
 pub const RAM_FILE_LEN: u64 = 16 * 1024 * 1024;
-const MAP_LEN: usize = 4096;
+/// Bytes mapped: the page and the rings after it (`bench_link::SHARED_LEN`), whole pages.
+const MAP_LEN: usize = bl::SHARED_LEN.next_multiple_of(4096);
 /// How long [`BenchClock::advance_to`] watches the page without any progress of the board
-/// before it sleeps until a doorbell.
+/// before it sleeps until a doorbell. (Measured on the shortened campaign, loaded machine: it
+/// stops watching ≈ 3 times a step, and the bus requests after it ring ≈ 30 doorbells a step;
+/// 2 ms, and watching again at the first of those doorbells, made it worse under load — the
+/// spinning thread takes the core QEMU's vCPU needs.)
 const SPIN: Duration = Duration::from_micros(500);
 /// Longest the free-running clock holds for input in flight that the board does not take.
 const MAX_HOLD: Duration = Duration::from_secs(2);
@@ -84,7 +88,7 @@ impl Page {
     }
 
     fn a32(&self, off: usize) -> &AtomicU32 {
-        assert!(off.is_multiple_of(4) && off + 4 <= bl::PAGE_LEN);
+        assert!(off.is_multiple_of(4) && off + 4 <= bl::SHARED_LEN);
         // SAFETY: aligned, inside the mapping, which outlives `self`.
         unsafe { &*(self.ptr.add(off) as *const AtomicU32) }
     }
@@ -121,7 +125,7 @@ impl Page {
 
     /// `n` bytes from `off`.
     pub fn bytes(&self, off: usize, n: usize) -> Vec<u8> {
-        assert!(off + n <= bl::PAGE_LEN);
+        assert!(off + n <= bl::SHARED_LEN);
         // SAFETY: inside the mapping; volatile reads of memory the board may write.
         (0..n)
             .map(|i| unsafe { std::ptr::read_volatile(self.ptr.add(off + i)) })
@@ -130,7 +134,7 @@ impl Page {
 
     /// Write `b` at `off`.
     pub fn set_bytes(&self, off: usize, b: &[u8]) {
-        assert!(off + b.len() <= bl::PAGE_LEN);
+        assert!(off + b.len() <= bl::SHARED_LEN);
         for (i, &v) in b.iter().enumerate() {
             // SAFETY: inside the mapping.
             unsafe { std::ptr::write_volatile(self.ptr.add(off + i), v) }
@@ -197,6 +201,52 @@ pub struct BenchLink {
     inputs: InputWatch,
     /// Announced bytes given up on ([`Self::forgiven_bytes`]).
     forgiven: AtomicU64,
+    /// Crossings counted for the campaign's profile ([`Crossings`]).
+    counts: Counts,
+    /// Called by every thread that waits on the board (see [`Self::set_pump`]).
+    pump: Mutex<Option<Arc<dyn Fn() + Send + Sync>>>,
+}
+
+#[derive(Default)]
+struct Counts {
+    advances: AtomicU64,
+    horizon_rings: AtomicU64,
+    ring_rings: AtomicU64,
+    bus_rings: AtomicU64,
+    waiting_rings: AtomicU64,
+    nudges: AtomicU64,
+    quiet: AtomicU64,
+}
+
+/// What crossed between the bench and the board since QEMU started: the figures of issue
+/// 20 §5 (each costs a hand-over between threads or a halt of the emulated CPU, not
+/// instructions).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Crossings {
+    /// Lockstep advances of the board's clock.
+    pub advances: u64,
+    /// Times the board halted (WFI) waiting for the bench.
+    pub halts: u32,
+    /// Doorbells rung to the board: the horizon moved while it waited.
+    pub horizon_rings: u64,
+    /// Doorbells rung to the board for bytes put in a ring, or room made, while it was halted.
+    pub ring_rings: u64,
+    /// Doorbells rung to the board for input stuck in QEMU's UART.
+    pub stuck_rings: u64,
+    /// Doorbells from the board for a bus request, while nobody watched the page.
+    pub bus_rings: u64,
+    /// Doorbells from the board idle at the horizon, while nobody watched the page.
+    pub waiting_rings: u64,
+    /// Lockstep advances that were nudges during an exchange (among `advances`).
+    pub nudges: u64,
+    /// Times a lockstep advance stopped watching the page (no progress for a while).
+    pub quiet: u64,
+    /// Bus transactions.
+    pub transactions: u64,
+    /// Bytes through the UARTs (serial 0, 1, 3, both ways).
+    pub uart_bytes: u64,
+    /// Bytes through the rings (both ways).
+    pub ring_bytes: u64,
 }
 
 impl BenchLink {
@@ -219,6 +269,8 @@ impl BenchLink {
             pokes: AtomicU64::new(0),
             inputs: InputWatch::default(),
             forgiven: AtomicU64::new(0),
+            counts: Counts::default(),
+            pump: Mutex::new(None),
         });
         let l = link.clone();
         std::thread::spawn(move || l.read_doorbells(reader));
@@ -259,6 +311,111 @@ impl BenchLink {
         }
         let _ = self.line.lock().unwrap().write_all(&[bl::RING_HORIZON]);
         true
+    }
+
+    /// Ring the board awake if it is halted (after bytes were put in a ring or room made in
+    /// one: the board looks at its rings before it halts, and marks the halt first).
+    fn ring_if_halted(&self) {
+        fence(Ordering::SeqCst);
+        if self.page.u32(bl::HALTED) == 1 {
+            let _ = self.line.lock().unwrap().write_all(&[bl::RING_HORIZON]);
+            self.counts.ring_rings.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Put up to `b.len()` bytes into serial `port`'s ring to the board (bytes sent on the
+    /// port: the board must have asked for it on the ring, [`Page::create`]'s `ring_ports`);
+    /// the count put (0: the ring is full).
+    pub fn ring_write(&self, port: usize, b: &[u8]) -> usize {
+        let k = bl::ring_to_board(port);
+        let head = self.page.u32(bl::ring_head(k));
+        let tail = self.page.u32(bl::ring_tail(k));
+        let room = bl::RING_LEN - bl::ring_used(head, tail).min(bl::RING_LEN);
+        let n = room.min(b.len());
+        if n == 0 {
+            return 0;
+        }
+        for (i, &v) in b[..n].iter().enumerate() {
+            let off = bl::ring_byte(k, head.wrapping_add(i as u32));
+            // SAFETY: inside the mapping (`ring_byte` < SHARED_LEN).
+            unsafe { std::ptr::write_volatile(self.page.ptr.add(off), v) }
+        }
+        self.page
+            .a32(bl::ring_head(k))
+            .store(head.wrapping_add(n as u32), Ordering::SeqCst);
+        self.ring_if_halted();
+        n
+    }
+
+    /// Take up to `b.len()` bytes from serial `port`'s ring from the board; the count taken.
+    pub fn ring_read(&self, port: usize, b: &mut [u8]) -> usize {
+        let k = bl::ring_to_host(port);
+        let head = self.page.u32(bl::ring_head(k));
+        let tail = self.page.u32(bl::ring_tail(k));
+        let n = bl::ring_used(head, tail).min(bl::RING_LEN).min(b.len());
+        if n == 0 {
+            return 0;
+        }
+        for (i, v) in b[..n].iter_mut().enumerate() {
+            let off = bl::ring_byte(k, tail.wrapping_add(i as u32));
+            // SAFETY: inside the mapping.
+            *v = unsafe { std::ptr::read_volatile(self.page.ptr.add(off)) };
+        }
+        self.page
+            .a32(bl::ring_tail(k))
+            .store(tail.wrapping_add(n as u32), Ordering::SeqCst);
+        // a writer of the board that waited for room may go on
+        if self.page.u32(bl::TX_WAITING) & (1 << port) != 0 {
+            self.ring_if_halted();
+        }
+        n
+    }
+
+    /// True when serial `port`'s ring from the board holds bytes.
+    pub fn ring_readable(&self, port: usize) -> bool {
+        let k = bl::ring_to_host(port);
+        self.page.u32(bl::ring_head(k)) != self.page.u32(bl::ring_tail(k))
+    }
+
+    /// Have `pump` called by every thread of the bench that waits on the board (a lockstep
+    /// advance, a reader of a ring port): the simulated controller on the stage's ring
+    /// answers through it, with no thread of its own to wake.
+    pub fn set_pump(&self, pump: Arc<dyn Fn() + Send + Sync>) {
+        *self.pump.lock().unwrap() = Some(pump);
+    }
+
+    /// Call the pump, if any.
+    pub fn pump(&self) {
+        let p = self.pump.lock().unwrap().clone();
+        if let Some(p) = p {
+            p();
+        }
+    }
+
+    /// What crossed between the bench and the board so far.
+    pub fn crossings(&self) -> Crossings {
+        let c = &self.counts;
+        let uart_and_ring: u64 = [0usize, 1, 3]
+            .iter()
+            .map(|&p| u64::from(self.tx_bytes(p)) + u64::from(self.rx_bytes(p)))
+            .sum();
+        let ring_bytes: u64 = (0..bl::RINGS)
+            .map(|k| u64::from(self.page.u32(bl::ring_tail(k))))
+            .sum();
+        Crossings {
+            advances: c.advances.load(Ordering::Relaxed),
+            halts: self.page.u32(bl::HALTS),
+            horizon_rings: c.horizon_rings.load(Ordering::Relaxed),
+            ring_rings: c.ring_rings.load(Ordering::Relaxed),
+            stuck_rings: self.pokes(),
+            bus_rings: c.bus_rings.load(Ordering::Relaxed),
+            waiting_rings: c.waiting_rings.load(Ordering::Relaxed),
+            nudges: c.nudges.load(Ordering::Relaxed),
+            quiet: c.quiet.load(Ordering::Relaxed),
+            transactions: self.transactions.load(Ordering::Relaxed),
+            uart_bytes: uart_and_ring.saturating_sub(ring_bytes),
+            ring_bytes,
+        }
     }
 
     /// Times [`Self::wake_for_input`] had to ring.
@@ -414,8 +571,14 @@ impl BenchLink {
             let mut waiting = false;
             for &x in &b[..n] {
                 match x {
-                    bl::RING_BUS => self.serve_bus(),
-                    bl::RING_WAITING => waiting = true,
+                    bl::RING_BUS => {
+                        self.counts.bus_rings.fetch_add(1, Ordering::Relaxed);
+                        self.serve_bus()
+                    }
+                    bl::RING_WAITING => {
+                        self.counts.waiting_rings.fetch_add(1, Ordering::Relaxed);
+                        waiting = true
+                    }
                     _ => {}
                 }
             }
@@ -485,13 +648,22 @@ impl BenchLink {
         self.transactions.fetch_add(1, Ordering::Relaxed);
     }
 
-    /// Move the horizon to `ticks` (never back) and wake the board if it waits.
+    /// Move the horizon to `ticks` (never back) and wake the board if it is halted (while it
+    /// waits at the horizon it looks at the page before it halts, and marks the halt first).
     fn set_horizon(&self, ticks: u64) {
         if ticks > self.page.u64(bl::HORIZON) {
             self.page.set_u64(bl::HORIZON, ticks);
         }
         fence(Ordering::SeqCst);
-        self.ring_horizon_if_waiting();
+        if self.page.u32(bl::HALTED) == 1 {
+            let _ = self.line.lock().unwrap().write_all(&[bl::RING_HORIZON]);
+            self.counts.horizon_rings.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Count a nudge of the board's clock during an exchange (the campaign's profile).
+    pub fn count_nudge(&self) {
+        self.counts.nudges.fetch_add(1, Ordering::Relaxed);
     }
 
     /// The ways into the board whose input in flight holds the free-running clock.
@@ -586,6 +758,7 @@ impl BenchLink {
                     _ => out = Some((key, now)),
                 }
             }
+            self.pump();
             if hold {
                 held += dt;
                 self.wake_for_input();
@@ -631,6 +804,7 @@ impl BenchClock {
         }
         let start = Instant::now();
         let page = &self.link.page;
+        self.link.counts.advances.fetch_add(1, Ordering::Relaxed);
         let target = bl::s_to_ticks(t_s).max(page.u64(bl::HORIZON));
         let stalled = |page: &Page| ClockError::Stalled {
             target_s: bl::ticks_to_s(target),
@@ -648,6 +822,7 @@ impl BenchClock {
             if self.link.bus_pending() {
                 self.link.serve_bus();
             }
+            self.link.pump();
             if page.u32(bl::WAITING) == 1 && page.u64(bl::NOW) == target {
                 break Ok(());
             }
@@ -660,6 +835,7 @@ impl BenchClock {
                 quiet_since = Instant::now();
             } else if quiet_since.elapsed() > SPIN {
                 // stop polling: the board rings from now on; look once more, then sleep
+                self.link.counts.quiet.fetch_add(1, Ordering::Relaxed);
                 page.set_u32(bl::WATCHING, 0);
                 fence(Ordering::SeqCst);
                 if !self.link.bus_pending() && page.u32(bl::WAITING) == 0 {
@@ -721,5 +897,168 @@ impl<S: Write> Write for Announced<S> {
     }
     fn flush(&mut self) -> std::io::Result<()> {
         self.inner.flush()
+    }
+}
+
+/// How long a reader of a ring port spins on the ring before it sleeps between looks: the
+/// board answers most requests within this (measured: a status in ≈ 0.1 ms), and a thread that
+/// sleeps and is woken costs more on a loaded machine than one that spins (see
+/// [`BenchClock::advance_to`]).
+const RING_SPIN: Duration = Duration::from_millis(2);
+/// Sleep between looks at a ring after [`RING_SPIN`].
+const RING_NAP: Duration = Duration::from_micros(50);
+
+/// Serial `port` of the board through its rings (`bench_link`, *Rings*): what a socket to
+/// QEMU's serial port is otherwise, with no UART in between — a request goes in, and its reply
+/// comes out, in one piece. Reads time out after `read_timeout` (`WouldBlock`, as a socket's),
+/// and end (0) once the link is shut down.
+pub struct RingPort {
+    link: Arc<BenchLink>,
+    port: usize,
+    read_timeout: Duration,
+}
+
+impl RingPort {
+    /// Serial `port` of `link` (the board must have been started with it on its rings).
+    pub fn new(link: Arc<BenchLink>, port: usize, read_timeout: Duration) -> Self {
+        assert!(port < bl::RING_SERIALS);
+        Self {
+            link,
+            port,
+            read_timeout,
+        }
+    }
+
+    /// Wait a little for the board, pumping the stage meanwhile; false once `since` is more
+    /// than `limit` ago or the link is shut down.
+    fn wait(&self, since: Instant, limit: Duration) -> bool {
+        if self.link.stopped() {
+            return false;
+        }
+        self.link.pump();
+        let waited = since.elapsed();
+        if waited >= limit {
+            return false;
+        }
+        if waited < RING_SPIN {
+            std::hint::spin_loop();
+        } else {
+            std::thread::sleep(RING_NAP);
+        }
+        true
+    }
+}
+
+impl Read for RingPort {
+    fn read(&mut self, b: &mut [u8]) -> std::io::Result<usize> {
+        if b.is_empty() {
+            return Ok(0);
+        }
+        let start = Instant::now();
+        loop {
+            let n = self.link.ring_read(self.port, b);
+            if n > 0 {
+                return Ok(n);
+            }
+            if self.link.stopped() {
+                return Ok(0);
+            }
+            if !self.wait(start, self.read_timeout) {
+                return Err(std::io::ErrorKind::WouldBlock.into());
+            }
+        }
+    }
+}
+
+impl Write for RingPort {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        if b.is_empty() {
+            return Ok(0);
+        }
+        let start = Instant::now();
+        loop {
+            let n = self.link.ring_write(self.port, b);
+            if n > 0 {
+                return Ok(n);
+            }
+            // the ring is full: the board takes its bytes as it reads (a board that stopped
+            // reading for a minute is hung)
+            if !self.wait(start, Duration::from_secs(60)) {
+                return Err(std::io::ErrorKind::BrokenPipe.into());
+            }
+        }
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The board's side of a ring, as `src/qemu/link.rs` reads and writes it (same offsets,
+    /// producer writes bytes then head, consumer reads bytes then tail).
+    fn board_read(page: &Page, port: usize) -> Vec<u8> {
+        let k = bl::ring_to_board(port);
+        let (head, tail) = (page.u32(bl::ring_head(k)), page.u32(bl::ring_tail(k)));
+        let n = bl::ring_used(head, tail);
+        let out = (0..n)
+            .map(|i| page.bytes(bl::ring_byte(k, tail.wrapping_add(i as u32)), 1)[0])
+            .collect();
+        page.set_u32(bl::ring_tail(k), head);
+        out
+    }
+
+    fn board_write(page: &Page, port: usize, b: &[u8]) {
+        let k = bl::ring_to_host(port);
+        let head = page.u32(bl::ring_head(k));
+        for (i, &v) in b.iter().enumerate() {
+            page.set_bytes(bl::ring_byte(k, head.wrapping_add(i as u32)), &[v]);
+        }
+        page.set_u32(bl::ring_head(k), head.wrapping_add(b.len() as u32));
+    }
+
+    #[test]
+    fn ring_ports_carry_bytes_both_ways_across_the_wrap_and_ring_only_a_halted_board() {
+        let path = std::env::temp_dir().join(format!("nanocal-ring-{}", std::process::id()));
+        let page = Page::create(&path).unwrap();
+        let (ours, mut board_line) = UnixStream::pair().unwrap();
+        board_line
+            .set_read_timeout(Some(Duration::from_millis(200)))
+            .unwrap();
+        let link = BenchLink::start(page, ours);
+        BenchClock::new(link.clone()).lockstep();
+        // start near the counters' wrap and the ring's end
+        for k in 0..bl::RINGS {
+            link.page().set_u32(bl::ring_head(k), u32::MAX - 5);
+            link.page().set_u32(bl::ring_tail(k), u32::MAX - 5);
+        }
+        let mut port = RingPort::new(link.clone(), 3, Duration::from_millis(20));
+        port.write_all(b"STATUS?\n").unwrap();
+        assert_eq!(board_read(link.page(), 3), b"STATUS?\n");
+        let mut b = [0u8; 64];
+        assert_eq!(
+            port.read(&mut b).unwrap_err().kind(),
+            std::io::ErrorKind::WouldBlock,
+            "nothing from the board yet"
+        );
+        board_write(link.page(), 3, b"reply\n");
+        let n = port.read(&mut b).unwrap();
+        assert_eq!(&b[..n], b"reply\n");
+        // a full ring takes no more; the board reading makes room
+        let big = vec![7u8; bl::RING_LEN + 10];
+        assert_eq!(link.ring_write(0, &big), bl::RING_LEN);
+        assert_eq!(link.ring_write(0, &big), 0);
+        assert_eq!(board_read(link.page(), 0).len(), bl::RING_LEN);
+        // no doorbell while the board runs; one when it is halted
+        let mut one = [0u8; 1];
+        assert!(board_line.read(&mut one).is_err(), "no doorbell yet");
+        link.page().set_u32(bl::HALTED, 1);
+        assert_eq!(link.ring_write(0, b"x"), 1);
+        board_line.read_exact(&mut one).unwrap();
+        assert_eq!(one[0], bl::RING_HORIZON);
+        assert_eq!(link.crossings().ring_rings, 1);
+        link.shutdown();
     }
 }

@@ -188,6 +188,13 @@ fn ram_file(tag: u16) -> PathBuf {
 impl Qemu {
     /// Start QEMU with extra arguments (e.g. a TCG plugin).
     pub fn start(extra: &[String]) -> Self {
+        Self::start_with_rings(extra, 0)
+    }
+
+    /// Start QEMU with extra arguments, the serial ports in the mask `ring_ports` (bit n:
+    /// serial n, n < 4) carried by the page's rings instead of their UARTs
+    /// (`nanocal_interface::bench_link`, *Rings*; [`super::link::RingPort`]).
+    pub fn start_with_rings(extra: &[String], ring_ports: u32) -> Self {
         let elf = qemu_elf();
         let ports = [
             free_port(),
@@ -202,6 +209,8 @@ impl Qemu {
             ports[0]
         ));
         let page = Page::create(&ram_file(ports[0])).expect("the bench's RAM file");
+        // before the board boots: its UART drivers look at it once
+        page.set_u32(bl::RING_PORTS, ring_ports);
         let mut cmd = Command::new("qemu-system-arm");
         cmd.args(["-M", "mps2-an386,memory-backend=bench-ram"])
             .arg("-object")

@@ -1,7 +1,9 @@
-//! The simulated controller on a byte stream (the QEMU board's stage link, a TCP socket).
+//! The simulated controller on a byte stream (the QEMU board's stage link, a TCP socket), or on
+//! the stage link's rings in the bench's page (`nanocal_interface::bench_link`, *Rings*).
 
 use super::device::{Config, Controller, Event};
 use super::plant::{IdealPlant, SystemClock};
+use crate::virtual_bench::link::BenchLink;
 use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -78,6 +80,57 @@ impl StageSim {
                 }
             }
         });
+        Self {
+            lines: rx,
+            ctl,
+            bytes,
+        }
+    }
+
+    /// Any controller on serial `port`'s rings of `link` (the board asked for the port on its
+    /// rings): no thread of its own — whoever waits on the board pumps it
+    /// ([`BenchLink::set_pump`]): it takes in what the board wrote, and puts its reply in the
+    /// ring to the board.
+    pub fn on_ring(link: &Arc<BenchLink>, port: usize, ctl: Controller) -> Self {
+        let (tx, rx) = channel();
+        let ctl = Arc::new(Mutex::new(ctl));
+        let bytes = Arc::new([AtomicU64::new(0), AtomicU64::new(0)]);
+        // reply bytes that did not fit the ring yet
+        let pending: Mutex<Vec<u8>> = Mutex::new(Vec::new());
+        let (c2, counts, l) = (ctl.clone(), bytes.clone(), Arc::downgrade(link));
+        link.set_pump(Arc::new(move || {
+            // one pump at a time; a thread that finds it busy goes on waiting
+            let Ok(mut out) = pending.try_lock() else {
+                return;
+            };
+            let Some(link) = l.upgrade() else {
+                return;
+            };
+            if !out.is_empty() {
+                let n = link.ring_write(port, &out);
+                out.drain(..n);
+            }
+            if !link.ring_readable(port) {
+                return;
+            }
+            let mut b = [0u8; 512];
+            let n = link.ring_read(port, &mut b);
+            let (reply, received) = {
+                let mut c = c2.lock().expect("controller lock");
+                let reply = c.input(&b[..n]);
+                (reply, c.take_received())
+            };
+            // record before replying, so a host that saw the reply sees the record
+            for line in received {
+                let _ = tx.send(line);
+            }
+            // counted before they go: a bench must not think the board has read them all
+            counts[1].fetch_add(reply.len() as u64, Ordering::AcqRel);
+            counts[0].fetch_add(n as u64, Ordering::AcqRel);
+            out.extend_from_slice(&reply);
+            let n = link.ring_write(port, &out);
+            out.drain(..n);
+        }));
         Self {
             lines: rx,
             ctl,

@@ -580,7 +580,10 @@ impl Proxy {
         if !gcs::single_char_has_reply(b) {
             // #24 stops all axes, #27 aborts: targets are wherever the axes stopped, and no
             // line queued before the stop may start a motion after it (a `MOV?` the held line
-            // asked is answered from before the stop: its reply is never used)
+            // asked is answered from before the stop: its reply is never used). The queries
+            // queued behind a held line stay: a controller read them before the stop and
+            // answers them, and a host waits for those replies (they go out after the stop;
+            // the stop moves nothing they report but the axes' positions)
             st.forget(None);
             if st.held.take().is_some() {
                 st.counters.refused = st.counters.refused.wrapping_add(1);
@@ -589,8 +592,9 @@ impl Proxy {
             st.held_lost = false;
             st.held_runs = 0;
             // a line cut by the stop is dropped to its end too: its rest is no line of its own
-            let partial = self.input.as_bytes().last().is_some_and(|&c| c != b'\n');
-            self.input.clear();
+            let partial = self
+                .input
+                .retain_lines(|l| command::is_query(gcs::split(l).command));
             self.discarding = partial;
             let _ = out.to_stage.push(b);
             return;

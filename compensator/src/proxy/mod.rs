@@ -278,6 +278,9 @@ pub struct ProxyState {
     /// While resynchronising: identification lines still due to queries given up, taken for
     /// theirs before one is the resynchronising marker's (see `replies::resync`).
     stale_idn: u8,
+    /// While resynchronising with replies given up still coming (`late`, lost bytes): nothing
+    /// that expects a reply goes out behind the marker ([`ProxyState::resync_holds`]).
+    resync_hold: bool,
     /// The model's play operators as the commands sent left them (hysteresis memory): advanced
     /// only when a corrected target goes out, reset whenever the stage may have moved along a
     /// path the proxy did not see (see [`ProxyState::reset_hysteresis`]).
@@ -347,6 +350,7 @@ impl Proxy {
                 held_runs: 0,
                 held_lost: false,
                 resyncing: false,
+                resync_hold: false,
                 stale_idn: 0,
                 hyst: HysteresisState::new(),
                 now_ms: 0,
@@ -380,8 +384,13 @@ impl Proxy {
     pub fn has_work(&self) -> bool {
         let st = &self.st;
         if st.link_lost {
-            // nothing is processed until the line is quiet (`poll` ends that): a caller that
-            // loops while there is work would spin
+            // with a marker the next call resynchronises; without one nothing is processed
+            // until the line is quiet (`poll` ends that): a caller that loops while there is
+            // work would spin
+            return st.ctrl.marker_reply().is_some();
+        }
+        if st.resync_holds() {
+            // host lines wait for the resynchronising marker's reply (`link_lost_hold`)
             return false;
         }
         let answer_due = !st.rx.active()
@@ -450,6 +459,11 @@ impl Proxy {
     ) -> usize {
         out.clear();
         self.st.now_ms = now_ms;
+        self.st.end_link_loss(c, out);
+        if !out.is_empty() {
+            // the resynchronising marker goes first; the host's bytes in the next call
+            return 0;
+        }
         if let Some(taken) = self.link_lost_hold(input, out) {
             return taken;
         }
@@ -1185,7 +1199,9 @@ impl ProxyState {
             self.refuse(GcsErrorCode::NoAnswer);
             return;
         }
-        if self.learning() || self.reseed == Reseed::Asked {
+        if self.learning() || self.reseed == Reseed::Asked || self.resync_holds() {
+            // (nothing of the proxy's own goes out behind a resynchronising marker: see
+            // `Proxy::link_lost_hold`)
             return;
         }
         if let Some(line) = self.held.take() {
@@ -1202,7 +1218,7 @@ impl ProxyState {
         out.clear();
         self.now_ms = now_ms;
         if self.link_lost {
-            self.try_end_link_loss(c, out);
+            self.end_link_loss(c, out);
             return;
         }
         self.emit_answers(out);

@@ -771,7 +771,11 @@ fn replies_late_after_lost_stage_bytes_are_never_paired_with_later_queries() {
     host.extend_from_slice(out.to_host.as_bytes());
     to_ctl.extend_from_slice(out.to_stage.as_bytes());
     assert_eq!(text(&to_ctl), "*IDN?\n");
-    assert_eq!(r.proxy.host_bytes(comp.as_ref(), b"POS? 1\n", now + 150, &mut out), 0);
+    assert_eq!(
+        r.proxy
+            .host_bytes(comp.as_ref(), b"POS? 1\n", now + 150, &mut out),
+        0
+    );
     assert!(out.is_empty());
     // what was late arrives, then the marker's reply
     let mut stream = late;
@@ -791,13 +795,19 @@ fn replies_late_after_lost_stage_bytes_are_never_paired_with_later_queries() {
     };
     feed(&mut r, &stream, &mut host);
     // resynchronised: the host's query goes out, its reply comes back mapped
-    assert_eq!(r.proxy.host_bytes(comp.as_ref(), b"POS? 1\n", now + 152, &mut out), 7);
+    assert_eq!(
+        r.proxy
+            .host_bytes(comp.as_ref(), b"POS? 1\n", now + 152, &mut out),
+        7
+    );
     assert_eq!(out.to_stage.as_bytes(), b"POS? 1\n");
     let reply = r.ctl.input(out.to_stage.as_bytes());
     feed(&mut r, &reply, &mut host);
     // the reply cut short got an end when it was given up; the host's POS? got its own reply
     let host = text(&host);
-    let pos = host.strip_prefix("2.\n").unwrap_or_else(|| panic!("{host:?}"));
+    let pos = host
+        .strip_prefix("2.\n")
+        .unwrap_or_else(|| panic!("{host:?}"));
     let v = value(pos, "1");
     assert!((v - 100.0).abs() < 2e-4, "{host:?}");
     assert_eq!(r.line("ERR?"), "9010\n");
@@ -852,13 +862,21 @@ fn a_stop_keeps_the_queries_queued_behind_a_held_line() {
         to_ctl.extend_from_slice(out.to_stage.as_bytes());
         host.extend_from_slice(out.to_host.as_bytes());
         i += used;
-        assert!(used > 0 || !out.is_empty(), "the proxy took none of {:?}", &bytes[i..]);
+        assert!(
+            used > 0 || !out.is_empty(),
+            "the proxy took none of {:?}",
+            &bytes[i..]
+        );
     }
     while r.proxy.has_work() {
         r.proxy.host_bytes(comp.as_ref(), &[], now, &mut out);
         to_ctl.extend_from_slice(out.to_stage.as_bytes());
     }
-    assert_eq!(text(&to_ctl), "MOV? 1\n\x18POS? 1\n", "no move after the stop");
+    assert_eq!(
+        text(&to_ctl),
+        "MOV? 1\n\x18POS? 1\n",
+        "no move after the stop"
+    );
     let replies = r.ctl.input(&to_ctl);
     let mut i = 0;
     while i < replies.len() {

@@ -62,7 +62,9 @@
 //! nothing for [`REPLY_TIMEOUT_MS`] while replies are due (counted from the oldest reply due,
 //! whatever the host sends meanwhile) has stopped answering (unplugged, rebooting); the proxy
 //! gives up what is in flight and resynchronises with a marker. Pairing itself never depends
-//! on time. What this assumes of the controller: it answers every query it accepts (within
+//! on time: bytes lost on the stage link end with a marker's reply too (`session`), and only
+//! before the controller's identification line is known — no marker can be recognised then —
+//! does the proxy wait for a quiet line ([`RESYNC_QUIET_MS`]) instead. What this assumes of the controller: it answers every query it accepts (within
 //! milliseconds), and it loses input only while it is not running — rebooting, without power,
 //! its cable out — and is then silent for longer than [`REPLY_TIMEOUT_MS`]. A query lost on its
 //! way to a controller that answers the next one at once cannot be told from bytes alone (GCS
@@ -300,8 +302,9 @@ pub struct ProxyState {
     stage: StageGuard,
     /// Counters.
     pub counters: Counters,
-    /// Bytes from the controller were lost: until the line is quiet, nothing received can be
-    /// paired with a query and no host line goes out ([`Proxy::stage_bytes_lost`]).
+    /// Bytes from the controller were lost: the proxy resynchronises at its next call (or,
+    /// without a known identification line, once the line is quiet); until then nothing
+    /// received is paired with a query and no host line goes out ([`Proxy::stage_bytes_lost`]).
     link_lost: bool,
     /// Held targets following the model (`follow`).
     follow: follow::Follow,
@@ -459,13 +462,11 @@ impl Proxy {
     ) -> usize {
         out.clear();
         self.st.now_ms = now_ms;
-        self.st.end_link_loss(c, out);
-        if !out.is_empty() {
-            // the resynchronising marker goes first; the host's bytes in the next call
-            return 0;
-        }
-        if let Some(taken) = self.link_lost_hold(input, out) {
-            return taken;
+        // (one test on the `MOV` line's path: `resync_hold` is only set while resyncing)
+        if self.st.link_lost | self.st.resync_hold {
+            if let Some(taken) = self.link_lost_hold(c, input, out) {
+                return taken;
+            }
         }
         if !self.st.queue.is_empty() {
             self.st.emit_answers(out);

@@ -370,7 +370,10 @@ impl ProxyState {
                 let _ = self.queue.push_front(en);
             }
             // the marker's own reply: replies and queries are paired
-            Expect::Marker => self.resyncing = false,
+            Expect::Marker => {
+                self.resyncing = false;
+                self.resync_hold = false;
+            }
             _ if en.maybe => {
                 // the query went unanswered; this was the reply to the marker that follows it
                 self.unanswered(en);

@@ -60,7 +60,20 @@ impl Proxy {
     /// resynchronising marker's reply ([`ProxyState::resync_holds`]): `None` when not
     /// resynchronising; else how many bytes of `input` were taken — a stop (`#24`, `#27`)
     /// goes out at once, everything else waits.
-    pub(super) fn link_lost_hold(&mut self, input: &[u8], out: &mut Output) -> Option<usize> {
+    #[inline(never)]
+    pub(super) fn link_lost_hold<C: Corrector>(
+        &mut self,
+        c: Option<&C>,
+        input: &[u8],
+        out: &mut Output,
+    ) -> Option<usize> {
+        if self.st.link_lost {
+            self.st.end_link_loss(c, out);
+            if !out.is_empty() {
+                // the resynchronising marker goes first; the host's bytes in the next call
+                return Some(0);
+            }
+        }
         if !self.st.link_lost && !self.st.resync_holds() {
             return None;
         }
@@ -115,6 +128,7 @@ impl ProxyState {
             self.give_up(c, out);
             // nothing is in flight any more: no marker to wait for
             self.resyncing = false;
+            self.resync_hold = false;
         }
         // the held line is not the controller's fault: it runs again and asks what it needs
         // afresh — after the next reply (the marker's at the latest), not in this call, whose

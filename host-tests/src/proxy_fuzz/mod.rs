@@ -385,12 +385,15 @@ impl Rig {
             let used = self
                 .proxy
                 .stage_bytes(Some(&self.comp), &chunk, self.now_ms, &mut self.out);
+            let produced = !self.out.is_empty();
             self.stage_rx.drain(..used);
             self.stage_since_ms = self.now_ms;
             budget -= used.min(budget);
             self.route();
             self.resume();
-            if used == 0 {
+            if used == 0 && !produced {
+                // (none taken but something sent — a resynchronising marker: the firmware's
+                // stage link offers the bytes again, `src/app/links.rs`'s `feed`)
                 break;
             }
         }

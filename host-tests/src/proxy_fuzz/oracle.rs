@@ -416,6 +416,12 @@ impl Oracle {
         let processed = ctl.take_processed();
         let mut done = 0; // commands checked
         let mut taken = 0; // host bytes checked (of the ones the give-ups counted)
+        if std::env::var_os("NANOCAL_FUZZ_TRACE").is_some() {
+            eprintln!(
+                "check: give_ups {give_ups:?} processed {:?}",
+                processed.iter().map(|p| p.line.clone()).collect::<Vec<_>>()
+            );
+        }
         for g in give_ups {
             for p in &processed[done..g.processed] {
                 self.processed(p, &mut k)?;
@@ -437,10 +443,18 @@ impl Oracle {
                 ));
             }
             // no reply to a query in flight at the give-up reaches the host after it
-            self.queries.retain(|q| !matches!(q.state, QState::Reached(_)));
+            self.queries
+                .retain(|q| !matches!(q.state, QState::Reached(_)));
         }
         for p in &processed[done..] {
             self.processed(p, &mut k)?;
+        }
+        if std::env::var_os("NANOCAL_FUZZ_TRACE").is_some() {
+            eprintln!(
+                "check: before replies {} | {:?}",
+                self.pending(),
+                String::from_utf8_lossy(host_rx)
+            );
         }
         self.replies(host_rx, &mut k)?;
         if quiet {
@@ -472,8 +486,23 @@ impl Oracle {
         if matches!(word.as_str(), "MOV" | "MVE" | "MVR" | "GOH") {
             return self.controller_move(p, &word, &args, k);
         }
-        // a host line as it was sent, in the host's order
-        let Some(pos) = self.lines.iter().position(|l| l.text == p.line) else {
+        // a host line as it was sent, in the host's order (a single character cannot be told
+        // apart from an earlier one of the same code that the proxy never forwarded — it
+        // refuses one it could not pair — and whose query is settled: the first still pending)
+        let pending = |l: &HostLine| {
+            self.queries
+                .iter()
+                .any(|q| q.id == l.id && q.state == QState::Pending)
+        };
+        let pos = match p.line.starts_with('#') {
+            true => self
+                .lines
+                .iter()
+                .position(|l| l.text == p.line && pending(l))
+                .or_else(|| self.lines.iter().position(|l| l.text == p.line)),
+            false => self.lines.iter().position(|l| l.text == p.line),
+        };
+        let Some(pos) = pos else {
             return Err(format!(
                 "the controller received {:?}, which the host did not send (or not in this order)",
                 p.line

@@ -751,7 +751,7 @@ fn replies_late_after_lost_stage_bytes_are_never_paired_with_later_queries() {
     r.line("MOV 1 100");
     r.wait_ms(20);
     r.received();
-    let comp = r.comp.clone();
+    let comp = r.comp;
     let mut out = Output::new();
     let mut host = Vec::new();
     let mut to_ctl = Vec::new();
@@ -848,7 +848,7 @@ fn a_stop_keeps_the_queries_queued_behind_a_held_line() {
     r.line("HLT 1"); // the targets are forgotten: an MVR asks the controller for its base
     r.line("ERR?");
     r.received();
-    let comp = r.comp.clone();
+    let comp = r.comp;
     let mut out = Output::new();
     let now = r.now_ms;
     let bytes = b"MVR 1 5\nPOS? 1\nMOV 1 200\n\x18";

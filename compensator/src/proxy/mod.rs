@@ -281,7 +281,8 @@ pub struct ProxyState {
     /// theirs before one is the resynchronising marker's (see `replies::resync`).
     stale_idn: u8,
     /// While resynchronising with replies given up still coming (`late`, lost bytes): nothing
-    /// that expects a reply goes out behind the marker ([`ProxyState::resync_holds`]).
+    /// that expects a reply goes out behind the marker ([`ProxyState::resync_holds`]). Set
+    /// with `link_lost` too, so that the host's path tests one flag.
     resync_hold: bool,
     /// The model's play operators as the commands sent left them (hysteresis memory): advanced
     /// only when a corrected target goes out, reset whenever the stage may have moved along a
@@ -462,8 +463,8 @@ impl Proxy {
     ) -> usize {
         out.clear();
         self.st.now_ms = now_ms;
-        // (one test on the `MOV` line's path: `resync_hold` is only set while resyncing)
-        if self.st.link_lost | self.st.resync_hold {
+        // (one test on the `MOV` line's path: `resync_hold` is set with `link_lost` too)
+        if self.st.resync_hold {
             if let Some(taken) = self.link_lost_hold(c, input, out) {
                 return taken;
             }

@@ -45,6 +45,7 @@ impl Proxy {
     pub fn stage_bytes_lost(&mut self, now_ms: u32) {
         let st = &mut self.st;
         st.link_lost = true;
+        st.resync_hold = true;
         st.last_rx_ms = now_ms;
         st.counters.link_losses = st.counters.link_losses.wrapping_add(1);
     }

@@ -140,6 +140,35 @@ impl<const N: usize> LineBuf<N> {
             self.buf[at..self.len].rotate_right(1);
         }
     }
+    /// Keep, in their order, the single-character commands and the complete lines (LF
+    /// included) for which `keep` (given the line without its LF) is true; drop the other
+    /// lines and a partial line at the end. True when there was a partial line.
+    pub fn retain_lines(&mut self, keep: impl Fn(&[u8]) -> bool) -> bool {
+        let n = self.len;
+        let (mut r, mut w) = (0, 0);
+        let mut partial = false;
+        while r < n {
+            let b = self.buf[r];
+            if b != b'\n' && ends_run(b) {
+                self.buf[w] = b;
+                w += 1;
+                r += 1;
+                continue;
+            }
+            let Some(p) = self.buf[r..n].iter().position(|&c| c == b'\n') else {
+                partial = true;
+                break;
+            };
+            let end = r + p + 1;
+            if keep(&self.buf[r..end - 1]) {
+                self.buf.copy_within(r..end, w);
+                w += end - r;
+            }
+            r = end;
+        }
+        self.len = w;
+        partial
+    }
     /// Drop the first `n` bytes (the rest moves to the front).
     pub fn consume(&mut self, n: usize) {
         let n = n.min(self.len);

@@ -62,7 +62,9 @@
 //! nothing for [`REPLY_TIMEOUT_MS`] while replies are due (counted from the oldest reply due,
 //! whatever the host sends meanwhile) has stopped answering (unplugged, rebooting); the proxy
 //! gives up what is in flight and resynchronises with a marker. Pairing itself never depends
-//! on time. What this assumes of the controller: it answers every query it accepts (within
+//! on time: bytes lost on the stage link end with a marker's reply too (`session`), and only
+//! before the controller's identification line is known — no marker can be recognised then —
+//! does the proxy wait for a quiet line ([`RESYNC_QUIET_MS`]) instead. What this assumes of the controller: it answers every query it accepts (within
 //! milliseconds), and it loses input only while it is not running — rebooting, without power,
 //! its cable out — and is then silent for longer than [`REPLY_TIMEOUT_MS`]. A query lost on its
 //! way to a controller that answers the next one at once cannot be told from bytes alone (GCS
@@ -278,6 +280,10 @@ pub struct ProxyState {
     /// While resynchronising: identification lines still due to queries given up, taken for
     /// theirs before one is the resynchronising marker's (see `replies::resync`).
     stale_idn: u8,
+    /// While resynchronising with replies given up still coming (`late`, lost bytes): nothing
+    /// that expects a reply goes out behind the marker ([`ProxyState::resync_holds`]). Set
+    /// with `link_lost` too, so that the host's path tests one flag.
+    resync_hold: bool,
     /// The model's play operators as the commands sent left them (hysteresis memory): advanced
     /// only when a corrected target goes out, reset whenever the stage may have moved along a
     /// path the proxy did not see (see [`ProxyState::reset_hysteresis`]).
@@ -297,8 +303,9 @@ pub struct ProxyState {
     stage: StageGuard,
     /// Counters.
     pub counters: Counters,
-    /// Bytes from the controller were lost: until the line is quiet, nothing received can be
-    /// paired with a query and no host line goes out ([`Proxy::stage_bytes_lost`]).
+    /// Bytes from the controller were lost: the proxy resynchronises at its next call (or,
+    /// without a known identification line, once the line is quiet); until then nothing
+    /// received is paired with a query and no host line goes out ([`Proxy::stage_bytes_lost`]).
     link_lost: bool,
     /// Held targets following the model (`follow`).
     follow: follow::Follow,
@@ -347,6 +354,7 @@ impl Proxy {
                 held_runs: 0,
                 held_lost: false,
                 resyncing: false,
+                resync_hold: false,
                 stale_idn: 0,
                 hyst: HysteresisState::new(),
                 now_ms: 0,
@@ -380,8 +388,13 @@ impl Proxy {
     pub fn has_work(&self) -> bool {
         let st = &self.st;
         if st.link_lost {
-            // nothing is processed until the line is quiet (`poll` ends that): a caller that
-            // loops while there is work would spin
+            // with a marker the next call resynchronises; without one nothing is processed
+            // until the line is quiet (`poll` ends that): a caller that loops while there is
+            // work would spin
+            return st.ctrl.marker_reply().is_some();
+        }
+        if st.resync_holds() {
+            // host lines wait for the resynchronising marker's reply (`link_lost_hold`)
             return false;
         }
         let answer_due = !st.rx.active()
@@ -450,8 +463,11 @@ impl Proxy {
     ) -> usize {
         out.clear();
         self.st.now_ms = now_ms;
-        if let Some(taken) = self.link_lost_hold(input, out) {
-            return taken;
+        // (one test on the `MOV` line's path: `resync_hold` is set with `link_lost` too)
+        if self.st.resync_hold {
+            if let Some(taken) = self.link_lost_hold(c, input, out) {
+                return taken;
+            }
         }
         if !self.st.queue.is_empty() {
             self.st.emit_answers(out);
@@ -580,7 +596,10 @@ impl Proxy {
         if !gcs::single_char_has_reply(b) {
             // #24 stops all axes, #27 aborts: targets are wherever the axes stopped, and no
             // line queued before the stop may start a motion after it (a `MOV?` the held line
-            // asked is answered from before the stop: its reply is never used)
+            // asked is answered from before the stop: its reply is never used). The queries
+            // queued behind a held line stay: a controller read them before the stop and
+            // answers them, and a host waits for those replies (they go out after the stop;
+            // the stop moves nothing they report but the axes' positions)
             st.forget(None);
             if st.held.take().is_some() {
                 st.counters.refused = st.counters.refused.wrapping_add(1);
@@ -589,8 +608,9 @@ impl Proxy {
             st.held_lost = false;
             st.held_runs = 0;
             // a line cut by the stop is dropped to its end too: its rest is no line of its own
-            let partial = self.input.as_bytes().last().is_some_and(|&c| c != b'\n');
-            self.input.clear();
+            let partial = self
+                .input
+                .retain_lines(|l| command::is_query(gcs::split(l).command));
             self.discarding = partial;
             let _ = out.to_stage.push(b);
             return;
@@ -1181,7 +1201,9 @@ impl ProxyState {
             self.refuse(GcsErrorCode::NoAnswer);
             return;
         }
-        if self.learning() || self.reseed == Reseed::Asked {
+        if self.learning() || self.reseed == Reseed::Asked || self.resync_holds() {
+            // (nothing of the proxy's own goes out behind a resynchronising marker: see
+            // `Proxy::link_lost_hold`)
             return;
         }
         if let Some(line) = self.held.take() {
@@ -1198,7 +1220,7 @@ impl ProxyState {
         out.clear();
         self.now_ms = now_ms;
         if self.link_lost {
-            self.try_end_link_loss(c, out);
+            self.end_link_loss(c, out);
             return;
         }
         self.emit_answers(out);

@@ -170,8 +170,16 @@ impl ProxyState {
             self.last_rx_ms = now_ms;
         }
         if self.link_lost {
-            // bytes were lost: nothing that arrives can be paired until the line is quiet
-            return input.len();
+            // bytes were lost: resynchronise first; without a marker, nothing that arrives can
+            // be paired until the line is quiet
+            self.end_link_loss(c, out);
+            if self.link_lost {
+                return input.len();
+            }
+            if !out.is_empty() {
+                // the marker goes first; the bytes are read in the next call
+                return 0;
+            }
         }
         let mut i = 0;
         while i < input.len() {
@@ -362,7 +370,10 @@ impl ProxyState {
                 let _ = self.queue.push_front(en);
             }
             // the marker's own reply: replies and queries are paired
-            Expect::Marker => self.resyncing = false,
+            Expect::Marker => {
+                self.resyncing = false;
+                self.resync_hold = false;
+            }
             _ if en.maybe => {
                 // the query went unanswered; this was the reply to the marker that follows it
                 self.unanswered(en);
@@ -762,9 +773,27 @@ impl ProxyState {
         self.give_up(c, out);
         if self.ctrl.marker_reply().is_some() && self.queue.room() > 0 {
             self.resyncing = true;
+            self.resync_hold = late;
             self.stale_idn = due;
             self.send_marker(out);
         }
+    }
+
+    /// Bytes from the controller were lost after the ones received so far: give up what is in
+    /// flight and send a marker, as [`Self::resync`] with `late` does — except that an
+    /// identification line being received is not counted among those still due: bytes of it
+    /// were lost (they came right after the ones it got), so it never arrives whole.
+    pub(super) fn resync_after_loss<C: Corrector>(&mut self, c: Option<&C>, out: &mut Output) {
+        let damaged = self
+            .rx
+            .entry
+            .is_some_and(|en| en.e == Expect::Marker || en.idn);
+        let due = self.idn_lines_due().saturating_sub(u8::from(damaged));
+        self.give_up(c, out);
+        self.resyncing = true;
+        self.resync_hold = true;
+        self.stale_idn = due;
+        self.send_marker(out);
     }
 
     /// Identification lines the queries in flight (the reply being received included) may

@@ -269,6 +269,23 @@ struct Rig {
     host_rx: Vec<u8>,
     /// Bytes sent to the controller while it was not running.
     lost: Vec<u8>,
+    /// Where the proxy gave up what was in flight (see [`GiveUp`]), since the last check.
+    give_ups: Vec<GiveUp>,
+    /// The proxy's resync count when the last give-up was recorded.
+    resyncs_seen: u32,
+}
+
+/// The proxy gave up the replies in flight: how many commands the controller had processed
+/// and how many bytes the host had received then. No reply to a query in flight at a give-up
+/// reaches the host after it (the proxy drops them, or they are lost): the oracle pairs the
+/// host's bytes before it with the queries before it, then retires those queries — a later
+/// reply of the same text is never taken for one of them.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct GiveUp {
+    /// Commands the controller had processed ([`Controller::peek_processed`]).
+    pub processed: usize,
+    /// Bytes the host had received (`Rig::host_rx`).
+    pub host_rx: usize,
 }
 
 impl Rig {
@@ -294,6 +311,8 @@ impl Rig {
             blackout: None,
             host_rx: Vec::new(),
             lost: Vec::new(),
+            give_ups: Vec::new(),
+            resyncs_seen: 0,
         }
     }
 
@@ -301,6 +320,14 @@ impl Rig {
     /// blacked out).
     fn route(&mut self) {
         self.host_rx.extend_from_slice(self.out.to_host.as_bytes());
+        if self.proxy.counters.resyncs != self.resyncs_seen {
+            // (what this call sends the controller comes after the give-up)
+            self.resyncs_seen = self.proxy.counters.resyncs;
+            self.give_ups.push(GiveUp {
+                processed: self.ctl.peek_processed().len(),
+                host_rx: self.host_rx.len(),
+            });
+        }
         let sending = !self.out.to_stage.is_empty();
         if sending && self.silent() {
             self.lost.extend_from_slice(self.out.to_stage.as_bytes());
@@ -358,12 +385,15 @@ impl Rig {
             let used = self
                 .proxy
                 .stage_bytes(Some(&self.comp), &chunk, self.now_ms, &mut self.out);
+            let produced = !self.out.is_empty();
             self.stage_rx.drain(..used);
             self.stage_since_ms = self.now_ms;
             budget -= used.min(budget);
             self.route();
             self.resume();
-            if used == 0 {
+            if used == 0 && !produced {
+                // (none taken but something sent — a resynchronising marker: the firmware's
+                // stage link offers the bytes again, `src/app/links.rs`'s `feed`)
                 break;
             }
         }
@@ -473,7 +503,8 @@ fn drop_connection(
 ) -> Result<oracle::Checked, String> {
     rig.deliver(n);
     oracle.lost(&std::mem::take(&mut rig.lost));
-    let k = oracle.check(&mut rig.ctl, &mut rig.host_rx, false)?;
+    let give_ups = std::mem::take(&mut rig.give_ups);
+    let k = oracle.check(&mut rig.ctl, &mut rig.host_rx, &give_ups, false)?;
     rig.host_tx.clear();
     rig.proxy.new_session();
     oracle.new_session();
@@ -505,7 +536,6 @@ pub fn run_with(
     let mut gen = gen::Gen::new(setup.model.axes());
     let mut stats = Stats::default();
     let mut trace: VecDeque<String> = VecDeque::new();
-    let mut resyncs = 0u32;
     for step in 0..steps {
         let fault = if link_faults {
             faults.gen_range(0..1000u32)
@@ -643,11 +673,6 @@ pub fn run_with(
         if trace.len() > 40 {
             trace.pop_front();
         }
-        if rig.proxy.counters.resyncs != resyncs {
-            resyncs = rig.proxy.counters.resyncs;
-            // what was in flight was given up: those replies may be lost
-            oracle.replies_may_be_lost();
-        }
         oracle.lost(&std::mem::take(&mut rig.lost));
         if let Some(ms) = rig.unnoticed_silence() {
             return Err(violation(
@@ -659,8 +684,9 @@ pub fn run_with(
             ));
         }
         let quiet = rig.quiet();
+        let give_ups = std::mem::take(&mut rig.give_ups);
         let checked = oracle
-            .check(&mut rig.ctl, &mut rig.host_rx, quiet)
+            .check(&mut rig.ctl, &mut rig.host_rx, &give_ups, quiet)
             .map_err(|what| violation(setup.name, seed, step, what, &trace))?;
         stats.count(checked);
         stats.steps += 1;

@@ -484,20 +484,28 @@ mod tests {
             .collect()
     }
 
-    #[test]
-    fn lags_side_by_side_are_each_lag_alone_bit_for_bit() {
-        // irregular 1 kHz clock with a repeated, a backward and a missing time stamp, a
-        // missing reading; τ counts that fill the lanes, leave one short, and one alone
-        let mut t: Vec<f64> = (0..5_000)
+    /// A 1 kHz clock far from zero whose intervals differ in their last bits, with a repeated
+    /// (row 500), a backward (900) and a missing (1200) time stamp, and a reading, missing
+    /// 10 rows before the end: `n` rows of time and temperature.
+    fn irregular_log(n: usize) -> (Vec<f64>, Vec<f64>) {
+        let mut t: Vec<f64> = (0..n)
             .map(|k| 1000.0 + k as f64 * 1e-3 + ((k * k) % 1009) as f64 * 1e-9)
             .collect();
         t[500] = t[499];
         t[900] = t[899] - 0.01;
         t[1200] = f64::NAN;
-        let mut x: Vec<f64> = (0..t.len())
+        let mut x: Vec<f64> = (0..n)
             .map(|k| 21.0 + (k as f64 * 1e-3).sin() + ((k * 31) % 7) as f64 * 1e-3)
             .collect();
-        x[4_990] = f64::NAN;
+        x[n - 10] = f64::NAN;
+        (t, x)
+    }
+
+    #[test]
+    fn lags_side_by_side_are_each_lag_alone_bit_for_bit() {
+        // irregular 1 kHz clock with a repeated, a backward and a missing time stamp, a
+        // missing reading; τ counts that fill the lanes, leave one short, and one alone
+        let (t, x) = irregular_log(5_000);
         let iv = Intervals::of(&t).expect("fewer intervals than the classes hold");
         let rows: Vec<usize> = (0..t.len()).step_by(7).chain([4_999]).collect();
         for taus in [
@@ -522,19 +530,11 @@ mod tests {
         // a 1 kHz clock far from zero (intervals differing in their last bits, more distinct
         // intervals than the table holds), irregular gaps, a repeated and a backward time
         // stamp, a missing one, and a missing reading
-        let mut t: Vec<f64> = (0..20_000)
-            .map(|k| 1000.0 + k as f64 * 1e-3 + ((k * k) % 1009) as f64 * 1e-9)
-            .collect();
+        let (mut t, x) = irregular_log(20_000);
+        // (the jitter's rows, multiples of 97, miss the repeated, backward and missing stamps)
         for k in (0..t.len()).step_by(97) {
             t[k] += ((k * 7919) % 13) as f64 * 1.3e-4;
         }
-        t[500] = t[499];
-        t[900] = t[899] - 0.01;
-        t[1200] = f64::NAN;
-        let mut x: Vec<f64> = (0..t.len())
-            .map(|k| 21.0 + (k as f64 * 1e-3).sin() + ((k * 31) % 7) as f64 * 1e-3)
-            .collect();
-        x[19_990] = f64::NAN;
         let distinct: std::collections::HashSet<u64> =
             t.windows(2).map(|w| (w[1] - w[0]).to_bits()).collect();
         assert!(

@@ -284,8 +284,8 @@ fn next_move(b: &Stm32) -> String {
 /// ORE) in the reply to the proxy's own `MOV?` — the one an `MVR` takes its base from. Read as
 /// it arrives, "1=100.00…" without its third byte is "1=00.00…": the move would go out from a
 /// base of 0 µm (the overrun was only logged). The loss must be seen: the proxy lets the line
-/// go quiet, asks `MOV?` afresh, moves from the controller's real target, and the host's next
-/// `ERR?` says 9010 (LinkLost).
+/// go past a marker's reply, asks `MOV?` afresh, moves from the controller's real target, and
+/// the host's next `ERR?` says 9010 (LinkLost).
 #[test]
 fn stm32_stage_byte_lost_to_an_overrun_never_moves_from_a_wrong_base() {
     let b = Stm32::start(default_buses(&TEMPS_C));
@@ -302,13 +302,14 @@ fn stm32_stage_byte_lost_to_an_overrun_never_moves_from_a_wrong_base() {
     b.inject(|i| i.uart_lose_byte = Some(2));
     host.send("MVR 1 12.5");
     assert_eq!(b.stage_line(1.0), "MOV? 1");
-    // the reply lost a byte: the proxy waits for the line to go quiet, forgets what it asked
-    // and asks again — the move goes out from the controller's real target or not at all
+    // the reply lost a byte: the proxy gives up what it asked, resynchronises with a marker
+    // of its own (`*IDN?`: every reply before the marker's is dropped) and asks again — the
+    // move goes out from the controller's real target or not at all
     let mut after = vec![];
     while after.last().is_none_or(|l: &String| !l.starts_with("MOV ")) {
         after.push(b.stage_line(1.0));
     }
-    assert_eq!(after[..after.len() - 1], ["MOV? 1"], "{after:?}");
+    assert_eq!(after[..after.len() - 1], ["*IDN?", "MOV? 1"], "{after:?}");
     let got = stage_value(after.last().unwrap(), "1");
     let want = corrected(&model, 112.5, 1);
     assert!(

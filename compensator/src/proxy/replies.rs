@@ -769,12 +769,24 @@ impl ProxyState {
     /// [`super::REPLY_TIMEOUT_MS`] and resynchronises again without `late` (after a whole
     /// silence nothing given up is still coming); it never pairs a reply with the wrong query.
     pub(super) fn resync<C: Corrector>(&mut self, c: Option<&C>, late: bool, out: &mut Output) {
-        let due = if late { self.idn_lines_due() } else { 0 };
+        let still_due = late.then(|| self.idn_lines_due());
+        self.give_up_and_mark(c, still_due, out);
+    }
+
+    /// Give up what is in flight and send the resynchronising marker; `still_due`: the
+    /// identification lines of queries given up that may still arrive before the marker's
+    /// (`None`: nothing given up is still coming, host lines need not wait for it).
+    fn give_up_and_mark<C: Corrector>(
+        &mut self,
+        c: Option<&C>,
+        still_due: Option<u8>,
+        out: &mut Output,
+    ) {
         self.give_up(c, out);
         if self.ctrl.marker_reply().is_some() && self.queue.room() > 0 {
             self.resyncing = true;
-            self.resync_hold = late;
-            self.stale_idn = due;
+            self.resync_hold = still_due.is_some();
+            self.stale_idn = still_due.unwrap_or(0);
             self.send_marker(out);
         }
     }
@@ -782,18 +794,16 @@ impl ProxyState {
     /// Bytes from the controller were lost after the ones received so far: give up what is in
     /// flight and send a marker, as [`Self::resync`] with `late` does — except that an
     /// identification line being received is not counted among those still due: bytes of it
-    /// were lost (they came right after the ones it got), so it never arrives whole.
+    /// were lost (they came right after the ones it got), so it never arrives whole. (The
+    /// caller knows the identification line; the queue is empty once given up: the marker
+    /// always goes.)
     pub(super) fn resync_after_loss<C: Corrector>(&mut self, c: Option<&C>, out: &mut Output) {
         let damaged = self
             .rx
             .entry
             .is_some_and(|en| en.e == Expect::Marker || en.idn);
         let due = self.idn_lines_due().saturating_sub(u8::from(damaged));
-        self.give_up(c, out);
-        self.resyncing = true;
-        self.resync_hold = true;
-        self.stale_idn = due;
-        self.send_marker(out);
+        self.give_up_and_mark(c, Some(due), out);
     }
 
     /// Identification lines the queries in flight (the reply being received included) may

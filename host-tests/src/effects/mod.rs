@@ -113,34 +113,37 @@ pub fn lag_series_at(
     y0: Option<f64>,
     rows: &[usize],
 ) -> Vec<f64> {
-    let mut at = AtRows::new(rows);
-    lag_run(t_s, x, tau_s, y0, |k, y| at.take(k, y));
-    at.out
+    let mut at = AtRows::<1>::new(rows);
+    lag_run(t_s, x, tau_s, y0, |k, y| at.take(k, &[y]));
+    let [out] = at.out;
+    out
 }
 
-/// The outputs of a run at `rows` (ascending), taken as the run hands each sample's output over
-/// in order.
-struct AtRows<'a> {
+/// The outputs of `N` runs side by side at `rows` (ascending), taken as the runs hand each
+/// sample's outputs over in order.
+struct AtRows<'a, const N: usize> {
     rows: &'a [usize],
     next: usize,
-    out: Vec<f64>,
+    out: [Vec<f64>; N],
 }
 
-impl<'a> AtRows<'a> {
+impl<'a, const N: usize> AtRows<'a, N> {
     fn new(rows: &'a [usize]) -> Self {
         Self {
             rows,
             next: 0,
-            out: vec![0.0; rows.len()],
+            out: std::array::from_fn(|_| vec![0.0; rows.len()]),
         }
     }
 
-    /// Sample `k`'s output `y`.
+    /// Sample `k`'s outputs `y`, one per run.
     #[inline]
-    fn take(&mut self, k: usize, y: f64) {
+    fn take(&mut self, k: usize, y: &[f64; N]) {
         // rows ascending: every row is met once, in order
         while self.next < self.rows.len() && self.rows[self.next] == k {
-            self.out[self.next] = y;
+            for (out, &y) in self.out.iter_mut().zip(y) {
+                out[self.next] = y;
+            }
             self.next += 1;
         }
     }
@@ -217,9 +220,10 @@ pub(crate) fn lag_series_at_classes(
     y0: Option<f64>,
     rows: &[usize],
 ) -> Vec<f64> {
-    let mut at = AtRows::new(rows);
-    lag_run_classes(iv, x, tau_s, y0, |k, y| at.take(k, y));
-    at.out
+    let mut at = AtRows::<1>::new(rows);
+    lag_run_classes(iv, x, tau_s, y0, |k, y| at.take(k, &[y]));
+    let [out] = at.out;
+    out
 }
 
 /// [`lag_series`] on time stamps whose intervals are `iv` (see [`lag_series_at_classes`]).
@@ -313,27 +317,27 @@ pub(crate) fn lag_many_at_classes(
         return taus.iter().map(|_| vec![0.0; rows.len()]).collect();
     }
     debug_assert_eq!(iv.class.len(), x.len());
+    // per class: what `lag_run_classes` does with a positive τ (a restart after a non-finite
+    // interval, a hold after one ≤ 0, else smoothing by the factor)
+    const SMOOTH: u8 = 0;
+    const RESTART: u8 = 1;
+    const HOLD: u8 = 2;
+    let kind: Vec<u8> = iv
+        .dt_s
+        .iter()
+        .map(|&dt| {
+            if !dt.is_finite() {
+                RESTART
+            } else if dt > 0.0 {
+                SMOOTH
+            } else {
+                HOLD
+            }
+        })
+        .collect();
     for chunk in taus.chunks(LAG_LANES) {
         // a short last chunk repeats its last τ in the spare lanes (their outputs dropped)
         let lane_tau: [f64; LAG_LANES] = std::array::from_fn(|j| chunk[j.min(chunk.len() - 1)]);
-        // per class: what `lag_run_classes` does with a positive τ (a restart after a
-        // non-finite interval, a hold after one ≤ 0, else smoothing by the factor)
-        const SMOOTH: u8 = 0;
-        const RESTART: u8 = 1;
-        const HOLD: u8 = 2;
-        let kind: Vec<u8> = iv
-            .dt_s
-            .iter()
-            .map(|&dt| {
-                if !dt.is_finite() {
-                    RESTART
-                } else if dt > 0.0 {
-                    SMOOTH
-                } else {
-                    HOLD
-                }
-            })
-            .collect();
         let alpha: Vec<[f64; LAG_LANES]> = iv
             .dt_s
             .iter()
@@ -348,18 +352,9 @@ pub(crate) fn lag_many_at_classes(
                 })
             })
             .collect();
-        let mut at: [Vec<f64>; LAG_LANES] = std::array::from_fn(|_| vec![0.0; rows.len()]);
-        let mut next = 0;
+        let mut at = AtRows::<LAG_LANES>::new(rows);
         let mut state = [x[0]; LAG_LANES];
-        let mut take = |k: usize, state: &[f64; LAG_LANES], next: &mut usize| {
-            while *next < rows.len() && rows[*next] == k {
-                for j in 0..LAG_LANES {
-                    at[j][*next] = state[j];
-                }
-                *next += 1;
-            }
-        };
-        take(0, &state, &mut next);
+        at.take(0, &state);
         for k in 1..x.len() {
             let c = iv.class[k] as usize;
             match kind[c] {
@@ -373,9 +368,9 @@ pub(crate) fn lag_many_at_classes(
                 RESTART => state = [x[k]; LAG_LANES],
                 _ => {}
             }
-            take(k, &state, &mut next);
+            at.take(k, &state);
         }
-        outs.extend(at.into_iter().take(chunk.len()));
+        outs.extend(at.out.into_iter().take(chunk.len()));
     }
     outs
 }

@@ -14,7 +14,8 @@ use nanocal::campaign::run::{CampaignError, Progress, Quiet};
 use nanocal::campaign::state::{BenchSpec, State, VirtualBoard};
 use nanocal::campaign::{self, Config, Faults, Outcome, RECORDING};
 use nanocal::data::plan::{Phase, Plan, TestKind};
-use nanocal::virtual_bench::have_qemu;
+use nanocal::virtual_bench::bench::Faults as BenchFaults;
+use nanocal::virtual_bench::{campaign_bench, have_qemu};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -75,8 +76,19 @@ fn config(out: &Path, plan: Option<Plan>, faults: Faults) -> Config {
     }
 }
 
+/// Runs `cfg` on the QEMU bench as `nanocal campaign --virtual` does: the caller opens the
+/// bench, here staging the bench's own `faults`.
+fn run_on_qemu(cfg: &Config, faults: BenchFaults) -> Result<Outcome, CampaignError> {
+    campaign::run_on(
+        cfg,
+        &mut campaign_bench::opener(faults),
+        Arc::new(AtomicBool::new(false)),
+        &mut Quiet,
+    )
+}
+
 fn run(cfg: &Config) -> Result<Outcome, CampaignError> {
-    campaign::run(cfg, Arc::new(AtomicBool::new(false)), &mut Quiet)
+    run_on_qemu(cfg, BenchFaults::default())
 }
 
 /// Rows of the recording (header excluded).
@@ -183,8 +195,9 @@ fn a_campaign_stopped_and_resumed_gives_the_rows_and_result_of_one_run_through()
     let cut = first_test + 5;
     let parted = fresh_dir("parted");
     let stop = Arc::new(AtomicBool::new(false));
-    let err = campaign::run(
+    let err = campaign::run_on(
         &config(&parted, Some(plan.clone()), Faults::default()),
+        &mut campaign_bench::opener(BenchFaults::default()),
         stop.clone(),
         &mut CtrlCAt {
             at: cut,
@@ -276,9 +289,27 @@ fn an_unreachable_device_is_named_and_nothing_is_recorded() {
         reference_to_um: 1.0,
         reference_synchronized: true,
     });
-    let e = run(&cfg).err().expect("no device there");
+    // a real bench: the campaign opens it itself
+    let e = campaign::run(&cfg, Arc::new(AtomicBool::new(false)), &mut Quiet)
+        .err()
+        .expect("no device there");
     assert!(matches!(e, CampaignError::Device(_)), "{e:?}");
     assert!(e.to_string().contains("127.0.0.1:1"), "{e}");
+    assert!(!out.join(RECORDING).exists());
+    let _ = std::fs::remove_dir_all(out);
+}
+
+/// The campaign opens only real benches: a virtual one must come from its caller (the CLI),
+/// and asking the campaign to open one is refused by name, with nothing recorded.
+#[test]
+fn the_campaign_does_not_open_a_virtual_bench_itself() {
+    let out = fresh_dir("virtual-by-caller");
+    let cfg = config(&out, Some(short_plan()), Faults::default());
+    let e = campaign::run(&cfg, Arc::new(AtomicBool::new(false)), &mut Quiet)
+        .err()
+        .expect("refused");
+    assert!(matches!(e, CampaignError::NotReady { .. }), "{e:?}");
+    assert!(e.to_string().contains("opened by the caller"), "{e}");
     assert!(!out.join(RECORDING).exists());
     let _ = std::fs::remove_dir_all(out);
 }
@@ -331,14 +362,11 @@ fn an_instrument_that_falls_silent_stops_the_campaign_and_keeps_the_recording() 
     }
     let out = fresh_dir("silent");
     let t_s = 600.0;
-    let faults = Faults {
-        bench: nanocal::virtual_bench::bench::Faults {
-            reference_silent_from_s: Some(t_s),
-            ..Default::default()
-        },
+    let faults = BenchFaults {
+        reference_silent_from_s: Some(t_s),
         ..Default::default()
     };
-    let e = run(&config(&out, Some(short_plan()), faults))
+    let e = run_on_qemu(&config(&out, Some(short_plan()), Faults::default()), faults)
         .err()
         .expect("stopped");
     let msg = e.to_string();
@@ -357,14 +385,11 @@ fn a_thermocouple_that_opens_mid_campaign_is_named_and_the_recording_kept() {
     }
     let out = fresh_dir("open-tc");
     let t_s = 900.0;
-    let faults = Faults {
-        bench: nanocal::virtual_bench::bench::Faults {
-            thermocouple_open: Some((1, t_s)),
-            ..Default::default()
-        },
+    let faults = BenchFaults {
+        thermocouple_open: Some((1, t_s)),
         ..Default::default()
     };
-    let e = run(&config(&out, Some(short_plan()), faults))
+    let e = run_on_qemu(&config(&out, Some(short_plan()), Faults::default()), faults)
         .err()
         .expect("stopped");
     let msg = e.to_string();

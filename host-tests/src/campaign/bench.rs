@@ -1,8 +1,9 @@
 //! What a campaign runs on. A real bench and the virtual one differ only in time and in what
 //! can be seen: on a real bench time is the wall clock and the stage link is out of sight; on
 //! the virtual bench time is the emulated board's clock, which moves only when the campaign lets
-//! it ([`crate::virtual_bench::link`]), and the simulated controller shows every command the
-//! firmware sent.
+//! it, and the simulated controller shows every command the firmware sent. The campaign knows
+//! benches only through [`BenchDriver`]: whoever opens a bench (the CLI, a test, the
+//! `stm32-bench` binary) implements it, so the campaign imports no simulator.
 
 use super::reference::{ClockMap, ReferenceError, ReferenceSource, Sample};
 use std::collections::VecDeque;
@@ -13,9 +14,10 @@ use std::time::{Duration, Instant};
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum BenchError {
-    /// The virtual bench's board stopped following its clock.
-    #[error("virtual bench: {0}")]
-    Clock(#[from] crate::virtual_bench::link::ClockError),
+    /// The bench's clock stopped following (an emulated board hung, reset in a loop, or its
+    /// emulator went away).
+    #[error("bench clock: {0}")]
+    Clock(Box<dyn std::error::Error + Send + Sync>),
     /// Anything else the bench reports.
     #[error("bench: {0}")]
     Other(String),
@@ -35,6 +37,20 @@ pub trait BenchDriver: Send {
     /// Commands the stage controller received since the last call (plan time, target per
     /// axis), when the bench can see them.
     fn stage_commands(&mut self) -> Option<Vec<(f64, Vec<f64>)>>;
+    /// What running the bench cost so far, where the bench can tell (an emulated board's
+    /// CPU time and bus transactions); None on a real bench.
+    fn usage(&self) -> Option<BenchUsage> {
+        None
+    }
+}
+
+/// What an emulated bench cost, for the campaign's outcome and the benchmarks.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BenchUsage {
+    /// CPU time of the emulator's process (user + system), s.
+    pub emulator_cpu_s: Option<f64>,
+    /// Sensor-bus transactions the bench served.
+    pub bus_transactions: Option<u64>,
 }
 
 /// A real bench: time is the wall clock.

@@ -5,8 +5,10 @@
 //! report and `explain`. A campaign of days survives a host restart (its state is on disk,
 //! [`state`]) and a compensator reset (noticed in its status; the mode and model are set again).
 //!
-//! The same code runs a real bench (wall clock, the lab's reference instrument) and the virtual
-//! one ([`crate::virtual_bench::bench`]: the QEMU firmware in lockstep with the digital twin).
+//! The same code runs a real bench (wall clock, the lab's reference instrument) and a virtual
+//! one (the QEMU firmware in lockstep with the digital twin): it opens real benches itself
+//! ([`run`]) and takes any other from its caller as a [`bench::BenchDriver`] with its ports
+//! ([`run_on`]; the CLI opens the virtual bench).
 
 pub mod analysis;
 pub mod bench;
@@ -25,7 +27,7 @@ use nanocal_interface::settings::{AuxSource, Settings};
 use recorder::{Layout, Recorder};
 use reference::{ClockMap, ClockMode};
 use run::{CampaignError, Links, Progress, Reopen, Runner};
-use state::{BenchSpec, Stage, State, VirtualBoard};
+use state::{BenchSpec, Stage, State};
 pub use state::{LoopRecord, LoopState, LoopStop};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -81,11 +83,10 @@ pub struct Config {
     pub faults: Faults,
 }
 
-/// Faults a test stages, to see the campaign meet them (none by default).
+/// Faults a test stages, to see the campaign meet them (none by default). A bench's own faults
+/// (instruments that fail) are staged by whoever opens that bench.
 #[derive(Debug, Clone, Default)]
 pub struct Faults {
-    /// The virtual bench's instruments fail (ignored on a real bench).
-    pub bench: crate::virtual_bench::bench::Faults,
     /// The compensator is reset (its management `RESET`, the firmware's own software reset)
     /// during the hold before this step: the campaign must notice it in the status and set it
     /// up again.
@@ -125,92 +126,19 @@ pub fn virtual_twin(plan: &Plan, seed: u64) -> Result<crate::twin::Twin, Campaig
     }
 }
 
-/// CPU time of process `pid` (user + system), s.
-fn cpu_s(pid: u32) -> Option<f64> {
-    let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    let f: Vec<&str> = s.rsplit(')').next()?.split_whitespace().collect();
-    let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
-    Some(ticks / 100.0)
-}
-
-struct Opened {
-    links: Links,
-    vbench_pid: Option<u32>,
-    transactions: Option<Box<dyn Fn() -> u64>>,
-}
-
-fn open(
+/// Opens a real bench: the compensator's ports, the reference instrument, the wall clock.
+fn open_real(
     spec: &BenchSpec,
     plan: &Plan,
     steps: &[Step],
     resume_at: usize,
-    faults: &Faults,
-) -> Result<Opened, CampaignError> {
-    let axes = plan.training.axes();
+) -> Result<Links, CampaignError> {
     let plan_start = steps.get(resume_at).map_or(0.0, |s| s.t_start_s);
     match spec {
-        BenchSpec::Virtual {
-            board: VirtualBoard::Stm32,
-            ..
-        } => Err(CampaignError::NotReady {
+        BenchSpec::Virtual { .. } => Err(CampaignError::NotReady {
             step: resume_at,
-            what: "the emulated STM32 board runs in its own process (it links GPL code): `nanocal campaign --virtual --board stm32` starts it, or give the bench to `campaign::run_on`".into(),
+            what: "a virtual bench is opened by the caller: `nanocal campaign --virtual` starts it (in a program, give `virtual_bench::campaign_bench::opener` to `campaign::run_on`)".into(),
         }),
-        BenchSpec::Virtual {
-            seed,
-            board: VirtualBoard::Qemu,
-        } => {
-            if !crate::virtual_bench::have_qemu() {
-                return Err(CampaignError::NotReady {
-                    step: resume_at,
-                    what: "the virtual bench needs qemu-system-arm ≥ 10 and the thumbv7em-none-eabihf target (`bash .ci/firmware.sh` installs both)".into(),
-                });
-            }
-            let twin = virtual_twin(plan, *seed)?;
-            let traj = crate::twin::execute::trajectory(steps);
-            let mut vb = crate::virtual_bench::bench::VirtualBench::start(
-                &twin,
-                &traj,
-                crate::twin::examples::TRAINING_START_S,
-                *seed,
-                plan_start - crate::virtual_bench::bench::VirtualBench::SETUP_S,
-                &faults.bench,
-            );
-            let device = Client::new(
-                vb.management(),
-                "virtual:management",
-                Duration::from_secs(10),
-            );
-            let gcs = GcsLink::new(vb.gcs(), "virtual:gcs");
-            let mut opener = vb.port_opener();
-            let reopen: Reopen = Box::new(move || {
-                let (m, g) = opener().map_err(|e| CampaignError::NotReady {
-                    step: 0,
-                    what: format!("reopening the virtual compensator's ports: {e}"),
-                })?;
-                Ok((
-                    Client::new(m, "virtual:management", Duration::from_secs(10)),
-                    GcsLink::new(g, "virtual:gcs"),
-                ))
-            });
-            let src = reference::open(&vb.reference_spec(), axes, 1.0)?;
-            let reference = ReferenceReader::new(src, ClockMap::new(ClockMode::Synchronized));
-            let pid = vb.qemu().pid();
-            let link = vb.link();
-            Ok(Opened {
-                links: Links {
-                    driver: Box::new(vb),
-                    device,
-                    gcs,
-                    reference,
-                    reopen: Some(reopen),
-                },
-                vbench_pid: Some(pid),
-                transactions: Some(Box::new(move || {
-                    link.transactions.load(std::sync::atomic::Ordering::Relaxed)
-                })),
-            })
-        }
         BenchSpec::Real {
             device,
             gcs,
@@ -223,22 +151,18 @@ fn open(
                 Box::new(move || Ok((Client::open(&device_spec)?, GcsLink::open(&gcs_spec)?)));
             let device = Client::open(device)?;
             let gcs = GcsLink::open(gcs)?;
-            let src = reference::open(r, axes, *reference_to_um)?;
+            let src = reference::open(r, plan.training.axes(), *reference_to_um)?;
             let mode = if *reference_synchronized {
                 ClockMode::Synchronized
             } else {
                 ClockMode::Instrument
             };
-            Ok(Opened {
-                links: Links {
-                    driver: Box::new(WallClock::new(plan_start - REAL_LEAD_S)),
-                    device,
-                    gcs,
-                    reference: ReferenceReader::new(src, ClockMap::new(mode)),
-                    reopen: Some(reopen),
-                },
-                vbench_pid: None,
-                transactions: None,
+            Ok(Links {
+                driver: Box::new(WallClock::new(plan_start - REAL_LEAD_S)),
+                device,
+                gcs,
+                reference: ReferenceReader::new(src, ClockMap::new(mode)),
+                reopen: Some(reopen),
             })
         }
     }
@@ -352,7 +276,8 @@ fn configure(
 pub type OpenBench<'a> =
     &'a mut dyn FnMut(&BenchSpec, &Plan, &[Step], usize) -> Result<Links, CampaignError>;
 
-/// Run (or resume) a campaign.
+/// Run (or resume) a campaign on a real bench (a virtual one: [`run_on`] with the bench's
+/// opener).
 pub fn run(
     cfg: &Config,
     stop: Arc<AtomicBool>,
@@ -452,19 +377,10 @@ fn run_inner(
                 }
                 None => steps.clone(),
             };
-            let opened = match open_bench.as_mut() {
-                Some(f) => Opened {
-                    links: f(&spec, &plan, &bench_steps, resume_at)?,
-                    vbench_pid: None,
-                    transactions: None,
-                },
-                None => open(&spec, &plan, &bench_steps, resume_at, &cfg.faults)?,
+            let mut links = match open_bench.as_mut() {
+                Some(f) => f(&spec, &plan, &bench_steps, resume_at)?,
+                None => open_real(&spec, &plan, &bench_steps, resume_at)?,
             };
-            let Opened {
-                mut links,
-                vbench_pid,
-                transactions,
-            } = opened;
             let (layout, period, fold) = configure(&mut links, cfg, &spec, &plan, axes)?;
             links
                 .reference
@@ -569,8 +485,8 @@ fn run_inner(
             if std::env::var_os("NANOCAL_CAMPAIGN_PROFILE").is_some() {
                 eprintln!("campaign profile (wall s): {:?}", runner.profile());
             }
-            let qemu_cpu = vbench_pid.and_then(cpu_s);
-            let txns = transactions.as_ref().map(|f| f());
+            let usage = runner.links.driver.usage().unwrap_or_default();
+            let (qemu_cpu, txns) = (usage.emulator_cpu_s, usage.bus_transactions);
             r?;
             let mut st = runner.state.clone();
             st.interruptions.retain(|_| true);

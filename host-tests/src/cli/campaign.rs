@@ -302,6 +302,13 @@ pub fn run_on(
         .expect("static template"),
     );
     let mut progress = Bars { bar };
+    // the CLI chooses the bench: the campaign opens real ones, the QEMU board is opened here
+    let mut qemu_bench = crate::virtual_bench::campaign_bench::opener(Default::default());
+    let open_bench = match open_bench {
+        Some(f) => Some(f),
+        None if board_of(&args)? == Some(VirtualBoard::Qemu) => Some(&mut qemu_bench as _),
+        None => None,
+    };
     let outcome = match open_bench {
         Some(f) => campaign::run_on(&cfg, f, stop.clone(), &mut progress),
         None => campaign::run(&cfg, stop.clone(), &mut progress),

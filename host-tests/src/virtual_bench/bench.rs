@@ -120,7 +120,7 @@ pub type PortOpener = Box<dyn FnMut() -> std::io::Result<(Box<dyn Port>, Box<dyn
 
 /// Faults the virtual bench stages at plan times, for the campaign's tests of what a bench of
 /// days meets (none by default). A device reset is the campaign's own to stage
-/// ([`crate::campaign::Config::faults`]): the bench has no second management connection.
+/// ([`crate::campaign::Faults`]): the bench has no second management connection.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Faults {
     /// From this plan time on the interferometer sends nothing more; its connection stays open
@@ -690,5 +690,11 @@ impl BenchDriver for VirtualBench {
         let new = st.commands()[self.commands_seen..].to_vec();
         self.commands_seen = st.commands().len();
         Some(new)
+    }
+    fn usage(&self) -> Option<crate::campaign::bench::BenchUsage> {
+        Some(crate::campaign::bench::BenchUsage {
+            emulator_cpu_s: self.qemu.cpu_s(),
+            bus_transactions: Some(self.link.transactions.load(Ordering::Relaxed)),
+        })
     }
 }

@@ -174,6 +174,13 @@ pub enum ClockError {
     FreeRunning,
 }
 
+/// A campaign meets a stalled board as its bench's clock error.
+impl From<ClockError> for crate::campaign::bench::BenchError {
+    fn from(e: ClockError) -> Self {
+        Self::Clock(Box::new(e))
+    }
+}
+
 #[derive(Default)]
 struct Rings {
     waiting: u64,

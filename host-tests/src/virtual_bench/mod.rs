@@ -1,8 +1,10 @@
 //! The virtual bench: what stands around the firmware when it runs under QEMU — the emulated
 //! board as a process, a simulated stage controller on the stage link, simulated sensor chips on
-//! the sensor bus. The end-to-end tests, the firmware benchmarks and `campaign --virtual` share it.
+//! the sensor bus. The end-to-end tests, the firmware benchmarks and `campaign --virtual`
+//! ([`campaign_bench`]) share it.
 
 pub mod bench;
+pub mod campaign_bench;
 pub mod chips;
 #[cfg(feature = "test-support")]
 mod cli_relay;

@@ -284,6 +284,17 @@ impl Qemu {
         self.child.id()
     }
 
+    /// CPU time QEMU has used so far (user + system, from `/proc`), s; None where it cannot be
+    /// read.
+    pub fn cpu_s(&self) -> Option<f64> {
+        let s = std::fs::read_to_string(format!("/proc/{}/stat", self.pid())).ok()?;
+        // the fields after the command's closing parenthesis; utime and stime are the 14th and
+        // 15th of the line (proc(5)), in clock ticks of 1/100 s
+        let f: Vec<&str> = s.rsplit(')').next()?.split_whitespace().collect();
+        let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+        Some(ticks / 100.0)
+    }
+
     /// The bench's side of the board's link (page, doorbells, bus mailbox).
     pub fn link(&self) -> Arc<BenchLink> {
         self.link.clone()

@@ -394,6 +394,42 @@ impl<'a> LagCache<'a> {
     }
 }
 
+/// How much lag term `j` moves the prediction: |gain| × the spread of its lagged temperature.
+fn importance(f: &contract::Fitted, j: usize) -> f64 {
+    let c = &f.proposal.regs[j];
+    let n = c.len().max(1) as f64;
+    let m = c.iter().sum::<f64>() / n;
+    f.coeffs[j].abs() * (c.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / n).sqrt()
+}
+
+/// The effect's headline term: the one that moves the prediction most.
+fn main_term(f: &contract::Fitted) -> usize {
+    let k = match &f.proposal.detail {
+        Detail::Lags(terms) => terms.len(),
+        _ => 0,
+    };
+    (0..k)
+        .max_by(|&a, &b| importance(f, a).total_cmp(&importance(f, b)))
+        .unwrap_or(0)
+}
+
+/// The parameter names of each lag term: (`tau_s_<sensor>`, `gain_um_per_c_<sensor>`) for a
+/// sensor's first term, `tau2_s_…` / `gain2_um_per_c_…` for its second.
+fn term_names(d: &Data, terms: &[LagTerm]) -> Vec<(String, String)> {
+    terms
+        .iter()
+        .enumerate()
+        .map(|(j, t)| {
+            let name = sensor_name(d, t.sensor);
+            if terms[..j].iter().any(|o| o.sensor == t.sensor) {
+                (format!("tau2_s_{name}"), format!("gain2_um_per_c_{name}"))
+            } else {
+                (format!("tau_s_{name}"), format!("gain_um_per_c_{name}"))
+            }
+        })
+        .collect()
+}
+
 fn sensor_name(d: &Data, sensor: usize) -> String {
     let n = &d.temps[sensor].0;
     n.strip_prefix("temp_").unwrap_or(n).to_string()
@@ -608,42 +644,69 @@ impl contract::Candidate for Candidate {
         let Detail::Lags(terms) = &f.proposal.detail else {
             return Vec::new();
         };
-        // the effect's headline τ: the term that moves the prediction most (|gain| × the spread
-        // of its lagged temperature)
-        let spread = |c: &[f64]| {
-            let m = c.iter().sum::<f64>() / c.len().max(1) as f64;
-            (c.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / c.len().max(1) as f64).sqrt()
+        let mut out = vec![terms[main_term(f)].tau.estimate()];
+        for (j, (t, (tau, gain))) in terms.iter().zip(term_names(d, terms)).enumerate() {
+            out.push(Estimate::new(&tau, t.tau.value, t.tau.sigma_unless_bound()));
+            out.push(Estimate::new(&gain, f.coeffs[j], f.se[j]));
+        }
+        out
+    }
+    /// A replicate's lag terms under the names of the full fit's, like with like: each full
+    /// term takes the replicate's term of the same sensor and rank (its first or second τ);
+    /// full terms whose sensor the replicate left without that term take, in order of how much
+    /// they move the prediction, the replicate's terms left over in the same order (the lag
+    /// moved to another sensor in that replicate: that is part of the term's uncertainty). The
+    /// headline `tau_s` follows the full fit's main term, so a replicate whose largest term
+    /// is another sensor's no longer puts that sensor's τ in the headline's spread (GX-H12A's
+    /// `tau_s` read 521 ± 576 s, the bed's own τ 521 ± 53 s).
+    fn replicate_params(
+        &self,
+        d: &Data,
+        ch: usize,
+        full: &contract::Fitted,
+        rep: &contract::Fitted,
+    ) -> Vec<Estimate> {
+        let (Detail::Lags(ft), Detail::Lags(rt)) = (&full.proposal.detail, &rep.proposal.detail)
+        else {
+            return self.params(d, ch, rep);
         };
-        let main = (0..terms.len())
-            .max_by(|&a, &b| {
-                let sa = f.coeffs[a].abs() * spread(&f.proposal.regs[a]);
-                let sb = f.coeffs[b].abs() * spread(&f.proposal.regs[b]);
-                sa.total_cmp(&sb)
-            })
-            .unwrap_or(0);
-        let mut out = vec![terms[main].tau.estimate()];
-        let mut seen: Vec<usize> = Vec::new();
-        for (j, t) in terms.iter().enumerate() {
-            let name = sensor_name(d, t.sensor);
-            let which = if seen.contains(&t.sensor) {
-                "tau2"
-            } else {
-                "tau"
-            };
-            seen.push(t.sensor);
-            out.push(Estimate::new(
-                &format!("{which}_s_{name}"),
-                t.tau.value,
-                t.tau.sigma_unless_bound(),
-            ));
-            out.push(Estimate::new(
-                &format!(
-                    "{}_um_per_c_{name}",
-                    if which == "tau2" { "gain2" } else { "gain" }
-                ),
-                f.coeffs[j],
-                f.se[j],
-            ));
+        let key = |terms: &[LagTerm], j: usize| {
+            let rank = terms[..j]
+                .iter()
+                .filter(|o| o.sensor == terms[j].sensor)
+                .count();
+            (terms[j].sensor, rank)
+        };
+        let mut matched: Vec<Option<usize>> = (0..ft.len())
+            .map(|j| (0..rt.len()).find(|&i| key(rt, i) == key(ft, j)))
+            .collect();
+        let by_importance = |f: &contract::Fitted, mut idx: Vec<usize>| {
+            idx.sort_by(|&a, &b| importance(f, b).total_cmp(&importance(f, a)));
+            idx
+        };
+        let full_left = by_importance(
+            full,
+            (0..ft.len()).filter(|&j| matched[j].is_none()).collect(),
+        );
+        let rep_left = by_importance(
+            rep,
+            (0..rt.len())
+                .filter(|i| !matched.contains(&Some(*i)))
+                .collect(),
+        );
+        for (&j, &i) in full_left.iter().zip(&rep_left) {
+            matched[j] = Some(i);
+        }
+        let mut out = Vec::new();
+        let main = main_term(full);
+        if let Some(i) = matched[main] {
+            out.push(Estimate::new(&ft[main].tau.name, rt[i].tau.value, f64::NAN));
+        }
+        for (j, (tau, gain)) in term_names(d, ft).into_iter().enumerate() {
+            if let Some(i) = matched[j] {
+                out.push(Estimate::new(&tau, rt[i].tau.value, f64::NAN));
+                out.push(Estimate::new(&gain, rep.coeffs[i], f64::NAN));
+            }
         }
         out
     }
@@ -710,5 +773,111 @@ impl contract::Candidate for Candidate {
             plays: Vec::new(),
             play: Vec::new(),
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::recording::Recording;
+    use crate::explain::contract::{Candidate as _, Fitted};
+
+    fn data() -> Data {
+        let n = 200;
+        let t: Vec<f64> = (0..n).map(|k| k as f64).collect();
+        let cmd: Vec<f64> = (0..n).map(|k| 10.0 * (k / 20) as f64).collect();
+        let meas: Vec<f64> = cmd.iter().map(|c| c + 0.001).collect();
+        let air: Vec<f64> = (0..n)
+            .map(|k| 20.0 + 0.1 * (k as f64 / 30.0).sin())
+            .collect();
+        let base: Vec<f64> = (0..n)
+            .map(|k| 20.0 + 0.1 * (k as f64 / 50.0).cos())
+            .collect();
+        let rec = Recording::from_columns(vec![
+            ("t".into(), t),
+            ("cmd_x".into(), cmd),
+            ("meas_x".into(), meas),
+            ("temp_air".into(), air),
+            ("temp_base".into(), base),
+        ])
+        .unwrap();
+        Data::from_recording(&rec, None).unwrap()
+    }
+
+    fn term(sensor: usize, tau_s: f64) -> LagTerm {
+        LagTerm {
+            sensor,
+            tau: Theta {
+                name: "tau_s".into(),
+                value: tau_s,
+                sigma: 0.1 * tau_s,
+                lo: 10.0,
+                hi: 1e5,
+            },
+        }
+    }
+
+    fn proposal(terms: Vec<LagTerm>) -> Proposal {
+        // every column has the same spread: a term's importance is its |gain|
+        let col: Vec<f64> = (0..200).map(|k| (k % 2) as f64).collect();
+        Proposal {
+            regs: vec![col; terms.len()],
+            thetas: terms.iter().map(|t| t.tau.clone()).collect(),
+            detail: Detail::Lags(terms),
+            design: None,
+            evidence_units: None,
+        }
+    }
+
+    fn value(ps: &[Estimate], name: &str) -> Option<f64> {
+        ps.iter().find(|p| p.name == name).map(|p| p.value)
+    }
+
+    /// A replicate whose largest term is another sensor's gives the headline `tau_s` the τ of
+    /// the full fit's main sensor, and every sensor's τ its own; a sensor the replicate left
+    /// without a term takes the term left over (the lag moved there).
+    #[test]
+    fn replicates_are_read_like_with_like_by_sensor() {
+        let d = data();
+        let sensor = |name: &str| d.temps.iter().position(|t| t.0 == name).unwrap();
+        let (air, base) = (sensor("temp_air"), sensor("temp_base"));
+        let full_p = proposal(vec![term(air, 500.0), term(base, 2000.0)]);
+        let se = [0.1, 0.1];
+        let full = Fitted {
+            proposal: &full_p,
+            coeffs: &[3.0, 1.0],
+            se: &se,
+            noise_sigma_um: 0.01,
+        };
+        let ps = Candidate.params(&d, 0, &full);
+        assert_eq!(value(&ps, "tau_s"), Some(500.0));
+        // the replicate found base first and with the larger gain
+        let rep_p = proposal(vec![term(base, 1900.0), term(air, 520.0)]);
+        let rep = Fitted {
+            proposal: &rep_p,
+            coeffs: &[4.0, 2.0],
+            se: &se,
+            noise_sigma_um: 0.01,
+        };
+        let r = Candidate.replicate_params(&d, 0, &full, &rep);
+        assert_eq!(value(&r, "tau_s"), Some(520.0), "{r:?}");
+        assert_eq!(value(&r, "tau_s_air"), Some(520.0), "{r:?}");
+        assert_eq!(value(&r, "tau_s_base"), Some(1900.0), "{r:?}");
+        assert_eq!(value(&r, "gain_um_per_c_air"), Some(2.0), "{r:?}");
+        // its own reading would have put base's τ in the headline
+        assert_eq!(value(&Candidate.params(&d, 0, &rep), "tau_s"), Some(1900.0));
+        // a replicate without an air term: base is matched by sensor, air takes the leftover
+        let rep_p = proposal(vec![term(base, 2100.0), term(base, 300.0)]);
+        let rep = Fitted {
+            proposal: &rep_p,
+            coeffs: &[1.0, 5.0],
+            se: &se,
+            noise_sigma_um: 0.01,
+        };
+        let r = Candidate.replicate_params(&d, 0, &full, &rep);
+        assert_eq!(value(&r, "tau_s_base"), Some(2100.0), "{r:?}");
+        assert_eq!(value(&r, "tau_s_air"), Some(300.0), "{r:?}");
+        assert_eq!(value(&r, "tau_s"), Some(300.0), "{r:?}");
+        assert_eq!(value(&r, "tau2_s_base"), None, "{r:?}");
     }
 }

@@ -57,6 +57,14 @@ pub enum Detail {
     Lags(Vec<LagTerm>),
     /// One column per play operator: F_r[x] − x.
     Play(PlayBank),
+    /// One column whose coefficient moves with the first θ along its profile: the
+    /// coefficient's change per unit of ln θ (the coefficient refitted at θ·e^±h). The
+    /// coefficient's own standard error holds θ at its best value; with θ uncertain the
+    /// coefficient's 1σ is √(se² + (dc/d ln θ · σ_θ/θ)²) — creep's γ against its t0.
+    Coupled {
+        /// d(coefficient)/d ln θ.
+        dcoeff_dln_theta: f64,
+    },
 }
 
 /// What a candidate proposes to add to the current model.
@@ -212,6 +220,13 @@ pub trait Candidate: Sync {
     fn propose(&self, s: &Search) -> Result<Option<Proposal>, ExplainError>;
     /// The physical parameters from the fitted coefficients.
     fn params(&self, d: &Data, ch: usize, f: &Fitted) -> Vec<Estimate>;
+    /// The parameters of a refit on part of the rows (a jackknife replicate, `rep`) under the
+    /// names the fit on all rows (`full`) gave them, so that each is compared with its own
+    /// kind: by default [`Candidate::params`] of the replicate (its names do not depend on
+    /// what the search found).
+    fn replicate_params(&self, d: &Data, ch: usize, _full: &Fitted, rep: &Fitted) -> Vec<Estimate> {
+        self.params(d, ch, rep)
+    }
     /// A sentence on the fitted effect for a person (the sense of a loop, which sensor lags
     /// how), or empty.
     fn summary(&self, _d: &Data, _ch: usize, _f: &Fitted) -> String {

@@ -42,7 +42,8 @@ pub fn affordable(d: &Data) -> bool {
 ///
 /// Block b of [`BLOCKS`] is the b-th contiguous share of `rows` (ascending in time); on the
 /// rows outside it, `cand` searches its parameters again on top of `model` (the model it was
-/// named on), the extension is refitted, and its parameters are read as on all rows. The
+/// named on), the extension is refitted, and its parameters are read as on all rows
+/// (`full_fit`: under the names that fit gave them, see [`Candidate::replicate_params`]). The
 /// jackknife variance is (B − 1)/B Σ (θ_b − θ̄)².
 #[allow(clippy::too_many_arguments)]
 pub fn sigmas(
@@ -54,6 +55,7 @@ pub fn sigmas(
     design: &Design,
     n_eff: f64,
     cand: &dyn Candidate,
+    full_fit: &Fitted,
     full: &[Estimate],
 ) -> Result<Vec<Option<f64>>, ExplainError> {
     let n = rows.len();
@@ -93,7 +95,7 @@ pub fn sigmas(
                 se: &se[m..],
                 noise_sigma_um: f.ls.rmse(),
             };
-            Ok(Some(cand.params(d, ch, &fitted)))
+            Ok(Some(cand.replicate_params(d, ch, full_fit, &fitted)))
         },
     );
     let mut reps: Vec<Vec<Estimate>> = Vec::with_capacity(BLOCKS);

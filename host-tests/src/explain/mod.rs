@@ -600,6 +600,7 @@ fn explain_channel_once(
                 &design,
                 n_eff,
                 sc.cand,
+                &fitted,
                 &params,
             )?;
             for (p, j) in params.iter_mut().zip(spread) {

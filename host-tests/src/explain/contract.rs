@@ -35,8 +35,8 @@ pub struct PlayBank {
     pub thresholds_um: Vec<f64>,
     /// +1: weights ≥ 0 (counter-clockwise loop: the response lags the command); −1: ≤ 0.
     pub sense: f64,
-    /// Half of the drive's stroke (robust: 0.5th to 99.5th percentile), in the drive's unit (a
-    /// full-stroke loop's amplitude).
+    /// Half of the drive's stroke (its minimum to its maximum over the rows the search sees),
+    /// in the drive's unit (a full-stroke loop's amplitude).
     pub amplitude_um: f64,
     /// Standard deviation of the full-loop half-width per unit noise standard deviation
     /// (√(cᵀ(X⊥ᵀX⊥)⁻¹c) with X⊥ the operator columns beyond the rest of the model): the

@@ -251,7 +251,9 @@ impl Trust {
         blocks: &Blocks,
         full: &Compressed,
     ) -> anyhow::Result<Self> {
-        use crate::numerics::uncertainty::{variance_inflation_compressed, HeldOut, PredictionBand};
+        use crate::numerics::uncertainty::{
+            variance_inflation_compressed, HeldOut, PredictionBand,
+        };
         let sel: Vec<usize> = (0..names.len()).filter(|&j| res.inmodel[j]).collect();
         // the triangle's columns: 0 is the intercept, candidate j is j + 1
         let rcols: Vec<usize> = sel.iter().map(|&j| j + 1).collect();
@@ -259,13 +261,8 @@ impl Trust {
         // rows the fit used (no NaN in y or any candidate)
         let used = &blocks.used;
         let refs: Vec<&[f64]> = sel.iter().map(|&j| x[j]).collect();
-        let band = PredictionBand::from_compressed(
-            &full.r,
-            full.rows,
-            &rcols,
-            &constant,
-            res.ss_resid,
-        );
+        let band =
+            PredictionBand::from_compressed(&full.r, full.rows, &rcols, &constant, res.ss_resid);
         let (pi95, pi_error) = match band {
             Ok(band) => {
                 let ts = band.t_times_s(0.95);
@@ -291,8 +288,7 @@ impl Trust {
             Err(e) => ((f64::NAN, f64::NAN, f64::NAN), Some(e.to_string())),
         };
         let sel_names: Vec<String> = sel.iter().map(|&j| names[j].clone()).collect();
-        let vif =
-            variance_inflation_compressed(&sel_names, &full.r, full.rows, &rcols, &constant);
+        let vif = variance_inflation_compressed(&sel_names, &full.r, full.rows, &rcols, &constant);
         let held_out = |ranges: &[(usize, usize)]| -> anyhow::Result<HeldOut> {
             let mut errors = Vec::new();
             for (b, &(start, end)) in ranges.iter().enumerate() {

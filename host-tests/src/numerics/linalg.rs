@@ -326,7 +326,14 @@ unsafe fn push_block_avx2(r: &mut Mat, block: &mut [f64], b: usize, k: usize) {
 /// the columns `j0 + PANEL..k` of `[R; B]` in the compact WY form.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn apply_panel(r: &mut Mat, block: &mut [f64], b: usize, k: usize, j0: usize, tau: &[f64; PANEL]) {
+unsafe fn apply_panel(
+    r: &mut Mat,
+    block: &mut [f64],
+    b: usize,
+    k: usize,
+    j0: usize,
+    tau: &[f64; PANEL],
+) {
     use std::arch::x86_64::*;
     let (head, tail) = block.split_at_mut((j0 + PANEL) * b);
     let y: [&[f64]; PANEL] = std::array::from_fn(|a| &head[(j0 + a) * b..(j0 + a + 1) * b]);
@@ -334,7 +341,13 @@ unsafe fn apply_panel(r: &mut Mat, block: &mut [f64], b: usize, k: usize, j0: us
     let mut t = [[0.0f64; PANEL]; PANEL];
     for c in 0..PANEL {
         t[c][c] = tau[c];
-        let g: [f64; PANEL] = std::array::from_fn(|a| if a < c { dot_k::<true>(y[a], y[c]) } else { 0.0 });
+        let g: [f64; PANEL] = std::array::from_fn(|a| {
+            if a < c {
+                dot_k::<true>(y[a], y[c])
+            } else {
+                0.0
+            }
+        });
         for a in 0..c {
             let s: f64 = (a..c).map(|m| t[a][m] * g[m]).sum();
             t[a][c] = -tau[c] * s;
@@ -385,7 +398,11 @@ unsafe fn apply_panel(r: &mut Mat, block: &mut [f64], b: usize, k: usize, j0: us
             }
         }
         let w0 = finish(r, c, d0);
-        let w1 = if two { finish(r, c + 1, d1) } else { [0.0; PANEL] };
+        let w1 = if two {
+            finish(r, c + 1, d1)
+        } else {
+            [0.0; PANEL]
+        };
         let m0: [__m256d; PANEL] = std::array::from_fn(|a| _mm256_set1_pd(-w0[a]));
         let m1: [__m256d; PANEL] = std::array::from_fn(|a| _mm256_set1_pd(-w1[a]));
         let mut i = 0;

@@ -256,7 +256,11 @@ impl PredictionBand {
     /// [`Self::leverage`] at many rows of full-length regressor columns (`columns[t][i]`, the
     /// regressors in the band's order), bit for bit the same numbers, but column by column
     /// over chunks of rows (vectorisable, no allocation per row). Rows must hold no NaN.
-    pub fn leverages(&self, columns: &[&[f64]], rows: &[usize]) -> Result<Vec<f64>, UncertaintyError> {
+    pub fn leverages(
+        &self,
+        columns: &[&[f64]],
+        rows: &[usize],
+    ) -> Result<Vec<f64>, UncertaintyError> {
         let p = self.regressors();
         if columns.len() != p {
             return Err(UncertaintyError::BadPoint {
@@ -717,7 +721,8 @@ mod tests {
         let comp = compress(&refs, true, 1).unwrap();
         let names: Vec<String> = ["a", "b", "c", "k"].map(String::from).to_vec();
         let rows = variance_inflation(&names, &refs[..4]);
-        let tri = variance_inflation_compressed(&names, &comp.r, 400, &[1, 2, 3, 4], &comp.constant);
+        let tri =
+            variance_inflation_compressed(&names, &comp.r, 400, &[1, 2, 3, 4], &comp.constant);
         assert!(rows[0].vif > 10.0 && rows[2].vif < 1.01, "{rows:?}");
         for (r, t) in rows.iter().zip(&tri) {
             assert_eq!(r.name, t.name);

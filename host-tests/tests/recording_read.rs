@@ -102,6 +102,28 @@ fn large_input_parsed_in_parallel_reports_global_line_numbers() {
 }
 
 #[test]
+fn blank_lines_in_a_large_input_leave_no_gaps() {
+    // each parser thread writes into its range of the columns, sized by the lines; blank lines
+    // make fewer rows than lines, and the ranges are closed up afterwards
+    let mut csv = String::from("t,meas_x\n");
+    for i in 0..150_000 {
+        csv.push_str(&format!("{i},{}.5\n", i % 97));
+        if i % 7 == 3 {
+            csv.push_str(if i % 2 == 0 { "\n" } else { "  \r\n" });
+        }
+    }
+    csv.push_str("150000,0.25"); // no newline at the end
+    assert!(csv.len() > 1 << 20, "large enough to split");
+    let rec = Recording::parse(csv.as_bytes()).unwrap();
+    assert_eq!(rec.rows(), 150_001);
+    let t = rec.column("t").unwrap();
+    assert!(t.iter().enumerate().all(|(i, &v)| v == i as f64));
+    let x = rec.column("meas_x").unwrap();
+    assert_eq!(x[149_999], (149_999 % 97) as f64 + 0.5);
+    assert_eq!(x[150_000], 0.25);
+}
+
+#[test]
 fn whitespace_and_exotic_numbers() {
     let rec =
         Recording::parse(b"a, b ,c\n 1 , -2.5e3 ,NaN\n\n   \n+4,1e-30,123456789012345678901\n")

@@ -99,10 +99,11 @@ pub fn run(args: StepwiseArgs) -> anyhow::Result<()> {
     ));
     opts.thresholds()?;
     let blocks = Blocks::compress(&x, y, args.blocks, opts.thread_count())?;
-    let res = stepwise_compressed(blocks.merged(None), &opts)?;
+    let full = blocks.merged(None);
+    let res = stepwise_compressed(full.clone(), &opts)?;
     bar.finish_and_clear();
     print!("{}", table(&names, &res, &opts));
-    let trust = Trust::of(&names, &x, y, &res, &opts, &blocks)?;
+    let trust = Trust::of(&names, &x, y, &res, &opts, &blocks, &full)?;
     print!("{}", trust.text(&args.response));
     if let Some(path) = &args.json {
         let mut json = to_json(&names, &args.response, &res);
@@ -238,7 +239,9 @@ pub struct Trust {
 
 impl Trust {
     /// Computes it for the final model of `res`, fitted on `blocks` (held-out fits leave one
-    /// block's compression out of the merge: no further pass over the data).
+    /// block's compression out of the merge: no further pass over the data); `full` is the
+    /// merge of every block, from whose triangle come the prediction interval's factor and the
+    /// VIFs (no pass over the data either; only the leverage at each row reads the rows).
     pub fn of(
         names: &[String],
         x: &[&[f64]],
@@ -246,32 +249,46 @@ impl Trust {
         res: &StepwiseResult,
         opts: &StepwiseOptions,
         blocks: &Blocks,
+        full: &Compressed,
     ) -> anyhow::Result<Self> {
-        use crate::numerics::uncertainty::{variance_inflation, HeldOut, PredictionBand};
+        use crate::numerics::uncertainty::{
+            variance_inflation_compressed, HeldOut, PredictionBand,
+        };
         let sel: Vec<usize> = (0..names.len()).filter(|&j| res.inmodel[j]).collect();
+        // the triangle's columns: 0 is the intercept, candidate j is j + 1
+        let rcols: Vec<usize> = sel.iter().map(|&j| j + 1).collect();
+        let constant: Vec<bool> = sel.iter().map(|&j| full.constant[j]).collect();
         // rows the fit used (no NaN in y or any candidate)
         let used = &blocks.used;
-        let cols: Vec<Vec<f64>> = sel
-            .iter()
-            .map(|&j| used.iter().map(|&i| x[j][i]).collect())
-            .collect();
-        let refs: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
-        let (pi95, pi_error) = match PredictionBand::new(&refs, res.ss_resid) {
+        let refs: Vec<&[f64]> = sel.iter().map(|&j| x[j]).collect();
+        let band =
+            PredictionBand::from_compressed(&full.r, full.rows, &rcols, &constant, res.ss_resid);
+        let (pi95, pi_error) = match band {
             Ok(band) => {
                 let ts = band.t_times_s(0.95);
-                let mut row = vec![0.0; cols.len()];
-                let hw = (0..used.len()).filter_map(|r| {
-                    for (v, c) in row.iter_mut().zip(&cols) {
-                        *v = c[r];
-                    }
-                    band.half_width_with(&row, ts).ok()
+                // one leverage per row: split across the threads of the compression
+                let threads = opts.thread_count().clamp(1, used.len() / 16_384 + 1);
+                let per = used.len().div_ceil(threads).max(1);
+                let parts: Vec<_> = std::thread::scope(|s| {
+                    let handles: Vec<_> = used
+                        .chunks(per)
+                        .map(|rows| s.spawn(|| band.leverages(&refs, rows)))
+                        .collect();
+                    handles
+                        .into_iter()
+                        .map(|h| h.join().expect("leverage worker panicked"))
+                        .collect()
                 });
+                let mut hw = Vec::with_capacity(used.len());
+                for part in parts {
+                    hw.extend(part?.into_iter().map(|h| ts * (1.0 + h).sqrt()));
+                }
                 (crate::cli::trust::spread(hw), None)
             }
             Err(e) => ((f64::NAN, f64::NAN, f64::NAN), Some(e.to_string())),
         };
         let sel_names: Vec<String> = sel.iter().map(|&j| names[j].clone()).collect();
-        let vif = variance_inflation(&sel_names, &refs);
+        let vif = variance_inflation_compressed(&sel_names, &full.r, full.rows, &rcols, &constant);
         let held_out = |ranges: &[(usize, usize)]| -> anyhow::Result<HeldOut> {
             let mut errors = Vec::new();
             for (b, &(start, end)) in ranges.iter().enumerate() {
@@ -374,9 +391,16 @@ impl Blocks {
         threads: usize,
     ) -> anyhow::Result<Self> {
         let n = y.len();
-        let used: Vec<usize> = (0..n)
-            .filter(|&i| !y[i].is_nan() && x.iter().all(|c| !c[i].is_nan()))
-            .collect();
+        // column by column first: the common file has no NaN, and a row-by-row test reads 41
+        // columns at once, one value from each
+        let has_nan = |c: &[f64]| c.iter().fold(false, |a, v| a | v.is_nan());
+        let used: Vec<usize> = if !has_nan(y) && !x.iter().any(|c| has_nan(c)) {
+            (0..n).collect()
+        } else {
+            (0..n)
+                .filter(|&i| !y[i].is_nan() && x.iter().all(|c| !c[i].is_nan()))
+                .collect()
+        };
         let ranges = match blocks {
             0 => None,
             k => Some(

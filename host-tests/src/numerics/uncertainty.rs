@@ -19,7 +19,7 @@
 
 #![allow(clippy::needless_range_loop)] // index loops read best in numerical kernels
 
-use crate::numerics::linalg::{compress, lstsq, Mat};
+use crate::numerics::linalg::{compress, lstsq, Mat, PivotedQr, RAccumulator};
 use crate::numerics::stats::t_pvalue_two_sided;
 
 /// Errors of the uncertainty computations.
@@ -162,7 +162,73 @@ impl PredictionBand {
                 })?
                 .r
         };
+        Self::from_factor(mean, scale, &comp, rows, ss_resid)
+    }
+
+    /// The same band as [`Self::new`] (equal to rounding), from the triangle `r` of a
+    /// compression of the data with the intercept ([`crate::numerics::linalg::compress`]:
+    /// column 0 the constant) instead of another pass over the rows: the regressors are the
+    /// columns `cols` of `r`, `constant[t]` says the data of `cols[t]` are all equal, `rows` is the
+    /// number of rows compressed.
+    ///
+    /// Why it is the same: with `[1 X] = Q R`, `1 = Q r₀₀e₀` (`r₀₀² = n`), so column `c`'s mean is
+    /// `r₀c / r₀₀`, its centred data are `Q` times column `c` of `R` with row 0 zeroed, and its
+    /// sum of squares about the mean is that column's squared norm below row 0. The band's
+    /// factor is then the QR of those centred, scaled columns beside `r₀₀e₀` — k rows, not n.
+    pub fn from_compressed(
+        r: &Mat,
+        rows: usize,
+        cols: &[usize],
+        constant: &[bool],
+        ss_resid: f64,
+    ) -> Result<Self, UncertaintyError> {
+        let p = cols.len();
+        if rows <= p + 1 {
+            return Err(UncertaintyError::NoResidualDof {
+                rows,
+                params: p + 1,
+            });
+        }
+        let m = r.rows();
+        let r00 = r.get(0, 0);
+        let mut mean = vec![0.0; p];
+        let mut scale = vec![1.0; p];
+        // [r₀₀e₀, centred and scaled columns], m × (p + 1), column-major
+        let mut block = vec![0.0; m * (p + 1)];
+        block[0] = r00;
+        for (t, (&c, &is_const)) in cols.iter().zip(constant).enumerate() {
+            mean[t] = r.get(0, c) / r00;
+            // an exactly constant column has zero variance; R shows that only up to rounding
+            let ss: f64 = if is_const {
+                0.0
+            } else {
+                (1..m).map(|i| r.get(i, c).powi(2)).sum()
+            };
+            let var = ss / (rows - 1) as f64;
+            scale[t] = if var > 0.0 { var.sqrt() } else { 1.0 };
+            if !is_const {
+                let dst = &mut block[(t + 1) * m..(t + 2) * m];
+                for i in 1..m {
+                    dst[i] = r.get(i, c) / scale[t];
+                }
+            }
+        }
         let k = p + 1;
+        let mut acc = RAccumulator::new(k);
+        acc.push_block(&mut block, m);
+        let comp = acc.into_r();
+        Self::from_factor(mean, scale, &comp, rows, ss_resid)
+    }
+
+    /// The band from the factor `comp` of `[1 (X − mean)/scale]` over `rows` rows.
+    fn from_factor(
+        mean: Vec<f64>,
+        scale: Vec<f64>,
+        comp: &Mat,
+        rows: usize,
+        ss_resid: f64,
+    ) -> Result<Self, UncertaintyError> {
+        let k = mean.len() + 1;
         let r: Vec<Vec<f64>> = (0..k)
             .map(|i| {
                 (0..k)
@@ -185,6 +251,61 @@ impl PredictionBand {
             s: (ss_resid / dfe as f64).sqrt(),
             dfe,
         })
+    }
+
+    /// [`Self::leverage`] at many rows of full-length regressor columns (`columns[t][i]`, the
+    /// regressors in the band's order), bit for bit the same numbers, but column by column
+    /// over chunks of rows (vectorisable, no allocation per row). Rows must hold no NaN.
+    pub fn leverages(
+        &self,
+        columns: &[&[f64]],
+        rows: &[usize],
+    ) -> Result<Vec<f64>, UncertaintyError> {
+        let p = self.regressors();
+        if columns.len() != p {
+            return Err(UncertaintyError::BadPoint {
+                expected: p,
+                found: columns.len(),
+            });
+        }
+        const CHUNK: usize = 256;
+        let k = p + 1;
+        let mut out = Vec::with_capacity(rows.len());
+        let mut z = vec![0.0; k * CHUNK];
+        let mut s = [0.0f64; CHUNK];
+        for idx in rows.chunks(CHUNK) {
+            let b = idx.len();
+            z[..b].fill(1.0 / self.r[0][0]);
+            for i in 1..k {
+                let (done, rest) = z.split_at_mut(i * CHUNK);
+                let zi = &mut rest[..b];
+                let col = columns[i - 1];
+                let (m, sc) = (self.mean[i - 1], self.scale[i - 1]);
+                for (v, &row) in zi.iter_mut().zip(idx) {
+                    *v = (col[row] - m) / sc;
+                }
+                // the same sums in the same order as `leverage`: Σ_t r_ti z_t from t = 0
+                s[..b].fill(-0.0);
+                for t in 0..i {
+                    let rti = self.r[t][i];
+                    for (acc, &zt) in s[..b].iter_mut().zip(&done[t * CHUNK..t * CHUNK + b]) {
+                        *acc += rti * zt;
+                    }
+                }
+                let rii = self.r[i][i];
+                for (v, acc) in zi.iter_mut().zip(&s[..b]) {
+                    *v = (*v - acc) / rii;
+                }
+            }
+            s[..b].fill(-0.0);
+            for i in 0..k {
+                for (acc, &zi) in s[..b].iter_mut().zip(&z[i * CHUNK..i * CHUNK + b]) {
+                    *acc += zi * zi;
+                }
+            }
+            out.extend_from_slice(&s[..b]);
+        }
+        Ok(out)
     }
 
     /// Number of regressors (without the intercept).
@@ -285,6 +406,84 @@ pub fn variance_inflation(names: &[String], columns: &[&[f64]]) -> Vec<Vif> {
             let partner = (0..p)
                 .filter(|&i| i != j)
                 .map(|i| (i, corr[i * p + j]))
+                .filter(|(_, r)| r.is_finite())
+                .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+                .map(|(i, r)| (names[i].clone(), r));
+            Vif {
+                name: names[j].clone(),
+                vif,
+                partner,
+            }
+        })
+        .collect()
+}
+
+/// [`variance_inflation`] of the columns `cols` of the triangle `r` of a compression of the data
+/// with the intercept ([`crate::numerics::linalg::compress`]: column 0 the constant) over `rows`
+/// rows, without another pass over the data (equal to rounding). `constant[t]`: the data of
+/// `cols[t]` are all equal (its VIF is NaN, as with the data).
+///
+/// Why it is the same: `[1 X] = Q R` with orthonormal `Q`, and `1 = Q r₀₀e₀`, so the centred
+/// data of column `c` are `Q` times column `c` of `R` with row 0 zeroed. Regressing one centred
+/// column on the others (the intercept is then implied), sums of squares, residual sums of
+/// squares and correlations are the same computed on those k-row columns as on the n rows.
+pub fn variance_inflation_compressed(
+    names: &[String],
+    r: &Mat,
+    rows: usize,
+    cols: &[usize],
+    constant: &[bool],
+) -> Vec<Vif> {
+    let p = cols.len();
+    let m = r.rows();
+    // centred columns below row 0 (exactly zero for an exactly constant column)
+    let centred: Vec<Vec<f64>> = cols
+        .iter()
+        .zip(constant)
+        .map(|(&c, &is_const)| {
+            if is_const {
+                vec![0.0; m - 1]
+            } else {
+                (1..m).map(|i| r.get(i, c)).collect()
+            }
+        })
+        .collect();
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    let ss: Vec<f64> = centred.iter().map(|c| dot(c, c)).collect();
+    let corr = |i: usize, j: usize| dot(&centred[i], &centred[j]) / (ss[i] * ss[j]).sqrt();
+    (0..p)
+        .map(|j| {
+            let ss_tot = ss[j];
+            let others: Vec<usize> = (0..p).filter(|&i| i != j).collect();
+            let vif = if ss_tot == 0.0 {
+                f64::NAN
+            } else if others.is_empty() {
+                1.0
+            } else {
+                // as `lstsq`: columns scaled to unit norm, pivoted QR, rank at max(n, q+1)·ε
+                let mut a = Mat::zeros(m - 1, others.len());
+                for (t, &i) in others.iter().enumerate() {
+                    let nrm = ss[i].sqrt();
+                    let sc = if nrm > 0.0 { nrm } else { 1.0 };
+                    for (dst, v) in a.col_mut(t).iter_mut().zip(&centred[i]) {
+                        *dst = v / sc;
+                    }
+                }
+                let qr = PivotedQr::new(a);
+                let tol = rows.max(others.len() + 1) as f64 * f64::EPSILON;
+                let rank = qr.rank(tol);
+                let mut rhs = centred[j].clone();
+                qr.apply_qt(&mut rhs);
+                let rss: f64 = rhs[rank..].iter().map(|v| v * v).sum();
+                if rss > 1e-14 * ss_tot {
+                    ss_tot / rss
+                } else {
+                    f64::INFINITY
+                }
+            };
+            let partner = others
+                .iter()
+                .map(|&i| (i, corr(i, j)))
                 .filter(|(_, r)| r.is_finite())
                 .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
                 .map(|(i, r)| (names[i].clone(), r));
@@ -461,6 +660,97 @@ mod tests {
             w[0].contains("temp_a and temp_b carry the same information"),
             "{w:?}"
         );
+    }
+
+    /// Four columns with some collinearity, a constant one and a response, 400 rows.
+    fn design() -> Vec<Vec<f64>> {
+        let a: Vec<f64> = (0..400).map(|i| 20.0 + (i as f64 * 0.3).sin()).collect();
+        let b: Vec<f64> = a
+            .iter()
+            .enumerate()
+            .map(|(i, v)| 2.0 * v + 0.05 * ((i * 7919) % 13) as f64)
+            .collect();
+        let c: Vec<f64> = (0..400).map(|i| 1e3 + (i as f64 * 1.7).cos()).collect();
+        let k = vec![4.5; 400];
+        let y: Vec<f64> = (0..400)
+            .map(|i| a[i] - c[i] + 0.1 * ((i * 31) % 7) as f64)
+            .collect();
+        vec![a, b, c, k, y]
+    }
+
+    #[test]
+    fn the_band_from_the_triangle_is_the_band_from_the_rows() {
+        let d = design();
+        let refs: Vec<&[f64]> = d.iter().map(|c| c.as_slice()).collect();
+        let comp = compress(&refs, true, 1).unwrap();
+        // regressors a and c (columns 1 and 3 of the triangle)
+        let rows_band = PredictionBand::new(&[&d[0], &d[2]], 2.5).unwrap();
+        let tri_band =
+            PredictionBand::from_compressed(&comp.r, 400, &[1, 3], &[false, false], 2.5).unwrap();
+        assert_eq!(rows_band.dfe, tri_band.dfe);
+        assert!((rows_band.s - tri_band.s).abs() < 1e-15);
+        for t in 0..2 {
+            let rel = |a: f64, b: f64| (a - b).abs() / a.abs().max(b.abs());
+            assert!(rel(rows_band.mean[t], tri_band.mean[t]) < 1e-13);
+            assert!(rel(rows_band.scale[t], tri_band.scale[t]) < 1e-11);
+        }
+        let all: Vec<usize> = (0..400).collect();
+        let h = tri_band.leverages(&[&d[0], &d[2]], &all).unwrap();
+        for (i, &hi) in h.iter().enumerate() {
+            let x0 = [d[0][i], d[2][i]];
+            // the batch is the per-point forward substitution, bit for bit
+            assert_eq!(hi.to_bits(), tri_band.leverage(&x0).unwrap().to_bits());
+            let want = rows_band.leverage(&x0).unwrap();
+            assert!((hi - want).abs() <= 1e-10 * want, "{hi} vs {want}");
+        }
+        // the constant column: rank deficient both ways
+        assert_eq!(
+            PredictionBand::from_compressed(&comp.r, 400, &[1, 4], &[false, true], 2.5),
+            Err(UncertaintyError::RankDeficient(1))
+        );
+        assert_eq!(
+            PredictionBand::new(&[&d[0], &d[3]], 2.5),
+            Err(UncertaintyError::RankDeficient(1))
+        );
+    }
+
+    #[test]
+    fn vif_from_the_triangle_is_vif_from_the_rows() {
+        let d = design();
+        let refs: Vec<&[f64]> = d.iter().map(|c| c.as_slice()).collect();
+        let comp = compress(&refs, true, 1).unwrap();
+        let names: Vec<String> = ["a", "b", "c", "k"].map(String::from).to_vec();
+        let rows = variance_inflation(&names, &refs[..4]);
+        let tri =
+            variance_inflation_compressed(&names, &comp.r, 400, &[1, 2, 3, 4], &comp.constant);
+        assert!(rows[0].vif > 10.0 && rows[2].vif < 1.01, "{rows:?}");
+        for (r, t) in rows.iter().zip(&tri) {
+            assert_eq!(r.name, t.name);
+            assert_eq!(r.vif.is_nan(), t.vif.is_nan(), "{r:?} {t:?}");
+            if r.vif.is_finite() {
+                assert!((r.vif - t.vif).abs() <= 1e-9 * r.vif, "{r:?} {t:?}");
+            }
+            match (&r.partner, &t.partner) {
+                (Some(rp), Some(tp)) => {
+                    assert_eq!(rp.0, tp.0);
+                    assert!((rp.1 - tp.1).abs() < 1e-12, "{r:?} {t:?}");
+                }
+                // the constant column correlates with nothing
+                (None, None) => assert_eq!(r.name, "k"),
+                _ => panic!("{r:?} {t:?}"),
+            }
+        }
+        assert!(tri[3].vif.is_nan(), "the constant column: {:?}", tri[3]);
+        // an exact combination: infinite both ways
+        let e: Vec<f64> = d[0].iter().zip(&d[2]).map(|(a, c)| a - 2.0 * c).collect();
+        let cols: Vec<&[f64]> = vec![&d[0], &d[2], &e];
+        let comp = compress(&cols, true, 1).unwrap();
+        let names: Vec<String> = ["a", "c", "e"].map(String::from).to_vec();
+        let tri = variance_inflation_compressed(&names, &comp.r, 400, &[1, 2, 3], &comp.constant);
+        let rows = variance_inflation(&names, &cols);
+        for (r, t) in rows.iter().zip(&tri) {
+            assert!(t.vif.is_infinite() && r.vif.is_infinite(), "{r:?} {t:?}");
+        }
     }
 
     #[test]

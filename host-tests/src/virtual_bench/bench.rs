@@ -690,13 +690,11 @@ impl BenchDriver for VirtualBench {
                         // straight to the board's next timer: nothing happens on the board
                         // before it (every byte is in, the executor idle), so the 10 ms
                         // nudges it took before only added advances and halts
-                        let next = self.clock.next_alarm_ticks().unwrap_or_else(|| {
-                            bl::s_to_ticks(self.link.now_s() + NUDGE_S)
-                        });
-                        if let Err(e) = self
+                        let next = self
                             .clock
-                            .advance_to_ticks(next, Duration::from_secs(60))
-                        {
+                            .next_alarm_ticks()
+                            .unwrap_or_else(|| bl::s_to_ticks(self.link.now_s() + NUDGE_S));
+                        if let Err(e) = self.clock.advance_to_ticks(next, Duration::from_secs(60)) {
                             result = Err(e.into());
                             break;
                         }
@@ -723,5 +721,66 @@ impl BenchDriver for VirtualBench {
         let new = st.commands()[self.commands_seen..].to_vec();
         self.commands_seen = st.commands().len();
         Some(new)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::virtual_bench::link::Page;
+    use std::os::unix::net::UnixStream;
+
+    /// A port whose reads see whether the mark counts them as the host waiting.
+    struct Probe {
+        mark: Arc<ReplyMark>,
+        seen: Vec<bool>,
+    }
+
+    impl Read for Probe {
+        fn read(&mut self, b: &mut [u8]) -> std::io::Result<usize> {
+            self.seen.push(self.mark.host_reading());
+            b[0] = b'0';
+            Ok(1)
+        }
+    }
+
+    impl Write for Probe {
+        fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+            self.seen.push(self.mark.host_reading());
+            Ok(b.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn the_host_counts_as_waiting_for_the_board_only_inside_a_read_of_its_port() {
+        let path = std::env::temp_dir().join(format!("nanocal-mark-{}", std::process::id()));
+        let (ours, _board) = UnixStream::pair().unwrap();
+        let link = BenchLink::start(Page::create(&path).unwrap(), ours);
+        let mark = Arc::new(ReplyMark {
+            link: link.clone(),
+            replied: std::sync::atomic::AtomicU32::new(0),
+            reading: AtomicU32::new(0),
+        });
+        let sent = Arc::new(AtomicU64::new(0));
+        let mut port = Counted {
+            inner: Probe {
+                mark: mark.clone(),
+                seen: Vec::new(),
+            },
+            sent: sent.clone(),
+            mark: mark.clone(),
+        };
+        assert!(!mark.host_reading());
+        port.write_all(b"MOV 1 30\n").unwrap();
+        assert!(!mark.host_reading(), "between two writes the host is busy");
+        let mut b = [0u8; 4];
+        assert_eq!(port.read(&mut b).unwrap(), 1);
+        assert!(!mark.host_reading(), "the read is over");
+        assert_eq!(port.inner.seen, [false, true], "writing: no; reading: yes");
+        assert_eq!(sent.load(Ordering::Acquire), 9);
+        link.shutdown();
     }
 }

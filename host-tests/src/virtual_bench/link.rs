@@ -27,11 +27,11 @@ pub const RAM_FILE_LEN: u64 = 16 * 1024 * 1024;
 const MAP_LEN: usize = bl::SHARED_LEN.next_multiple_of(4096);
 /// How long [`BenchClock::advance_to`] watches the page without any progress of the board
 /// before it sleeps until a doorbell. (Measured on the shortened campaign, loaded machine: it
-/// stops watching ≈ 3 times a step, and the bus requests after it ring ≈ 30 doorbells a step;
-/// 2 ms made it worse under load — the spinning thread takes the core QEMU's vCPU needs — and
-/// 5 ms, at load 12, took the steps' wait from 11 s to 303 s: two spinners that each wait for
-/// the other, taken off the cores in turn.) The first bus doorbell after it ends the sleep: the
-/// board runs again, and its next requests are answered from the page.
+/// stops watching ≈ 3 times a step, and the bus requests after it ring ≈ 30 doorbells a step.
+/// Longer watches lose under load, where QEMU's vCPU and this thread take turns on the cores:
+/// 2 ms and watching again at the first of those doorbells made it worse at load 9; 5 ms took
+/// the steps' wait from 11 s to 303 s at load 12, and watching again at every bus doorbell to
+/// 54 s — two spinners that each wait for the other.)
 const SPIN: Duration = Duration::from_micros(500);
 /// Longest the free-running clock holds for input in flight that the board does not take.
 const MAX_HOLD: Duration = Duration::from_secs(2);
@@ -571,13 +571,11 @@ impl BenchLink {
                 Ok(n) => n,
             };
             let mut waiting = false;
-            let mut bus = false;
             for &x in &b[..n] {
                 match x {
                     bl::RING_BUS => {
                         self.counts.bus_rings.fetch_add(1, Ordering::Relaxed);
-                        self.serve_bus();
-                        bus = true;
+                        self.serve_bus()
                     }
                     bl::RING_WAITING => {
                         self.counts.waiting_rings.fetch_add(1, Ordering::Relaxed);
@@ -586,7 +584,6 @@ impl BenchLink {
                     _ => {}
                 }
             }
-            let _ = bus;
             if waiting {
                 self.rings.lock().unwrap().waiting += 1;
                 self.rung.notify_all();

@@ -15,17 +15,19 @@ use super::twin_stage::TwinStage;
 use crate::campaign::bench::{BenchDriver, BenchError};
 use crate::device::Port;
 use crate::twin::{Trajectory, Twin};
+use nanocal_interface::bench_link as bl;
 use nanocal_interface::bus::BusOp;
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// Serial ports whose input the bench counts (GCS host link, management).
 const COUNTED: [usize; 2] = [0, 3];
 
-/// Board time the bench lets pass at once while a request waits for the board's own timers.
+/// Board time the bench lets pass at once while a request waits for the board's own timers,
+/// when the board has published no next timer (it always has one: the supervisor's).
 const NUDGE_S: f64 = 0.01;
 
 /// Wall time after which input the board has not read, while it sleeps, counts as stuck.
@@ -55,6 +57,15 @@ struct Counted<S> {
 struct ReplyMark {
     link: Arc<BenchLink>,
     replied: std::sync::atomic::AtomicU32,
+    /// Reads of the host's ports under way: the host waits for the board.
+    ///
+    /// **Why.** An exchange lets board time pass only while the host waits for an answer the
+    /// board has not begun. Without this, a host between two writes of one exchange (`MOV`,
+    /// then `ERR?`; a frame written in parts) looked the same — every byte in, the board idle,
+    /// nothing answered — and got a nudge of the board's clock whenever its thread took more
+    /// than 50 µs to write again: 1.3 nudges a step in the published campaign, each an advance
+    /// and mostly a halt of the board, and board time that depended on the host's scheduling.
+    reading: AtomicU32,
 }
 
 impl ReplyMark {
@@ -74,11 +85,19 @@ impl ReplyMark {
     fn answered(&self) -> bool {
         self.replied_now() != self.replied.load(Ordering::Acquire)
     }
+
+    /// The host waits in a read of one of its ports.
+    fn host_reading(&self) -> bool {
+        self.reading.load(Ordering::Acquire) > 0
+    }
 }
 
 impl<S: Read> Read for Counted<S> {
     fn read(&mut self, b: &mut [u8]) -> std::io::Result<usize> {
-        self.inner.read(b)
+        self.mark.reading.fetch_add(1, Ordering::AcqRel);
+        let r = self.inner.read(b);
+        self.mark.reading.fetch_sub(1, Ordering::AcqRel);
+        r
     }
 }
 
@@ -395,6 +414,7 @@ impl VirtualBench {
         let mark = Arc::new(ReplyMark {
             link: link.clone(),
             replied: std::sync::atomic::AtomicU32::new(0),
+            reading: AtomicU32::new(0),
         });
         Self {
             qemu,
@@ -651,8 +671,13 @@ impl BenchDriver for VirtualBench {
                 // the board has started to answer the newest request: it needs no more time,
                 // and the fold it answered with must stay the one the next command meets
                 let answered = self.mark.answered();
-                // a board that waits for the stage's reply does not wait for its own time
-                if self.settled() && self.stage_sim.bytes_in() as u32 == self.link.tx_bytes(1) {
+                // a board that waits for the stage's reply does not wait for its own time, nor
+                // one whose host is still writing or working (only a host that waits in a read
+                // waits for the board)
+                if self.mark.host_reading()
+                    && self.settled()
+                    && self.stage_sim.bytes_in() as u32 == self.link.tx_bytes(1)
+                {
                     // the board took the request in and waits: for its own time (a flash erase)
                     let since = *idle_since.get_or_insert_with(Instant::now);
                     let wait = if answered {
@@ -662,8 +687,14 @@ impl BenchDriver for VirtualBench {
                     };
                     if since.elapsed() > wait {
                         self.link.count_nudge();
-                        let next = self.link.now_s() + NUDGE_S;
-                        if let Err(e) = self.clock.advance_to(next, Duration::from_secs(60)) {
+                        // straight to the board's next timer: nothing happens on the board
+                        // before it (every byte is in, the executor idle), so the 10 ms
+                        // nudges it took before only added advances and halts
+                        let next = self
+                            .clock
+                            .next_alarm_ticks()
+                            .unwrap_or_else(|| bl::s_to_ticks(self.link.now_s() + NUDGE_S));
+                        if let Err(e) = self.clock.advance_to_ticks(next, Duration::from_secs(60)) {
                             result = Err(e.into());
                             break;
                         }
@@ -696,5 +727,66 @@ impl BenchDriver for VirtualBench {
             emulator_cpu_s: self.qemu.cpu_s(),
             bus_transactions: Some(self.link.transactions.load(Ordering::Relaxed)),
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::virtual_bench::link::Page;
+    use std::os::unix::net::UnixStream;
+
+    /// A port whose reads see whether the mark counts them as the host waiting.
+    struct Probe {
+        mark: Arc<ReplyMark>,
+        seen: Vec<bool>,
+    }
+
+    impl Read for Probe {
+        fn read(&mut self, b: &mut [u8]) -> std::io::Result<usize> {
+            self.seen.push(self.mark.host_reading());
+            b[0] = b'0';
+            Ok(1)
+        }
+    }
+
+    impl Write for Probe {
+        fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+            self.seen.push(self.mark.host_reading());
+            Ok(b.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn the_host_counts_as_waiting_for_the_board_only_inside_a_read_of_its_port() {
+        let path = std::env::temp_dir().join(format!("nanocal-mark-{}", std::process::id()));
+        let (ours, _board) = UnixStream::pair().unwrap();
+        let link = BenchLink::start(Page::create(&path).unwrap(), ours);
+        let mark = Arc::new(ReplyMark {
+            link: link.clone(),
+            replied: std::sync::atomic::AtomicU32::new(0),
+            reading: AtomicU32::new(0),
+        });
+        let sent = Arc::new(AtomicU64::new(0));
+        let mut port = Counted {
+            inner: Probe {
+                mark: mark.clone(),
+                seen: Vec::new(),
+            },
+            sent: sent.clone(),
+            mark: mark.clone(),
+        };
+        assert!(!mark.host_reading());
+        port.write_all(b"MOV 1 30\n").unwrap();
+        assert!(!mark.host_reading(), "between two writes the host is busy");
+        let mut b = [0u8; 4];
+        assert_eq!(port.read(&mut b).unwrap(), 1);
+        assert!(!mark.host_reading(), "the read is over");
+        assert_eq!(port.inner.seen, [false, true], "writing: no; reading: yes");
+        assert_eq!(sent.load(Ordering::Acquire), 9);
+        link.shutdown();
     }
 }

@@ -27,9 +27,11 @@ pub const RAM_FILE_LEN: u64 = 16 * 1024 * 1024;
 const MAP_LEN: usize = bl::SHARED_LEN.next_multiple_of(4096);
 /// How long [`BenchClock::advance_to`] watches the page without any progress of the board
 /// before it sleeps until a doorbell. (Measured on the shortened campaign, loaded machine: it
-/// stops watching ≈ 3 times a step, and the bus requests after it ring ≈ 30 doorbells a step;
-/// 2 ms, and watching again at the first of those doorbells, made it worse under load — the
-/// spinning thread takes the core QEMU's vCPU needs.)
+/// stops watching ≈ 3 times a step, and the bus requests after it ring ≈ 30 doorbells a step.
+/// Longer watches lose under load, where QEMU's vCPU and this thread take turns on the cores:
+/// 2 ms and watching again at the first of those doorbells made it worse at load 9; 5 ms took
+/// the steps' wait from 11 s to 303 s at load 12, and watching again at every bus doorbell to
+/// 54 s — two spinners that each wait for the other.)
 const SPIN: Duration = Duration::from_micros(500);
 /// Longest the free-running clock holds for input in flight that the board does not take.
 const MAX_HOLD: Duration = Duration::from_secs(2);
@@ -806,13 +808,30 @@ impl BenchClock {
     /// Move the board's clock to `t_s` of bench time (lockstep): raise the horizon and wait
     /// until the board is idle there. `timeout` bounds the wall time of the whole step.
     pub fn advance_to(&self, t_s: f64, timeout: Duration) -> Result<(), ClockError> {
+        self.advance_to_ticks(bl::s_to_ticks(t_s), timeout)
+    }
+
+    /// The board's next timer, bench ticks, as it published it when it last went idle at its
+    /// horizon (`bench_link::NEXT_ALARM`; `None`: it has none, or it is not idle at the
+    /// horizon, so the figure may be old).
+    pub fn next_alarm_ticks(&self) -> Option<u64> {
+        let page = &self.link.page;
+        if !self.link.idle_at_horizon() {
+            return None;
+        }
+        let next = page.u64(bl::NEXT_ALARM);
+        (next != u64::MAX && next > page.u64(bl::NOW)).then_some(next)
+    }
+
+    /// [`Self::advance_to`] in bench ticks.
+    pub fn advance_to_ticks(&self, ticks: u64, timeout: Duration) -> Result<(), ClockError> {
         if !self.link.lockstep.load(Ordering::Acquire) {
             return Err(ClockError::FreeRunning);
         }
         let start = Instant::now();
         let page = &self.link.page;
         self.link.counts.advances.fetch_add(1, Ordering::Relaxed);
-        let target = bl::s_to_ticks(t_s).max(page.u64(bl::HORIZON));
+        let target = ticks.max(page.u64(bl::HORIZON));
         let stalled = |page: &Page| ClockError::Stalled {
             target_s: bl::ticks_to_s(target),
             now_s: bl::ticks_to_s(page.u64(bl::NOW)),

@@ -721,7 +721,8 @@ impl Oracle {
             let Some(end) = reply_end(host_rx) else {
                 return Ok(());
             };
-            let next = reply_end(&host_rx[end + 1..]).map(|e| host_rx[end + 1..=end + 1 + e].to_vec());
+            let next =
+                reply_end(&host_rx[end + 1..]).map(|e| host_rx[end + 1..=end + 1 + e].to_vec());
             let reply = host_rx[..=end].to_vec();
             if !self.one_reply(&reply, next.as_deref(), settled, k)? {
                 return Ok(()); // which query it answers, the next reply tells

@@ -35,10 +35,10 @@ fn fuzz_findings_stay_fixed() {
 
 /// Replays of the runs of the benchmark (seeds from 1000, link faults on) that found its last
 /// violations, each up to its step. The four of 15 million steps on main (BENCHMARKS.md,
-/// *Main after the merges*) were the proxy's, every one a second loss of stage bytes while the proxy was still
-/// resynchronising after a first, which forgot the identification lines still due to the
-/// queries the first had given up — the resynchronisation ended early and later replies
-/// were paired with the wrong queries (`proxy_fuzz_findings`'s
+/// *Main after the merges*) were the proxy's, every one a second loss of stage bytes while
+/// the proxy was still resynchronising after a first, which forgot the identification lines
+/// still due to the queries the first had given up — the resynchronisation ended early and
+/// later replies were paired with the wrong queries (`proxy_fuzz_findings`'s
 /// `a_second_loss_while_resynchronising_still_waits_for_the_stale_identification_lines`).
 #[test]
 fn benchmark_findings_stay_fixed() {

@@ -1273,6 +1273,7 @@ impl fmt::Debug for Proxy {
             .field("receiving", &st.rx.kind())
             .field("resyncing", &st.resyncing)
             .field("holding", &st.holding())
+            .field("version", &st.ctrl.version)
             .finish()
     }
 }

@@ -807,7 +807,13 @@ impl ProxyState {
     }
 
     /// Identification lines the queries in flight (the reply being received included) may
-    /// still bring: one per marker and per `*IDN?`.
+    /// still bring: one per marker and per `*IDN?` — and, while resynchronising already, the
+    /// ones still due to the queries the last resynchronisation gave up (`stale_idn`): they
+    /// come before this marker's reply as much as before the last one's. (Without them, a
+    /// second loss of bytes during a resynchronisation counted only the marker under way, the
+    /// resynchronisation ended at a stale identification line, and the replies still due
+    /// were paired with the next queries — the proxy fuzz's benchmark, issue 21: a
+    /// controller without `CSV?` read as answering it, then a host `POS?` answered raw.)
     fn idn_lines_due(&self) -> u8 {
         let n = self
             .rx
@@ -816,7 +822,12 @@ impl ProxyState {
             .chain(self.queue.iter())
             .filter(|en| en.e == Expect::Marker || en.idn)
             .count();
-        n.min(usize::from(u8::MAX)) as u8
+        let stale = if self.resyncing {
+            usize::from(self.stale_idn)
+        } else {
+            0
+        };
+        (n + stale).min(usize::from(u8::MAX)) as u8
     }
 }
 

@@ -8,7 +8,7 @@
 //! cd host-tests && NANOCAL_FUZZ_STEPS=10000000 cargo test --release --test proxy_fuzz -- --ignored --nocapture
 //! ```
 
-use nanocal::proxy_fuzz::{run, run_with, setups, Stats};
+use nanocal::proxy_fuzz::{follow_setups, run, run_with, setups, Stats};
 use std::time::Instant;
 
 /// Steps per setup and seed in CI.
@@ -84,6 +84,37 @@ fn the_coupled_setup_keeps_its_promises() {
     assert!(total.positions_checked > 1_000, "{total:?}");
 }
 
+/// Held targets following the fold (issue 19), on both models, seeds 0–5: every re-issue the
+/// controller receives is checked against the held host target at the current fold (within
+/// the step limit, after the interval, never after a cancel); the fuzz reaches re-issues,
+/// refused ones, and new folds.
+///
+/// Open finding (ignored until the proxy is fixed): seed 0 of the 1-DoF following setup,
+/// step 18,560 — the host's `MOV 1 436.378` is lost while the controller is silent (a
+/// blackout) with no reply due (its `ERR?` was answered by the proxy from its own check), so
+/// nothing tells the proxy; after the blackout its check reads 0 and following re-issues
+/// `MOV 1 436.159186` to a controller holding 500: a 64 µm jump where a re-issue moves at most
+/// the step. Following trusts its record of what the controller holds; its check must read
+/// the controller's targets (`MOV?`), as moves read their bases (issue 21, finding 2).
+#[test]
+#[ignore = "open finding: following re-issues after a host move lost in a blackout (see the doc)"]
+fn following_keeps_the_proxys_promises() {
+    let mut total = Stats::default();
+    for setup in follow_setups() {
+        for seed in 0..CI_SEEDS {
+            match run(&setup, seed, CI_STEPS) {
+                Ok(s) => total += s,
+                Err(v) => panic!("{v}"),
+            }
+        }
+    }
+    println!("{total:?}");
+    assert!(total.reissues_checked > 100, "{total:?}");
+    assert!(total.follow_refused > 0, "{total:?}");
+    assert!(total.folds > 1_000, "{total:?}");
+    assert!(total.moves_checked > 1_000, "{total:?}");
+}
+
 #[test]
 #[ignore = "benchmark: NANOCAL_FUZZ_STEPS steps per setup (default 10 million in all)"]
 fn proxy_fuzz_benchmark() {
@@ -91,12 +122,15 @@ fn proxy_fuzz_benchmark() {
         .ok()
         .and_then(|s| s.parse().ok())
         .unwrap_or(10_000_000);
-    let setups = setups();
-    let per_setup = steps.div_ceil(setups.len() as u64);
+    // the three setups share the steps as before; the following setups run as many again
+    // each (their own rows: their findings are following's)
+    let base = setups();
+    let per_setup = steps.div_ceil(base.len() as u64);
+    let setups: Vec<_> = base.into_iter().chain(follow_setups()).collect();
     // seeds of 250k steps each: a state that drifts far is renewed
     let per_seed = 250_000u64.min(per_setup);
-    println!("\n| setup | steps | moves checked | replies checked | positions checked | resyncs | unanswered | s |");
-    println!("|---|---:|---:|---:|---:|---:|---:|---:|");
+    println!("\n| setup | steps | moves checked | replies checked | positions checked | resyncs | unanswered | re-issues checked | s |");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
     let mut total = Stats::default();
     let mut violations: Vec<String> = Vec::new();
     let t0 = Instant::now();
@@ -119,7 +153,7 @@ fn proxy_fuzz_benchmark() {
             seed += 1;
         }
         println!(
-            "| {} | {} | {} | {} | {} | {} | {} | {:.1} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {:.1} |",
             setup.name,
             s.steps,
             s.moves_checked,
@@ -127,6 +161,7 @@ fn proxy_fuzz_benchmark() {
             s.positions_checked,
             s.resyncs,
             s.unanswered,
+            s.reissues_checked,
             t.elapsed().as_secs_f64()
         );
         total += s;
@@ -142,3 +177,4 @@ fn proxy_fuzz_benchmark() {
     }
     assert!(violations.is_empty(), "{} violations", violations.len());
 }
+

@@ -902,6 +902,13 @@ fn hold_step(
         note = refold(rig, oracle, fol, offset_c, setup, 0.05) + ", ";
     }
     rig.deliver(usize::MAX);
+    if fol.gen_bool(0.03) {
+        // the controller's servo goes off while the target is held: the next re-issue is
+        // refused (the proxy swallows it and stops following)
+        let a = fol.gen_range(0..setup.model.axes());
+        rig.ctl.servo_fault(a);
+        note += &format!("servo {} off at the controller, ", a + 1);
+    }
     let ms = fol.gen_range(20..1_500);
     rig.wait(ms);
     note + &format!("held {ms} ms")

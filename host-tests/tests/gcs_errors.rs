@@ -60,7 +60,9 @@ fn the_status_report_shows_followings_counters() {
     };
     let text = format_status(&s);
     assert!(
-        text.contains("held targets re-issued (following the fold): 42  refused by the controller: 3"),
+        text.contains(
+            "held targets re-issued (following the fold): 42  refused by the controller: 3"
+        ),
         "{text}"
     );
 }

@@ -278,7 +278,9 @@ fn stage_all(r: &mut Rig, reply: &[u8]) -> Vec<u8> {
     let mut to_host = Vec::new();
     let mut rest = reply;
     while !rest.is_empty() {
-        let n = r.proxy.stage_bytes(r.comp.as_ref(), rest, r.now_ms, &mut out);
+        let n = r
+            .proxy
+            .stage_bytes(r.comp.as_ref(), rest, r.now_ms, &mut out);
         to_host.extend_from_slice(out.to_host.as_bytes());
         assert!(out.to_stage.is_empty());
         rest = &rest[n..];
@@ -399,10 +401,17 @@ fn a_host_err_waiting_for_a_given_up_check_is_not_told_0() {
     r.wait_ms(1_000);
     let mut out = nanocal_compensator::proxy::Output::new();
     r.proxy.follow_tick(r.comp.as_ref(), r.now_ms, &mut out);
-    assert_eq!(out.to_stage.as_bytes(), b"MOV? 1\nERR?\n", "the check, never answered");
+    assert_eq!(
+        out.to_stage.as_bytes(),
+        b"MOV? 1\nERR?\n",
+        "the check, never answered"
+    );
     r.proxy
         .host_bytes(r.comp.as_ref(), b"ERR?\n", r.now_ms, &mut out);
-    assert!(out.to_stage.is_empty() && out.to_host.is_empty(), "waits for the check");
+    assert!(
+        out.to_stage.is_empty() && out.to_host.is_empty(),
+        "waits for the check"
+    );
     let mut answered = Vec::new();
     for _ in 0..30 {
         r.now_ms += 100;

@@ -176,5 +176,3 @@ fn proxy_fuzz_benchmark() {
     }
     assert!(violations.is_empty(), "{} violations", violations.len());
 }
-
-

@@ -228,9 +228,7 @@ impl ProxyState {
                 }
                 // the model axes all the controller's: the `MOV?` is certain, else a marker
                 let maybe = match self.ctrl.axes.known() {
-                    Some(axes) => {
-                        (0..n).any(|a| axes.find(self.map.id(a).unwrap_or(b"")).is_err())
-                    }
+                    Some(axes) => (0..n).any(|a| axes.find(self.map.id(a).unwrap_or(b"")).is_err()),
                     None => true,
                 };
                 let room = if maybe { 4 } else { 2 };

@@ -760,6 +760,12 @@ impl ProxyState {
                 _ => self.counters.unanswered = self.counters.unanswered.wrapping_add(1),
             }
         }
+        if check_lost || self.follow.phase == super::follow::Phase::Sent {
+            // following's check or re-issue is given up: what it read or did is not known
+            // (and a host `ERR?` after this is the controller's again, not the check's)
+            self.follow_cancel();
+            self.follow.phase = super::follow::Phase::Idle;
+        }
         self.ctrl.lost_answers();
         self.counters.resyncs = self.counters.resyncs.wrapping_add(1);
         if self.reseed == Reseed::Asked {

@@ -65,12 +65,20 @@ struct Hour {
     end_of_minute_nm: Vec<f64>,
     /// The largest error seen at any step, nm.
     max_nm: f64,
-    /// `MOV` lines the controller received during the hour (the board's re-issues).
+    /// `MOV` lines the controller received during the hour (the board's re-issues; not its
+    /// checks' `MOV?`).
     moves: usize,
     /// Wall time of the hour.
     wall: Duration,
     /// The host's `POS?` after the hour, µm.
     pos_um: f64,
+    /// The status's following counters after the hour: re-issues accepted, refused.
+    reissues: u32,
+    refused: u32,
+    /// `MOV` lines the controller received after the hour, up to the status read.
+    moves_after: usize,
+    /// Re-issues refused once the servo went off behind the proxy's back (following only).
+    refused_after_svo: u32,
 }
 
 fn hold_an_hour(follow: &[&str]) -> Option<Hour> {
@@ -155,6 +163,10 @@ fn hold_an_hour(follow: &[&str]) -> Option<Hour> {
         moves: 0,
         wall: Duration::ZERO,
         pos_um: f64::NAN,
+        reissues: 0,
+        refused: 0,
+        moves_after: 0,
+        refused_after_svo: 0,
     };
     for minute in 1..=MINUTES {
         temps[0] = TEMPS_C[0] + minute as f32 / 128.0;
@@ -174,7 +186,7 @@ fn hold_an_hour(follow: &[&str]) -> Option<Hour> {
         hour.moves += stage
             .drain()
             .iter()
-            .filter(|l| l.starts_with("MOV"))
+            .filter(|l| l.starts_with("MOV "))
             .count();
     }
     hour.wall = wall.elapsed();
@@ -189,6 +201,31 @@ fn hold_an_hour(follow: &[&str]) -> Option<Hour> {
     let true_um = true_position_um(&model, stage.with(|c| c.target(0)), &temps);
     assert!((pos_um - true_um).abs() < 2e-3, "{pos} vs {true_um}");
     hour.pos_um = pos_um;
+    // what following did, as a lab reads it in the status (protocol 8)
+    let mut c = q.client();
+    let s = c.status().unwrap();
+    (hour.reissues, hour.refused) = (s.follow_reissues, s.follow_refused);
+    // (the clock ran freely since the hour: a last part of a step may have been re-issued)
+    hour.moves_after = stage
+        .drain()
+        .iter()
+        .filter(|l| l.starts_with("MOV "))
+        .count();
+    if !follow.is_empty() {
+        // the servo goes off behind the proxy's back: the controller refuses the next
+        // re-issue (error 5), which the proxy swallows and counts
+        stage.with(|ctl| {
+            let _ = ctl.input(b"SVO 1 0\n");
+        });
+        temps[0] += 4.0 / 128.0;
+        sensors.set_temp(0, temps[0]);
+        let s = wait_until("a refused re-issue in the status", &clk, 60.0, || {
+            let s = c.status().ok()?;
+            (s.follow_refused > hour.refused).then_some(s)
+        });
+        hour.refused_after_svo = s.follow_refused;
+        assert_eq!(s.follow_reissues, hour.reissues, "refused, not accepted");
+    }
     Some(hour)
 }
 
@@ -211,13 +248,17 @@ fn held_targets_follow_the_model_under_qemu() {
         let e = &h.end_of_minute_nm;
         format!(
             "after 1 min {:.1} nm, 30 min {:.1} nm, 60 min {:.1} nm; largest |error| {:.1} nm; \
-             {} MOV re-issued; POS? after the hour {:.4} µm; wall {:.0} s",
+             {} MOV re-issued; POS? after the hour {:.4} µm; status: {} re-issues, {} refused \
+             ({} after the servo went off); wall {:.0} s",
             e[0],
             e[29],
             e[59],
             h.max_nm,
             h.moves,
             h.pos_um,
+            h.reissues,
+            h.refused,
+            h.refused_after_svo,
             h.wall.as_secs_f64()
         )
     };
@@ -225,6 +266,7 @@ fn held_targets_follow_the_model_under_qemu() {
     eprintln!("following on:  {}", show(&on));
     // off: the stage drifts with the fold's change of the command, minute after minute
     assert_eq!(off.moves, 0);
+    assert_eq!((off.reissues, off.refused), (0, 0), "{}", show(&off));
     let last = off.end_of_minute_nm[MINUTES - 1];
     assert!(last.abs() > 1_000.0, "{}", show(&off));
     assert!(
@@ -246,4 +288,16 @@ fn held_targets_follow_the_model_under_qemu() {
     // and never further than one temperature step's change before it was followed
     assert!(on.max_nm < 40.0, "{}", show(&on));
     assert!((on.pos_um - TARGET_UM).abs() < 0.006, "{}", show(&on));
+    // the status counts every re-issue the controller received (all accepted: those of the
+    // hour, and a last part re-issued while the host asked after it), and the one it refused
+    // once its servo was off
+    let n = on.reissues as usize;
+    assert!(
+        n >= on.moves && n <= on.moves + on.moves_after,
+        "{} (+{} after the hour)",
+        show(&on),
+        on.moves_after
+    );
+    assert_eq!(on.refused, 0, "{}", show(&on));
+    assert_eq!(on.refused_after_svo, 1, "{}", show(&on));
 }

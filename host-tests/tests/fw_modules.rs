@@ -120,6 +120,8 @@ fn status_round_trips() {
         stage: nanocal_interface::status::StageCheck::Mismatch,
         model_serial: nanocal_model::StageSerial::new(b"0116044408"),
         controller_serial: None,
+        follow_reissues: 11,
+        follow_refused: 1,
     };
     assert_eq!(s.sensor_bits[15].state, ChannelStatus::NotRead);
     let mut buf = [0u8; 320];

@@ -48,3 +48,21 @@ fn the_status_report_names_the_pending_error() {
         "{text}"
     );
 }
+
+/// Following's counters (protocol 8) are in the report a lab reads: re-issues sent and
+/// accepted, and the ones the controller refused.
+#[test]
+fn the_status_report_shows_followings_counters() {
+    let s = Status {
+        follow_reissues: 42,
+        follow_refused: 3,
+        ..Status::default()
+    };
+    let text = format_status(&s);
+    assert!(
+        text.contains(
+            "held targets re-issued (following the fold): 42  refused by the controller: 3"
+        ),
+        "{text}"
+    );
+}

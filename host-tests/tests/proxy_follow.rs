@@ -80,11 +80,13 @@ fn a_held_target_follows_the_fold_and_the_host_keeps_its_frame() {
     warm(&mut r, &m, &T1);
     r.follow_for_ms(250, 250);
     let rx = r.received();
-    // the proxy's check, then the re-issue with its own `ERR?`
-    assert_eq!(rx.len(), 3, "{rx:?}");
-    assert_eq!(rx[0], "ERR?");
-    assert!(rx[1].starts_with("MOV 1 "), "{rx:?}");
-    assert_eq!(rx[2], "ERR?");
+    // the proxy's check (the controller holds the command sent, no error pending), then the
+    // re-issue with its own `ERR?`
+    assert_eq!(rx.len(), 4, "{rx:?}");
+    assert_eq!(rx[0], "MOV? 1");
+    assert_eq!(rx[1], "ERR?");
+    assert!(rx[2].starts_with("MOV 1 "), "{rx:?}");
+    assert_eq!(rx[3], "ERR?");
     let q1 = r.ctl.target(0);
     let want = command_um(&m, 100.0, &T1);
     assert!((q1 - want).abs() < 1e-4, "{q1} vs {want}");
@@ -239,7 +241,7 @@ fn an_error_the_host_has_not_read_survives_the_proxys_check() {
     warm(&mut r, &m, &T1);
     r.follow_for_ms(2_000, 250);
     let rx = r.received();
-    assert_eq!(rx, ["ERR?"], "checked, not re-issued");
+    assert_eq!(rx, ["MOV? 1", "ERR?"], "checked, not re-issued");
     assert_eq!(r.line("ERR?"), "2\n", "the host reads its own error");
     let rx = r.received();
     assert!(rx.is_empty(), "answered by the proxy: {rx:?}");
@@ -260,15 +262,33 @@ fn a_host_err_while_the_check_is_in_flight_gets_the_checks_code() {
     // held back: the proxy's output is routed by hand here)
     let mut out = nanocal_compensator::proxy::Output::new();
     r.proxy.follow_tick(r.comp.as_ref(), r.now_ms, &mut out);
-    assert_eq!(out.to_stage.as_bytes(), b"ERR?\n");
+    assert_eq!(out.to_stage.as_bytes(), b"MOV? 1\nERR?\n");
     let check_reply = r.ctl.input(out.to_stage.as_bytes());
     out.clear();
     r.proxy
         .host_bytes(r.comp.as_ref(), b"ERR?\n", r.now_ms, &mut out);
     assert!(out.to_stage.is_empty() && out.to_host.is_empty(), "waits");
-    r.proxy
-        .stage_bytes(r.comp.as_ref(), &check_reply, r.now_ms, &mut out);
-    assert_eq!(out.to_host.as_bytes(), b"2\n");
+    let to_host = stage_all(&mut r, &check_reply);
+    assert_eq!(to_host, b"2\n");
+}
+
+/// All of `reply` to the proxy (it takes a reply at a time); what it sent the host.
+fn stage_all(r: &mut Rig, reply: &[u8]) -> Vec<u8> {
+    let mut out = nanocal_compensator::proxy::Output::new();
+    let mut to_host = Vec::new();
+    let mut rest = reply;
+    while !rest.is_empty() {
+        let n = r
+            .proxy
+            .stage_bytes(r.comp.as_ref(), rest, r.now_ms, &mut out);
+        to_host.extend_from_slice(out.to_host.as_bytes());
+        assert!(out.to_stage.is_empty());
+        rest = &rest[n..];
+        if n == 0 {
+            break;
+        }
+    }
+    to_host
 }
 
 #[test]
@@ -281,7 +301,7 @@ fn a_refused_reissue_is_swallowed_and_following_stops() {
     warm(&mut r, &m, &T1);
     r.follow_for_ms(1_000, 250);
     let rx = r.received();
-    assert_eq!(rx.len(), 3, "{rx:?}");
+    assert_eq!(rx.len(), 4, "{rx:?}");
     assert_eq!(r.ctl.target(0), q0, "refused");
     assert_eq!(r.proxy.counters.follow_refused, 1);
     assert_eq!(r.proxy.counters.follow_reissues, 0);
@@ -303,10 +323,9 @@ fn a_host_line_between_check_and_reissue_voids_the_check() {
     r.wait_ms(1_000);
     let mut out = nanocal_compensator::proxy::Output::new();
     r.proxy.follow_tick(r.comp.as_ref(), r.now_ms, &mut out);
-    assert_eq!(out.to_stage.as_bytes(), b"ERR?\n");
+    assert_eq!(out.to_stage.as_bytes(), b"MOV? 1\nERR?\n");
     let reply = r.ctl.input(out.to_stage.as_bytes());
-    r.proxy
-        .stage_bytes(r.comp.as_ref(), &reply, r.now_ms, &mut out);
+    assert!(stage_all(&mut r, &reply).is_empty());
     // the host sends a command the controller may refuse before the re-issue could go
     r.proxy
         .host_bytes(r.comp.as_ref(), b"VEL 1 10\n", r.now_ms, &mut out);
@@ -339,4 +358,65 @@ fn a_move_with_an_address_prefix_is_not_followed() {
     warm(&mut r, &m, &T0);
     r.follow_for_ms(1_500, 250);
     assert_eq!(r.proxy.counters.follow_reissues, 1);
+}
+
+/// Issue 21's fuzz of following: a host move lost on its way (the controller silent, nothing
+/// the proxy waited for) left the proxy's record of the command the controller holds wrong,
+/// and following "followed" it — a re-issue 64 µm from what the controller held, where a
+/// re-issue moves at most the step. The check reads the controller's targets first: it holds
+/// something else, so nothing is re-issued and following stops.
+#[test]
+fn a_move_the_controller_never_got_is_not_followed() {
+    let (mut r, m) = holding(FollowConfig {
+        max_step_nm: 10,
+        ..CFG
+    });
+    // the host's next move goes out corrected but never reaches the controller
+    let mut out = nanocal_compensator::proxy::Output::new();
+    r.proxy
+        .host_bytes(r.comp.as_ref(), b"MOV 1 300\n", r.now_ms, &mut out);
+    assert!(out.to_stage.as_bytes().starts_with(b"MOV 1 "), "sent");
+    let q0 = r.ctl.target(0);
+    warm(&mut r, &m, &T1);
+    r.follow_for_ms(5_000, 250);
+    let rx = r.received();
+    assert!(
+        !rx.iter().any(|l| l.starts_with("MOV ")),
+        "no re-issue: {rx:?}"
+    );
+    assert_eq!(r.ctl.target(0), q0, "the controller still holds its target");
+    assert!(!r.proxy.following());
+    assert_eq!(r.proxy.counters.follow_reissues, 0);
+}
+
+/// Issue 21's fuzz of following: the host's `ERR?` arrives while the proxy's check is in
+/// flight, and the controller has gone silent (it never answers the check). When the proxy
+/// gives the check up, the host's `ERR?` was answered `0` — a code nobody read, telling the
+/// host that a command the silent controller may never have received succeeded. It gets the
+/// proxy's own "no answer" (9014).
+#[test]
+fn a_host_err_waiting_for_a_given_up_check_is_not_told_0() {
+    let (mut r, m) = holding(CFG);
+    warm(&mut r, &m, &T1);
+    r.wait_ms(1_000);
+    let mut out = nanocal_compensator::proxy::Output::new();
+    r.proxy.follow_tick(r.comp.as_ref(), r.now_ms, &mut out);
+    assert_eq!(
+        out.to_stage.as_bytes(),
+        b"MOV? 1\nERR?\n",
+        "the check, never answered"
+    );
+    r.proxy
+        .host_bytes(r.comp.as_ref(), b"ERR?\n", r.now_ms, &mut out);
+    assert!(
+        out.to_stage.is_empty() && out.to_host.is_empty(),
+        "waits for the check"
+    );
+    let mut answered = Vec::new();
+    for _ in 0..30 {
+        r.now_ms += 100;
+        r.proxy.poll(r.comp.as_ref(), r.now_ms, &mut out);
+        answered.extend_from_slice(out.to_host.as_bytes());
+    }
+    assert_eq!(answered, b"9014\n");
 }

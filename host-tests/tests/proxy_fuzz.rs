@@ -8,7 +8,7 @@
 //! cd host-tests && NANOCAL_FUZZ_STEPS=10000000 cargo test --release --test proxy_fuzz -- --ignored --nocapture
 //! ```
 
-use nanocal::proxy_fuzz::{run, run_with, setups, Stats};
+use nanocal::proxy_fuzz::{follow_setups, run, run_with, setups, Stats};
 use std::time::Instant;
 
 /// Steps per setup and seed in CI.
@@ -114,6 +114,36 @@ fn the_coupled_setup_keeps_its_promises() {
     assert!(total.positions_checked > 1_000, "{total:?}");
 }
 
+/// Held targets following the fold (issue 19), on both models, seeds 0–5: every re-issue the
+/// controller receives is checked against the held host target at the current fold (within
+/// the step limit, after the interval, never after a cancel); the fuzz reaches re-issues,
+/// refused ones, and new folds.
+///
+/// What it found (fixed, `compensator/src/proxy/follow.rs`): a host move lost while the
+/// controller was silent with no reply due (seed 0 of the 1-DoF setup, step 18,560) was
+/// "followed" — a re-issue 64 µm from what the controller held; the check now reads the
+/// controller's targets (`MOV?`) first (`proxy_follow`'s
+/// `a_move_the_controller_never_got_is_not_followed`). And a host `ERR?` waiting for a check
+/// the proxy gave up (the controller silent) was answered `0` (seed 1, step 7,270); it gets
+/// the proxy's "no answer" now (`a_host_err_waiting_for_a_given_up_check_is_not_told_0`).
+#[test]
+fn following_keeps_the_proxys_promises() {
+    let mut total = Stats::default();
+    for setup in follow_setups() {
+        for seed in 0..CI_SEEDS {
+            match run(&setup, seed, CI_STEPS) {
+                Ok(s) => total += s,
+                Err(v) => panic!("{v}"),
+            }
+        }
+    }
+    println!("{total:?}");
+    assert!(total.reissues_checked > 50, "{total:?}");
+    assert!(total.follow_refused > 0, "{total:?}");
+    assert!(total.folds > 1_000, "{total:?}");
+    assert!(total.moves_checked > 1_000, "{total:?}");
+}
+
 #[test]
 #[ignore = "benchmark: NANOCAL_FUZZ_STEPS steps per setup (default 10 million in all)"]
 fn proxy_fuzz_benchmark() {
@@ -121,12 +151,15 @@ fn proxy_fuzz_benchmark() {
         .ok()
         .and_then(|s| s.parse().ok())
         .unwrap_or(10_000_000);
-    let setups = setups();
-    let per_setup = steps.div_ceil(setups.len() as u64);
+    // the three setups share the steps as before; the following setups run as many again
+    // each (their own rows: their findings are following's)
+    let base = setups();
+    let per_setup = steps.div_ceil(base.len() as u64);
+    let setups: Vec<_> = base.into_iter().chain(follow_setups()).collect();
     // seeds of 250k steps each: a state that drifts far is renewed
     let per_seed = 250_000u64.min(per_setup);
-    println!("\n| setup | steps | moves checked | replies checked | positions checked | resyncs | unanswered | s |");
-    println!("|---|---:|---:|---:|---:|---:|---:|---:|");
+    println!("\n| setup | steps | moves checked | replies checked | positions checked | resyncs | unanswered | re-issues checked | s |");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
     let mut total = Stats::default();
     let mut violations: Vec<String> = Vec::new();
     let t0 = Instant::now();
@@ -149,7 +182,7 @@ fn proxy_fuzz_benchmark() {
             seed += 1;
         }
         println!(
-            "| {} | {} | {} | {} | {} | {} | {} | {:.1} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {:.1} |",
             setup.name,
             s.steps,
             s.moves_checked,
@@ -157,6 +190,7 @@ fn proxy_fuzz_benchmark() {
             s.positions_checked,
             s.resyncs,
             s.unanswered,
+            s.reissues_checked,
             t.elapsed().as_secs_f64()
         );
         total += s;

@@ -37,9 +37,13 @@
 //!                        (the stage serial the model's blob records)
 //!    265 u8 + 24         controller_serial: same layout (the serial in the controller's `*IDN?`;
 //!                        0: not read, or its identification has none)
-//!    290                 end (Status::LEN)
+//!    290 u32             follow_reissues (held targets re-issued because the fold moved their
+//!                        command, accepted by the controller)
+//!    294 u32             follow_refused (re-issues the controller refused: swallowed,
+//!                        following stopped)
+//!    298                 end (Status::LEN)
 //! ```
-//! Protocol 7 appended the provenance check's fields (offset 239 on). Protocol 5 put `model_crc32` where protocol 4 had a reserved byte (the flash slot of an
+//! Protocol 8 appended following's counters (offset 290 on). Protocol 7 appended the provenance check's fields (offset 239 on). Protocol 5 put `model_crc32` where protocol 4 had a reserved byte (the flash slot of an
 //! older store): every later field moved by 3 bytes. Protocol 6 appended the model-stale
 //! check's fields (offset 206 on).
 //!
@@ -469,6 +473,14 @@ pub struct Status {
     pub model_serial: Option<StageSerial>,
     /// The serial in the controller's identification (`None`: not read, or it has none).
     pub controller_serial: Option<StageSerial>,
+    /// Held targets re-issued because the fold moved their command, and accepted by the
+    /// controller (protocol 8; the proxy's `Counters::follow_reissues`). Only a following
+    /// device (settings' threshold non-zero) counts them.
+    pub follow_reissues: u32,
+    /// Re-issues the controller refused (its error swallowed, following stopped until the
+    /// host's next move; the proxy's `Counters::follow_refused`). A lab that sees this rise
+    /// has a controller refusing small moves (servo off, limits) behind the host's back.
+    pub follow_refused: u32,
 }
 
 impl Default for Status {
@@ -509,6 +521,8 @@ impl Default for Status {
             stage: StageCheck::Unchecked,
             model_serial: None,
             controller_serial: None,
+            follow_reissues: 0,
+            follow_refused: 0,
         }
     }
 }
@@ -539,7 +553,8 @@ impl Status {
         + 4 * 3
         + 4
         + 1
-        + 2 * (1 + MAX_SERIAL);
+        + 2 * (1 + MAX_SERIAL)
+        + 4 * 2;
 
     /// Encode (the layout in the module docs).
     pub fn encode(&self, w: &mut Writer<'_>) -> Result<(), PayloadError> {
@@ -597,6 +612,8 @@ impl Status {
             w.bytes(b)?;
             w.bytes(&[0; MAX_SERIAL][b.len()..])?;
         }
+        w.u32(self.follow_reissues)?;
+        w.u32(self.follow_refused)?;
         Ok(())
     }
 
@@ -678,6 +695,8 @@ impl Status {
         })?;
         s.model_serial = serial(r, "model_serial")?;
         s.controller_serial = serial(r, "controller_serial")?;
+        s.follow_reissues = r.u32()?;
+        s.follow_refused = r.u32()?;
         Ok(s)
     }
 }

@@ -79,6 +79,8 @@ fn status() -> Status {
         stage: StageCheck::MismatchAllowed,
         model_serial: StageSerial::new(b"0116044408"),
         controller_serial: StageSerial::new(b"0116044999"),
+        follow_reissues: 17,
+        follow_refused: 3,
     }
 }
 
@@ -273,7 +275,7 @@ fn every_reply_frame() {
     let mut firmware = heapless::String::new();
     firmware.push_str("0.1.0").unwrap();
     let hello = Hello {
-        protocol: 7,
+        protocol: 8,
         blob_format: 4,
         max_chunk: 256,
         firmware,

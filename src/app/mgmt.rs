@@ -560,6 +560,8 @@ fn status(sh: &Shared, upload: &Upload) -> Status {
         s.moves = k.moves;
         s.refused = k.refused;
         s.mapped_replies = k.mapped_replies;
+        s.follow_reissues = k.follow_reissues;
+        s.follow_refused = k.follow_refused;
         s.pending_error = c.proxy.pending_error();
     });
     if sh.host_connected.load(Ordering::Relaxed) {

@@ -531,7 +531,11 @@ impl ProxyState {
                     self.ctrl.tmx = Fact::Known(());
                 }
             }
-            Info::Targets(_) | Info::Error | Info::FollowCheck(_) | Info::FollowDone(_) => {}
+            Info::Targets(_)
+            | Info::Error
+            | Info::FollowHeld(_)
+            | Info::FollowCheck(_)
+            | Info::FollowDone(_) => {}
         }
     }
 
@@ -547,7 +551,11 @@ impl ProxyState {
             Info::Units => self.ctrl.units = Fact::Unanswered,
             Info::TravelMin => self.ctrl.tmn = Fact::Unanswered,
             Info::TravelMax => self.ctrl.tmx = Fact::Unanswered,
-            Info::Targets(_) | Info::Error | Info::FollowCheck(_) | Info::FollowDone(_) => {}
+            Info::Targets(_)
+            | Info::Error
+            | Info::FollowHeld(_)
+            | Info::FollowCheck(_)
+            | Info::FollowDone(_) => {}
         }
     }
 

@@ -20,7 +20,12 @@
 //! nothing is added to the `MOV` line's path, whose instruction budget is spent).
 //!
 //! **A re-issue never races the host.** It takes two steps, each only while nothing else is
-//! in flight: first the proxy's own `ERR?`, so that an error the host has not read yet is
+//! in flight: first the proxy's own `MOV?` of the model axes — the controller must hold
+//! exactly the commands the proxy recorded for the target, or following stops (the base is
+//! what the controller did, not what the proxy sent: a host move lost while the controller
+//! was silent, with nothing the proxy waited for, is told by nothing else; issue 21's fuzz of
+//! following found one "followed" by a 64 µm jump) — and the proxy's own `ERR?`, so that an
+//! error the host has not read yet is
 //! not lost — a non-zero code is kept for the host's next `ERR?` (answered by the proxy, as
 //! its own refusals are) and, as for the host's own `ERR?`, the targets are forgotten and
 //! following stops; then, if no host line came meanwhile, `MOV <axes> <commands>` followed
@@ -79,6 +84,8 @@ pub(crate) struct Follow {
     pub seen_prefixed: u32,
     /// The controller's error the proxy's check read, for the host's next `ERR?`.
     pub ctrl_error: Option<i32>,
+    /// The check's `MOV?` found the controller holding the recorded commands.
+    pub held_ok: bool,
 }
 
 impl Follow {
@@ -95,6 +102,7 @@ impl Follow {
             seen_moves: 0,
             seen_prefixed: 0,
             ctrl_error: None,
+            held_ok: false,
         }
     }
 }
@@ -218,7 +226,18 @@ impl ProxyState {
                 {
                     return;
                 }
-                if self.follow_step(c).is_some() && self.queue.room() >= 2 {
+                // the model axes all the controller's: the `MOV?` is certain, else a marker
+                let maybe = match self.ctrl.axes.known() {
+                    Some(axes) => (0..n).any(|a| axes.find(self.map.id(a).unwrap_or(b"")).is_err()),
+                    None => true,
+                };
+                let room = if maybe { 4 } else { 2 };
+                if self.follow_step(c).is_some() && self.queue.room() >= room {
+                    self.follow.held_ok = false;
+                    let g = self.counters.moves as u8;
+                    if !self.ask(Info::FollowHeld(g), b"MOV?", n, maybe, out) {
+                        return;
+                    }
                     let _ = out.to_stage.extend(b"ERR?\n");
                     self.expect(Entry::new(
                         Expect::Internal(Info::FollowCheck(self.counters.moves as u8)),
@@ -279,11 +298,32 @@ impl ProxyState {
     pub(super) fn follow_reply(&mut self, info: Info, lines: &[u8]) {
         let code = super::controller::error_code(lines);
         match info {
+            Info::FollowHeld(g) => {
+                // the commands the controller holds, every model axis
+                let n = self.facts_n.min(MAP_AXES);
+                let mut q: [Option<i64>; MAP_AXES] = [None; MAP_AXES];
+                for l in super::controller::lines_of(lines) {
+                    if let Some(av) = gcs::parse_axis_value(l) {
+                        if let Some(a) = self.map.index(av.axis).filter(|&a| a < n) {
+                            q[a] = gcs::parse_micros(av.value).ok();
+                        }
+                    }
+                }
+                let held = n > 0 && (0..n).all(|a| q[a].is_some() && self.targets.q(a) == q[a]);
+                if g == self.counters.moves as u8 && held {
+                    self.follow.held_ok = true;
+                } else if g == self.counters.moves as u8 {
+                    // the controller holds something else: what the proxy recorded did not
+                    // happen (lost, refused, stopped); nothing to follow
+                    self.follow_cancel();
+                }
+            }
             Info::FollowCheck(g) => {
                 let was = self.follow.phase;
                 self.follow.phase = Phase::Idle;
+                let held = core::mem::replace(&mut self.follow.held_ok, false);
                 match code {
-                    Some(0) if g == self.counters.moves as u8 && self.follow.armed => {
+                    Some(0) if g == self.counters.moves as u8 && self.follow.armed && held => {
                         if let Phase::Checking { lines } = was {
                             self.follow.phase = Phase::Cleared { lines };
                         }

@@ -47,6 +47,10 @@ pub(crate) enum Info {
     /// The host's `ERR?` answered by the controller: a non-zero code may mean the controller
     /// refused a move the proxy forwarded, so the proxy forgets its targets.
     Error,
+    /// The proxy's `MOV?` of the model axes before it re-issues a held target (`follow`),
+    /// asked after this many host moves (mod 256): does the controller hold the commands the
+    /// proxy recorded for the target?
+    FollowHeld(u8),
     /// The proxy's `ERR?` before it re-issues a held target (`follow`), asked after this many
     /// host moves (mod 256): one read after a later move is not for the target it checked.
     FollowCheck(u8),

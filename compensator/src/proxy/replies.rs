@@ -603,7 +603,10 @@ impl ProxyState {
                 let lines = self.rx.lines.clone();
                 if let Info::Targets(generation) = info {
                     self.reseed(c, lines.as_bytes(), generation);
-                } else if matches!(info, Info::FollowCheck(_) | Info::FollowDone(_)) {
+                } else if matches!(
+                    info,
+                    Info::FollowHeld(_) | Info::FollowCheck(_) | Info::FollowDone(_)
+                ) {
                     self.follow_reply(info, lines.as_bytes());
                 } else if self.rx.truncated && info == Info::Idn {
                     // an identification line too long to hold: no usable marker
@@ -701,6 +704,8 @@ impl ProxyState {
                 self.reseed = Reseed::Failed;
             }
             Expect::Internal(Info::Targets(_)) => {}
+            // (following's check finds the held commands unconfirmed: no re-issue)
+            Expect::Internal(Info::FollowHeld(_)) => {}
             Expect::Internal(info) => self.fact_unanswered(info),
             Expect::Snoop(Info::Version) if !self.ctrl.version.settled() => {
                 self.fact_unanswered(Info::Version)
@@ -736,15 +741,30 @@ impl ProxyState {
         }
         self.rx.deciding = false;
         self.stale_idn = 0;
+        // a host `ERR?` that waits for following's check, given up with it, gets the proxy's
+        // own "no answer": the controller's code was never read, and a 0 would tell the host
+        // that a command the silent controller may never have received succeeded (issue 21's
+        // fuzz of following)
+        let check_lost = matches!(self.follow.phase, super::follow::Phase::Checking { .. });
         while let Some(en) = self.queue.pop() {
             match en.e {
                 Expect::Answer(a) => {
-                    a.resolve(|| self.follow.ctrl_error.take().unwrap_or(0))
-                        .write(&mut out.to_host);
+                    a.resolve(|| match self.follow.ctrl_error.take() {
+                        Some(code) => code,
+                        None if check_lost => super::GcsErrorCode::NoAnswer.code(),
+                        None => 0,
+                    })
+                    .write(&mut out.to_host);
                 }
                 Expect::Marker | Expect::Discard | Expect::Unsolicited => {}
                 _ => self.counters.unanswered = self.counters.unanswered.wrapping_add(1),
             }
+        }
+        if check_lost || self.follow.phase == super::follow::Phase::Sent {
+            // following's check or re-issue is given up: what it read or did is not known
+            // (and a host `ERR?` after this is the controller's again, not the check's)
+            self.follow_cancel();
+            self.follow.phase = super::follow::Phase::Idle;
         }
         self.ctrl.lost_answers();
         self.counters.resyncs = self.counters.resyncs.wrapping_add(1);

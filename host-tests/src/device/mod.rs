@@ -521,6 +521,10 @@ pub fn format_status(s: &Status) -> String {
         s.host_lines, s.moves, s.refused, s.mapped_replies, s.folds
     );
     o += &format!(
+        "held targets re-issued (following the fold): {}  refused by the controller: {}\n",
+        s.follow_reissues, s.follow_refused
+    );
+    o += &format!(
         "uploads ok {}  rejected {}{}\n",
         s.uploads_ok,
         s.uploads_rejected,

@@ -28,6 +28,13 @@
 //! its way to a controller that answers the next one cannot be told from GCS's bytes (the
 //! proxy's stated contract).
 //!
+//! Following (issue 19, [`follow_setups`]): held targets re-issued when the fold moves their
+//! command. Those setups draw a random setting per seed (threshold, interval, step) and, from
+//! a stream of their own, change the room's temperatures (a new fold), close and open the move
+//! gate (a sensor fault), stage a new model, change the setting, and tick following; the
+//! oracle checks every re-issue against the held host target at the current fold
+//! (`oracle/follow.rs`). The other setups' runs are unchanged by it.
+//!
 //! Deterministic: a run is a seed ([`run`]). `tests/proxy_fuzz.rs` runs bounded seeds in CI;
 //! its ignored benchmark runs ≥ 10 million steps (BENCHMARKS.md).
 
@@ -36,8 +43,10 @@ mod oracle;
 
 use crate::papers::published::{coupled_2dof, published_1dof};
 use crate::virtual_bench::{Config, Controller, IdealPlant, ManualClock};
-use nanocal_compensator::proxy::{FoldCorrector, Output, Proxy, REPLY_TIMEOUT_MS};
-use nanocal_model::{Model, SlowInputs, MAX_AXES};
+use nanocal_compensator::proxy::{
+    FoldCorrector, FollowConfig, Gate, Output, Proxy, REPLY_TIMEOUT_MS,
+};
+use nanocal_model::{Input, Model, SlowInputs, MAX_AXES};
 use oracle::Oracle;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -57,6 +66,8 @@ pub struct Setup {
     pub model: Model,
     /// The controller.
     pub controller: Config,
+    /// Held targets follow the fold (a random setting per seed; temperatures change).
+    pub follow: bool,
 }
 
 impl fmt::Debug for Setup {
@@ -117,18 +128,71 @@ pub fn setups() -> Vec<Setup> {
             name: "published 1-DoF, travel 0…500 µm",
             model: m1.clone(),
             controller: base(3),
+            follow: false,
         },
         Setup {
             name: "coupled 2-DoF",
             model: m2,
             controller: coupled,
+            follow: false,
         },
         Setup {
             name: "published 1-DoF, a controller without CSV?, ONT?, #8, #9, #11",
             model: m1,
             controller: sparse,
+            follow: false,
         },
     ]
+}
+
+/// The setups with held targets following the fold: the published 1-DoF model on the
+/// three-axis controller, and the coupled 2-DoF model (both axes re-issued together).
+pub fn follow_setups() -> Vec<Setup> {
+    let s = setups();
+    vec![
+        Setup {
+            name: "published 1-DoF, following the fold",
+            follow: true,
+            ..s[0].clone()
+        },
+        Setup {
+            name: "coupled 2-DoF, following the fold",
+            follow: true,
+            ..s[1].clone()
+        },
+    ]
+}
+
+/// A following setting drawn for a run: threshold 1–40 nm; interval 0–50 ms (re-issues as
+/// fast as the proxy allows) or 100–3,000 ms; no step limit, or 1–30 nm.
+fn follow_config(rng: &mut ChaCha8Rng) -> FollowConfig {
+    FollowConfig {
+        threshold_nm: rng.gen_range(1..=40),
+        interval_ms: if rng.gen_bool(0.3) {
+            rng.gen_range(0..=50)
+        } else {
+            rng.gen_range(100..=3_000)
+        },
+        max_step_nm: if rng.gen_bool(0.4) {
+            0
+        } else {
+            rng.gen_range(1..=30)
+        },
+    }
+}
+
+/// The slow inputs at `offset_c` from [`TEMPS_C`] (each sensor its own), kept inside the
+/// model's temperature envelope.
+fn slow_at(model: &Model, offset_c: &[f64; 4]) -> SlowInputs {
+    let mut s = slow();
+    for (i, t) in s.temps_c[..TEMPS_C.len()].iter_mut().enumerate() {
+        let (lo, hi) = model.envelope(Input::Temp(i as u8));
+        *t = TEMPS_C[i] + offset_c[i];
+        if lo.is_finite() && hi.is_finite() && lo < hi {
+            *t = t.clamp(lo + 0.01, hi - 0.01);
+        }
+    }
+    s
 }
 
 /// The slow inputs of the fold.
@@ -170,6 +234,15 @@ pub struct Stats {
     pub unanswered: u64,
     /// Host commands the proxy refused.
     pub refused: u64,
+    /// The proxy's re-issues of held targets (following) the controller received, each
+    /// checked against the held target at the current fold.
+    pub reissues_checked: u64,
+    /// Re-issues the proxy counted as accepted by the controller.
+    pub follow_reissues: u64,
+    /// Re-issues the proxy counted as refused by the controller.
+    pub follow_refused: u64,
+    /// New folds (temperature changes) while following.
+    pub folds: u64,
 }
 
 impl Stats {
@@ -179,6 +252,7 @@ impl Stats {
         self.replies_checked += c.replies;
         self.positions_checked += c.positions;
         self.lines_checked += c.lines;
+        self.reissues_checked += c.reissues;
     }
 }
 
@@ -198,6 +272,10 @@ impl std::ops::AddAssign for Stats {
         self.resyncs += o.resyncs;
         self.unanswered += o.unanswered;
         self.refused += o.refused;
+        self.reissues_checked += o.reissues_checked;
+        self.follow_reissues += o.follow_reissues;
+        self.follow_refused += o.follow_refused;
+        self.folds += o.folds;
     }
 }
 
@@ -273,6 +351,8 @@ struct Rig {
     give_ups: Vec<GiveUp>,
     /// The proxy's resync count when the last give-up was recorded.
     resyncs_seen: u32,
+    /// Following is on: time passing ticks it.
+    follow: bool,
 }
 
 /// The proxy gave up the replies in flight: how many commands the controller had processed
@@ -313,7 +393,16 @@ impl Rig {
             lost: Vec::new(),
             give_ups: Vec::new(),
             resyncs_seen: 0,
+            follow: setup.follow,
         }
+    }
+
+    /// Following's periodic tick (the firmware's stage link runs it while it is due).
+    fn follow_tick(&mut self) {
+        self.proxy
+            .follow_tick(Some(&self.comp), self.now_ms, &mut self.out);
+        self.route();
+        self.resume();
     }
 
     /// What the proxy produced goes its way (the controller answers at once, unless it is
@@ -407,6 +496,9 @@ impl Rig {
             .poll(Some(&self.comp), self.now_ms, &mut self.out);
         self.route();
         self.resume();
+        if self.follow {
+            self.follow_tick();
+        }
     }
 
     /// The controller stops for `ms` (a reboot, its power or cable out): what it was sending
@@ -536,7 +628,80 @@ pub fn run_with(
     let mut gen = gen::Gen::new(setup.model.axes());
     let mut stats = Stats::default();
     let mut trace: VecDeque<String> = VecDeque::new();
+    // following's own stream: the other setups' runs stay what they were
+    let mut fol = ChaCha8Rng::seed_from_u64(seed ^ 0x666f_6c6c_6f77_2d31);
+    let mut offset_c = [0.0f64; 4];
+    // steps left of a hold: the host quiet while time passes and the room drifts
+    let mut hold = 0u32;
+    if setup.follow {
+        let cfg = follow_config(&mut fol);
+        rig.proxy.set_follow(cfg);
+        oracle.follow.cfg = cfg;
+    }
     for step in 0..steps {
+        oracle.follow.step_start_ms = rig.now_ms;
+        if setup.follow && (hold > 0 || fol.gen_range(0..1000u32) < 60) {
+            let note = if hold > 0 {
+                hold -= 1;
+                hold_step(&mut rig, &mut oracle, &mut fol, &mut offset_c, setup)
+            } else if fol.gen_bool(0.3) {
+                hold = fol.gen_range(2..30);
+                // as PIPython does: a move and its `ERR?`, then the stage holds
+                let n = setup.model.axes();
+                let span = if n == 1 { 480.0 } else { 80.0 };
+                let mut line = "MOV".to_string();
+                for a in 0..n {
+                    line += &format!(" {} {:.3}", a + 1, fol.gen_range(0.05..0.95) * span);
+                }
+                line += "\nERR?\n";
+                let item = oracle.prepare(line.into_bytes());
+                stats.host_items += 1;
+                oracle.host_sent(&item);
+                let shown = item.escape_ascii().to_string();
+                rig.host_tx.extend(item);
+                rig.feed_host(usize::MAX);
+                format!("host {shown:?}, then holds for {hold} steps")
+            } else {
+                follow_event(&mut rig, &mut oracle, &mut fol, &mut offset_c, setup)
+            };
+            stats.folds += u64::from(note.starts_with("fold"));
+            if std::env::var_os("NANOCAL_FUZZ_TRACE").is_some() {
+                eprintln!(
+                    "{step}: {note} | resyncs {} following {} | {:?} | processed {:?}",
+                    rig.proxy.counters.resyncs,
+                    rig.proxy.following(),
+                    rig.proxy,
+                    rig.ctl
+                        .peek_processed()
+                        .iter()
+                        .map(|p| p.line.clone())
+                        .collect::<Vec<_>>()
+                );
+            }
+            oracle.follow.now_ms = rig.now_ms;
+            trace.push_back(note);
+            if trace.len() > 40 {
+                trace.pop_front();
+            }
+            oracle.lost(&std::mem::take(&mut rig.lost));
+            if let Some(ms) = rig.unnoticed_silence() {
+                return Err(violation(
+                    setup.name,
+                    seed,
+                    step,
+                    format!("the controller has been silent for {ms} ms with replies due; the proxy still waits"),
+                    &trace,
+                ));
+            }
+            let quiet = rig.quiet();
+            let give_ups = std::mem::take(&mut rig.give_ups);
+            let checked = oracle
+                .check(&mut rig.ctl, &mut rig.host_rx, &give_ups, quiet)
+                .map_err(|what| violation(setup.name, seed, step, what, &trace))?;
+            stats.count(checked);
+            stats.steps += 1;
+            continue;
+        }
         let fault = if link_faults {
             faults.gen_range(0..1000u32)
         } else {
@@ -683,6 +848,7 @@ pub fn run_with(
                 &trace,
             ));
         }
+        oracle.follow.now_ms = rig.now_ms;
         let quiet = rig.quiet();
         let give_ups = std::mem::take(&mut rig.give_ups);
         let checked = oracle
@@ -691,8 +857,118 @@ pub fn run_with(
         stats.count(checked);
         stats.steps += 1;
     }
+    stats.follow_reissues = u64::from(rig.proxy.counters.follow_reissues);
+    stats.follow_refused = u64::from(rig.proxy.counters.follow_refused);
     stats.resyncs = u64::from(rig.proxy.counters.resyncs);
     stats.unanswered = u64::from(rig.proxy.counters.unanswered);
     stats.refused = u64::from(rig.proxy.counters.refused);
     Ok(stats)
+}
+
+/// A new fold at `offset_c` (°C from [`TEMPS_C`]) after the room drifted by up to
+/// `drift_c`, and following's tick (the firmware ticks it whenever the fold changed).
+fn refold(
+    rig: &mut Rig,
+    oracle: &mut Oracle,
+    fol: &mut ChaCha8Rng,
+    offset_c: &mut [f64; 4],
+    setup: &Setup,
+    drift_c: f64,
+) -> String {
+    // a random walk of the room (sensors a little apart), within ±0.6 °C
+    let common = fol.gen_range(-drift_c..drift_c);
+    for o in offset_c.iter_mut() {
+        *o = (*o + common + fol.gen_range(-0.01..0.01)).clamp(-0.6, 0.6);
+    }
+    let s = slow_at(&setup.model, offset_c);
+    rig.comp = FoldCorrector::new(&setup.model, &s);
+    oracle.set_slow(s);
+    rig.follow_tick();
+    format!("fold at {:+.3} °C", offset_c[0])
+}
+
+/// A step of a hold: the controller's replies arrive, the room drifts now and then, time
+/// passes (the proxy polls, following ticks).
+fn hold_step(
+    rig: &mut Rig,
+    oracle: &mut Oracle,
+    fol: &mut ChaCha8Rng,
+    offset_c: &mut [f64; 4],
+    setup: &Setup,
+) -> String {
+    // (the new fold first: the oracle checks the step's mapped replies with it)
+    let mut note = String::new();
+    if fol.gen_bool(0.4) {
+        note = refold(rig, oracle, fol, offset_c, setup, 0.05) + ", ";
+    }
+    rig.deliver(usize::MAX);
+    if fol.gen_bool(0.03) {
+        // the controller's servo goes off while the target is held: the next re-issue is
+        // refused (the proxy swallows it and stops following)
+        let a = fol.gen_range(0..setup.model.axes());
+        rig.ctl.servo_fault(a);
+        note += &format!("servo {} off at the controller, ", a + 1);
+    }
+    let ms = fol.gen_range(20..1_500);
+    rig.wait(ms);
+    note + &format!("held {ms} ms")
+}
+
+/// One of following's events (drawn from its own stream): the room's temperatures change (a
+/// new fold, the usual event), following ticks between other steps, the move gate closes for
+/// a sensor fault or opens again, a new model is staged, the setting changes.
+fn follow_event(
+    rig: &mut Rig,
+    oracle: &mut Oracle,
+    fol: &mut ChaCha8Rng,
+    offset_c: &mut [f64; 4],
+    setup: &Setup,
+) -> String {
+    match fol.gen_range(0..100u32) {
+        0..=54 => refold(rig, oracle, fol, offset_c, setup, 0.08),
+        55..=89 => {
+            rig.follow_tick();
+            "follow tick".to_string()
+        }
+        90..=91 => {
+            // the controller refuses moves behind the proxy's back (a re-issue is refused
+            // until the host switches the servo on again)
+            let a = fol.gen_range(0..setup.model.axes());
+            rig.ctl.servo_fault(a);
+            format!("servo {} off at the controller", a + 1)
+        }
+        92..=94 => {
+            if rig.proxy.gate == Gate::Open {
+                // a sensor fails: moves refused, following cancelled at the tick
+                rig.proxy.gate = Gate::SensorFault;
+                rig.follow_tick();
+                oracle.follow.cancel();
+                "sensor fault".to_string()
+            } else {
+                rig.proxy.gate = Gate::Open;
+                "sensor recovered".to_string()
+            }
+        }
+        95..=96 => {
+            // a new model staged (the same one again: the firmware resets the play operators
+            // and cancels following)
+            rig.proxy.reset_hysteresis();
+            rig.proxy.cancel_follow();
+            oracle.follow.cancel();
+            "new model".to_string()
+        }
+        _ => {
+            let cfg = if fol.gen_bool(0.2) {
+                FollowConfig::default()
+            } else {
+                follow_config(fol)
+            };
+            rig.proxy.set_follow(cfg);
+            oracle.follow.cfg = cfg;
+            if cfg.threshold_nm == 0 {
+                oracle.follow.cancel();
+            }
+            format!("follow setting {cfg:?}")
+        }
+    }
 }

@@ -3,8 +3,11 @@
 //! single characters at once), what the simulated controller processed (with the targets it
 //! held before each command and the reply it gave), and what the host received.
 
+mod follow;
+
 use super::Setup;
 use crate::virtual_bench::{Controller, Event, Processed};
+pub(super) use follow::FollowOracle;
 use nanocal_compensator::proxy::travel::CLAMP_UM;
 use nanocal_model::{Input, Model, SlowInputs, MAX_AXES};
 use std::collections::VecDeque;
@@ -20,6 +23,8 @@ pub(super) struct Checked {
     pub replies: u64,
     pub positions: u64,
     pub lines: u64,
+    /// The proxy's re-issues of a held target (following), each checked.
+    pub reissues: u64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -39,6 +44,8 @@ struct HostMove {
     /// `GOH` without axes: every axis home.
     home_all: bool,
     text: String,
+    /// The host line's id.
+    id: u64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -103,6 +110,8 @@ pub(super) struct Oracle {
     lines: VecDeque<HostLine>,
     queries: VecDeque<HostQuery>,
     moves: VecDeque<HostMove>,
+    /// Following (`follow`): armed, cancelled, the proxy's re-issues and its own `ERR?`.
+    pub(super) follow: FollowOracle,
 }
 
 impl Oracle {
@@ -120,10 +129,14 @@ impl Oracle {
             .map(|a| model.envelope(Input::Axis(a as u8)))
             .collect();
         let ids = (1..=n).map(|a| a.to_string()).collect::<Vec<_>>().join(" ");
-        let own = ["*IDN?".to_string(), "CSV?".into(), "SAI?".into()]
+        let mut own: Vec<String> = ["*IDN?".to_string(), "CSV?".into(), "SAI?".into()]
             .into_iter()
             .chain(["PUN?", "TMN?", "TMX?", "MOV?"].map(|q| format!("{q} {ids}")))
             .collect();
+        if setup.follow {
+            // following's check and the re-issue's own `ERR?`
+            own.push("ERR?".into());
+        }
         Self {
             model,
             n,
@@ -144,7 +157,13 @@ impl Oracle {
             lines: VecDeque::new(),
             queries: VecDeque::new(),
             moves: VecDeque::new(),
+            follow: FollowOracle::new(setup.follow),
         }
+    }
+
+    /// The device folded at new temperatures: moves and mapped replies from now on use them.
+    pub(super) fn set_slow(&mut self, slow: SlowInputs) {
+        self.slow = slow;
     }
 
     pub(super) fn host_queries_pending(&self) -> usize {
@@ -158,6 +177,7 @@ impl Oracle {
         self.lines.clear();
         self.queries.clear();
         self.moves.clear();
+        self.follow.cancel();
     }
 
     /// Make an item's query lines tell apart from each other and from the proxy's own queries
@@ -382,6 +402,7 @@ impl Oracle {
             pairs,
             home_all,
             text: body_text,
+            id,
         });
     }
 
@@ -472,12 +493,17 @@ impl Oracle {
             self.lines.clear();
             self.queries.clear();
             self.moves.clear();
+            self.follow.quiet();
         }
         Ok(k)
     }
 
     /// One command the controller processed.
     fn processed(&mut self, p: &Processed, k: &mut Checked) -> Result<(), String> {
+        if self.follow.on && p.line == "ERR?" {
+            self.follow_own_error(p);
+            return Ok(());
+        }
         if self.own.contains(&p.line) {
             return Ok(());
         }
@@ -520,6 +546,9 @@ impl Oracle {
         // the lines before it were not forwarded (refused, or a move the proxy rewrote)
         let drained: Vec<HostLine> = self.lines.drain(..=pos).collect();
         let (reached, dropped) = drained.split_last().expect("one at least");
+        if self.follow.on {
+            self.follow_host_line(p, &word, &args, reached.id);
+        }
         for q in &mut self.queries {
             if q.state != QState::Pending {
                 continue;
@@ -591,6 +620,10 @@ impl Oracle {
             ));
         }
         let before: Vec<f64> = p.before[..self.n].to_vec();
+        if self.follow.on && word == "MOV" && self.follow_reissue(p, &toks, &got, &before) {
+            k.reissues += 1;
+            return Ok(());
+        }
         let bases = self.bases(&before);
         let mut first_miss = None;
         for (i, h) in self.moves.iter().enumerate() {
@@ -612,6 +645,10 @@ impl Oracle {
                 }
             }
             if !matched.is_empty() {
+                if self.follow.on {
+                    let id = h.id;
+                    self.follow_arm(p, &got, &before, &matched, id);
+                }
                 self.moves.drain(..=i);
                 k.moves += 1;
                 if got.len() == self.n {
@@ -635,6 +672,10 @@ impl Oracle {
                 return Ok(());
             }
         }
+        let why_not = match self.follow.why_not.take() {
+            Some(w) if self.follow.on && word == "MOV" => format!("; as a re-issue: {w}"),
+            _ => String::new(),
+        };
         Err(match first_miss {
             Some((text, x, q)) => format!(
                 "{:?} (controller targets before: {before:?}): no host move asked for it; \
@@ -647,7 +688,7 @@ impl Oracle {
                 "{:?} (controller targets before: {before:?}): no host move was pending",
                 p.line
             ),
-        })
+        } + &why_not)
     }
 
     /// The calibrated positions a move may start from when the controller holds the targets
@@ -811,6 +852,11 @@ impl Oracle {
                         self.queries.pop_front();
                         return Ok(true);
                     }
+                    if q.kind == QKind::Err && self.follow.zero_answer_ok(q.id, reply) {
+                        // the code following's check read, while it was in flight
+                        self.queries.pop_front();
+                        return Ok(true);
+                    }
                     self.queries.pop_front();
                 }
             }
@@ -908,6 +954,17 @@ impl Oracle {
         }
         let all = qv[..self.n].iter().all(|v| v.is_finite());
         let x = all.then(|| self.inverse(&qv[..self.n]));
+        // following: a `MOV?` reporting exactly the commands sent for a held target maps back
+        // to that target exactly, whatever the fold did since (the host keeps its frame)
+        let exact: Vec<[f64; MAX_AXES]> = if self.follow.on && all && is_target_query(&q.text) {
+            self.sent
+                .iter()
+                .filter(|(sq, _)| sq[..self.n] == qv[..self.n])
+                .map(|(_, sx)| *sx)
+                .collect()
+        } else {
+            Vec::new()
+        };
         for ((rline, gline), p) in rl.iter().zip(&gl).zip(&parsed) {
             match p {
                 None => {
@@ -928,7 +985,9 @@ impl Oracle {
                         return Err(mismatch());
                     }
                     if let Some(x) = x {
-                        if (gv - x[*a]).abs() > TOL_UM {
+                        if (gv - x[*a]).abs() > TOL_UM
+                            && !exact.iter().any(|e| (gv - e[*a]).abs() <= TOL_UM)
+                        {
                             return Err(format!(
                                 "{}: axis {} maps to {}, the f64 inverse is {}",
                                 mismatch(),
@@ -986,6 +1045,12 @@ impl Oracle {
         }
         x
     }
+}
+
+/// True for a `MOV?` (the targets, not the positions).
+fn is_target_query(text: &str) -> bool {
+    let (_, word, _) = split(text.trim_end_matches('\r'));
+    word.eq_ignore_ascii_case("MOV?")
 }
 
 /// True for a GCS query (command word ends with `?`).

@@ -72,7 +72,10 @@ pub use request::Request;
 /// 7: the provenance check (issue 19): `STATUS` grows by 51 bytes at its end (`Status::stage`,
 /// `Status::model_serial`, `Status::controller_serial`), flag `STAGE_MISMATCH`, GCS error 9015,
 /// settings layout 5 (`allow_other_stage`, 1 byte more in CONFIG_GET/CONFIG_SET), and HELLO's
-/// blob format is 4 (the provenance section).
-pub const PROTOCOL: u16 = 7;
+/// blob format is 4 (the provenance section). 8: following's counters (issue 21, held targets
+/// that follow the model): `STATUS` grows by 8 bytes at its end (`Status::follow_reissues`,
+/// `Status::follow_refused`); a lab could not tell from the status whether following acted, or
+/// whether the controller refused its re-issues.
+pub const PROTOCOL: u16 = 8;
 /// Largest upload chunk (payload minus the offset).
 pub const MAX_CHUNK: usize = 256;

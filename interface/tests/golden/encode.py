@@ -50,7 +50,9 @@ def status():
     b += bytes([4])
     b += bytes([10]) + b'0116044408'.ljust(24, b'\0')
     b += bytes([10]) + b'0116044999'.ljust(24, b'\0')
-    assert len(b) == 290, len(b)
+    # protocol 8: following's counters (re-issues accepted, refused)
+    b += struct.pack('<2I', 17, 3)
+    assert len(b) == 298, len(b)
     return b
 
 def rust(name, b, doc):
@@ -80,9 +82,9 @@ assert len(custom_settings_v4) == 254
 assert len(custom_settings_v3) == 246
 assert len(custom_settings_v2) == 244
 
-hello = struct.pack('<HHH', 7, 4, 256) + bytes([5]) + b'0.1.0' + bytes(range(12)) + bytes([8]) + bytes([19]) + b'src/bin/stm32.rs:42'
+hello = struct.pack('<HHH', 8, 4, 256) + bytes([5]) + b'0.1.0' + bytes(range(12)) + bytes([8]) + bytes([19]) + b'src/bin/stm32.rs:42'
 items = [
-    ("STATUS_BYTES", status(), "The status of `status()` alone (290 bytes)."),
+    ("STATUS_BYTES", status(), "The status of `status()` alone (298 bytes)."),
     ("SETTINGS_DEFAULT", default_settings, "`Settings::default()` (261 bytes, layout 6)."),
     ("SETTINGS_CUSTOM", custom_settings, "The settings of `custom_settings()` (fold period 8 s, k 2.5, margin 0.25 °C, other stages allowed, following 5 nm / 2 s / 20 nm)."),
     ("SETTINGS_CUSTOM_V5", custom_settings_v5, "`custom_settings()` as a layout 5 record (no allow_other_stage, no following, 254 bytes)."),
@@ -101,7 +103,7 @@ items = [
     ("REQ_CONFIG_SET", frame(0x31, 10, custom_settings), "CONFIG_SET of `custom_settings()`, seq 10."),
     ("REQ_RESET", frame(0x32, 11, b''), "RESET, seq 11."),
     ("REQ_DEBUG_HANG", frame(0x7E, 12, b''), "DEBUG_HANG, seq 12."),
-    ("REP_HELLO", frame(0x81, 1, bytes([0]) + hello), "HELLO reply: protocol 7, blob format 4, chunk 256, firmware \"0.1.0\", UID 00..0B, panic at src/bin/stm32.rs:42."),
+    ("REP_HELLO", frame(0x81, 1, bytes([0]) + hello), "HELLO reply: protocol 8, blob format 4, chunk 256, firmware \"0.1.0\", UID 00..0B, panic at src/bin/stm32.rs:42."),
     ("REP_STATUS", frame(0x82, 2, bytes([0]) + status()), "STATUS reply with `status()`."),
     ("REP_UPLOAD_BEGIN", frame(0x90, 3, bytes([0])), "UPLOAD_BEGIN reply: ok."),
     ("REP_UPLOAD_CHUNK", frame(0x91, 4, bytes([0]) + struct.pack('<I', 260)), "UPLOAD_CHUNK reply: 260 bytes received."),

@@ -285,6 +285,17 @@ impl Controller {
             .unwrap_or_default()
     }
 
+    /// The servo of `axis` goes off behind the host's back (an amplifier's thermal cut-out, a
+    /// front-panel switch, another interface): the axis stops where it is, moves are refused
+    /// (error 5) until a `SVO` switches it on. Nothing is processed or recorded.
+    pub fn servo_fault(&mut self, axis: usize) {
+        if let Some(ax) = self.axes.get_mut(axis) {
+            ax.servo = false;
+            let t = self.clock.now_s();
+            self.plant.stop(axis, t);
+        }
+    }
+
     /// The configuration.
     pub fn config(&self) -> &Config {
         &self.cfg

@@ -1042,10 +1042,16 @@ impl ProxyState {
     }
 
     /// True when the controller's error register is the proxy's to answer: its own `ERR?` read
-    /// (or is reading) an error the host has not read yet (`follow`).
+    /// (or is reading) an error the host has not read yet (`follow`). Not while the check is
+    /// in flight when another host line came after it (this `ERR?` is counted already): that
+    /// line may have reached the controller after the check's `ERR?` and failed there, and
+    /// only the controller can tell — answering the check's 0 swallowed a host `MVR 5 68`'s
+    /// error (issue 21's benchmark, 1-DoF seeds 1002 and 1004); the host's `ERR?` is
+    /// forwarded, and a code the check reads is kept for the host's next one.
     fn follow_owns_error(&self) -> bool {
         self.follow.ctrl_error.is_some()
-            || matches!(self.follow.phase, follow::Phase::Checking { .. })
+            || matches!(self.follow.phase, follow::Phase::Checking { lines }
+                if lines.wrapping_add(1) == self.counters.host_lines)
     }
 
     /// The host's `ERR?` answered with the controller's code that the proxy's own check read

@@ -272,6 +272,48 @@ fn a_host_err_while_the_check_is_in_flight_gets_the_checks_code() {
     assert_eq!(to_host, b"2\n");
 }
 
+/// A host line that reaches the controller after the check's `ERR?` may fail there: the
+/// host's `ERR?` after it is the controller's to answer, not the check's (the check read the
+/// register before that line). Answered with the check's 0, the host's `MVR 5 68`'s error
+/// was lost (issue 21's 15-million-step benchmark, 1-DoF seeds 1002 and 1004).
+#[test]
+fn a_host_err_after_another_host_line_behind_the_check_is_the_controllers() {
+    let (mut r, m) = holding(CFG);
+    warm(&mut r, &m, &T1);
+    r.wait_ms(1_000);
+    let mut out = nanocal_compensator::proxy::Output::new();
+    r.proxy.follow_tick(r.comp.as_ref(), r.now_ms, &mut out);
+    assert_eq!(out.to_stage.as_bytes(), b"MOV? 1\nERR?\n");
+    let mut replies = r.ctl.input(out.to_stage.as_bytes());
+    // the check's reply held back; the host's line the controller refuses (no axis 5), then
+    // its `ERR?`
+    let mut to_stage = Vec::new();
+    for line in [&b"MVR 5 68\n"[..], b"ERR?\n"] {
+        out.clear();
+        let n = r
+            .proxy
+            .host_bytes(r.comp.as_ref(), line, r.now_ms, &mut out);
+        assert_eq!(n, line.len());
+        assert!(out.to_host.is_empty(), "nothing answered yet");
+        to_stage.extend_from_slice(out.to_stage.as_bytes());
+    }
+    assert_eq!(
+        String::from_utf8_lossy(&to_stage),
+        "MVR 5 68\nERR?\n",
+        "the host's ERR? goes to the controller"
+    );
+    replies.extend(r.ctl.input(&to_stage));
+    let to_host = stage_all(&mut r, &replies);
+    assert_eq!(
+        String::from_utf8_lossy(&to_host),
+        "15\n",
+        "the host reads its MVR's error (15: no such axis)"
+    );
+    // the check read 0 before the MVR, and a host line came since: no re-issue on it
+    r.proxy.follow_tick(r.comp.as_ref(), r.now_ms, &mut out);
+    assert!(out.to_stage.is_empty());
+}
+
 /// All of `reply` to the proxy (it takes a reply at a time); what it sent the host.
 fn stage_all(r: &mut Rig, reply: &[u8]) -> Vec<u8> {
     let mut out = nanocal_compensator::proxy::Output::new();

@@ -63,6 +63,22 @@ fn benchmark_findings_stay_fixed() {
     }
 }
 
+/// Replays of the following setups' benchmark runs (seeds from 1000) up to the step of their
+/// last three violations (issue 21, branch `follow24`): a host `ERR?` behind the proxy's check
+/// with a failing host `MVR` between them answered with the check's `0` (the proxy's:
+/// `proxy_follow`'s `a_host_err_after_another_host_line_behind_the_check_is_the_controllers`),
+/// and a coupled `GOH 1` taken for a move nobody asked for because the oracle compared the
+/// controller's target with the recorded command bit for bit (the oracle's: `bases`).
+#[test]
+fn following_benchmark_findings_stay_fixed() {
+    let setups = follow_setups();
+    for (setup, seed, steps) in [(0, 1002, 22_182), (0, 1004, 23_144), (1, 1014, 203_093)] {
+        if let Err(v) = run(&setups[setup], seed, steps) {
+            panic!("{v}");
+        }
+    }
+}
+
 /// The setups the main CI sweep runs: the published 1-DoF model on both controllers (the
 /// coupled 2-DoF setup has its own test, [`the_coupled_setup_keeps_its_promises`]).
 const CI_SETUPS: [usize; 2] = [0, 2];

@@ -32,8 +32,11 @@
 //! by the proxy's own `ERR?`. A non-zero answer to that one is the re-issue's own refusal: it
 //! is swallowed (counted in [`Counters::follow_refused`](super::Counters)), the targets are
 //! forgotten and following stops until the next host move — the host never reads an error
-//! it did not cause. A host `ERR?` that arrives while the first check is in flight is
-//! answered by the proxy after that check, with the code the check read (or 0).
+//! it did not cause. A host `ERR?` that arrives while the first check is in flight, with no
+//! other host line since the check went, is answered by the proxy after that check, with the
+//! code the check read (or 0); after another host line it is forwarded (that line may have
+//! failed at the controller after the check read the register), and a code the check reads
+//! is kept for the host's next `ERR?`.
 //!
 //! **Rate limit**: at most one re-issue per interval, each moving the command by at most the
 //! step (the rest follows at the next ones). A command that would leave the stage travel is

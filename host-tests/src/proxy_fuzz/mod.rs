@@ -678,28 +678,8 @@ pub fn run_with(
                         .collect::<Vec<_>>()
                 );
             }
-            oracle.follow.now_ms = rig.now_ms;
-            trace.push_back(note);
-            if trace.len() > 40 {
-                trace.pop_front();
-            }
-            oracle.lost(&std::mem::take(&mut rig.lost));
-            if let Some(ms) = rig.unnoticed_silence() {
-                return Err(violation(
-                    setup.name,
-                    seed,
-                    step,
-                    format!("the controller has been silent for {ms} ms with replies due; the proxy still waits"),
-                    &trace,
-                ));
-            }
-            let quiet = rig.quiet();
-            let give_ups = std::mem::take(&mut rig.give_ups);
-            let checked = oracle
-                .check(&mut rig.ctl, &mut rig.host_rx, &give_ups, quiet)
+            end_step(&mut rig, &mut oracle, &mut stats, &mut trace, note)
                 .map_err(|what| violation(setup.name, seed, step, what, &trace))?;
-            stats.count(checked);
-            stats.steps += 1;
             continue;
         }
         let fault = if link_faults {
@@ -834,28 +814,8 @@ pub fn run_with(
                     .collect::<Vec<_>>()
             );
         }
-        trace.push_back(note);
-        if trace.len() > 40 {
-            trace.pop_front();
-        }
-        oracle.lost(&std::mem::take(&mut rig.lost));
-        if let Some(ms) = rig.unnoticed_silence() {
-            return Err(violation(
-                setup.name,
-                seed,
-                step,
-                format!("the controller has been silent for {ms} ms with replies due; the proxy still waits"),
-                &trace,
-            ));
-        }
-        oracle.follow.now_ms = rig.now_ms;
-        let quiet = rig.quiet();
-        let give_ups = std::mem::take(&mut rig.give_ups);
-        let checked = oracle
-            .check(&mut rig.ctl, &mut rig.host_rx, &give_ups, quiet)
+        end_step(&mut rig, &mut oracle, &mut stats, &mut trace, note)
             .map_err(|what| violation(setup.name, seed, step, what, &trace))?;
-        stats.count(checked);
-        stats.steps += 1;
     }
     stats.follow_reissues = u64::from(rig.proxy.counters.follow_reissues);
     stats.follow_refused = u64::from(rig.proxy.counters.follow_refused);
@@ -863,6 +823,35 @@ pub fn run_with(
     stats.unanswered = u64::from(rig.proxy.counters.unanswered);
     stats.refused = u64::from(rig.proxy.counters.refused);
     Ok(stats)
+}
+
+/// The end of every step, whatever it did: `note` joins the trace (the last 40 steps), the
+/// oracle learns the lines the link lost, and checks what the controller and the host got.
+/// `Err`: the violation, described.
+fn end_step(
+    rig: &mut Rig,
+    oracle: &mut Oracle,
+    stats: &mut Stats,
+    trace: &mut VecDeque<String>,
+    note: String,
+) -> Result<(), String> {
+    trace.push_back(note);
+    if trace.len() > 40 {
+        trace.pop_front();
+    }
+    oracle.lost(&std::mem::take(&mut rig.lost));
+    if let Some(ms) = rig.unnoticed_silence() {
+        return Err(format!(
+            "the controller has been silent for {ms} ms with replies due; the proxy still waits"
+        ));
+    }
+    oracle.follow.now_ms = rig.now_ms;
+    let quiet = rig.quiet();
+    let give_ups = std::mem::take(&mut rig.give_ups);
+    let checked = oracle.check(&mut rig.ctl, &mut rig.host_rx, &give_ups, quiet)?;
+    stats.count(checked);
+    stats.steps += 1;
+    Ok(())
 }
 
 /// A new fold at `offset_c` (°C from [`TEMPS_C`]) after the room drifted by up to

@@ -226,6 +226,8 @@ pub fn run_on(
     args: CampaignArgs,
     open_bench: Option<campaign::OpenBench<'_>>,
 ) -> anyhow::Result<()> {
+    // read once: on --resume it loads the campaign's state file
+    let board = board_of(&args)?;
     let plan = match (&args.plan, args.resume) {
         (Some(p), _) => {
             let mut plan = load_plan(p)?;
@@ -251,7 +253,7 @@ pub fn run_on(
     let bench = if args.virtual_bench {
         Some(BenchSpec::Virtual {
             seed: args.seed,
-            board: board_of(&args)?.unwrap_or_default(),
+            board: board.unwrap_or_default(),
         })
     } else {
         match (&args.device, &args.gcs, &args.reference) {
@@ -306,7 +308,7 @@ pub fn run_on(
     let mut qemu_bench = crate::virtual_bench::campaign_bench::opener(Default::default());
     let open_bench = match open_bench {
         Some(f) => Some(f),
-        None if board_of(&args)? == Some(VirtualBoard::Qemu) => Some(&mut qemu_bench as _),
+        None if board == Some(VirtualBoard::Qemu) => Some(&mut qemu_bench as _),
         None => None,
     };
     let outcome = match open_bench {

@@ -1118,4 +1118,61 @@ mod tests {
         assert_eq!(link.crossings().ring_rings, 1);
         link.shutdown();
     }
+
+    #[test]
+    fn doorbells_go_to_the_wake_port_and_a_bus_reply_wakes_a_halted_board() {
+        let path = std::env::temp_dir().join(format!("nanocal-wake-{}", std::process::id()));
+        let page = Page::create(&path).unwrap();
+        let (ours, mut board_line) = UnixStream::pair().unwrap();
+        let (wake, mut board_wake) = UnixStream::pair().unwrap();
+        for s in [&board_line, &board_wake] {
+            s.set_read_timeout(Some(Duration::from_millis(200))).unwrap();
+        }
+        let link = BenchLink::start(page, ours);
+        BenchClock::new(link.clone()).lockstep();
+        link.set_wake_port(wake);
+        link.attach_bus(Box::new(|_, _, _, n_in, _| {
+            Some((BusStatus::Ok, vec![0x5A; n_in]))
+        }));
+        let mut one = [0u8; 1];
+        // the board posts a request and halts waiting for it: the reply rings the wake port
+        let post = |seq: u32| {
+            let mut f = [0u8; bl::FRAME_LEN];
+            let n = BusRequest {
+                op: BusOp::Spi,
+                target: 1,
+                data_out: &[0x0C, 0, 0, 0],
+                n_in: 4,
+            }
+            .encode(&mut f)
+            .unwrap();
+            link.page().set_bytes(bl::BUS_REQ, &f[..n]);
+            link.page().set_u32(bl::BUS_REQ_SEQ, seq);
+        };
+        post(1);
+        link.page().set_u32(bl::HALTED, 1);
+        link.serve_bus();
+        assert_eq!(link.page().u32(bl::BUS_REP_SEQ), 1, "answered");
+        board_wake.read_exact(&mut one).unwrap();
+        assert_eq!(one[0], bl::RING_HORIZON);
+        assert!(
+            board_line.read(&mut one).is_err(),
+            "nothing on serial4: it carries line states to the board"
+        );
+        assert_eq!(link.crossings().reply_rings, 1);
+        // a board that spins for its reply (the bench watches) is not rung
+        link.page().set_u32(bl::HALTED, 0);
+        post(2);
+        link.serve_bus();
+        assert_eq!(link.page().u32(bl::BUS_REP_SEQ), 2);
+        assert!(board_wake.read(&mut one).is_err(), "no doorbell");
+        assert_eq!(link.crossings().reply_rings, 1);
+        // bytes put in a ring of a halted board: the wake port again
+        link.page().set_u32(bl::HALTED, 1);
+        assert_eq!(link.ring_write(0, b"x"), 1);
+        board_wake.read_exact(&mut one).unwrap();
+        assert_eq!(one[0], bl::RING_HORIZON);
+        assert!(board_line.read(&mut one).is_err());
+        link.shutdown();
+    }
 }

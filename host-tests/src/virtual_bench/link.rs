@@ -1126,7 +1126,8 @@ mod tests {
         let (ours, mut board_line) = UnixStream::pair().unwrap();
         let (wake, mut board_wake) = UnixStream::pair().unwrap();
         for s in [&board_line, &board_wake] {
-            s.set_read_timeout(Some(Duration::from_millis(200))).unwrap();
+            s.set_read_timeout(Some(Duration::from_millis(200)))
+                .unwrap();
         }
         let link = BenchLink::start(page, ours);
         BenchClock::new(link.clone()).lockstep();

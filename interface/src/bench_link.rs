@@ -1,6 +1,7 @@
 //! The QEMU board's link to its virtual bench: one page of memory shared with the host (the
 //! board's PSRAM, backed by a host file) that carries the board's clock and its peripheral-bus
-//! stand-in, and the doorbell bytes on serial4 that say something changed in it.
+//! stand-in, and the doorbell bytes that say something changed in it (serial4 to the host,
+//! serial2 to the board).
 //!
 //! **Why.** The firmware's lag filters, sample periods, timeouts and fold ages run on its own
 //! clock. On the virtual bench the emulated board's time must advance with the digital twin's
@@ -40,7 +41,8 @@
 //! 0x0C4  37 B  host        BUS_REP: the reply frame (`crate::bus` layout, 5A …)
 //! 0x0EC  u32   host        RING_PORTS: bit n set: serial n is carried by the page's rings
 //!                          instead of its UART (read by the board at boot; layout 5)
-//! 0x0F0  u32   board       HALTED: 1 while the board halts (WFI) waiting for the bench
+//! 0x0F0  u32   board       HALTED: 1 while the board halts (WFI) waiting for the bench: idle
+//!                          at the horizon, or for a bus reply (layout 6)
 //! 0x0F4  u32   board       HALTS: times the board halted waiting for the bench (a counter)
 //! 0x0F8  u32   board       RX_ARMED: bit n set while the board's reader of a ring port waits
 //! 0x100  u32×2 ×8          RING[k] head (producer), tail (consumer), k = 2·n + d: serial n,
@@ -55,7 +57,7 @@
 //! status). A bench that sets [`RING_PORTS`] before the board boots gets those ports as byte
 //! rings in this memory instead: the board reads and writes them as its UART drivers would
 //! (same tasks, same proxy and management code; counted in RX_BYTES/TX_BYTES as before), and
-//! it polls them while it spins before a halt; the host rings [`RING_HORIZON`] only when it
+//! it looks at them once more before a halt; the host rings [`RING_HORIZON`] only when it
 //! finds the board halted ([`HALTED`]) after it wrote. Each ring has one producer and one
 //! consumer: the producer writes the bytes, then (after a barrier) its head; the consumer
 //! reads them, then its tail.
@@ -67,11 +69,22 @@
 //! wValue ([`LINE_DTR`], bit 1 RTS), sent whenever the bench's client opens or closes the port
 //! (the USB ports' line state on the STM32 board).
 //!
-//! Doorbells (serial4, besides the line states):
-//! - board → host [`RING_WAITING`]: the board is idle at the horizon (once per instant);
-//!   [`RING_BUS`]: a bus request is posted. Neither is sent while WATCHING is set: the host
-//!   polls the page then, and clears WATCHING and looks once more before it stops polling.
-//! - host → board [`RING_HORIZON`]: the horizon moved (the board wakes and reads it).
+//! Doorbells:
+//! - board → host, serial4: [`RING_WAITING`]: the board is idle at the horizon (once per
+//!   instant); [`RING_BUS`]: a bus request is posted. Neither is sent while WATCHING is set:
+//!   the host polls the page then, and clears WATCHING and looks once more before it stops
+//!   polling.
+//! - host → board, serial2, the *wake port* (layout 6; serial4 before): [`RING_HORIZON`] while
+//!   the board is HALTED, after the host moved the horizon, put bytes in a ring, made room in
+//!   one or posted a bus reply. The board reads nothing else from that port: it drains it and
+//!   arms its receive interrupt before each halt, so a doorbell ends every halt.
+//!
+//! **Halts (layout 6).** The board halts (WFI) at once when it has nothing to do at the horizon,
+//! and when it waits for a bus reply nobody is there to post at once (WATCHING clear; while
+//! WATCHING is set, after a short busy wait). Before, it spun 500 µs of QEMU's clock before
+//! each halt and for every bus reply: those spins were 60 % of the guest instructions of a
+//! campaign's step (issue 20 §5). Either halt sets HALTED, then looks once more at what it
+//! waits for; the host writes what it writes, then looks at HALTED and rings if it is set.
 //!
 //! A bus reply carries status [`BusStatus::Ok`], [`BusStatus::Nack`], or
 //! [`BusStatus::NoAnswer`]: the addressed device did not answer at all — the board then waits
@@ -94,7 +107,7 @@ pub const SHARED_LEN: usize = RING_DATA + RINGS * RING_LEN;
 /// Magic value at [`MAGIC`].
 pub const MAGIC_VALUE: u32 = 0x4B4C_434E; // "NCLK"
 /// Layout version at [`VERSION`].
-pub const VERSION_VALUE: u32 = 5;
+pub const VERSION_VALUE: u32 = 6;
 
 /// Offset of the magic.
 pub const MAGIC: usize = 0x000;

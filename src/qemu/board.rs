@@ -103,7 +103,7 @@ pub fn kick_io() {
 }
 
 /// Set timer 0 up for [`kick_io`], and timer 1 as a free-running counter of QEMU's clock (for
-/// [`wait_for_interrupt_busy`]): enabled, no interrupt, reloading from the largest value.
+/// [`watchdog_pet`]): enabled, no interrupt, reloading from the largest value.
 pub fn kick_io_init() {
     for t in [TIMER0, TIMER1] {
         w(t + 0x08, u32::MAX);
@@ -114,35 +114,6 @@ pub fn kick_io_init() {
 fn r(addr: usize) -> u32 {
     // SAFETY: MMIO register of the board, 32-bit access.
     unsafe { read_volatile(addr as *const u32) }
-}
-
-/// Busy-wait up to `us` µs of QEMU's clock for an interrupt to become pending (interrupts
-/// masked) or `ready` to hold; true if either did (SCB ICSR.ISRPENDING, ARMv7-M ARM B3.2.4).
-///
-/// `ready` looks at plain memory (the bench's page) on every turn; the two registers only on
-/// every [`MMIO_EVERY`]th: each read of a device register takes QEMU's big lock, which its I/O
-/// thread needs to hand the bench's bytes over (measured: the lock was 6 % of QEMU's CPU
-/// while the board spun on both registers).
-pub fn wait_for_interrupt_busy(us: u32, ready: impl Fn() -> bool) -> bool {
-    const ICSR: usize = 0xE000_ED04;
-    const MMIO_EVERY: u32 = 64;
-    let start = r(TIMER1 + 0x04);
-    let ticks = us.saturating_mul(super::SYSCLK_HZ / 1_000_000);
-    let mut turn = 0u32;
-    loop {
-        if ready() {
-            return true;
-        }
-        turn = turn.wrapping_add(1);
-        if turn.is_multiple_of(MMIO_EVERY) {
-            if r(ICSR) & (1 << 22) != 0 {
-                return true;
-            }
-            if start.wrapping_sub(r(TIMER1 + 0x04)) > ticks {
-                return false;
-            }
-        }
-    }
 }
 
 /// Light FPGA LED 0.

@@ -58,6 +58,28 @@ pub fn barrier() {
     cortex_m::asm::dmb();
 }
 
+/// Halt (WFI) until the bench rings the wake port, unless `ready` (what the board waits for)
+/// holds: mark the halt in the page (`bench_link::HALTED`), then look once more — the bench
+/// writes what it writes, then looks at the mark and rings. Any interrupt ends the halt; the
+/// caller looks again. The CMSDK watchdog (QEMU's clock) is paused over the halt when
+/// `pause_watchdog` (the idle loop: the bench may take seconds, e.g. fitting a model).
+pub fn halt(ready: impl Fn() -> bool, pause_watchdog: bool) {
+    let in_already = super::uart::wake_arm();
+    write_u32(bl::HALTED, 1);
+    barrier();
+    if !in_already && !ready() {
+        write_u32(bl::HALTS, read_u32(bl::HALTS).wrapping_add(1));
+        if pause_watchdog {
+            super::board::watchdog_pause();
+        }
+        cortex_m::asm::wfi();
+        if pause_watchdog {
+            super::board::watchdog_resume();
+        }
+    }
+    write_u32(bl::HALTED, 0);
+}
+
 /// True when the host set up the page (QEMU started with the memory backend and the bench).
 pub fn present() -> bool {
     read_u32(bl::MAGIC) == bl::MAGIC_VALUE && read_u32(bl::VERSION) == bl::VERSION_VALUE

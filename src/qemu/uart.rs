@@ -50,8 +50,14 @@ const INT_RX: u32 = 1 << 1;
 
 /// UARTs the board uses.
 pub const COUNT: usize = 5;
-/// The UART that carries the bench's doorbells and the host link's line state.
+/// The UART that carries the board's doorbells to the bench and the host link's line state.
 pub const BENCH: usize = 4;
+/// The UART whose received bytes only end a halt: the bench's doorbells to the board
+/// (`bench_link` layout 6, the *wake port*). Nothing reads it but [`wake_arm`], which drains it
+/// before each halt — so a doorbell never waits behind an unread one, as it did on [`BENCH`],
+/// whose bytes a task reads only when the executor runs it (not while the board halts inside a
+/// task, waiting for a bus reply).
+pub const WAKE: usize = 2;
 const BASES: [usize; COUNT] = [
     0x4000_4000,
     0x4000_5000,
@@ -371,6 +377,34 @@ impl embedded_io_async::Write for UartTx {
     async fn flush(&mut self) -> Result<(), Infallible> {
         Ok(())
     }
+}
+
+/// Enable the wake port's receiver and its receive interrupt line (at boot, with the bench's
+/// page; the source stays disabled in CTRL until [`wake_arm`]). The shared handler
+/// ([`on_interrupt`]) disarms it again when it fires.
+pub fn wake_init() {
+    write(WAKE, CTRL, CTRL_RX_EN);
+    // SAFETY: the handler only disarms the source and wakes a waker nobody registers.
+    unsafe { NVIC::unmask(Irq(RX_IRQS[WAKE])) };
+}
+
+/// Before a halt: drain the wake port (doorbells of earlier wake-ups) and arm its receive
+/// interrupt, so that the bench's next doorbell ends the halt. True if a byte came in after the
+/// drain (QEMU may flag it only when the interrupt was armed at its arrival): then do not
+/// halt, look again.
+pub fn wake_arm() -> bool {
+    let mut drained = false;
+    while read(WAKE, STATE) & STATE_RX_FULL != 0 {
+        let _ = read(WAKE, DATA);
+        drained = true;
+    }
+    if drained {
+        // QEMU takes the next byte from the socket when its main loop looks again
+        super::board::kick_io();
+    }
+    write(WAKE, INTCLEAR, INT_RX);
+    cortex_m::interrupt::free(|_| write(WAKE, CTRL, read(WAKE, CTRL) | CTRL_RX_INT));
+    read(WAKE, STATE) & STATE_RX_FULL != 0
 }
 
 /// Send one doorbell byte to the bench on [`BENCH`] (any context; UART4's transmit side is the

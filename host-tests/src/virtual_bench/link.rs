@@ -192,6 +192,9 @@ struct Rings {
 pub struct BenchLink {
     page: Page,
     line: Mutex<UnixStream>,
+    /// The board's wake port, serial2 (`bench_link` layout 6): the doorbells to the board go
+    /// there once set ([`Self::set_wake_port`]), else on `line`.
+    wake: Mutex<Option<UnixStream>>,
     rings: Mutex<Rings>,
     rung: Condvar,
     bus: Mutex<Option<BusHandler>>,
@@ -223,6 +226,7 @@ struct Counts {
     ring_rings: AtomicU64,
     bus_rings: AtomicU64,
     waiting_rings: AtomicU64,
+    reply_rings: AtomicU64,
     nudges: AtomicU64,
     quiet: AtomicU64,
 }
@@ -246,6 +250,8 @@ pub struct Crossings {
     pub bus_rings: u64,
     /// Doorbells from the board idle at the horizon, while nobody watched the page.
     pub waiting_rings: u64,
+    /// Doorbells rung to the board for a bus reply, while it was halted waiting for it.
+    pub reply_rings: u64,
     /// Lockstep advances that were nudges during an exchange (among `advances`).
     pub nudges: u64,
     /// Times a lockstep advance stopped watching the page (no progress for a while).
@@ -266,6 +272,7 @@ impl BenchLink {
         let link = Arc::new(BenchLink {
             page,
             line: Mutex::new(line),
+            wake: Mutex::new(None),
             rings: Mutex::new(Rings::default()),
             rung: Condvar::new(),
             bus: Mutex::new(None),
@@ -293,6 +300,22 @@ impl BenchLink {
         &self.page
     }
 
+    /// Ring the board's doorbells on `wake` (its serial2, the wake port of `bench_link` layout
+    /// 6) from now on: the board drains that port itself before it halts, so a doorbell
+    /// always ends a halt — whether the board waits at its horizon or for a bus reply.
+    pub fn set_wake_port(&self, wake: UnixStream) {
+        *self.wake.lock().unwrap() = Some(wake);
+    }
+
+    /// Ring the board (a halted board wakes and looks at the page again).
+    fn ring_board(&self) {
+        if let Some(w) = self.wake.lock().unwrap().as_mut() {
+            let _ = w.write_all(&[bl::RING_HORIZON]);
+            return;
+        }
+        let _ = self.line.lock().unwrap().write_all(&[bl::RING_HORIZON]);
+    }
+
     /// Send raw bytes on serial4 (the host link's line state `C0h | DTR`).
     pub fn send_line_state(&self, b: u8) {
         let _ = self.line.lock().unwrap().write_all(&[b]);
@@ -318,7 +341,7 @@ impl BenchLink {
         if self.page.u32(bl::WAITING) != 1 {
             return false;
         }
-        let _ = self.line.lock().unwrap().write_all(&[bl::RING_HORIZON]);
+        self.ring_board();
         true
     }
 
@@ -327,7 +350,7 @@ impl BenchLink {
     fn ring_if_halted(&self) {
         fence(Ordering::SeqCst);
         if self.page.u32(bl::HALTED) == 1 {
-            let _ = self.line.lock().unwrap().write_all(&[bl::RING_HORIZON]);
+            self.ring_board();
             self.counts.ring_rings.fetch_add(1, Ordering::Relaxed);
         }
     }
@@ -419,6 +442,7 @@ impl BenchLink {
             stuck_rings: self.pokes(),
             bus_rings: c.bus_rings.load(Ordering::Relaxed),
             waiting_rings: c.waiting_rings.load(Ordering::Relaxed),
+            reply_rings: c.reply_rings.load(Ordering::Relaxed),
             nudges: c.nudges.load(Ordering::Relaxed),
             quiet: c.quiet.load(Ordering::Relaxed),
             transactions: self.transactions.load(Ordering::Relaxed),
@@ -655,6 +679,13 @@ impl BenchLink {
         fence(Ordering::SeqCst);
         self.page.set_u32(bl::BUS_REP_SEQ, seq);
         self.transactions.fetch_add(1, Ordering::Relaxed);
+        // a board that waits for its reply halted (it halts at once when nobody watches the
+        // page, and after a short busy wait when someone does): wake it
+        fence(Ordering::SeqCst);
+        if self.page.u32(bl::HALTED) == 1 {
+            self.ring_board();
+            self.counts.reply_rings.fetch_add(1, Ordering::Relaxed);
+        }
     }
 
     /// Move the horizon to `ticks` (never back) and wake the board if it is halted (while it
@@ -665,7 +696,7 @@ impl BenchLink {
         }
         fence(Ordering::SeqCst);
         if self.page.u32(bl::HALTED) == 1 {
-            let _ = self.line.lock().unwrap().write_all(&[bl::RING_HORIZON]);
+            self.ring_board();
             self.counts.horizon_rings.fetch_add(1, Ordering::Relaxed);
         }
     }
@@ -1085,6 +1116,64 @@ mod tests {
         board_line.read_exact(&mut one).unwrap();
         assert_eq!(one[0], bl::RING_HORIZON);
         assert_eq!(link.crossings().ring_rings, 1);
+        link.shutdown();
+    }
+
+    #[test]
+    fn doorbells_go_to_the_wake_port_and_a_bus_reply_wakes_a_halted_board() {
+        let path = std::env::temp_dir().join(format!("nanocal-wake-{}", std::process::id()));
+        let page = Page::create(&path).unwrap();
+        let (ours, mut board_line) = UnixStream::pair().unwrap();
+        let (wake, mut board_wake) = UnixStream::pair().unwrap();
+        for s in [&board_line, &board_wake] {
+            s.set_read_timeout(Some(Duration::from_millis(200)))
+                .unwrap();
+        }
+        let link = BenchLink::start(page, ours);
+        BenchClock::new(link.clone()).lockstep();
+        link.set_wake_port(wake);
+        link.attach_bus(Box::new(|_, _, _, n_in, _| {
+            Some((BusStatus::Ok, vec![0x5A; n_in]))
+        }));
+        let mut one = [0u8; 1];
+        // the board posts a request and halts waiting for it: the reply rings the wake port
+        let post = |seq: u32| {
+            let mut f = [0u8; bl::FRAME_LEN];
+            let n = BusRequest {
+                op: BusOp::Spi,
+                target: 1,
+                data_out: &[0x0C, 0, 0, 0],
+                n_in: 4,
+            }
+            .encode(&mut f)
+            .unwrap();
+            link.page().set_bytes(bl::BUS_REQ, &f[..n]);
+            link.page().set_u32(bl::BUS_REQ_SEQ, seq);
+        };
+        post(1);
+        link.page().set_u32(bl::HALTED, 1);
+        link.serve_bus();
+        assert_eq!(link.page().u32(bl::BUS_REP_SEQ), 1, "answered");
+        board_wake.read_exact(&mut one).unwrap();
+        assert_eq!(one[0], bl::RING_HORIZON);
+        assert!(
+            board_line.read(&mut one).is_err(),
+            "nothing on serial4: it carries line states to the board"
+        );
+        assert_eq!(link.crossings().reply_rings, 1);
+        // a board that spins for its reply (the bench watches) is not rung
+        link.page().set_u32(bl::HALTED, 0);
+        post(2);
+        link.serve_bus();
+        assert_eq!(link.page().u32(bl::BUS_REP_SEQ), 2);
+        assert!(board_wake.read(&mut one).is_err(), "no doorbell");
+        assert_eq!(link.crossings().reply_rings, 1);
+        // bytes put in a ring of a halted board: the wake port again
+        link.page().set_u32(bl::HALTED, 1);
+        assert_eq!(link.ring_write(0, b"x"), 1);
+        board_wake.read_exact(&mut one).unwrap();
+        assert_eq!(one[0], bl::RING_HORIZON);
+        assert!(board_line.read(&mut one).is_err());
         link.shutdown();
     }
 }

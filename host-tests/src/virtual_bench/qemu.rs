@@ -26,6 +26,11 @@ pub fn repo_root() -> PathBuf {
 pub fn qemu_elf() -> PathBuf {
     static ELF: OnceLock<PathBuf> = OnceLock::new();
     ELF.get_or_init(|| {
+        // an image built before, for measurements that compare two firmware versions in turn
+        // with one host binary (issue 20 §5): used as it is, nothing is built
+        if let Some(elf) = std::env::var_os("NANOCAL_QEMU_ELF").filter(|p| !p.is_empty()) {
+            return PathBuf::from(elf);
+        }
         let root = repo_root();
         let cargo = option_env!("CARGO").unwrap_or("cargo");
         let status = Command::new(cargo)
@@ -153,9 +158,9 @@ fn free_port() -> u16 {
 /// behaviours' own bounds are in the board's time.
 pub const HANG: Duration = Duration::from_secs(120);
 
-/// Serial ports of the QEMU board: 0 host (GCS), 1 stage, 2 unused (the bus stand-in moved to
-/// the bench's page), 3 management, 4 the host link's line state (USB DTR stand-in) and the
-/// bench's doorbells.
+/// Serial ports of the QEMU board: 0 host (GCS), 1 stage, 2 the bench's doorbells to the board
+/// (its wake port, `bench_link` layout 6), 3 management, 4 the host link's line state (USB DTR
+/// stand-in) and the board's doorbells to the bench.
 pub const SERIALS: usize = 5;
 
 /// A running QEMU with the firmware; killed on drop.
@@ -226,7 +231,7 @@ impl Qemu {
         let sockets = log.with_extension("d");
         std::fs::create_dir_all(&sockets).expect("socket folder");
         for (i, p) in ports.iter().enumerate() {
-            let dev = if i >= 3 {
+            let dev = if i >= 2 {
                 format!(
                     "socket,id=s{i},path={},server=on,wait=off",
                     sockets.join(format!("s{i}")).display()
@@ -238,6 +243,11 @@ impl Qemu {
             cmd.arg("-serial").arg(format!("chardev:s{i}"));
         }
         cmd.args(extra).arg("-kernel").arg(&elf);
+        // a TCG plugin for measurements (the guest-instruction profile of issue 20 §5:
+        // `tools/qemu-plugin/insn_profile.c`), its argument as `-plugin` takes it
+        if let Some(plugin) = std::env::var_os("NANOCAL_QEMU_PLUGIN").filter(|p| !p.is_empty()) {
+            cmd.arg("-plugin").arg(plugin);
+        }
         let logf = std::fs::File::create(&log).expect("qemu log file");
         let child = cmd
             .stdout(logf.try_clone().expect("log"))
@@ -246,10 +256,12 @@ impl Qemu {
             .expect("start qemu-system-arm");
         let mut child = child;
         let line = dial_unix(&mut child, &sockets.join("s4"), 4, &log);
+        let wake = dial_unix(&mut child, &sockets.join("s2"), 2, &log);
         let link = BenchLink::start(page, line);
-        // input in flight holds the free-running clock: serial 0-2 (TCP) and the management
-        // port (serial 3), not the bench's own doorbells (serial 4)
-        for p in &ports[..3] {
+        link.set_wake_port(wake);
+        // input in flight holds the free-running clock: serial 0-1 (TCP) and the management
+        // port (serial 3), not the bench's doorbells (serial 2 and 4)
+        for p in &ports[..2] {
             link.inputs().watch_tcp_port(*p);
         }
         link.inputs()

@@ -12,7 +12,7 @@ use super::{
 };
 use crate::explain::contract::{self, Detail, LagTerm, Proposal};
 use crate::explain::data::Data;
-use crate::explain::error::ExplainError;
+use crate::explain::error::{in_parallel, ExplainError};
 use crate::explain::estimate::{Estimate, Theta};
 use crate::explain::fit::{bartlett_n_eff, cross_validate_score, gather};
 use crate::explain::search::{dot, log_grid, Basis, Search};
@@ -322,7 +322,8 @@ const CACHED_COLUMNS: usize = 160;
 struct LagCache<'a> {
     d: &'a Data,
     rows: &'a [usize],
-    cols: std::cell::RefCell<std::collections::HashMap<(usize, u64), Vec<f64>>>,
+    /// (A mutex: the searches of several sensors run side by side and share what is kept.)
+    cols: std::sync::Mutex<std::collections::HashMap<(usize, u64), Vec<f64>>>,
     /// Time reversed and negated, for the backward pass of [`zero_phase_twin`].
     rev_t: Vec<f64>,
     /// The classes of `d.t_s`'s intervals and of `rev_t`'s (None: too many distinct ones).
@@ -347,7 +348,7 @@ impl<'a> LagCache<'a> {
     /// [`lag_column`] on the fitted rows.
     fn on_rows(&self, sensor: usize, tau_s: f64) -> Vec<f64> {
         let key = (sensor, tau_s.to_bits());
-        if let Some(c) = self.cols.borrow().get(&key) {
+        if let Some(c) = self.kept().get(&key) {
             return c.clone();
         }
         let d = self.d;
@@ -355,11 +356,18 @@ impl<'a> LagCache<'a> {
             Some(iv) => lag_series_at_classes(iv, &d.temps[sensor].1, tau_s, None, self.rows),
             None => lag_series_at(&d.t_s, &d.temps[sensor].1, tau_s, None, self.rows),
         };
-        let mut cols = self.cols.borrow_mut();
+        let mut cols = self.kept();
         if cols.len() < CACHED_COLUMNS {
             cols.insert(key, g.clone());
         }
         g
+    }
+
+    /// The kept columns (a worker's panic leaves them as they were: each entry is whole).
+    fn kept(
+        &self,
+    ) -> std::sync::MutexGuard<'_, std::collections::HashMap<(usize, u64), Vec<f64>>> {
+        self.cols.lock().unwrap_or_else(|e| e.into_inner())
     }
 
     /// Fill the cache with `sensor`'s lags at every τ of `taus` not yet kept, the filters
@@ -370,7 +378,7 @@ impl<'a> LagCache<'a> {
             return;
         };
         let missing: Vec<f64> = {
-            let cols = self.cols.borrow();
+            let cols = self.kept();
             taus.iter()
                 .copied()
                 .filter(|&t| t > 0.0 && !cols.contains_key(&(sensor, t.to_bits())))
@@ -380,7 +388,7 @@ impl<'a> LagCache<'a> {
             return;
         }
         let lags = lag_many_at_classes(iv, &self.d.temps[sensor].1, &missing, self.rows);
-        let mut cols = self.cols.borrow_mut();
+        let mut cols = self.kept();
         for (t, g) in missing.iter().zip(lags) {
             if cols.len() < CACHED_COLUMNS {
                 cols.insert((sensor, t.to_bits()), g);
@@ -495,25 +503,31 @@ impl contract::Candidate for Candidate {
         let cache = LagCache::new(d, &s.basis.rows);
         // every sensor's lag on a τ grid, kept orthogonal to the growing model as terms join
         // (one Gram–Schmidt step per new term), so screening a grid point costs one dot product
-        let mut screen: Vec<Screened> = Vec::new();
-        for sensor in 0..d.temps.len() {
+        // (each sensor's grid on a core of its own where one is idle, taken in sensor order)
+        let sensors: Vec<usize> = (0..d.temps.len())
+            .filter(|&sensor| {
+                let (lo, hi) = tau_range(d, sensor);
+                !(hi.is_nan() || lo.is_nan() || hi <= 4.0 * lo)
+            })
+            .collect();
+        let screened = in_parallel(&sensors, |&sensor| {
             let (lo, hi) = tau_range(d, sensor);
-            if hi.is_nan() || lo.is_nan() || hi <= 4.0 * lo {
-                continue;
-            }
             let grid = log_grid(lo, hi, SCREEN_POINTS);
             cache.prefill(sensor, &grid);
-            for tau in grid {
-                let g = cache.on_rows(sensor, tau);
-                let norm0 = g.iter().map(|v| v * v).sum::<f64>().sqrt();
-                screen.push(Screened {
-                    sensor,
-                    tau,
-                    perp: basis.project_out(g),
-                    norm0,
-                });
-            }
-        }
+            grid.into_iter()
+                .map(|tau| {
+                    let g = cache.on_rows(sensor, tau);
+                    let norm0 = g.iter().map(|v| v * v).sum::<f64>().sqrt();
+                    Screened {
+                        sensor,
+                        tau,
+                        perp: basis.project_out(g),
+                        norm0,
+                    }
+                })
+                .collect::<Vec<Screened>>()
+        });
+        let mut screen: Vec<Screened> = screened.into_iter().flatten().collect();
         let mut terms: Vec<LagTerm> = Vec::new();
         let mut cols: Vec<Vec<f64>> = Vec::new();
         let mut cv_cur = f64::NAN;
@@ -541,16 +555,21 @@ impl contract::Candidate for Candidate {
                 }
             }
             per_sensor.sort_by(|a, b| b.0.total_cmp(&a.0));
-            // refine the most promising sensors' τ between grid points
-            let mut best: Option<(f64, LagTerm)> = None;
-            for &(_, k) in per_sensor.iter().take(REFINE_SENSORS) {
+            // refine the most promising sensors' τ between grid points (side by side where a
+            // core is idle; taken in the order of their screening gain, as one after the other)
+            let picked: Vec<usize> = per_sensor
+                .iter()
+                .take(REFINE_SENSORS)
+                .map(|&(_, k)| k)
+                .collect();
+            let refined = in_parallel(&picked, |&k| -> Option<(f64, LagTerm)> {
                 let sensor = screen[k].sensor;
                 let taken: Vec<f64> = terms
                     .iter()
                     .filter(|t| t.sensor == sensor)
                     .map(|t| t.tau.value)
                     .collect();
-                if let Some((tau, rss)) = best_tau(
+                let (tau, rss) = best_tau(
                     s,
                     &cache,
                     &basis,
@@ -558,25 +577,28 @@ impl contract::Candidate for Candidate {
                     &taken,
                     false,
                     Some(screen[k].tau),
-                ) {
-                    let n_eff = s.n_eff;
-                    if n_eff * (rss / basis.rss()).ln() + 2.0 * n_eff.ln() > -MIN_TERM_BIC {
-                        continue;
-                    }
-                    // a lag must earn its place by its delay, not by smoothing sensor noise:
-                    // it must fit better than the best zero-phase smoothing of the same sensor
-                    // (its width searched too) — positive evidence, as a slow lag over a short
-                    // record is hard to tell from smoothing
-                    let (_, rss_twin) =
-                        s.minimise("tau_s", (tau.value / 4.0, tau.value * 4.0), 5, false, |t| {
-                            basis.rss_with_gathered(vec![cache.twin_on_rows(sensor, t)])
-                        });
-                    if n_eff * (rss / rss_twin).ln() > -TWIN_BIC {
-                        continue;
-                    }
-                    if best.as_ref().is_none_or(|b| rss < b.0) {
-                        best = Some((rss, LagTerm { sensor, tau }));
-                    }
+                )?;
+                let n_eff = s.n_eff;
+                if n_eff * (rss / basis.rss()).ln() + 2.0 * n_eff.ln() > -MIN_TERM_BIC {
+                    return None;
+                }
+                // a lag must earn its place by its delay, not by smoothing sensor noise:
+                // it must fit better than the best zero-phase smoothing of the same sensor
+                // (its width searched too) — positive evidence, as a slow lag over a short
+                // record is hard to tell from smoothing
+                let (_, rss_twin) =
+                    s.minimise("tau_s", (tau.value / 4.0, tau.value * 4.0), 5, false, |t| {
+                        basis.rss_with_gathered(vec![cache.twin_on_rows(sensor, t)])
+                    });
+                if n_eff * (rss / rss_twin).ln() > -TWIN_BIC {
+                    return None;
+                }
+                Some((rss, LagTerm { sensor, tau }))
+            });
+            let mut best: Option<(f64, LagTerm)> = None;
+            for (rss, term) in refined.into_iter().flatten() {
+                if best.as_ref().is_none_or(|b| rss < b.0) {
+                    best = Some((rss, term));
                 }
             }
             let Some((_, term)) = best else { break };

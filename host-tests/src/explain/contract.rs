@@ -247,7 +247,7 @@ pub fn one_theta(
     lo: f64,
     hi: f64,
     points: usize,
-    make: impl Fn(f64) -> Vec<Vec<f64>>,
+    make: impl Fn(f64) -> Vec<Vec<f64>> + Sync,
 ) -> Proposal {
     let (theta, _) = s.minimise(name, (lo, hi), points, true, |th| {
         let regs = make(th);

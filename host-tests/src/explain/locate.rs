@@ -176,7 +176,29 @@ fn temperature_rate(d: &Data) -> Option<Vec<f64>> {
 
 /// Find where residual `r` (µm) of channel `ch` is structured beyond the noise floor.
 pub fn locate(d: &Data, ch: usize, r: &[f64], floor: NoiseFloor) -> Vec<Finding> {
-    let c = &d.channels[ch];
+    Places::of(d, ch).locate(r, floor)
+}
+
+/// A bin of one dimension: its label, its rows, and the effective number of independent
+/// units among them (each unit weighted by its rows in the bin).
+struct Bin {
+    label: String,
+    rows: Vec<usize>,
+    n_units: f64,
+}
+
+/// The places [`locate`] looks at for one channel of one recording — every dimension's bins
+/// with their rows and units. They depend on the recording alone, not on the residual, so a
+/// channel's explain builds them once for its locate before naming and after (on a million
+/// rows: a sort and two dozen passes over the rows each time).
+pub struct Places {
+    dims: Vec<(String, Vec<Bin>)>,
+}
+
+impl Places {
+    /// The places of channel `ch` of `d`.
+    pub fn of(d: &Data, ch: usize) -> Self {
+        let c = &d.channels[ch];
     let us = units(d, ch);
     // unit index of each row, for counting independent units per bin
     let mut unit_of = vec![0usize; d.rows()];
@@ -254,13 +276,58 @@ pub fn locate(d: &Data, ch: usize, r: &[f64], floor: NoiseFloor) -> Vec<Finding>
         dims.push((name.clone(), bins));
     }
 
-    let sigma = floor.unit_um.max(1e-12);
-    let mut out = Vec::new();
     // rows per unit within a bin (reset after each bin)
     let mut counts = vec![0u64; us.len().max(1)];
-    for (dim, bins) in dims {
+    let dims = dims
+        .into_iter()
+        .map(|(dim, bins)| {
+            let bins = bins
+                .into_iter()
+                .map(|(label, rows)| {
+                    // effective number of units in the bin, each weighted by its rows in the
+                    // bin (sums of whole numbers far below 2⁵³: exact in any order)
+                    for &i in &rows {
+                        counts[unit_of[i]] += 1;
+                    }
+                    let (mut s1, mut s2) = (0.0f64, 0.0f64);
+                    for &i in &rows {
+                        let c = std::mem::take(&mut counts[unit_of[i]]);
+                        if c > 0 {
+                            s1 += c as f64;
+                            s2 += (c * c) as f64;
+                        }
+                    }
+                    let n_units = if s2 > 0.0 {
+                        (s1 * s1 / s2).max(1.0)
+                    } else {
+                        1.0
+                    };
+                    Bin {
+                        label,
+                        rows,
+                        n_units,
+                    }
+                })
+                .collect();
+            (dim, bins)
+        })
+        .collect();
+    Places { dims }
+    }
+
+    /// Where residual `r` (µm) of the channel is structured beyond the noise floor.
+    pub fn locate(&self, r: &[f64], floor: NoiseFloor) -> Vec<Finding> {
+    let sigma = floor.unit_um.max(1e-12);
+    let mut out = Vec::new();
+    for (dim, bins) in &self.dims {
         let mut flagged: Vec<(String, f64, f64, f64)> = Vec::new();
-        for (label, rows) in &bins {
+        for Bin {
+            label,
+            rows,
+            n_units,
+        } in bins
+        {
+            let n_units = *n_units;
             let vals: Vec<f64> = rows
                 .iter()
                 .map(|&i| r[i])
@@ -269,24 +336,6 @@ pub fn locate(d: &Data, ch: usize, r: &[f64], floor: NoiseFloor) -> Vec<Finding>
             if vals.len() < 3 {
                 continue;
             }
-            // effective number of units in the bin, each weighted by its rows in the bin (sums
-            // of whole numbers far below 2⁵³: exact in any order)
-            for &i in rows {
-                counts[unit_of[i]] += 1;
-            }
-            let (mut s1, mut s2) = (0.0f64, 0.0f64);
-            for &i in rows {
-                let c = std::mem::take(&mut counts[unit_of[i]]);
-                if c > 0 {
-                    s1 += c as f64;
-                    s2 += (c * c) as f64;
-                }
-            }
-            let n_units = if s2 > 0.0 {
-                (s1 * s1 / s2).max(1.0)
-            } else {
-                1.0
-            };
             let mean = vals.iter().sum::<f64>() / vals.len() as f64;
             let z = mean.abs() / (sigma / n_units.sqrt());
             // structured: statistically clear AND at least the size of the noise floor
@@ -323,7 +372,7 @@ pub fn locate(d: &Data, ch: usize, r: &[f64], floor: NoiseFloor) -> Vec<Finding>
             };
             out.push(Finding {
                 place,
-                dimension: dim,
+                dimension: dim.clone(),
                 rms_nm: rms * 1e3,
                 mean_nm: median(&mut means) * 1e3,
                 z: zmax,
@@ -341,4 +390,5 @@ pub fn locate(d: &Data, ch: usize, r: &[f64], floor: NoiseFloor) -> Vec<Finding>
         }
     }
     out
+    }
 }

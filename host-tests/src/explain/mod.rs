@@ -430,7 +430,9 @@ fn explain_channel_once(
     let y = &d.channels[ch].y_um;
     let base_cv = fit::cross_validate(&model.with(&[]), y, &design, &rows)?;
     let floor = locate::noise(d, ch, &base_fit.residuals);
-    let located = locate::locate(d, ch, &base_fit.residuals, floor);
+    // the places locate looks at, for the baseline's residual here and the final one
+    let places = locate::Places::of(d, ch);
+    let located = places.locate(&base_fit.residuals, floor);
     let mut cur_fit = base_fit.clone();
     let mut cur_cv = base_cv.clone();
     let mut effects = Vec::new();
@@ -875,7 +877,7 @@ fn explain_channel_once(
         cur_cv = cv_new;
     }
     let final_floor = locate::noise(d, ch, &cur_fit.residuals);
-    let mut unexplained = locate::locate(d, ch, &cur_cv.residuals, final_floor);
+    let mut unexplained = places.locate(&cur_cv.residuals, final_floor);
     // the clearest places first, at most eight per channel
     unexplained.sort_by(|a, b| b.z.total_cmp(&a.z));
     unexplained.truncate(8);

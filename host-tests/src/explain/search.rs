@@ -5,6 +5,7 @@
 //! of a new QR. Gram–Schmidt is applied twice ("twice is enough", Giraud et al., Numer. Math.
 //! 101, 2005), which keeps the basis orthonormal to working precision.
 
+use super::error::in_parallel;
 use super::estimate::Theta;
 use crate::explain::data::Data;
 use crate::explain::fit::{gather, Design};
@@ -230,10 +231,11 @@ impl Search<'_> {
         (lo, hi): (f64, f64),
         points: usize,
         sigma: bool,
-        mut rss: impl FnMut(f64) -> f64,
+        rss: impl Fn(f64) -> f64 + Sync,
     ) -> (Theta, f64) {
         let grid = log_grid(lo, hi, points);
-        let vals: Vec<f64> = grid.iter().map(|&t| rss(t)).collect();
+        // the grid's points are independent: side by side where a core is idle
+        let vals: Vec<f64> = in_parallel(&grid, |&t| rss(t));
         let bi = (0..grid.len())
             .min_by(|&a, &b| vals[a].total_cmp(&vals[b]))
             .unwrap_or(0);
@@ -270,7 +272,7 @@ impl Search<'_> {
             }
         }
         let sigma = if sigma && self.sigmas {
-            profile_sigma(best_t, best_rss, self.n_eff, lo, hi, &mut rss)
+            profile_sigma(best_t, best_rss, self.n_eff, lo, hi, &mut |t| rss(t))
         } else {
             f64::NAN
         };

@@ -324,6 +324,9 @@ struct LagCache<'a> {
     rows: &'a [usize],
     /// (A mutex: the searches of several sensors run side by side and share what is kept.)
     cols: std::sync::Mutex<std::collections::HashMap<(usize, u64), Vec<f64>>>,
+    /// Lags a search said it was about to ask for ([`LagCache::ahead`]), per sensor only the
+    /// last such set (one of a golden-section step's two next points is never asked for).
+    soon: std::sync::Mutex<std::collections::HashMap<(usize, u64), Vec<f64>>>,
     /// Time reversed and negated, for the backward pass of [`zero_phase_twin`].
     rev_t: Vec<f64>,
     /// The classes of `d.t_s`'s intervals and of `rev_t`'s (None: too many distinct ones).
@@ -339,6 +342,7 @@ impl<'a> LagCache<'a> {
             d,
             rows,
             cols: Default::default(),
+            soon: Default::default(),
             rev_t,
             fwd: Intervals::of(&d.t_s),
             rev,
@@ -350,6 +354,14 @@ impl<'a> LagCache<'a> {
         let key = (sensor, tau_s.to_bits());
         if let Some(c) = self.kept().get(&key) {
             return c.clone();
+        }
+        let soon = self.soon.lock().unwrap_or_else(|e| e.into_inner()).remove(&key);
+        if let Some(g) = soon {
+            let mut cols = self.kept();
+            if cols.len() < CACHED_COLUMNS {
+                cols.insert(key, g.clone());
+            }
+            return g;
         }
         let d = self.d;
         let g = match &self.fwd {
@@ -393,6 +405,37 @@ impl<'a> LagCache<'a> {
             if cols.len() < CACHED_COLUMNS {
                 cols.insert((sensor, t.to_bits()), g);
             }
+        }
+    }
+
+    /// `sensor`'s lags at the τ of `taus` a search is about to ask [`LagCache::on_rows`] for
+    /// (see [`Search::minimise_ahead`]), made together ([`lag_many_at_classes`]: the same
+    /// values as one at a time) where not kept already: a golden-section step's point and the
+    /// two points the next step may take cost one pass over the samples instead of two.
+    fn ahead(&self, sensor: usize, taus: &[f64]) {
+        let Some(iv) = &self.fwd else {
+            return;
+        };
+        let missing: Vec<f64> = {
+            let cols = self.kept();
+            let soon = self.soon.lock().unwrap_or_else(|e| e.into_inner());
+            taus.iter()
+                .copied()
+                .filter(|&t| {
+                    let key = (sensor, t.to_bits());
+                    t > 0.0 && !cols.contains_key(&key) && !soon.contains_key(&key)
+                })
+                .collect()
+        };
+        // one filter alone gains nothing from the lanes
+        if missing.len() < 2 {
+            return;
+        }
+        let lags = lag_many_at_classes(iv, &self.d.temps[sensor].1, &missing, self.rows);
+        let mut soon = self.soon.lock().unwrap_or_else(|e| e.into_inner());
+        soon.retain(|k, _| k.0 != sensor || taus.iter().any(|t| t.to_bits() == k.1));
+        for (t, g) in missing.iter().zip(lags) {
+            soon.insert((sensor, t.to_bits()), g);
         }
     }
 
@@ -472,13 +515,23 @@ fn best_tau(
     };
     // the grid's lags side by side, as the search will ask for them
     cache.prefill(sensor, &log_grid(a, b, points));
-    let (mut theta, rss) = s.minimise("tau_s", (a, b), points, sigma, |tau| {
-        if clear(taken, tau) {
-            basis.rss_with_gathered(vec![cache.on_rows(sensor, tau)])
-        } else {
-            basis.rss()
-        }
-    });
+    let (mut theta, rss) = s.minimise_ahead(
+        "tau_s",
+        (a, b),
+        points,
+        sigma,
+        |tau| {
+            if clear(taken, tau) {
+                basis.rss_with_gathered(vec![cache.on_rows(sensor, tau)])
+            } else {
+                basis.rss()
+            }
+        },
+        |taus| {
+            let wanted: Vec<f64> = taus.iter().copied().filter(|&t| clear(taken, t)).collect();
+            cache.ahead(sensor, &wanted);
+        },
+    );
     theta.lo = lo;
     theta.hi = hi;
     (clear(taken, theta.value) && rss < basis.rss()).then_some((theta, rss))

@@ -355,7 +355,11 @@ impl<'a> LagCache<'a> {
         if let Some(c) = self.kept().get(&key) {
             return c.clone();
         }
-        let soon = self.soon.lock().unwrap_or_else(|e| e.into_inner()).remove(&key);
+        let soon = self
+            .soon
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .remove(&key);
         if let Some(g) = soon {
             let mut cols = self.kept();
             if cols.len() < CACHED_COLUMNS {
@@ -376,9 +380,7 @@ impl<'a> LagCache<'a> {
     }
 
     /// The kept columns (a worker's panic leaves them as they were: each entry is whole).
-    fn kept(
-        &self,
-    ) -> std::sync::MutexGuard<'_, std::collections::HashMap<(usize, u64), Vec<f64>>> {
+    fn kept(&self) -> std::sync::MutexGuard<'_, std::collections::HashMap<(usize, u64), Vec<f64>>> {
         self.cols.lock().unwrap_or_else(|e| e.into_inner())
     }
 
@@ -708,7 +710,7 @@ impl contract::Candidate for Candidate {
         }
         refine(s, &cache, &mut terms, &mut cols, true);
         Ok(Some(Proposal {
-            regs: cols,
+            regs: cols.into_iter().map(std::sync::Arc::new).collect(),
             thetas: terms.iter().map(|t| t.tau.clone()).collect(),
             detail: Detail::Lags(terms),
             design: None,
@@ -896,7 +898,7 @@ mod tests {
         // every column has the same spread: a term's importance is its |gain|
         let col: Vec<f64> = (0..200).map(|k| (k % 2) as f64).collect();
         Proposal {
-            regs: vec![col; terms.len()],
+            regs: vec![std::sync::Arc::new(col); terms.len()],
             thetas: terms.iter().map(|t| t.tau.clone()).collect(),
             detail: Detail::Lags(terms),
             design: None,

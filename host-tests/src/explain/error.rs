@@ -25,8 +25,7 @@ pub enum ExplainError {
 /// core back at once): the longest item of a round (a candidate's search) can then use the
 /// core the shorter ones left, and the process never runs more threads than cores.
 fn spare_cores() -> &'static std::sync::atomic::AtomicUsize {
-    static SPARE: std::sync::OnceLock<std::sync::atomic::AtomicUsize> =
-        std::sync::OnceLock::new();
+    static SPARE: std::sync::OnceLock<std::sync::atomic::AtomicUsize> = std::sync::OnceLock::new();
     SPARE.get_or_init(|| {
         let cores = std::thread::available_parallelism().map_or(1, |t| t.get());
         std::sync::atomic::AtomicUsize::new(cores.saturating_sub(1))

@@ -307,7 +307,15 @@ impl Search<'_> {
             }
         }
         let sigma = if sigma && self.sigmas {
-            profile_sigma(best_t, best_rss, self.n_eff, lo, hi, &mut |t| rss(t), &ahead)
+            profile_sigma(
+                best_t,
+                best_rss,
+                self.n_eff,
+                lo,
+                hi,
+                &mut |t| rss(t),
+                &ahead,
+            )
         } else {
             f64::NAN
         };

@@ -295,7 +295,10 @@ fn family(d: &Data, ch: usize, rows: &[usize]) -> Vec<Test> {
                 .map(|j| {
                     let n = tm.len();
                     let shift = j * n / (CONTROLS + 1);
-                    vec![rows.iter().map(|&i| u[i] * (tm[(i + shift) % n] - t0)).collect()]
+                    vec![rows
+                        .iter()
+                        .map(|&i| u[i] * (tm[(i + shift) % n] - t0))
+                        .collect()]
                 })
                 .collect(),
         ));

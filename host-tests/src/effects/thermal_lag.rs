@@ -898,7 +898,9 @@ mod tests {
         // every column has the same spread: a term's importance is its |gain|
         let col: Vec<f64> = (0..200).map(|k| (k % 2) as f64).collect();
         Proposal {
-            regs: vec![std::sync::Arc::new(col); terms.len()],
+            regs: (0..terms.len())
+                .map(|_| std::sync::Arc::new(col.clone()))
+                .collect(),
             thetas: terms.iter().map(|t| t.tau.clone()).collect(),
             detail: Detail::Lags(terms),
             design: None,

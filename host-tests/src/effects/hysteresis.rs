@@ -373,7 +373,7 @@ impl contract::Candidate for Candidate {
         let mut regs = poly.clone();
         regs.extend(active.iter().map(|&j| fit.cols[j].clone()));
         Ok(Some(Proposal {
-            regs,
+            regs: regs.into_iter().map(std::sync::Arc::new).collect(),
             thetas: Vec::new(),
             detail: Detail::Play(PlayBank {
                 axis: s.ch,

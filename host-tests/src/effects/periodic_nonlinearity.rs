@@ -104,7 +104,7 @@ impl contract::Candidate for Candidate {
             })
             .min_by(|a, b| a.0.total_cmp(&b.0));
         Ok(best.map(|(_, p, regs)| Proposal {
-            regs,
+            regs: regs.into_iter().map(std::sync::Arc::new).collect(),
             // a choice from a list, not a searched range: no bounds to hit
             thetas: vec![Theta {
                 name: "period_nm".into(),

@@ -12,7 +12,7 @@ use super::{
 };
 use crate::explain::contract::{self, Detail, LagTerm, Proposal};
 use crate::explain::data::Data;
-use crate::explain::error::ExplainError;
+use crate::explain::error::{in_parallel, ExplainError};
 use crate::explain::estimate::{Estimate, Theta};
 use crate::explain::fit::{bartlett_n_eff, cross_validate_score, gather};
 use crate::explain::search::{dot, log_grid, Basis, Search};
@@ -322,7 +322,11 @@ const CACHED_COLUMNS: usize = 160;
 struct LagCache<'a> {
     d: &'a Data,
     rows: &'a [usize],
-    cols: std::cell::RefCell<std::collections::HashMap<(usize, u64), Vec<f64>>>,
+    /// (A mutex: the searches of several sensors run side by side and share what is kept.)
+    cols: std::sync::Mutex<std::collections::HashMap<(usize, u64), Vec<f64>>>,
+    /// Lags a search said it was about to ask for ([`LagCache::ahead`]), per sensor only the
+    /// last such set (one of a golden-section step's two next points is never asked for).
+    soon: std::sync::Mutex<std::collections::HashMap<(usize, u64), Vec<f64>>>,
     /// Time reversed and negated, for the backward pass of [`zero_phase_twin`].
     rev_t: Vec<f64>,
     /// The classes of `d.t_s`'s intervals and of `rev_t`'s (None: too many distinct ones).
@@ -338,6 +342,7 @@ impl<'a> LagCache<'a> {
             d,
             rows,
             cols: Default::default(),
+            soon: Default::default(),
             rev_t,
             fwd: Intervals::of(&d.t_s),
             rev,
@@ -347,19 +352,36 @@ impl<'a> LagCache<'a> {
     /// [`lag_column`] on the fitted rows.
     fn on_rows(&self, sensor: usize, tau_s: f64) -> Vec<f64> {
         let key = (sensor, tau_s.to_bits());
-        if let Some(c) = self.cols.borrow().get(&key) {
+        if let Some(c) = self.kept().get(&key) {
             return c.clone();
+        }
+        let soon = self
+            .soon
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .remove(&key);
+        if let Some(g) = soon {
+            let mut cols = self.kept();
+            if cols.len() < CACHED_COLUMNS {
+                cols.insert(key, g.clone());
+            }
+            return g;
         }
         let d = self.d;
         let g = match &self.fwd {
             Some(iv) => lag_series_at_classes(iv, &d.temps[sensor].1, tau_s, None, self.rows),
             None => lag_series_at(&d.t_s, &d.temps[sensor].1, tau_s, None, self.rows),
         };
-        let mut cols = self.cols.borrow_mut();
+        let mut cols = self.kept();
         if cols.len() < CACHED_COLUMNS {
             cols.insert(key, g.clone());
         }
         g
+    }
+
+    /// The kept columns (a worker's panic leaves them as they were: each entry is whole).
+    fn kept(&self) -> std::sync::MutexGuard<'_, std::collections::HashMap<(usize, u64), Vec<f64>>> {
+        self.cols.lock().unwrap_or_else(|e| e.into_inner())
     }
 
     /// Fill the cache with `sensor`'s lags at every τ of `taus` not yet kept, the filters
@@ -370,7 +392,7 @@ impl<'a> LagCache<'a> {
             return;
         };
         let missing: Vec<f64> = {
-            let cols = self.cols.borrow();
+            let cols = self.kept();
             taus.iter()
                 .copied()
                 .filter(|&t| t > 0.0 && !cols.contains_key(&(sensor, t.to_bits())))
@@ -380,11 +402,42 @@ impl<'a> LagCache<'a> {
             return;
         }
         let lags = lag_many_at_classes(iv, &self.d.temps[sensor].1, &missing, self.rows);
-        let mut cols = self.cols.borrow_mut();
+        let mut cols = self.kept();
         for (t, g) in missing.iter().zip(lags) {
             if cols.len() < CACHED_COLUMNS {
                 cols.insert((sensor, t.to_bits()), g);
             }
+        }
+    }
+
+    /// `sensor`'s lags at the τ of `taus` a search is about to ask [`LagCache::on_rows`] for
+    /// (see [`Search::minimise_ahead`]), made together ([`lag_many_at_classes`]: the same
+    /// values as one at a time) where not kept already: a golden-section step's point and the
+    /// two points the next step may take cost one pass over the samples instead of two.
+    fn ahead(&self, sensor: usize, taus: &[f64]) {
+        let Some(iv) = &self.fwd else {
+            return;
+        };
+        let missing: Vec<f64> = {
+            let cols = self.kept();
+            let soon = self.soon.lock().unwrap_or_else(|e| e.into_inner());
+            taus.iter()
+                .copied()
+                .filter(|&t| {
+                    let key = (sensor, t.to_bits());
+                    t > 0.0 && !cols.contains_key(&key) && !soon.contains_key(&key)
+                })
+                .collect()
+        };
+        // one filter alone gains nothing from the lanes
+        if missing.len() < 2 {
+            return;
+        }
+        let lags = lag_many_at_classes(iv, &self.d.temps[sensor].1, &missing, self.rows);
+        let mut soon = self.soon.lock().unwrap_or_else(|e| e.into_inner());
+        soon.retain(|k, _| k.0 != sensor || taus.iter().any(|t| t.to_bits() == k.1));
+        for (t, g) in missing.iter().zip(lags) {
+            soon.insert((sensor, t.to_bits()), g);
         }
     }
 
@@ -464,13 +517,23 @@ fn best_tau(
     };
     // the grid's lags side by side, as the search will ask for them
     cache.prefill(sensor, &log_grid(a, b, points));
-    let (mut theta, rss) = s.minimise("tau_s", (a, b), points, sigma, |tau| {
-        if clear(taken, tau) {
-            basis.rss_with_gathered(vec![cache.on_rows(sensor, tau)])
-        } else {
-            basis.rss()
-        }
-    });
+    let (mut theta, rss) = s.minimise_ahead(
+        "tau_s",
+        (a, b),
+        points,
+        sigma,
+        |tau| {
+            if clear(taken, tau) {
+                basis.rss_with_gathered(vec![cache.on_rows(sensor, tau)])
+            } else {
+                basis.rss()
+            }
+        },
+        |taus| {
+            let wanted: Vec<f64> = taus.iter().copied().filter(|&t| clear(taken, t)).collect();
+            cache.ahead(sensor, &wanted);
+        },
+    );
     theta.lo = lo;
     theta.hi = hi;
     (clear(taken, theta.value) && rss < basis.rss()).then_some((theta, rss))
@@ -495,25 +558,31 @@ impl contract::Candidate for Candidate {
         let cache = LagCache::new(d, &s.basis.rows);
         // every sensor's lag on a τ grid, kept orthogonal to the growing model as terms join
         // (one Gram–Schmidt step per new term), so screening a grid point costs one dot product
-        let mut screen: Vec<Screened> = Vec::new();
-        for sensor in 0..d.temps.len() {
+        // (each sensor's grid on a core of its own where one is idle, taken in sensor order)
+        let sensors: Vec<usize> = (0..d.temps.len())
+            .filter(|&sensor| {
+                let (lo, hi) = tau_range(d, sensor);
+                !(hi.is_nan() || lo.is_nan() || hi <= 4.0 * lo)
+            })
+            .collect();
+        let screened = in_parallel(&sensors, |&sensor| {
             let (lo, hi) = tau_range(d, sensor);
-            if hi.is_nan() || lo.is_nan() || hi <= 4.0 * lo {
-                continue;
-            }
             let grid = log_grid(lo, hi, SCREEN_POINTS);
             cache.prefill(sensor, &grid);
-            for tau in grid {
-                let g = cache.on_rows(sensor, tau);
-                let norm0 = g.iter().map(|v| v * v).sum::<f64>().sqrt();
-                screen.push(Screened {
-                    sensor,
-                    tau,
-                    perp: basis.project_out(g),
-                    norm0,
-                });
-            }
-        }
+            grid.into_iter()
+                .map(|tau| {
+                    let g = cache.on_rows(sensor, tau);
+                    let norm0 = g.iter().map(|v| v * v).sum::<f64>().sqrt();
+                    Screened {
+                        sensor,
+                        tau,
+                        perp: basis.project_out(g),
+                        norm0,
+                    }
+                })
+                .collect::<Vec<Screened>>()
+        });
+        let mut screen: Vec<Screened> = screened.into_iter().flatten().collect();
         let mut terms: Vec<LagTerm> = Vec::new();
         let mut cols: Vec<Vec<f64>> = Vec::new();
         let mut cv_cur = f64::NAN;
@@ -541,16 +610,21 @@ impl contract::Candidate for Candidate {
                 }
             }
             per_sensor.sort_by(|a, b| b.0.total_cmp(&a.0));
-            // refine the most promising sensors' τ between grid points
-            let mut best: Option<(f64, LagTerm)> = None;
-            for &(_, k) in per_sensor.iter().take(REFINE_SENSORS) {
+            // refine the most promising sensors' τ between grid points (side by side where a
+            // core is idle; taken in the order of their screening gain, as one after the other)
+            let picked: Vec<usize> = per_sensor
+                .iter()
+                .take(REFINE_SENSORS)
+                .map(|&(_, k)| k)
+                .collect();
+            let refined = in_parallel(&picked, |&k| -> Option<(f64, LagTerm)> {
                 let sensor = screen[k].sensor;
                 let taken: Vec<f64> = terms
                     .iter()
                     .filter(|t| t.sensor == sensor)
                     .map(|t| t.tau.value)
                     .collect();
-                if let Some((tau, rss)) = best_tau(
+                let (tau, rss) = best_tau(
                     s,
                     &cache,
                     &basis,
@@ -558,25 +632,28 @@ impl contract::Candidate for Candidate {
                     &taken,
                     false,
                     Some(screen[k].tau),
-                ) {
-                    let n_eff = s.n_eff;
-                    if n_eff * (rss / basis.rss()).ln() + 2.0 * n_eff.ln() > -MIN_TERM_BIC {
-                        continue;
-                    }
-                    // a lag must earn its place by its delay, not by smoothing sensor noise:
-                    // it must fit better than the best zero-phase smoothing of the same sensor
-                    // (its width searched too) — positive evidence, as a slow lag over a short
-                    // record is hard to tell from smoothing
-                    let (_, rss_twin) =
-                        s.minimise("tau_s", (tau.value / 4.0, tau.value * 4.0), 5, false, |t| {
-                            basis.rss_with_gathered(vec![cache.twin_on_rows(sensor, t)])
-                        });
-                    if n_eff * (rss / rss_twin).ln() > -TWIN_BIC {
-                        continue;
-                    }
-                    if best.as_ref().is_none_or(|b| rss < b.0) {
-                        best = Some((rss, LagTerm { sensor, tau }));
-                    }
+                )?;
+                let n_eff = s.n_eff;
+                if n_eff * (rss / basis.rss()).ln() + 2.0 * n_eff.ln() > -MIN_TERM_BIC {
+                    return None;
+                }
+                // a lag must earn its place by its delay, not by smoothing sensor noise:
+                // it must fit better than the best zero-phase smoothing of the same sensor
+                // (its width searched too) — positive evidence, as a slow lag over a short
+                // record is hard to tell from smoothing
+                let (_, rss_twin) =
+                    s.minimise("tau_s", (tau.value / 4.0, tau.value * 4.0), 5, false, |t| {
+                        basis.rss_with_gathered(vec![cache.twin_on_rows(sensor, t)])
+                    });
+                if n_eff * (rss / rss_twin).ln() > -TWIN_BIC {
+                    return None;
+                }
+                Some((rss, LagTerm { sensor, tau }))
+            });
+            let mut best: Option<(f64, LagTerm)> = None;
+            for (rss, term) in refined.into_iter().flatten() {
+                if best.as_ref().is_none_or(|b| rss < b.0) {
+                    best = Some((rss, term));
                 }
             }
             let Some((_, term)) = best else { break };
@@ -633,7 +710,7 @@ impl contract::Candidate for Candidate {
         }
         refine(s, &cache, &mut terms, &mut cols, true);
         Ok(Some(Proposal {
-            regs: cols,
+            regs: cols.into_iter().map(std::sync::Arc::new).collect(),
             thetas: terms.iter().map(|t| t.tau.clone()).collect(),
             detail: Detail::Lags(terms),
             design: None,
@@ -821,7 +898,9 @@ mod tests {
         // every column has the same spread: a term's importance is its |gain|
         let col: Vec<f64> = (0..200).map(|k| (k % 2) as f64).collect();
         Proposal {
-            regs: vec![col; terms.len()],
+            regs: (0..terms.len())
+                .map(|_| std::sync::Arc::new(col.clone()))
+                .collect(),
             thetas: terms.iter().map(|t| t.tau.clone()).collect(),
             detail: Detail::Lags(terms),
             design: None,

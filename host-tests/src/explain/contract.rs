@@ -70,8 +70,10 @@ pub enum Detail {
 /// What a candidate proposes to add to the current model.
 #[derive(Clone, Debug)]
 pub struct Proposal {
-    /// The extension's regressor columns (free coefficients).
-    pub regs: Vec<Vec<f64>>,
+    /// The extension's regressor columns (free coefficients). Shared, not copied: a column
+    /// that already exists elsewhere (`unexplained_drift`'s cosines, kept with the data) joins
+    /// a proposal without a copy of its million rows.
+    pub regs: Vec<std::sync::Arc<Vec<f64>>>,
     /// The nonlinear parameters searched to build them (each counts as a parameter in the BIC).
     pub thetas: Vec<Theta>,
     /// What the columns mean.
@@ -90,7 +92,7 @@ impl Proposal {
     /// Columns with no nonlinear parameter.
     pub fn linear(regs: Vec<Vec<f64>>) -> Self {
         Self {
-            regs,
+            regs: regs.into_iter().map(std::sync::Arc::new).collect(),
             thetas: Vec::new(),
             detail: Detail::None,
             design: None,
@@ -247,7 +249,7 @@ pub fn one_theta(
     lo: f64,
     hi: f64,
     points: usize,
-    make: impl Fn(f64) -> Vec<Vec<f64>>,
+    make: impl Fn(f64) -> Vec<Vec<f64>> + Sync,
 ) -> Proposal {
     let (theta, _) = s.minimise(name, (lo, hi), points, true, |th| {
         let regs = make(th);
@@ -255,7 +257,10 @@ pub fn one_theta(
         s.basis.rss_with(&refs)
     });
     Proposal {
-        regs: make(theta.value),
+        regs: make(theta.value)
+            .into_iter()
+            .map(std::sync::Arc::new)
+            .collect(),
         thetas: vec![theta],
         detail: Detail::None,
         design: None,

@@ -4,7 +4,7 @@
 
 use crate::numerics::linalg::{lstsq, LeastSquares};
 
-use super::error::ExplainError;
+use super::error::{in_parallel, ExplainError};
 use super::stats::{centred_mean, median};
 
 /// Number of contiguous time blocks of the default held-out design.
@@ -100,6 +100,8 @@ pub fn predict(ls: &LeastSquares, cols: &[&[f64]], i: usize) -> f64 {
 
 /// Rows per block of [`predict_block`]: its sums stay in the L1 cache.
 const PREDICT_BLOCK: usize = 1024;
+/// Blocks per span of rows [`fit_rows`] hands a core at a time.
+const PREDICT_BLOCKS_PER_SPAN: usize = 64;
 
 /// Predictions of `ls` at rows `a..a + out.len()` into `out`, every row summed exactly as
 /// [`predict`] sums it (the same terms in the same order, from the same neutral element), but
@@ -140,17 +142,29 @@ pub fn fit_rows(cols: &[&[f64]], y: &[f64], rows: &[usize]) -> Result<Fit, Expla
         lstsq(&refs, &gather(y, rows), true)?
     };
     let mut residuals = vec![f64::NAN; y.len()];
-    let mut buf = [0.0; PREDICT_BLOCK];
-    for a in (0..y.len()).step_by(PREDICT_BLOCK) {
-        let b = (a + PREDICT_BLOCK).min(y.len());
-        let pred = &mut buf[..b - a];
-        predict_block(&ls, cols, a, pred);
-        for ((r, &yi), &p) in residuals[a..b].iter_mut().zip(&y[a..b]).zip(pred.iter()) {
-            if yi.is_finite() {
-                *r = yi - p;
+    // each row's residual is its own: spans of rows side by side where a core is idle
+    let span = PREDICT_BLOCK * PREDICT_BLOCKS_PER_SPAN;
+    let spans: Vec<(usize, std::sync::Mutex<&mut [f64]>)> = residuals
+        .chunks_mut(span)
+        .enumerate()
+        .map(|(k, r)| (k * span, std::sync::Mutex::new(r)))
+        .collect();
+    in_parallel(&spans, |(start, out)| {
+        let mut out = out.lock().unwrap_or_else(|e| e.into_inner());
+        let mut buf = [0.0; PREDICT_BLOCK];
+        for (k, res) in out.chunks_mut(PREDICT_BLOCK).enumerate() {
+            let a = start + k * PREDICT_BLOCK;
+            let b = a + res.len();
+            let pred = &mut buf[..b - a];
+            predict_block(&ls, cols, a, pred);
+            for ((r, &yi), &p) in res.iter_mut().zip(&y[a..b]).zip(pred.iter()) {
+                if yi.is_finite() {
+                    *r = yi - p;
+                }
             }
         }
-    }
+    });
+    drop(spans);
     let rss = ls.rss;
     let n = rows.len();
     Ok(Fit {

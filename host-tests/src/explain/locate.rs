@@ -176,169 +176,220 @@ fn temperature_rate(d: &Data) -> Option<Vec<f64>> {
 
 /// Find where residual `r` (µm) of channel `ch` is structured beyond the noise floor.
 pub fn locate(d: &Data, ch: usize, r: &[f64], floor: NoiseFloor) -> Vec<Finding> {
-    let c = &d.channels[ch];
-    let us = units(d, ch);
-    // unit index of each row, for counting independent units per bin
-    let mut unit_of = vec![0usize; d.rows()];
-    for (j, &(a, b)) in us.iter().enumerate() {
-        for u in unit_of[a..b].iter_mut() {
-            *u = j;
-        }
-    }
-    let mut dims: Vec<(String, Bins)> = Vec::new();
-    let unit = d.time_unit();
-    let span = unit.of(d.duration_s());
-    let t0 = d.t_s[0];
-    let nb = (d.rows() / 200).clamp(4, 24);
-    let time_key: Vec<f64> = d.t_s.iter().map(|t| unit.of(t - t0)).collect();
-    let tb: Bins = (0..nb)
-        .map(|b| {
-            let (lo, hi) = (
-                span * b as f64 / nb as f64,
-                span * (b + 1) as f64 / nb as f64,
-            );
-            let rows = (0..d.rows())
-                .filter(|&i| time_key[i] >= lo && (time_key[i] < hi || b == nb - 1))
-                .collect();
-            (format!("time {lo:.1}–{hi:.1} {}", unit.symbol), rows)
-        })
-        .collect();
-    dims.push(("time".into(), tb));
-    if let Some(cmd) = &c.cmd_um {
-        let pb = value_bins(cmd, 40, |v| format!("position {v:.1} µm"))
-            .unwrap_or_else(|| quantile_bins(cmd, 10, |a, b| format!("position {a:.1}–{b:.1} µm")));
-        dims.push(("position".into(), pb));
-    }
-    if let Some(dir) = &c.dir {
-        let fwd = (0..d.rows()).filter(|&i| dir[i] > 0.0).collect();
-        let bwd = (0..d.rows()).filter(|&i| dir[i] < 0.0).collect();
-        dims.push((
-            "direction".into(),
-            vec![
-                ("forward approach".into(), fwd),
-                ("backward approach".into(), bwd),
-            ],
-        ));
-    }
-    for (b, other) in d.channels.iter().enumerate() {
-        if b != ch {
-            if let Some(cmd) = &other.cmd_um {
-                let name = other.name.clone();
-                let bins = value_bins(cmd, 40, |v| format!("{name} axis at {v:.1} µm"))
-                    .unwrap_or_else(|| {
-                        quantile_bins(cmd, 8, |a, z| format!("{name} axis at {a:.1}–{z:.1} µm"))
-                    });
-                dims.push((format!("axis {}", other.name), bins));
+    Places::of(d, ch).locate(r, floor)
+}
+
+/// A bin of one dimension: its label, its rows, and the effective number of independent
+/// units among them (each unit weighted by its rows in the bin).
+struct Bin {
+    label: String,
+    rows: Vec<usize>,
+    n_units: f64,
+}
+
+/// The places [`locate`] looks at for one channel of one recording — every dimension's bins
+/// with their rows and units. They depend on the recording alone, not on the residual, so a
+/// channel's explain builds them once for its locate before naming and after (on a million
+/// rows: a sort and two dozen passes over the rows each time).
+pub struct Places {
+    dims: Vec<(String, Vec<Bin>)>,
+}
+
+impl Places {
+    /// The places of channel `ch` of `d`.
+    pub fn of(d: &Data, ch: usize) -> Self {
+        let c = &d.channels[ch];
+        let us = units(d, ch);
+        // unit index of each row, for counting independent units per bin
+        let mut unit_of = vec![0usize; d.rows()];
+        for (j, &(a, b)) in us.iter().enumerate() {
+            for u in unit_of[a..b].iter_mut() {
+                *u = j;
             }
         }
-    }
-    if let Some(rate) = temperature_rate(d) {
-        dims.push((
-            "temperature rate".into(),
-            quantile_bins(&rate, 5, |a, b| {
-                format!("temperature changing {a:+.3}…{b:+.3} °C/h")
-            }),
-        ));
-    }
-    for (name, x) in &d.aux {
-        let n = name.clone();
-        let bins = value_bins(x, 8, |v| format!("{n} = {v}")).unwrap_or_else(|| {
-            quantile_bins(x, 5, |a, b| {
-                if a == b {
-                    format!("{n} = {a}")
-                } else {
-                    format!("{n} {a}…{b}")
-                }
+        let mut dims: Vec<(String, Bins)> = Vec::new();
+        let unit = d.time_unit();
+        let span = unit.of(d.duration_s());
+        let t0 = d.t_s[0];
+        let nb = (d.rows() / 200).clamp(4, 24);
+        let time_key: Vec<f64> = d.t_s.iter().map(|t| unit.of(t - t0)).collect();
+        let tb: Bins = (0..nb)
+            .map(|b| {
+                let (lo, hi) = (
+                    span * b as f64 / nb as f64,
+                    span * (b + 1) as f64 / nb as f64,
+                );
+                let rows = (0..d.rows())
+                    .filter(|&i| time_key[i] >= lo && (time_key[i] < hi || b == nb - 1))
+                    .collect();
+                (format!("time {lo:.1}–{hi:.1} {}", unit.symbol), rows)
             })
-        });
-        dims.push((name.clone(), bins));
+            .collect();
+        dims.push(("time".into(), tb));
+        if let Some(cmd) = &c.cmd_um {
+            let pb = value_bins(cmd, 40, |v| format!("position {v:.1} µm")).unwrap_or_else(|| {
+                quantile_bins(cmd, 10, |a, b| format!("position {a:.1}–{b:.1} µm"))
+            });
+            dims.push(("position".into(), pb));
+        }
+        if let Some(dir) = &c.dir {
+            let fwd = (0..d.rows()).filter(|&i| dir[i] > 0.0).collect();
+            let bwd = (0..d.rows()).filter(|&i| dir[i] < 0.0).collect();
+            dims.push((
+                "direction".into(),
+                vec![
+                    ("forward approach".into(), fwd),
+                    ("backward approach".into(), bwd),
+                ],
+            ));
+        }
+        for (b, other) in d.channels.iter().enumerate() {
+            if b != ch {
+                if let Some(cmd) = &other.cmd_um {
+                    let name = other.name.clone();
+                    let bins = value_bins(cmd, 40, |v| format!("{name} axis at {v:.1} µm"))
+                        .unwrap_or_else(|| {
+                            quantile_bins(cmd, 8, |a, z| format!("{name} axis at {a:.1}–{z:.1} µm"))
+                        });
+                    dims.push((format!("axis {}", other.name), bins));
+                }
+            }
+        }
+        if let Some(rate) = temperature_rate(d) {
+            dims.push((
+                "temperature rate".into(),
+                quantile_bins(&rate, 5, |a, b| {
+                    format!("temperature changing {a:+.3}…{b:+.3} °C/h")
+                }),
+            ));
+        }
+        for (name, x) in &d.aux {
+            let n = name.clone();
+            let bins = value_bins(x, 8, |v| format!("{n} = {v}")).unwrap_or_else(|| {
+                quantile_bins(x, 5, |a, b| {
+                    if a == b {
+                        format!("{n} = {a}")
+                    } else {
+                        format!("{n} {a}…{b}")
+                    }
+                })
+            });
+            dims.push((name.clone(), bins));
+        }
+
+        // rows per unit within a bin (reset after each bin)
+        let mut counts = vec![0u64; us.len().max(1)];
+        let dims = dims
+            .into_iter()
+            .map(|(dim, bins)| {
+                let bins = bins
+                    .into_iter()
+                    .map(|(label, rows)| {
+                        // effective number of units in the bin, each weighted by its rows in the
+                        // bin (sums of whole numbers far below 2⁵³: exact in any order)
+                        for &i in &rows {
+                            counts[unit_of[i]] += 1;
+                        }
+                        let (mut s1, mut s2) = (0.0f64, 0.0f64);
+                        for &i in &rows {
+                            let c = std::mem::take(&mut counts[unit_of[i]]);
+                            if c > 0 {
+                                s1 += c as f64;
+                                s2 += (c * c) as f64;
+                            }
+                        }
+                        let n_units = if s2 > 0.0 {
+                            (s1 * s1 / s2).max(1.0)
+                        } else {
+                            1.0
+                        };
+                        Bin {
+                            label,
+                            rows,
+                            n_units,
+                        }
+                    })
+                    .collect();
+                (dim, bins)
+            })
+            .collect();
+        Places { dims }
     }
 
-    let sigma = floor.unit_um.max(1e-12);
-    let mut out = Vec::new();
-    // rows per unit within a bin (reset after each bin)
-    let mut counts = vec![0u64; us.len().max(1)];
-    for (dim, bins) in dims {
-        let mut flagged: Vec<(String, f64, f64, f64)> = Vec::new();
-        for (label, rows) in &bins {
-            let vals: Vec<f64> = rows
-                .iter()
-                .map(|&i| r[i])
-                .filter(|v| v.is_finite())
-                .collect();
-            if vals.len() < 3 {
-                continue;
-            }
-            // effective number of units in the bin, each weighted by its rows in the bin (sums
-            // of whole numbers far below 2⁵³: exact in any order)
-            for &i in rows {
-                counts[unit_of[i]] += 1;
-            }
-            let (mut s1, mut s2) = (0.0f64, 0.0f64);
-            for &i in rows {
-                let c = std::mem::take(&mut counts[unit_of[i]]);
-                if c > 0 {
-                    s1 += c as f64;
-                    s2 += (c * c) as f64;
+    /// Where residual `r` (µm) of the channel is structured beyond the noise floor.
+    pub fn locate(&self, r: &[f64], floor: NoiseFloor) -> Vec<Finding> {
+        let sigma = floor.unit_um.max(1e-12);
+        let mut out = Vec::new();
+        for (dim, bins) in &self.dims {
+            let mut flagged: Vec<(String, f64, f64, f64)> = Vec::new();
+            for Bin {
+                label,
+                rows,
+                n_units,
+            } in bins
+            {
+                let n_units = *n_units;
+                let vals: Vec<f64> = rows
+                    .iter()
+                    .map(|&i| r[i])
+                    .filter(|v| v.is_finite())
+                    .collect();
+                if vals.len() < 3 {
+                    continue;
+                }
+                let mean = vals.iter().sum::<f64>() / vals.len() as f64;
+                let z = mean.abs() / (sigma / n_units.sqrt());
+                // structured: statistically clear AND at least the size of the noise floor
+                if z > 5.0 && mean.abs() > sigma.max(floor.sample_um) {
+                    let rms = (vals.iter().map(|v| v * v).sum::<f64>() / vals.len() as f64).sqrt();
+                    flagged.push((label.clone(), rms, mean, z));
                 }
             }
-            let n_units = if s2 > 0.0 {
-                (s1 * s1 / s2).max(1.0)
-            } else {
-                1.0
-            };
-            let mean = vals.iter().sum::<f64>() / vals.len() as f64;
-            let z = mean.abs() / (sigma / n_units.sqrt());
-            // structured: statistically clear AND at least the size of the noise floor
-            if z > 5.0 && mean.abs() > sigma.max(floor.sample_um) {
-                let rms = (vals.iter().map(|v| v * v).sum::<f64>() / vals.len() as f64).sqrt();
-                flagged.push((label.clone(), rms, mean, z));
+            if flagged.is_empty() {
+                continue;
             }
-        }
-        if flagged.is_empty() {
-            continue;
-        }
-        // merge consecutive time spans into one place
-        if dim == "time" && flagged.len() > 1 {
-            let lo = flagged[0].0.clone();
-            let hi = flagged[flagged.len() - 1].0.clone();
-            let rms =
-                (flagged.iter().map(|f| f.1 * f.1).sum::<f64>() / flagged.len() as f64).sqrt();
-            let mut means: Vec<f64> = flagged.iter().map(|f| f.2).collect();
-            let zmax = flagged.iter().map(|f| f.3).fold(0.0, f64::max);
-            let place = if flagged.len() == bins.len() {
-                "in every time span of the recording".to_string()
-            } else {
-                format!(
-                    "{} time spans between {} and {}",
-                    flagged.len(),
-                    lo.split(' ')
-                        .nth(1)
-                        .unwrap_or("")
-                        .split('–')
-                        .next()
-                        .unwrap_or(""),
-                    hi.split('–').nth(1).unwrap_or("")
-                )
-            };
-            out.push(Finding {
-                place,
-                dimension: dim,
-                rms_nm: rms * 1e3,
-                mean_nm: median(&mut means) * 1e3,
-                z: zmax,
-            });
-        } else {
-            for (label, rms, mean, z) in flagged.into_iter().take(4) {
+            // merge consecutive time spans into one place
+            if dim == "time" && flagged.len() > 1 {
+                let lo = flagged[0].0.clone();
+                let hi = flagged[flagged.len() - 1].0.clone();
+                let rms =
+                    (flagged.iter().map(|f| f.1 * f.1).sum::<f64>() / flagged.len() as f64).sqrt();
+                let mut means: Vec<f64> = flagged.iter().map(|f| f.2).collect();
+                let zmax = flagged.iter().map(|f| f.3).fold(0.0, f64::max);
+                let place = if flagged.len() == bins.len() {
+                    "in every time span of the recording".to_string()
+                } else {
+                    format!(
+                        "{} time spans between {} and {}",
+                        flagged.len(),
+                        lo.split(' ')
+                            .nth(1)
+                            .unwrap_or("")
+                            .split('–')
+                            .next()
+                            .unwrap_or(""),
+                        hi.split('–').nth(1).unwrap_or("")
+                    )
+                };
                 out.push(Finding {
-                    place: label,
+                    place,
                     dimension: dim.clone(),
                     rms_nm: rms * 1e3,
-                    mean_nm: mean * 1e3,
-                    z,
+                    mean_nm: median(&mut means) * 1e3,
+                    z: zmax,
                 });
+            } else {
+                for (label, rms, mean, z) in flagged.into_iter().take(4) {
+                    out.push(Finding {
+                        place: label,
+                        dimension: dim.clone(),
+                        rms_nm: rms * 1e3,
+                        mean_nm: mean * 1e3,
+                        z,
+                    });
+                }
             }
         }
+        out
     }
-    out
 }

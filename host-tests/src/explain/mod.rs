@@ -254,12 +254,13 @@ impl Round<'_> {
     /// held-out prediction on `design` (the round's when None).
     fn evaluate(
         &self,
-        regs: &[Vec<f64>],
+        regs: &[&[f64]],
         k_extra: usize,
         design: Option<&Design>,
         evidence_units: Option<f64>,
     ) -> Result<Evaluated, ExplainError> {
-        let cols = self.model.with(regs);
+        let mut cols = self.model.with(&[]);
+        cols.extend_from_slice(regs);
         let f = fit::fit_rows(&cols, self.y, self.rows)?;
         let k_new = self.k_cur + regs.len() + k_extra;
         // the evidence counts the independent rows behind the association of what the
@@ -310,8 +311,9 @@ impl Round<'_> {
         cand: &'static dyn Candidate,
         proposal: Proposal,
     ) -> Result<(Trial, Option<Scored>), ExplainError> {
+        let regs: Vec<&[f64]> = proposal.regs.iter().map(|c| c.as_slice()).collect();
         let ev = self.evaluate(
-            &proposal.regs,
+            &regs,
             proposal.thetas.len(),
             proposal.design.as_ref(),
             proposal.evidence_units,
@@ -430,7 +432,9 @@ fn explain_channel_once(
     let y = &d.channels[ch].y_um;
     let base_cv = fit::cross_validate(&model.with(&[]), y, &design, &rows)?;
     let floor = locate::noise(d, ch, &base_fit.residuals);
-    let located = locate::locate(d, ch, &base_fit.residuals, floor);
+    // the places locate looks at, for the baseline's residual here and the final one
+    let places = locate::Places::of(d, ch);
+    let located = places.locate(&base_fit.residuals, floor);
     let mut cur_fit = base_fit.clone();
     let mut cur_cv = base_cv.clone();
     let mut effects = Vec::new();
@@ -472,7 +476,7 @@ fn explain_channel_once(
             floor_um: floor.unit_um.max(floor.sample_um),
             settings,
         };
-        let e = round.evaluate(std::slice::from_ref(&col), 1, None, None)?;
+        let e = round.evaluate(&[col.as_slice()], 1, None, None)?;
         let (true, Some((cv_cur, cv_new))) = (e.passed, e.cv) else {
             break;
         };
@@ -622,7 +626,8 @@ fn explain_channel_once(
             fit::rms(&change) * 1e3,
             f64::NAN,
         ));
-        let new_cols = model.with(&sc.proposal.regs);
+        let mut new_cols = model.with(&[]);
+        new_cols.extend(sc.proposal.regs.iter().map(|c| c.as_slice()));
         let cv_std = if sc.cv_new.fold_mse.len() != design.folds || sc.gap_s != design.gap_s {
             fit::cross_validate(&new_cols, y, &design, &rows)?
         } else {
@@ -669,7 +674,13 @@ fn explain_channel_once(
             model.cols.len() + sc.proposal.regs.len(),
             sc.proposal.thetas.len(),
         ));
-        model.cols.extend(sc.proposal.regs);
+        // (a column shared with the data's kept cosines is copied here, once it is named)
+        model.cols.extend(
+            sc.proposal
+                .regs
+                .into_iter()
+                .map(std::sync::Arc::unwrap_or_clone),
+        );
         cur_fit = f;
         cur_cv = cv_std;
     }
@@ -743,7 +754,7 @@ fn explain_channel_once(
                 floor_um: floor.unit_um.max(floor.sample_um),
                 settings,
             };
-            let regs: Vec<Vec<f64>> = model.cols[a..b].to_vec();
+            let regs: Vec<&[f64]> = model.cols[a..b].iter().map(|c| c.as_slice()).collect();
             if round.evaluate(&regs, thetas, None, None)?.passed {
                 continue;
             }
@@ -776,7 +787,8 @@ fn explain_channel_once(
             floor_um: floor.unit_um.max(floor.sample_um),
             settings,
         };
-        let ev = round.evaluate(&squares, 0, None, None)?;
+        let square_cols: Vec<&[f64]> = squares.iter().map(|c| c.as_slice()).collect();
+        let ev = round.evaluate(&square_cols, 0, None, None)?;
         if ev.passed || !withdrawn.is_empty() {
             let m = model.cols.len();
             let coeffs = &ev.fit.ls.coeffs[m..];
@@ -875,7 +887,7 @@ fn explain_channel_once(
         cur_cv = cv_new;
     }
     let final_floor = locate::noise(d, ch, &cur_fit.residuals);
-    let mut unexplained = locate::locate(d, ch, &cur_cv.residuals, final_floor);
+    let mut unexplained = places.locate(&cur_cv.residuals, final_floor);
     // the clearest places first, at most eight per channel
     unexplained.sort_by(|a, b| b.z.total_cmp(&a.z));
     unexplained.truncate(8);

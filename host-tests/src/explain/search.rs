@@ -5,6 +5,7 @@
 //! of a new QR. Gram–Schmidt is applied twice ("twice is enough", Giraud et al., Numer. Math.
 //! 101, 2005), which keeps the basis orthonormal to working precision.
 
+use super::error::in_parallel;
 use super::estimate::Theta;
 use crate::explain::data::Data;
 use crate::explain::fit::{gather, Design};
@@ -227,13 +228,31 @@ impl Search<'_> {
     pub fn minimise(
         &self,
         name: &str,
+        range: (f64, f64),
+        points: usize,
+        sigma: bool,
+        rss: impl Fn(f64) -> f64 + Sync,
+    ) -> (Theta, f64) {
+        self.minimise_ahead(name, range, points, sigma, rss, |_| {})
+    }
+
+    /// [`Search::minimise`], telling `ahead` the θ values it is about to ask `rss` for before
+    /// it asks: the point it needs now with both points it may need next (golden section,
+    /// bisection), or the first steps of the profile's ladder. Only a hint — a candidate whose
+    /// columns are cheaper made several at a time (lag filters side by side) makes them
+    /// together; the search and its result are those of [`Search::minimise`].
+    pub fn minimise_ahead(
+        &self,
+        name: &str,
         (lo, hi): (f64, f64),
         points: usize,
         sigma: bool,
-        mut rss: impl FnMut(f64) -> f64,
+        rss: impl Fn(f64) -> f64 + Sync,
+        ahead: impl Fn(&[f64]),
     ) -> (Theta, f64) {
         let grid = log_grid(lo, hi, points);
-        let vals: Vec<f64> = grid.iter().map(|&t| rss(t)).collect();
+        // the grid's points are independent: side by side where a core is idle
+        let vals: Vec<f64> = in_parallel(&grid, |&t| rss(t));
         let bi = (0..grid.len())
             .min_by(|&a, &b| vals[a].total_cmp(&vals[b]))
             .unwrap_or(0);
@@ -246,21 +265,39 @@ impl Search<'_> {
             );
             let mut x1 = b - g * (b - a);
             let mut x2 = a + g * (b - a);
+            ahead(&[x1.exp(), x2.exp()]);
             let mut f1 = rss(x1.exp());
             let mut f2 = rss(x2.exp());
-            for _ in 0..8 {
-                if f1 < f2 {
-                    b = x2;
-                    x2 = x1;
-                    f2 = f1;
-                    x1 = b - g * (b - a);
-                    f1 = rss(x1.exp());
+            // one step: the bracket kept (the lower side when `lower`) and the new point
+            let step = |(a, b, x1, x2): (f64, f64, f64, f64), lower: bool| {
+                if lower {
+                    let b = x2;
+                    let x1n = b - g * (b - a);
+                    ((a, b, x1n, x1), x1n)
                 } else {
-                    a = x1;
-                    x1 = x2;
+                    let a = x1;
+                    let x2n = a + g * (b - a);
+                    ((a, b, x2, x2n), x2n)
+                }
+            };
+            const STEPS: usize = 8;
+            for i in 0..STEPS {
+                let lower = f1 < f2;
+                let (next, x) = step((a, b, x1, x2), lower);
+                if i % 2 == 0 && i + 1 < STEPS {
+                    // this step's point and both the next step may take
+                    let (_, lo_next) = step(next, true);
+                    let (_, hi_next) = step(next, false);
+                    ahead(&[x.exp(), lo_next.exp(), hi_next.exp()]);
+                }
+                let fx = rss(x.exp());
+                (a, b, x1, x2) = next;
+                if lower {
+                    f2 = f1;
+                    f1 = fx;
+                } else {
                     f1 = f2;
-                    x2 = a + g * (b - a);
-                    f2 = rss(x2.exp());
+                    f2 = fx;
                 }
             }
             let (xm, fm) = if f1 < f2 { (x1, f1) } else { (x2, f2) };
@@ -270,7 +307,15 @@ impl Search<'_> {
             }
         }
         let sigma = if sigma && self.sigmas {
-            profile_sigma(best_t, best_rss, self.n_eff, lo, hi, &mut rss)
+            profile_sigma(
+                best_t,
+                best_rss,
+                self.n_eff,
+                lo,
+                hi,
+                &mut |t| rss(t),
+                &ahead,
+            )
         } else {
             f64::NAN
         };
@@ -297,6 +342,7 @@ pub fn profile_sigma(
     lo: f64,
     hi: f64,
     rss: &mut impl FnMut(f64) -> f64,
+    ahead: &impl Fn(&[f64]),
 ) -> f64 {
     let l0 = theta.ln();
     let mut g = |lt: f64| n_eff * (rss(lt.exp()) / rss_min).max(1e-300).ln() - 1.0;
@@ -309,7 +355,15 @@ pub fn profile_sigma(
         };
         let mut inner = 0.0;
         let mut outer = f64::NAN;
-        for step in [0.02, 0.05, 0.1, 0.2, 0.4, 0.8, 1.6] {
+        const LADDER: [f64; 7] = [0.02, 0.05, 0.1, 0.2, 0.4, 0.8, 1.6];
+        // the ladder's first steps are asked for together (most profiles rise within them)
+        let first: Vec<f64> = LADDER[..4]
+            .iter()
+            .filter(|&&step| step <= room)
+            .map(|&step| (l0 + sign * step).exp())
+            .collect();
+        ahead(&first);
+        for step in LADDER {
             if step > room {
                 break;
             }
@@ -322,8 +376,16 @@ pub fn profile_sigma(
         if outer.is_nan() {
             continue;
         }
-        for _ in 0..5 {
+        for i in 0..5 {
             let mid = 0.5 * (inner + outer);
+            if i % 2 == 0 && i + 1 < 5 {
+                // this step's point and both the next step may take
+                ahead(&[
+                    (l0 + sign * mid).exp(),
+                    (l0 + sign * (0.5 * (inner + mid))).exp(),
+                    (l0 + sign * (0.5 * (mid + outer))).exp(),
+                ]);
+            }
             if g(l0 + sign * mid) > 0.0 {
                 outer = mid;
             } else {

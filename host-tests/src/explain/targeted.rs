@@ -18,6 +18,7 @@
 //! structure does not.
 
 use super::data::Data;
+use super::error::in_parallel;
 use super::fit::{bartlett_n_eff, gather};
 use super::search::{dot, Basis};
 
@@ -211,7 +212,9 @@ fn phases_covered(d: &Data, ch: usize, p_nm: f64) -> bool {
 
 /// A test: the effect, its words, its period, its columns, and control columns of the same kind
 /// that no effect predicts (other periods; position × slow functions of time), whose χ² tell how
-/// far a structured residual inflates the test's.
+/// far a structured residual inflates the test's. The columns are full length (a test that
+/// passes joins the model); the controls are read on the fitted rows only, so they are built
+/// there (24 sets of million-row columns would be written to be read at one row in ten).
 type Test = (
     &'static str,
     String,
@@ -252,11 +255,13 @@ fn control_periods(p: f64) -> Vec<f64> {
         .collect()
 }
 
-/// The tests that apply to channel `ch`, each with its columns (full length).
-fn family(d: &Data, ch: usize) -> Vec<Test> {
+/// The tests that apply to channel `ch`, each with its columns (full length) and its controls
+/// at `rows` (the same values as the full-length controls gathered there).
+fn family(d: &Data, ch: usize, rows: &[usize]) -> Vec<Test> {
     let c = &d.channels[ch];
     let mut out = Vec::new();
     if c.cmd_um.is_some() && !d.against_simulation {
+        let pos_rows = gather(&c.position_est_um, rows);
         for (p, words) in PERIODS_NM {
             if !phases_covered(d, ch, p) {
                 continue;
@@ -268,7 +273,7 @@ fn family(d: &Data, ch: usize) -> Vec<Test> {
                 periodic_columns(&c.position_est_um, p),
                 control_periods(p)
                     .into_iter()
-                    .map(|q| periodic_columns(&c.position_est_um, q))
+                    .map(|q| periodic_columns(&pos_rows, q))
                     .collect(),
             ));
         }
@@ -290,10 +295,9 @@ fn family(d: &Data, ch: usize) -> Vec<Test> {
                 .map(|j| {
                     let n = tm.len();
                     let shift = j * n / (CONTROLS + 1);
-                    vec![u
+                    vec![rows
                         .iter()
-                        .enumerate()
-                        .map(|(i, u)| u * (tm[(i + shift) % n] - t0))
+                        .map(|&i| u[i] * (tm[(i + shift) % n] - t0))
                         .collect()]
                 })
                 .collect(),
@@ -305,8 +309,11 @@ fn family(d: &Data, ch: usize) -> Vec<Test> {
 /// Run the family of targeted tests on channel `ch` against the model `cols` (fitted on
 /// `rows` to response `y`).
 pub fn run(d: &Data, ch: usize, cols: &[&[f64]], y: &[f64], rows: &[usize]) -> Vec<TargetedTest> {
-    let tests = family(d, ch);
-    if tests.is_empty() || rows.len() < 50 {
+    if rows.len() < 50 {
+        return Vec::new();
+    }
+    let tests = family(d, ch, rows);
+    if tests.is_empty() {
         return Vec::new();
     }
     let alpha = FAMILY_FALSE_ALARM / tests.len() as f64;
@@ -346,16 +353,17 @@ pub fn run(d: &Data, ch: usize, cols: &[&[f64]], y: &[f64], rows: &[usize]) -> V
         // shows, and the mean carries it), floored at 1; since it is estimated from `m`
         // controls, the test refers χ²/k over it to F(k, m·k), not to χ²(k).
         let unit = orthonormal(&perp);
-        let null: Vec<f64> = controls
-            .iter()
-            .filter_map(|cc| {
-                let pp: Vec<Vec<f64>> = cc
-                    .iter()
-                    .map(|c| orthogonal_to(basis.project_out(gather(c, rows)), &unit))
-                    .collect();
-                estimate(&pp, &r, &all, basis.dim()).map(|(b, c)| chi2(&b, &c))
-            })
-            .collect();
+        // (each control on its own: side by side where a core is idle, taken in order)
+        let null: Vec<f64> = in_parallel(&controls, |cc| {
+            let pp: Vec<Vec<f64>> = cc
+                .iter()
+                .map(|c| orthogonal_to(basis.project_out(c.clone()), &unit))
+                .collect();
+            estimate(&pp, &r, &all, basis.dim()).map(|(b, c)| chi2(&b, &c))
+        })
+        .into_iter()
+        .flatten()
+        .collect();
         let (inflation, null_dof) = if null.len() >= 8 {
             let mean = null.iter().sum::<f64>() / null.len() as f64;
             ((mean / k as f64).max(1.0), (null.len() * k) as f64)

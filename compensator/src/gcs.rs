@@ -461,6 +461,36 @@ pub fn parse_micros(s: &[u8]) -> Result<i64, GcsError> {
     Ok(if d.neg { -(mag as i64) } else { mag as i64 })
 }
 
+/// True when the number `s` is a whole number of micros: no non-zero digit beyond the sixth
+/// decimal. A controller's target that [`parse_micros`] rounds to a command the proxy sent is
+/// that command only when this holds: PI controllers print targets with more decimals
+/// (`57.4605987`), so a target the controller held before (a reference position, where a
+/// stop left it) can round to the command of a move it refused (issue 21's fuzz of following,
+/// coupled seed 1057: `57.4605987` taken for the refused `57.460599`). Cold: the common short
+/// forms are whole by construction, and only controllers' replies are checked.
+#[cold]
+#[inline(never)]
+pub fn is_whole_micros(s: &[u8]) -> bool {
+    if parse_micros_short(s).is_some() {
+        return true;
+    }
+    if !s.iter().any(|&c| c == b'e' || c == b'E') {
+        // the plain form: every digit beyond the sixth decimal a 0 (all of them, however many)
+        let frac = s.iter().position(|&c| c == b'.').map_or(&s[..0], |d| &s[d + 1..]);
+        return frac.iter().skip(6).all(|&c| c == b'0') && parse_micros(s).is_ok();
+    }
+    // an exponent: the scanned digits (up to 19 significant ones) at their scale
+    let Ok(d) = scan_decimal(s) else {
+        return false;
+    };
+    let k = d.exp10 + 6;
+    k >= 0
+        || d.digits == 0
+        || POW10_U64
+            .get(k.unsigned_abs() as usize)
+            .is_some_and(|&p| d.digits % p == 0)
+}
+
 /// The usual numbers — `[-+]ddd[.dddddd]`, at most nine integer and six fraction digits — in
 /// 32-bit arithmetic; `None` for anything else (then [`parse_micros`] decides). Inlined where a
 /// target is parsed.
@@ -944,6 +974,42 @@ pub fn parse_axis_value(line: &[u8]) -> Option<AxisValue<'_>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A controller's target is a command the proxy sent (a whole number of micros) only
+    /// when no digit beyond the sixth decimal is lost to the rounding.
+    #[test]
+    fn whole_micros_are_told_from_values_that_round_to_them() {
+        for whole in [
+            "57.460599",
+            "57.4605990",
+            "-10.0000000",
+            "80.6820000",
+            "12",
+            "-0",
+            ".5",
+            "1.2345670000000000000000000",
+            "5.75e1",
+            "574605990e-7",
+            "0e-30",
+        ] {
+            assert!(is_whole_micros(whole.as_bytes()), "{whole}");
+        }
+        for not in [
+            "57.4605987",
+            "57.46059872000001",
+            "-10.0000001",
+            "0.0000005",
+            "1.0000000000000000000001",
+            "5.74605987e1",
+            "1e-7",
+            "x",
+            "",
+        ] {
+            assert!(!is_whole_micros(not.as_bytes()), "{not}");
+        }
+        // the fuzz's case: the two round to the same micros, only one is the command
+        assert_eq!(parse_micros(b"57.4605987"), parse_micros(b"57.460599"));
+    }
 
     /// The four-byte test of `scan_run` agrees with the byte-by-byte definition on every byte
     /// value in every position, next to printable and non-printable neighbours.

@@ -476,7 +476,10 @@ pub fn is_whole_micros(s: &[u8]) -> bool {
     }
     if !s.iter().any(|&c| c == b'e' || c == b'E') {
         // the plain form: every digit beyond the sixth decimal a 0 (all of them, however many)
-        let frac = s.iter().position(|&c| c == b'.').map_or(&s[..0], |d| &s[d + 1..]);
+        let frac = s
+            .iter()
+            .position(|&c| c == b'.')
+            .map_or(&s[..0], |d| &s[d + 1..]);
         return frac.iter().skip(6).all(|&c| c == b'0') && parse_micros(s).is_ok();
     }
     // an exponent: the scanned digits (up to 19 significant ones) at their scale

@@ -420,7 +420,8 @@ fn a_target_that_rounds_to_a_refused_command_is_not_that_command() {
     cfg.axes[0].start = held;
     cfg.axes[0].reference = Some(held);
     let mut r = Rig::new(cfg, Some(&m), &TEMPS);
-    let command = |temps: &[f64], x: f64| m.eval_f64(&[x, 0.0, 0.0], &[0; MAX_AXES], &slow(temps))[0];
+    let command =
+        |temps: &[f64], x: f64| m.eval_f64(&[x, 0.0, 0.0], &[0; MAX_AXES], &slow(temps))[0];
     let inverse = |temps: &[f64], q: f64| {
         let (mut lo, mut hi) = (-100.0, 600.0);
         for _ in 0..200 {
@@ -538,7 +539,10 @@ fn a_line_the_controller_would_refuse_as_a_whole_moves_no_axis() {
     assert_eq!(r.line("ERR?"), "0\n");
     r.wait_ms(100);
     let t = targets(&r.events());
-    assert!(t.iter().any(|e| e.0 == 0) && t.iter().any(|e| e.0 == 2), "{t:?}");
+    assert!(
+        t.iter().any(|e| e.0 == 0) && t.iter().any(|e| e.0 == 2),
+        "{t:?}"
+    );
 }
 
 #[test]

@@ -84,10 +84,7 @@ fn gcs_errors_mean_what_the_proxy_raises_them_for() {
         GcsErrorCode::from_code(9015),
         Some(GcsErrorCode::StageMismatch)
     );
-    assert_eq!(
-        GcsErrorCode::from_code(9016),
-        Some(GcsErrorCode::SplitMove)
-    );
+    assert_eq!(GcsErrorCode::from_code(9016), Some(GcsErrorCode::SplitMove));
     // PI's own "axis identifier specified more than once", as the controller gives it
     assert_eq!(GcsErrorCode::from_code(22), Some(GcsErrorCode::DoubleAxis));
     assert_eq!(GcsErrorCode::from_code(9017), None);

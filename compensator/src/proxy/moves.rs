@@ -181,15 +181,16 @@ impl ProxyState {
             x
         };
 
-        let written = self.format_move(s.prefix, kind, named, &q, n, out);
+        // (the shape of the line's hot path, an unmixed move, as before the mixed lines' checks:
+        // the `MOV` line's instruction budget has nothing to spare)
+        let mut written = self.format_move(s.prefix, kind, named, &q, n, out);
         if written.is_ok() && (others > 0 || home_all) {
             // (a refusal here clears what was written: nothing goes out)
             self.format_other_axes(s, kind, n, home_all, out)?;
-        } else {
-            written
-                .and_then(|()| out.to_stage.push(b'\n'))
-                .map_err(|_| Stop::Refuse(GcsErrorCode::LineTooLong))?;
+        } else if written.is_ok() {
+            written = out.to_stage.push(b'\n');
         }
+        written.map_err(|_| Stop::Refuse(GcsErrorCode::LineTooLong))?;
         // the one place a corrected target goes out: its targets and commands are recorded
         // (every model axis; the slots of other axes are never read), and the hysteresis
         // memory follows it

@@ -486,6 +486,7 @@ impl ProxyState {
             ..NO_LINE
         };
         if is_map {
+            let target = matches!(self.rx.kind(), Some(Expect::Map { target: true }));
             if let Some(av) = gcs::parse_axis_value(line) {
                 let n = c.map_or(0, |c| c.axes()).min(MAP_AXES);
                 if let Some(a) = self.map.index(av.axis).filter(|&a| a < n) {
@@ -493,10 +494,12 @@ impl ProxyState {
                         self.rx.values[a] = v;
                         self.rx.seen |= 1 << a;
                         self.rx.here |= 1 << a;
-                        if gcs::parse_micros_short(av.value).is_none()
+                        if target
+                            && gcs::parse_micros_short(av.value).is_none()
                             && !gcs::is_whole_micros(av.value)
                         {
-                            // (not a command the proxy sent, whatever it rounds to)
+                            // (a `MOV?` value that is no command the proxy sent, whatever it
+                            // rounds to; a position reply is never taken for a target)
                             self.rx.inexact |= 1 << a;
                         }
                         info.axis = a as u8;

@@ -330,7 +330,7 @@ impl ProxyState {
             return Err(Stop::Refuse(GcsErrorCode::SplitMove));
         }
         let axes = self.ctrl.axes.known();
-        if home_all && !axes.is_some_and(|a| !a.truncated) {
+        if home_all && axes.is_none_or(|a| a.truncated) {
             // which other axes `GOH` means is unknown: a `MOV` of the model axes alone would
             // leave them where they are
             return Err(Stop::Refuse(GcsErrorCode::SplitMove));

@@ -461,6 +461,50 @@ pub fn parse_micros(s: &[u8]) -> Result<i64, GcsError> {
     Ok(if d.neg { -(mag as i64) } else { mag as i64 })
 }
 
+/// True when the number `s` is a whole number of micros to within 10⁻⁹ µm: the three digits
+/// beyond the sixth decimal all 0 (or all 9 — a controller's own float arithmetic leaves a
+/// target it was sent a few ulps off, `80.68199999998615` for `80.682`, and a controller that
+/// prints every digit of it still holds the command). A controller's target that
+/// [`parse_micros`] rounds to a command the proxy sent is that command only when this holds:
+/// PI controllers print targets with more decimals (`57.4605987`), so a target the controller
+/// held before (a reference position, where a stop left it) can round to the command of a move
+/// it refused (issue 21's fuzz of following, coupled seed 1057: `57.4605987` taken for the
+/// refused `57.460599`). The oracle of the proxy fuzz compares within the same 10⁻⁹ µm. Cold:
+/// the common short forms are whole by construction, and only controllers' replies are checked.
+#[cold]
+#[inline(never)]
+pub fn is_whole_micros(s: &[u8]) -> bool {
+    if parse_micros_short(s).is_some() {
+        return true;
+    }
+    if !s.iter().any(|&c| c == b'e' || c == b'E') {
+        // the plain form: the 7th to 9th decimals (missing ones are 0)
+        let frac = s
+            .iter()
+            .position(|&c| c == b'.')
+            .map_or(&s[..0], |d| &s[d + 1..]);
+        let digit = |i: usize| frac.get(6 + i).copied().unwrap_or(b'0');
+        let near = (0..3).all(|i| digit(i) == b'0') || (0..3).all(|i| digit(i) == b'9');
+        return near && parse_micros(s).is_ok();
+    }
+    // an exponent: the scanned digits (up to 19 significant ones) at their scale, the part
+    // below a micro within a thousandth of one of 0 or 1
+    let Ok(d) = scan_decimal(s) else {
+        return false;
+    };
+    let k = d.exp10 + 6;
+    if k >= 0 || d.digits == 0 {
+        return true;
+    }
+    let Some(&p) = POW10_U64.get(k.unsigned_abs() as usize) else {
+        // more than 19 digits below a micro: the digits (< 10¹⁹) are less than a micro
+        return u128::from(d.digits) * 1000 < 10u128.pow(k.unsigned_abs());
+    };
+    let r = u128::from(d.digits % p);
+    let p = u128::from(p);
+    r * 1000 < p || (p - r) * 1000 <= p
+}
+
 /// The usual numbers — `[-+]ddd[.dddddd]`, at most nine integer and six fraction digits — in
 /// 32-bit arithmetic; `None` for anything else (then [`parse_micros`] decides). Inlined where a
 /// target is parsed.
@@ -944,6 +988,50 @@ pub fn parse_axis_value(line: &[u8]) -> Option<AxisValue<'_>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A controller's target is a command the proxy sent (a whole number of micros) only
+    /// when the rounding loses less than 10⁻⁹ µm.
+    #[test]
+    fn whole_micros_are_told_from_values_that_round_to_them() {
+        for whole in [
+            "57.460599",
+            "57.4605990",
+            "-10.0000000",
+            "80.6820000",
+            "12",
+            "-0",
+            ".5",
+            "1.2345670000000000000000000",
+            "5.75e1",
+            "574605990e-7",
+            "0e-30",
+            // a controller's own arithmetic on a command it was sent (to 10⁻⁹ µm)
+            "80.68199999998615",
+            "80.68200000001",
+            "1.0000000000000000000001",
+            "8068199999998615e-14",
+            "1e-30",
+        ] {
+            assert!(is_whole_micros(whole.as_bytes()), "{whole}");
+        }
+        for not in [
+            "57.4605987",
+            "57.46059872000001",
+            "-10.0000001",
+            "0.0000005",
+            "57.4605999",
+            "57.460599001",
+            "5.74605987e1",
+            "1e-7",
+            "1e-9",
+            "x",
+            "",
+        ] {
+            assert!(!is_whole_micros(not.as_bytes()), "{not}");
+        }
+        // the fuzz's case: the two round to the same micros, only one is the command
+        assert_eq!(parse_micros(b"57.4605987"), parse_micros(b"57.460599"));
+    }
 
     /// The four-byte test of `scan_run` agrees with the byte-by-byte definition on every byte
     /// value in every position, next to printable and non-printable neighbours.

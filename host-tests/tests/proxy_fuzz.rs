@@ -68,11 +68,24 @@ fn benchmark_findings_stay_fixed() {
 /// with a failing host `MVR` between them answered with the check's `0` (the proxy's:
 /// `proxy_follow`'s `a_host_err_after_another_host_line_behind_the_check_is_the_controllers`),
 /// and a coupled `GOH 1` taken for a move nobody asked for because the oracle compared the
-/// controller's target with the recorded command bit for bit (the oracle's: `bases`).
+/// controller's target with the recorded command bit for bit (the oracle's: `bases`). And the
+/// two of the 50-million-step run (branch `proxy25`), both the proxy's: a relative move naming
+/// axis 3 twice split into a corrected `MOV 1` and an `MVR 3 … 3 …` the controller refused, so
+/// axis 1 moved where the host's line would have moved nothing (1-DoF seed 1044; `gcs_proxy`'s
+/// `a_line_the_controller_would_refuse_as_a_whole_moves_no_axis`), and a controller target
+/// `57.4605987` taken for the refused command `57.460599` it rounds to, so a stale record
+/// stood in for the controller's targets (coupled seed 1057;
+/// `a_target_that_rounds_to_a_refused_command_is_not_that_command`).
 #[test]
 fn following_benchmark_findings_stay_fixed() {
     let setups = follow_setups();
-    for (setup, seed, steps) in [(0, 1002, 22_182), (0, 1004, 23_144), (1, 1014, 203_093)] {
+    for (setup, seed, steps) in [
+        (0, 1002, 22_182),
+        (0, 1004, 23_144),
+        (1, 1014, 203_093),
+        (0, 1044, 227_966),
+        (1, 1057, 229_459),
+    ] {
         if let Err(v) = run(&setups[setup], seed, steps) {
             panic!("{v}");
         }

@@ -1,8 +1,8 @@
 //! The GCS error codes the compensator answers itself, on the host's next `ERR?`, when it
 //! refuses a line (nothing is forwarded to the controller).
 //!
-//! Three are PI's own codes with PI's meaning (GCS 2.0, the controller manuals' error table), so
-//! a host that knows PI's codes understands them; 9001–9015 are the compensator's own, above
+//! Four are PI's own codes with PI's meaning (GCS 2.0, the controller manuals' error table), so
+//! a host that knows PI's codes understands them; 9001–9016 are the compensator's own, above
 //! PI's range. The firmware's proxy raises exactly these, and the host's messages (`nanocal
 //! campaign`, `nanocal device status`) come from the same table.
 //!
@@ -10,7 +10,8 @@
 //! |---:|---|
 //! | 1 | parameter syntax (unparsable number, missing value) |
 //! | 7 | the corrected command is outside the stage travel (PI: position out of limits) |
-//! | 15 | a model axis named twice (PI: invalid axis identifier) |
+//! | 15 | a query names an axis that is not one of the controller's (PI: invalid axis identifier; the controller would leave it unanswered) |
+//! | 22 | an axis named twice in one line (PI: axis identifier specified more than once) |
 //! | 9001 | target outside the model's training envelope |
 //! | 9002 | a sensor or input the model needs has failed, or the fold is stale |
 //! | 9003 | no model in service (none loaded, or sensors warming up) |
@@ -26,6 +27,7 @@
 //! | 9013 | a model axis is not one of the controller's axes (`SAI?`) |
 //! | 9014 | the controller does not answer (identification unanswered or unusable, or silent while the line waited) |
 //! | 9015 | the controller's identification (`*IDN?`) names another stage serial than the model was fitted on, and the setting `allow_other_stage` is off |
+//! | 9016 | a move the proxy would have to split into two commands, one of which the controller might refuse while it accepts the other: `MVR` of a model axis and another axis in one line, or `GOH` of all axes while the controller's axes (`SAI?`) are unknown |
 
 code_enum! {
     /// A GCS error the compensator raises (see the module's table).
@@ -35,8 +37,12 @@ code_enum! {
         /// PI's code 7: position out of limits — the corrected command is outside the stage
         /// travel.
         PosOutOfLimits = 7 => "position out of limits: the corrected command is outside the stage travel",
-        /// PI's code 15: invalid axis identifier — a model axis named twice in one line.
-        InvalidAxis = 15 => "invalid axis identifier: a model axis named twice",
+        /// PI's code 15: invalid axis identifier — a query names an axis that is not one of
+        /// the controller's (`SAI?`), which the controller would leave unanswered.
+        InvalidAxis = 15 => "invalid axis identifier: not one of the controller's axes",
+        /// PI's code 22: axis identifier specified more than once — the controller refuses
+        /// such a line as a whole, so the proxy does too (any axis, the model's or another).
+        DoubleAxis = 22 => "axis identifier specified more than once in one line",
         /// The target lies outside the model's training envelope.
         OutsideEnvelope = 9001 => "target outside the model's training envelope",
         /// A sensor or input the model needs has failed, or the fold is stale (sensor task
@@ -81,6 +87,13 @@ code_enum! {
         /// model's blob was fitted on (or none): moves are refused unless the setting
         /// `allow_other_stage` is on (`nanocal_model::provenance`).
         StageMismatch = 9015 => "the controller is another stage than the model was fitted on (its *IDN? serial differs); set allow_other_stage to compensate it anyway",
+        /// A move the proxy would have to split into two commands, of which the controller
+        /// might refuse one and execute the other (the host's line would have moved nothing):
+        /// a relative move (`MVR`) naming a model axis and another axis — the other axes'
+        /// relative part cannot join the model axes' corrected absolute `MOV` — or `GOH` of all
+        /// axes while the controller's axes (`SAI?`) are unknown. Send the other axes on a
+        /// line of their own.
+        SplitMove = 9016 => "a move that names a model axis and another axis in a form the compensator would have to split into two commands (MVR, or GOH of all axes with the controller's axes unknown); send the other axes on a line of their own",
     }
 }
 

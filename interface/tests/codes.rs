@@ -45,13 +45,13 @@ fn every_code_maps_back() {
 
 #[test]
 fn gcs_errors_mean_what_the_proxy_raises_them_for() {
-    // the compensator's own codes, 9001..=9015, each with its own meaning
+    // the compensator's own codes, 9001..=9016, each with its own meaning
     let own: Vec<i32> = GcsErrorCode::ALL
         .iter()
         .filter(|e| e.is_compensators())
         .map(|e| e.code())
         .collect();
-    assert_eq!(own, (9001..=9015).collect::<Vec<_>>());
+    assert_eq!(own, (9001..=9016).collect::<Vec<_>>());
     // the two the campaign once mislabelled (9006 as a unit mismatch)
     assert_eq!(
         GcsErrorCode::from_code(9006),
@@ -84,7 +84,10 @@ fn gcs_errors_mean_what_the_proxy_raises_them_for() {
         GcsErrorCode::from_code(9015),
         Some(GcsErrorCode::StageMismatch)
     );
-    assert_eq!(GcsErrorCode::from_code(9016), None);
+    assert_eq!(GcsErrorCode::from_code(9016), Some(GcsErrorCode::SplitMove));
+    // PI's own "axis identifier specified more than once", as the controller gives it
+    assert_eq!(GcsErrorCode::from_code(22), Some(GcsErrorCode::DoubleAxis));
+    assert_eq!(GcsErrorCode::from_code(9017), None);
 }
 
 #[test]

@@ -308,7 +308,11 @@ impl ProxyState {
                 for l in super::controller::lines_of(lines) {
                     if let Some(av) = gcs::parse_axis_value(l) {
                         if let Some(a) = self.map.index(av.axis).filter(|&a| a < n) {
-                            q[a] = gcs::parse_micros(av.value).ok();
+                            // exactly the command sent, not a target that rounds to it
+                            // (`gcs::is_whole_micros`)
+                            q[a] = gcs::parse_micros(av.value)
+                                .ok()
+                                .filter(|_| gcs::is_whole_micros(av.value));
                         }
                     }
                 }

@@ -69,7 +69,7 @@ impl ProxyState {
             match self.map.index(id).filter(|&a| a < n) {
                 Some(a) => {
                     if named >> a & 1 != 0 {
-                        return Err(Stop::Refuse(GcsErrorCode::InvalidAxis));
+                        return Err(Stop::Refuse(GcsErrorCode::DoubleAxis));
                     }
                     named |= 1 << a;
                     x[a] = v;
@@ -181,9 +181,12 @@ impl ProxyState {
             x
         };
 
+        // (the shape of the line's hot path, an unmixed move, as before the mixed lines' checks:
+        // the `MOV` line's instruction budget has nothing to spare)
         let mut written = self.format_move(s.prefix, kind, named, &q, n, out);
         if written.is_ok() && (others > 0 || home_all) {
-            written = self.format_other_axes(s, kind, n, home_all, out);
+            // (a refusal here clears what was written: nothing goes out)
+            self.format_other_axes(s, kind, n, home_all, out)?;
         } else if written.is_ok() {
             written = out.to_stage.push(b'\n');
         }
@@ -257,10 +260,9 @@ impl ProxyState {
         Some(xs)
     }
 
-    /// The forwarded line(s): one `MOV` (`MVE`) with every model axis that was named or whose
-    /// command changed (coupling, temperature), then (see `format_other_axes`) the untouched
-    /// pairs of the other axes; the other axes of an `MVR` keep their relative move in an `MVR`
-    /// of their own, those of a `GOH` their `GOH`. This writes the `MOV` without its line end.
+    /// The forwarded line: one `MOV` (`MVE`) with every model axis that was named or whose
+    /// command changed (coupling, temperature), then (see `format_other_axes`) the other axes
+    /// the host named, in the same line. This writes the `MOV` without its line end.
     fn format_move(
         &mut self,
         prefix: &[u8],
@@ -290,7 +292,20 @@ impl ProxyState {
         Ok(())
     }
 
-    /// The other axes' part of a move (rare: a mixed line, or `GOH` of all axes).
+    /// The other axes' part of a move (rare: a mixed line, or `GOH` of all axes), and its line
+    /// end. Everything the host asked goes out as one line, so the controller accepts or
+    /// refuses it as a whole, as it would the host's: the other axes' pairs of a `MOV` (`MVE`)
+    /// as they came, those of a `GOH` as target 0 ("equivalent to moving the axes to
+    /// positions 0 using MOV", PI) — the axes named, or for `GOH` of all axes every axis of
+    /// the controller's (`SAI?`) the model does not cover. Refused: a line that names an axis
+    /// twice ([`GcsErrorCode::DoubleAxis`], as the controller refuses it), and what cannot go
+    /// out as one line ([`GcsErrorCode::SplitMove`]): an `MVR`'s other axes (the model axes'
+    /// part is a corrected absolute target, theirs is relative to targets the proxy does not
+    /// know), `GOH` of all axes while the controller's axes are unknown. Split into two lines,
+    /// the controller could refuse one part (an axis named twice, not one of its axes, beyond
+    /// its travel, servo off) and execute the other: the host's line would have moved nothing,
+    /// and the model axes would have moved (issue 21's fuzz of following, seed 1044: `MVR 3
+    /// 7.668 1 9.56 3 -15.8` moved axis 1 by 9.6 µm).
     #[cold]
     #[inline(never)]
     fn format_other_axes(
@@ -300,54 +315,51 @@ impl ProxyState {
         n: usize,
         home_all: bool,
         out: &mut Output,
-    ) -> Result<(), GcsError> {
-        let o = &mut out.to_stage;
+    ) -> Result<(), Stop> {
         let is_model = |id: &[u8]| self.map.index(id).is_some_and(|a| a < n);
-        // the other axes' pairs as they came (every value was parsed before)
-        let other_pairs = |o: &mut gcs::LineBuf<{ super::STAGE_OUT }>| -> Result<(), GcsError> {
-            for (id, _, text) in gcs::pairs(s.args).flatten().filter(|p| !is_model(p.0)) {
-                o.push(b' ')?;
-                o.extend(id)?;
-                o.push(b' ')?;
-                o.extend(text)?;
+        // the other axes' identifiers as named (every value was parsed before; a model axis
+        // named twice was refused then)
+        let step = if kind == MoveKind::Home { 1 } else { 2 };
+        let ids = || gcs::tokens(s.args).step_by(step).filter(|id| !is_model(id));
+        for (i, id) in ids().enumerate() {
+            if ids().skip(i + 1).any(|other| gcs::same_axis(id, other)) {
+                return Err(Stop::Refuse(GcsErrorCode::DoubleAxis));
             }
-            Ok(())
-        };
-        if matches!(kind, MoveKind::Absolute | MoveKind::Vector) {
-            other_pairs(o)?;
         }
-        o.push(b'\n')?;
         if kind == MoveKind::Relative {
-            o.extend(s.prefix)?;
-            o.extend(b"MVR")?;
-            other_pairs(o)?;
-            o.push(b'\n')?;
+            return Err(Stop::Refuse(GcsErrorCode::SplitMove));
         }
+        let axes = self.ctrl.axes.known();
+        if home_all && axes.is_none_or(|a| a.truncated) {
+            // which other axes `GOH` means is unknown: a `MOV` of the model axes alone would
+            // leave them where they are
+            return Err(Stop::Refuse(GcsErrorCode::SplitMove));
+        }
+        let too_long = |_| Stop::Refuse(GcsErrorCode::LineTooLong);
+        let o = &mut out.to_stage;
+        let mut pair = |id: &[u8], value: &[u8]| -> Result<(), GcsError> {
+            o.push(b' ')?;
+            o.extend(id)?;
+            o.push(b' ')?;
+            o.extend(value)
+        };
         if kind == MoveKind::Home {
-            // the other axes go home on their own
-            let mut list = gcs::LineBuf::<{ gcs::MAX_LINE }>::new();
-            for id in gcs::tokens(s.args).filter(|id| !is_model(id)) {
-                let _ = list.push(b' ');
-                let _ = list.extend(id);
+            for id in ids() {
+                pair(id, b"0").map_err(too_long)?;
             }
-            if home_all {
-                if let Some(axes) = self.ctrl.axes.known() {
-                    for id in axes.ids[..axes.k].iter().flatten() {
-                        if !is_model(id.as_bytes()) {
-                            let _ = list.push(b' ');
-                            let _ = list.extend(id.as_bytes());
-                        }
+            if let (true, Some(axes)) = (home_all, axes) {
+                for id in axes.ids[..axes.k].iter().flatten() {
+                    if !is_model(id.as_bytes()) {
+                        pair(id.as_bytes(), b"0").map_err(too_long)?;
                     }
                 }
             }
-            if !list.is_empty() {
-                o.extend(s.prefix)?;
-                o.extend(b"GOH")?;
-                o.extend(list.as_bytes())?;
-                o.push(b'\n')?;
+        } else {
+            for (id, _, text) in gcs::pairs(s.args).flatten().filter(|p| !is_model(p.0)) {
+                pair(id, text).map_err(too_long)?;
             }
         }
-        Ok(())
+        o.push(b'\n').map_err(too_long)
     }
 }
 

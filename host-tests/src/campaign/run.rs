@@ -118,7 +118,7 @@ pub enum CampaignError {
 }
 
 /// What a GCS error code answered to the campaign's `ERR?` means: the codes the compensator
-/// raises itself (9001–9015, and PI's 1, 7 and 15) from the one table both the firmware and the
+/// raises itself (9001–9016, and PI's 1, 7, 15 and 22) from the one table both the firmware and the
 /// host use ([`GcsErrorCode`]), the other PI codes a campaign meets from PI's own list.
 pub fn gcs_meaning(code: i32) -> &'static str {
     if let Some(e) = GcsErrorCode::from_code(code) {

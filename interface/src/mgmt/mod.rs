@@ -75,7 +75,10 @@ pub use request::Request;
 /// blob format is 4 (the provenance section). 8: following's counters (issue 21, held targets
 /// that follow the model): `STATUS` grows by 8 bytes at its end (`Status::follow_reissues`,
 /// `Status::follow_refused`); a lab could not tell from the status whether following acted, or
-/// whether the controller refused its re-issues.
-pub const PROTOCOL: u16 = 8;
+/// whether the controller refused its re-issues. 9: `Status::pending_error` may carry two new
+/// codes, 22 (an axis named twice, PI's own code) and 9016 (a relative move mixing model and
+/// other axes, refused rather than split); the bytes are unchanged, but a protocol-8 host's
+/// decoder refuses those values, so it must be told to update rather than fail on a status.
+pub const PROTOCOL: u16 = 9;
 /// Largest upload chunk (payload minus the offset).
 pub const MAX_CHUNK: usize = 256;

@@ -12,9 +12,10 @@ use super::{
 };
 use crate::explain::contract::{self, Detail, LagTerm, Proposal};
 use crate::explain::data::Data;
-use crate::explain::error::{in_parallel, ExplainError};
+use crate::explain::error::ExplainError;
 use crate::explain::estimate::{Estimate, Theta};
 use crate::explain::fit::{bartlett_n_eff, cross_validate_score, gather};
+use crate::explain::parallel::in_parallel;
 use crate::explain::search::{dot, log_grid, Basis, Search};
 use crate::explain::units::{duration, sig3};
 

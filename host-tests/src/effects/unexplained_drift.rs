@@ -9,10 +9,10 @@ use super::SimContext;
 use super::{lag_series, zeros};
 use crate::explain::contract::{self, Proposal};
 use crate::explain::data::Data;
-use crate::explain::error::in_parallel;
 use crate::explain::error::ExplainError;
 use crate::explain::estimate::{Estimate, Theta};
 use crate::explain::fit::{cross_validate_score, Design};
+use crate::explain::parallel::in_parallel;
 use crate::explain::search::Search;
 
 /// The effect's name.

@@ -132,7 +132,8 @@ impl CosineCache {
         }
         if kept.0.len() < top {
             let missing: Vec<usize> = (kept.0.len() + 1..=top).collect();
-            let new = super::error::in_parallel(&missing, |&j| std::sync::Arc::new(column(t_s, j)));
+            let new =
+                super::parallel::in_parallel(&missing, |&j| std::sync::Arc::new(column(t_s, j)));
             kept.0.extend(new);
         }
         kept.0[..top].to_vec()
@@ -336,7 +337,7 @@ impl Data {
         let mut temp_repairs = Vec::new();
         // each sensor on its own, side by side (a million-row log: seconds of sorting); the
         // repairs taken in column order
-        let glitches = super::error::in_parallel(&temps, |(_, v)| {
+        let glitches = super::parallel::in_parallel(&temps, |(_, v)| {
             let q = robust::quantisation_step(v);
             robust::glitch_rows(v, q, max_glitch_run(n), None)
         });
@@ -347,7 +348,7 @@ impl Data {
             }
         }
         let temp_update_s =
-            super::error::in_parallel(&temps, |(_, v)| robust::update_interval_s(&t_s, v));
+            super::parallel::in_parallel(&temps, |(_, v)| robust::update_interval_s(&t_s, v));
         let mut aux: Vec<(String, Vec<f64>)> = rec
             .aux_columns()
             .iter()

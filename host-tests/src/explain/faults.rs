@@ -636,7 +636,7 @@ pub fn inspect(rec: &Recording) -> Result<Inspection, ExplainError> {
     let mut unusable: Vec<(usize, Vec<bool>)> = Vec::new();
     // each column judged on its own, side by side (a million-row log: seconds of sorting);
     // the faults taken in column order
-    let found = super::error::in_parallel(&judged, |&j| {
+    let found = super::parallel::in_parallel(&judged, |&j| {
         let x = &columns[j].1;
         let peers: Vec<&[f64]> = (0..columns.len())
             .filter(|&k| k != j)

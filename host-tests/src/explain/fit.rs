@@ -4,7 +4,8 @@
 
 use crate::numerics::linalg::{lstsq, LeastSquares};
 
-use super::error::{in_parallel, ExplainError};
+use super::error::ExplainError;
+use super::parallel::in_parallel;
 use super::stats::{centred_mean, median};
 
 /// Number of contiguous time blocks of the default held-out design.

@@ -33,6 +33,7 @@ pub mod jackknife;
 pub mod locate;
 pub mod misspec;
 pub mod nnls;
+pub mod parallel;
 pub mod plot;
 pub mod report;
 pub mod robust;
@@ -46,10 +47,10 @@ use contract::{Candidate, Fitted, Proposal};
 use estimate::Estimate;
 
 pub use data::Data;
-pub(crate) use error::in_parallel;
 pub use error::ExplainError;
 pub use faults::{DataFault, FaultKind};
 pub use locate::{Finding, NoiseFloor};
+pub(crate) use parallel::in_parallel;
 pub use report::{ChannelReport, EffectReport, Report};
 
 use fit::{Cv, Design, Fit};

@@ -5,8 +5,8 @@
 //! of a new QR. Gram–Schmidt is applied twice ("twice is enough", Giraud et al., Numer. Math.
 //! 101, 2005), which keeps the basis orthonormal to working precision.
 
-use super::error::in_parallel;
 use super::estimate::Theta;
+use super::parallel::in_parallel;
 use crate::explain::data::Data;
 use crate::explain::fit::{gather, Design};
 

@@ -18,8 +18,8 @@
 //! structure does not.
 
 use super::data::Data;
-use super::error::in_parallel;
 use super::fit::{bartlett_n_eff, gather};
+use super::parallel::in_parallel;
 use super::search::{dot, Basis};
 
 /// False-alarm rate of all targeted tests on a channel together. Nominally 0.1 %: on 60

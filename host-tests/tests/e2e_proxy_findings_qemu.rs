@@ -33,12 +33,14 @@
 mod fw_sim;
 
 use fw_sim::{
-    in_service, next_host_line, own_query, stage_value, wait_until, Config, Event, GcsHost, Qemu,
-    SensorSim, StageSim, HANG,
+    in_service, next_host_line, own_query, stage_value, Config, Event, GcsHost, Qemu, SensorSim,
+    StageSim, HANG,
 };
 use nanocal::papers::published::one_dof;
 use nanocal_compensator::proxy::travel::CLAMP_UM;
+use nanocal_interface::bench_link as bl;
 use nanocal_model::{blob, Factor, Input, Model, ModelBuilder, SlowInputs, MAX_AXES};
+use std::time::{Duration, Instant};
 
 /// Temperatures the simulated sensors report (exact in MAX31856 LSBs), inside 21–23 °C.
 const TEMPS_C: [f32; 4] = [22.0, 22.125, 21.875, 22.25];
@@ -129,12 +131,24 @@ impl Rig {
         let n = blob::encode(&model, &mut b).unwrap();
         q.client().upload(&b[..n]).expect("upload the model");
         // the sensors' first fold periods pass in lockstep, as fast as the board runs (5.5 s
-        // of its time at 1× were most of a test's wall time)
+        // of its time at 1× were most of a test's wall time). Bytes announced to the board
+        // that never reach it (a first request lost while it was still starting: the
+        // client's retry) hold its clock until the free-running bench gives up on them
+        // (`MAX_HOLD`); in lockstep nothing would: wait for that first.
+        let link = q.link();
+        let hang = Instant::now() + HANG;
+        while (0..bl::SERIALS).any(|p| link.announced_unread(p) > 0) {
+            assert!(Instant::now() < hang, "announced bytes never read");
+            std::thread::sleep(Duration::from_millis(5));
+        }
         let clk = q.clock();
         clk.lockstep();
         let now_s = clk.now_s();
-        clk.advance_to(now_s + WARM_UP_S, HANG)
-            .expect("the board's clock through the warm-up");
+        if let Err(e) = clk.advance_to(now_s + WARM_UP_S, Duration::from_secs(20)) {
+            // (seen once in some 40 boots, cause not found: the board's clock stayed at 0;
+            // the warm-up then runs at 1×, bounded in board time by `in_service`)
+            eprintln!("\n*** {test}: the warm-up in lockstep stalled ({e:?}); at 1× instead\n");
+        }
         clk.free_run(1.0);
         in_service(&mut q, model.id());
         let host = Some(q.gcs_host());
@@ -187,6 +201,18 @@ impl Rig {
                 _ => None,
             })
             .collect()
+    }
+
+    /// Run `f` with the controller held (its lock: what the board sends it meanwhile is
+    /// answered only afterwards, late) and the board's clock held (lockstep: no reply timeout
+    /// runs out meanwhile, however loaded the machine); then the clock runs free again.
+    fn held<R>(&mut self, f: impl FnOnce(&mut Qemu, &mut Option<GcsHost>) -> R) -> R {
+        let clk = self.q.clock();
+        clk.lockstep();
+        let (stage, q, host) = (&self.stage, &mut self.q, &mut self.host);
+        let r = stage.with(|_| f(q, host));
+        clk.free_run(1.0);
+        r
     }
 
     /// Ask the sentinel `SVO? 1` and return every line the controller received before it
@@ -298,6 +324,19 @@ impl Rig {
     }
 }
 
+/// Wait until the board has written `n` bytes to the stage port since its count was `tx0`
+/// (with its clock held: no board time passes; up to [`HANG`] of wall time, ringing the board
+/// in case QEMU's loop sleeps on the host's socket).
+fn stage_written(q: &Qemu, tx0: u32, n: u32, what: &str) {
+    let link = q.link();
+    let hang = Instant::now() + HANG;
+    while link.tx_bytes(1).wrapping_sub(tx0) < n {
+        assert!(Instant::now() < hang, "{what}: not within {HANG:?}");
+        link.wake_for_input();
+        std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
 /// Finding 1: `MOV 1 100`, `HLT 1`, then `MVR 1 1\n\x18` in one write. The proxy holds the
 /// `MVR` for its base (`MOV? 1`); the stop goes out at once and drops it; the controller's
 /// answer to that `MOV? 1` comes after the stop (the controller is held until the board has
@@ -318,21 +357,13 @@ fn finding_1_a_relative_move_after_a_stop_starts_where_the_controller_stopped() 
     r.moves();
     let held = r.target();
 
-    let link = r.q.link();
-    let clk = r.q.clock();
-    let tx0 = link.tx_bytes(1);
     let bytes = hex("4d5652203120310a18");
     assert_eq!(bytes, b"MVR 1 1\n\x18");
-    let (stage, host) = (&r.stage, r.host.as_mut().unwrap());
-    stage.with(|_| {
-        host.send_raw(&bytes);
+    r.held(|q, host| {
+        let tx0 = q.link().tx_bytes(1);
+        host.as_mut().unwrap().send_raw(&bytes);
         // `MOV? 1\n` and the stop: on the stage link before the controller answers
-        wait_until(
-            "finding 1: the proxy's MOV? 1 and the stop on the stage link",
-            &clk,
-            10.0,
-            || (link.tx_bytes(1).wrapping_sub(tx0) >= 8).then_some(()),
-        );
+        stage_written(q, tx0, 8, "finding 1: the proxy's MOV? 1 and the stop");
     });
     let lines = r.sentinel();
     assert_eq!(
@@ -585,8 +616,9 @@ fn finding_6_the_hosts_pun_of_one_axis_does_not_block_moves() {
 }
 
 /// Finding 9: a new connection starts clean. A `POS? 1` sent just before the port closes is
-/// forwarded, and the controller answers it only once the next connection is open (held until
-/// then): that reply is not the new host's — its first line is the answer to its own `ERR?`.
+/// forwarded, and the controller answers it only once the next connection's `ERR?` has been
+/// forwarded too (held until then): that reply is not the new host's — its first line is the
+/// answer to its own `ERR?`.
 /// A line cut mid-way (`MOV 1 1`, no LF) does not join the next connection's first line (the
 /// issue saw error 1 there).
 #[test]
@@ -595,33 +627,33 @@ fn finding_9_a_new_connection_starts_clean() {
         return;
     };
     r.mov(100.0);
-    let link = r.q.link();
-    let clk = r.q.clock();
-    let tx0 = link.tx_bytes(1);
-    let (stage, q, host) = (&r.stage, &mut r.q, &mut r.host);
-    let next = stage.with(|_| {
+    let next = r.held(|q, host| {
+        let tx0 = q.link().tx_bytes(1);
         let mut old = host.take().unwrap();
         old.send("POS? 1");
-        wait_until(
+        stage_written(
+            q,
+            tx0,
+            7,
             "finding 9: POS? 1 forwarded before the port closes",
-            &clk,
-            10.0,
-            || (link.tx_bytes(1).wrapping_sub(tx0) >= 7).then_some(()),
         );
         drop(old);
         // the board has read every byte sent; DTR falls, a new connection, DTR rises
-        q.reconnect_gcs()
+        let mut next = q.reconnect_gcs();
+        // the new host's first query reaches the controller before the controller answers
+        // the old one (and QEMU has taken the new connection: its loop is rung meanwhile)
+        next.send("ERR?");
+        stage_written(q, tx0, 12, "finding 9: the new connection's ERR? forwarded");
+        next
     });
     r.host = Some(next);
+    for line in ["POS? 1", "ERR?"] {
+        assert_eq!(next_host_line(&r.stage), line, "finding 9");
+    }
     assert_eq!(
-        next_host_line(&r.stage),
-        "POS? 1",
-        "finding 9: the old session's query"
-    );
-    assert_eq!(
-        r.host().ask("ERR?"),
+        r.host().read_line(HANG),
         "0",
-        "finding 9: the new connection's first line"
+        "finding 9: the new connection's first line (its ERR?'s answer)"
     );
     r.sentinel();
 

@@ -22,13 +22,13 @@
 //! | 9 a new connection inherited the old one's bytes | `finding_9_a_new_connection_starts_clean` |
 //!
 //! Findings 7 and 8 (management port) are in `e2e_mgmt_qemu.rs`. Each test boots its own board
-//! (independent; a few seconds each). Nothing here waits on the wall clock for something *not*
-//! to happen: "nothing was forwarded" is read from the controller's record once the reply to a
-//! later query of the host's (a sentinel, `SVO? 1`) has come back, and the two places where the
-//! controller must answer *late* hold it (its lock) until the board's own count of bytes
-//! written to the stage port says the proxy has sent what comes first; bounds are in the
-//! board's time. Without qemu-system-arm the tests are skipped with a loud message, except in
-//! CI.
+//! (independent; about a second each, the warm-up in lockstep). Nothing here waits on the wall
+//! clock for something *not* to happen: "nothing was forwarded" is read from the controller's
+//! record once the reply to a later query of the host's (a sentinel, `SVO? 1`) has come back;
+//! the two places where the controller must answer *late* hold it (its lock) and the board's
+//! clock (lockstep) until the board's own count of bytes written to the stage port says the
+//! proxy has sent what comes first; other bounds are in the board's time. Without
+//! qemu-system-arm the tests are skipped with a loud message, except in CI.
 
 mod fw_sim;
 

@@ -202,11 +202,17 @@ pub async fn host_link<R: Read, W: Write>(mut rx: R, mut tx: W, sh: &Shared) -> 
         let mut buf = [0u8; 64];
         loop {
             let session = sh.host_session.load(Ordering::Acquire);
-            let n = match select(read_some(&mut rx, &mut buf), sh.host_hangup.wait()).await {
-                Either::First(n) => n,
+            // the line state first: when the port opened (a new session) before this task
+            // looked again, the bytes already in are the new host's — taken first, they were
+            // read under the old session and dropped, and a host that writes as soon as the
+            // port is open lost its first bytes (`ERR?` reached the controller as `RR?`:
+            // `e2e_proxy_findings_qemu`, finding 9, under load). (A pending read takes no byte:
+            // dropping it loses nothing.)
+            let n = match select(sh.host_hangup.wait(), read_some(&mut rx, &mut buf)).await {
                 // the host closed or opened the port: nothing of the old connection survives
                 // it (the session was ended where the line state changed)
-                Either::Second(()) => continue,
+                Either::First(()) => continue,
+                Either::Second(n) => n,
             };
             if session != sh.host_session.load(Ordering::Acquire)
                 || !sh.host_connected.load(Ordering::Relaxed)

@@ -1480,6 +1480,68 @@ mod tests {
     }
 
     #[test]
+    fn lines_counted_as_a_byte_loop_counts_them() {
+        // every length around the 16- and 64-byte blocks, newlines at every offset, with and
+        // without a last newline: the vector counts against the plain loop
+        let mut text = Vec::new();
+        let mut seed = 0x2545_F491_4F6C_DD1Du64;
+        for _ in 0..600 {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            text.push(if seed % 5 == 0 { b'\n' } else { b'0' + (seed % 10) as u8 });
+        }
+        for start in 0..70 {
+            for end in start..text.len().min(start + 300) {
+                let part = &text[start..end];
+                let plain = part.iter().filter(|&&b| b == b'\n').count()
+                    + (!part.is_empty() && part[part.len() - 1] != b'\n') as usize;
+                assert_eq!(count_lines(part), plain, "bytes {start}..{end}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_large_file_with_blank_lines_reads_into_one_block() {
+        // > 1 MB (the parallel path) and enough values for the one block of columns; blank
+        // and CR LF lines leave gaps in every thread's range that must close up
+        let rows = 120_000usize;
+        let mut text = String::from("a,b,c\n");
+        for i in 0..rows {
+            if i % 1000 == 7 {
+                text.push_str("\n \r\n");
+            }
+            let end = if i % 3 == 0 { "\r\n" } else { "\n" };
+            text.push_str(&format!("{i}.5,-{}.25,{}{end}", i % 97, i * 3));
+        }
+        assert!(text.len() > 1 << 20);
+        let rec = Recording::parse(text.as_bytes()).expect("parse");
+        assert_eq!(rec.rows(), rows);
+        assert!(matches!(rec.columns[0], Column::InBlock { .. }));
+        for i in (0..rows).step_by(997).chain([0, rows - 1]) {
+            assert_eq!(rec.column_at(0)[i], i as f64 + 0.5, "a at {i}");
+            assert_eq!(rec.column_at(1)[i], -((i % 97) as f64 + 0.25), "b at {i}");
+            assert_eq!(rec.column_at(2)[i], (i * 3) as f64, "c at {i}");
+        }
+        // a clone shares the block and compares equal to the same columns in vectors
+        let own = Recording::from_columns(
+            rec.names()
+                .iter()
+                .enumerate()
+                .map(|(j, n)| (n.clone(), rec.column_at(j).to_vec()))
+                .collect(),
+        )
+        .expect("columns");
+        assert_eq!(rec.clone(), own);
+        // read from a file: mapped, its pages mapped in and dropped by the parser's threads
+        let path = std::env::temp_dir().join(format!("nanocal-block-{}.csv", std::process::id()));
+        std::fs::write(&path, &text).expect("write the file");
+        let read = Recording::read_path(&path);
+        std::fs::remove_file(&path).ok();
+        assert_eq!(read.expect("read the file"), own);
+    }
+
+    #[test]
     fn malformed_numbers_and_empty_fields_are_refused() {
         for bad in ["abc", "1.2.3", "1e"] {
             let csv = format!("x\n{bad}\n");

@@ -1489,7 +1489,11 @@ mod tests {
             seed ^= seed << 13;
             seed ^= seed >> 7;
             seed ^= seed << 17;
-            text.push(if seed % 5 == 0 { b'\n' } else { b'0' + (seed % 10) as u8 });
+            text.push(if seed.is_multiple_of(5) {
+                b'\n'
+            } else {
+                b'0' + (seed % 10) as u8
+            });
         }
         for start in 0..70 {
             for end in start..text.len().min(start + 300) {

@@ -629,7 +629,11 @@ pub fn compress_parts(
     // tasks: 5 held-out blocks in one piece each left one of two threads alone with the fifth,
     // a tenth of the whole command's wall time
     let threads = threads.max(1).min(n / 4096 + 1);
-    let pieces_per_range = if ranges % threads == 0 { 1 } else { threads };
+    let pieces_per_range = if ranges.is_multiple_of(threads) {
+        1
+    } else {
+        threads
+    };
     let tasks: Vec<(usize, usize, usize)> = (0..ranges)
         .flat_map(|r| {
             let (lo, hi) = (bounds[r], bounds[r + 1]);

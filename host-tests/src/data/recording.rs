@@ -494,8 +494,8 @@ impl Recording {
     }
 }
 
-/// A file's bytes: a large regular file is mapped (read-only, its pages taken from the page
-/// cache up front), anything else read into memory. Reading 80 MB copies them from the page
+/// A file's bytes: a large regular file is mapped (read-only; the parser's threads map its
+/// pages in from the page cache, each its own part: [`Pages`]), anything else read into memory. Reading 80 MB copies them from the page
 /// cache into a fresh buffer whose every 4 KiB page faults on first touch: about a tenth of
 /// `nanocal stepwise` on a 200,000 × 40 design; the mapping costs neither.
 enum FileBytes {

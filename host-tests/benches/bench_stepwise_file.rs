@@ -5,8 +5,10 @@
 //! The reference is looked for beside the repository, or where `NANOCAL_OCTAVE_STEPWISE` says.
 //!
 //! Run: `cargo bench --bench bench_stepwise_file -- [--rows N]
-//! [--cols P] [--runs K] [--no-octave]` (default 200,000 × 40 candidates + the response, values
-//! with 6 decimals as instruments write them, 3 runs of each side; best and median printed).
+//! [--cols P] [--runs K] [--no-octave] [--keep]` (default 200,000 × 40 candidates + the
+//! response, values with 6 decimals as instruments write them, 3 runs of each side; best and
+//! median printed). `--keep` leaves the design (and both JSON reports) in the temporary folder
+//! it prints, to profile `nanocal stepwise` on the same file.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -135,6 +137,7 @@ fn main() {
     let p: usize = arg("--cols").map_or(40, |v| v.parse().expect("--cols P"));
     let runs: usize = arg("--runs").map_or(3, |v| v.parse().expect("--runs K"));
     let octave = !std::env::args().any(|a| a == "--no-octave");
+    let keep = std::env::args().any(|a| a == "--keep");
     // cargo builds the CLI, in this benchmark's profile, before it runs a benchmark
     let nanocal = PathBuf::from(env!("CARGO_BIN_EXE_nanocal"));
     let dir = std::env::temp_dir().join(format!("nanocal-bench-file-{}", std::process::id()));
@@ -207,5 +210,9 @@ fn main() {
             oct_sel == ours_sel
         );
     }
-    std::fs::remove_dir_all(&dir).ok();
+    if keep {
+        println!("kept the design and the reports in {}", dir.display());
+    } else {
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }

@@ -23,8 +23,7 @@
 //! 0x024  u32   board       BOOTS: incremented at every boot (the host sees resets)
 //! 0x028  u64   board       BOOT_AT: bench time of the last boot (the board's uptime = NOW − BOOT_AT)
 //! 0x030  u32×5 board       TX_BYTES[n]: bytes the board has written to serial n since power-on
-//! 0x048  u32   host        WATCHING: not 0 while the host polls this page (no doorbells
-//!                          needed); a count of the host's threads that poll it (layout 7)
+//! 0x048  u32   host        WATCHING: 1 while the host polls this page (no doorbells needed)
 //! 0x04C  u32   board       LINE_STATES: line state bytes applied, either port (the bench knows
 //!                          a new session has started before it sends on it; layout 2)
 //! 0x050  u32×5 board       RX_BYTES[n]: bytes the board has read from serial n since power-on
@@ -46,8 +45,6 @@
 //!                          at the horizon, or for a bus reply (layout 6)
 //! 0x0F4  u32   board       HALTS: times the board halted waiting for the bench (a counter)
 //! 0x0F8  u32   board       RX_ARMED: bit n set while the board's reader of a ring port waits
-//! 0x0FC  u32   host        SPIN_TURNS: turns the board may busy-wait before a halt while
-//!                          WATCHING is not 0 (layout 7)
 //! 0x100  u32×2 ×8          RING[k] head (producer), tail (consumer), k = 2·n + d: serial n,
 //!                          d = 0 host → board, d = 1 board → host
 //! 0x400  1 KiB ×8          RING[k]'s bytes (index: counter mod RING_LEN)
@@ -110,7 +107,7 @@ pub const SHARED_LEN: usize = RING_DATA + RINGS * RING_LEN;
 /// Magic value at [`MAGIC`].
 pub const MAGIC_VALUE: u32 = 0x4B4C_434E; // "NCLK"
 /// Layout version at [`VERSION`].
-pub const VERSION_VALUE: u32 = 7;
+pub const VERSION_VALUE: u32 = 6;
 
 /// Offset of the magic.
 pub const MAGIC: usize = 0x000;
@@ -172,9 +169,6 @@ pub const HALTED: usize = 0x0F0;
 pub const HALTS: usize = 0x0F4;
 /// Offset of the mask of ring ports whose reader waits.
 pub const RX_ARMED: usize = 0x0F8;
-/// Offset of the turns the board may busy-wait before a halt while the host watches (layout
-/// 7; see the module's *Watched waits*).
-pub const SPIN_TURNS: usize = 0x0FC;
 /// Offset of the rings' heads and tails: ring k's head at `RING_HEADS + 8·k`, tail 4 after.
 pub const RING_HEADS: usize = 0x100;
 /// Offset of the rings' bytes: ring k's at `RING_DATA + k·RING_LEN`.
@@ -282,7 +276,6 @@ mod tests {
             (HALTED, 4),
             (HALTS, 4),
             (RX_ARMED, 4),
-            (SPIN_TURNS, 4),
         ];
         for (i, &(a, n)) in fields.iter().enumerate() {
             assert!(a + n <= PAGE_LEN);
@@ -309,8 +302,6 @@ mod tests {
         assert_eq!(ring_head(ring_to_host(3)), 0x138);
         assert_eq!(ring_byte(ring_to_board(1), 1025), 0xC01);
         assert_eq!(SHARED_LEN, 0x2400);
-        // layout 7: the last word of the page
-        assert_eq!(SPIN_TURNS + 4, PAGE_LEN);
         assert!(
             RING_LEN.is_power_of_two(),
             "the u32 counters wrap on a multiple of it"

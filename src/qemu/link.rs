@@ -58,30 +58,12 @@ pub fn barrier() {
     cortex_m::asm::dmb();
 }
 
-/// Most turns of the busy wait before a halt, whatever the bench asks for
-/// (`bench_link::SPIN_TURNS`): a bench that asked for more and then stopped answering would
-/// keep the board's executor from its timers only this long (≈ 1.5 M guest instructions).
-const MAX_SPIN_TURNS: u32 = 100_000;
-
 /// Halt (WFI) until the bench rings the wake port, unless `ready` (what the board waits for)
-/// holds. While the bench watches the page (`bench_link::WATCHING`), first busy-wait up to
-/// `SPIN_TURNS` turns for `ready`, as long as it keeps watching: a watching bench answers
-/// within microseconds, and a halt costs two doorbells through QEMU's main loop (layout 7).
-/// Then mark the halt in the page (`bench_link::HALTED`) and look once more — the bench writes
-/// what it writes, then looks at the mark and rings. Any interrupt ends the halt; the caller
-/// looks again. The CMSDK watchdog (QEMU's clock) is paused over the halt when
+/// holds: mark the halt in the page (`bench_link::HALTED`), then look once more — the bench
+/// writes what it writes, then looks at the mark and rings. Any interrupt ends the halt; the
+/// caller looks again. The CMSDK watchdog (QEMU's clock) is paused over the halt when
 /// `pause_watchdog` (the idle loop: the bench may take seconds, e.g. fitting a model).
 pub fn halt(ready: impl Fn() -> bool, pause_watchdog: bool) {
-    let turns = read_u32(bl::SPIN_TURNS).min(MAX_SPIN_TURNS);
-    let mut n = 0;
-    while n < turns && read_u32(bl::WATCHING) != 0 {
-        if ready() {
-            return;
-        }
-        // no `spin_loop` hint: QEMU runs the Arm YIELD it compiles to as an exit of the vCPU's
-        // execution loop (a single-CPU board is not run in parallel), ≈ 1 µs a turn
-        n += 1;
-    }
     let in_already = super::uart::wake_arm();
     write_u32(bl::HALTED, 1);
     barrier();

@@ -208,14 +208,12 @@ pub fn idle() {
                     rung.set(boot_at + now);
                     uart::ring(bl::RING_WAITING);
                 }
-                // halt at once, or after a short busy wait while the bench watches the page
-                // (`link::halt`, bench_link layout 7). The bench knows from the page that the
-                // board is halted and rings for what it writes then (bytes in a ring, room
-                // made, a new horizon); a busy wait for those whoever watched, as the board did
-                // before (500 µs of QEMU's clock), was 43 % of the guest instructions of a
-                // campaign's step, spent while the bench worked on its own side (issue 20 §5).
-                // Mark the halt, then look once more (the bench writes its bytes or the
-                // horizon, then looks at the mark).
+                // halt at once. The bench knows from the page that the board is halted and
+                // rings for what it writes then (bytes in a ring, room made, a new horizon);
+                // a busy wait for those, as the board did before (500 µs of QEMU's clock), was
+                // 43 % of the guest instructions of a campaign's step, spent while the bench
+                // worked on its own side (issue 20 §5). Mark the halt, then look once more
+                // (the bench writes its bytes or the horizon, then looks at the mark).
                 link::halt(
                     || uart::ring_ready() || link::read_u64(bl::HORIZON) != horizon_bench,
                     true,

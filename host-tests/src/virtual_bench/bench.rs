@@ -655,11 +655,6 @@ impl BenchDriver for VirtualBench {
         let mut result = Ok(());
         // nothing asked yet
         self.mark.mark();
-        // watched for the whole exchange: the board busy-waits a little for the host's next
-        // bytes before it halts (each halt costs a doorbell through QEMU's main loop), and
-        // rings no bus doorbell — the host's readers and the loop below answer its requests
-        let link = self.link.clone();
-        let _watch = link.watch();
         // the exchange's end wakes the loop below at once; it looks every EXCHANGE_LOOK
         // otherwise (a loop that woke every 20 µs took a core from the board and the op)
         let done = (Mutex::new(false), std::sync::Condvar::new());
@@ -672,7 +667,6 @@ impl BenchDriver for VirtualBench {
             let mut idle_since: Option<Instant> = None;
             let mut stuck_since: Option<Instant> = None;
             while !h.is_finished() {
-                self.link.serve_bus_if_pending();
                 self.link.pump();
                 // the board has started to answer the newest request: it needs no more time,
                 // and the fold it answered with must stay the one the next command meets

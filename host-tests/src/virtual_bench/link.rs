@@ -33,11 +33,6 @@ const MAP_LEN: usize = bl::SHARED_LEN.next_multiple_of(4096);
 /// the steps' wait from 11 s to 303 s at load 12, and watching again at every bus doorbell to
 /// 54 s — two spinners that each wait for the other.)
 const SPIN: Duration = Duration::from_micros(500);
-/// Turns the board may busy-wait before a halt while the bench watches the page
-/// (`bench_link::SPIN_TURNS`; `NANOCAL_BENCH_SPIN_TURNS` overrides it, for measurements).
-/// Shortened campaign at load 6-7 (steps' wait): 500 turns 4.6 s, 2,000 turns 5.0 and 6.9 s,
-/// 8,000 turns 8.9 s — a longer busy wait keeps QEMU's vCPU off the core the bench needs.
-const SPIN_TURNS: u32 = 2_000;
 /// Longest the free-running clock holds for input in flight that the board does not take.
 const MAX_HOLD: Duration = Duration::from_secs(2);
 
@@ -84,11 +79,6 @@ impl Page {
             path: path.to_path_buf(),
         };
         page.set_u64(bl::HORIZON, 0);
-        let turns = std::env::var("NANOCAL_BENCH_SPIN_TURNS")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(SPIN_TURNS);
-        page.set_u32(bl::SPIN_TURNS, turns);
         page.set_u32(bl::VERSION, bl::VERSION_VALUE);
         page.set_u32(bl::MAGIC, bl::MAGIC_VALUE);
         Ok(page)
@@ -239,8 +229,6 @@ struct Counts {
     reply_rings: AtomicU64,
     nudges: AtomicU64,
     quiet: AtomicU64,
-    late_serves: AtomicU64,
-    serve_ns: AtomicU64,
 }
 
 /// What crossed between the bench and the board since QEMU started: the figures of issue
@@ -268,10 +256,6 @@ pub struct Crossings {
     pub nudges: u64,
     /// Times a lockstep advance stopped watching the page (no progress for a while).
     pub quiet: u64,
-    /// Bus requests found with the board already halted for its reply.
-    pub late_serves: u64,
-    /// Wall time the bench spent serving bus requests, ns.
-    pub serve_ns: u64,
     /// Bus transactions.
     pub transactions: u64,
     /// Bytes through the UARTs (serial 0, 1, 3, both ways).
@@ -309,23 +293,6 @@ impl BenchLink {
         let l = link.clone();
         std::thread::spawn(move || l.free_run(1.0));
         link
-    }
-
-    /// Count this thread among the bench's watchers of the page (`bench_link::WATCHING`) until
-    /// the guard drops: the board rings no bus doorbell meanwhile and busy-waits a little
-    /// before it halts, so the holder must answer bus requests ([`Self::serve_bus_if_pending`])
-    /// as it polls. The drop looks once more for a request posted while the board still saw
-    /// the count.
-    pub fn watch(&self) -> Watch<'_> {
-        self.page.a32(bl::WATCHING).fetch_add(1, Ordering::SeqCst);
-        Watch { link: self }
-    }
-
-    /// Answer the board's bus request if one is pending.
-    pub fn serve_bus_if_pending(&self) {
-        if self.bus_pending() {
-            self.serve_bus();
-        }
     }
 
     /// The page.
@@ -478,8 +445,6 @@ impl BenchLink {
             reply_rings: c.reply_rings.load(Ordering::Relaxed),
             nudges: c.nudges.load(Ordering::Relaxed),
             quiet: c.quiet.load(Ordering::Relaxed),
-            late_serves: c.late_serves.load(Ordering::Relaxed),
-            serve_ns: c.serve_ns.load(Ordering::Relaxed),
             transactions: self.transactions.load(Ordering::Relaxed),
             uart_bytes: uart_and_ring.saturating_sub(ring_bytes),
             ring_bytes,
@@ -670,10 +635,6 @@ impl BenchLink {
         if self.page.u32(bl::BUS_REP_SEQ) == seq {
             return; // already served
         }
-        let served_from = Instant::now();
-        if self.page.u32(bl::HALTED) == 1 {
-            self.counts.late_serves.fetch_add(1, Ordering::Relaxed);
-        }
         let frame = self.page.bytes(bl::BUS_REQ, bl::FRAME_LEN);
         let request = BusRequest::decode(&frame);
         let now = self.now_s();
@@ -718,9 +679,6 @@ impl BenchLink {
         fence(Ordering::SeqCst);
         self.page.set_u32(bl::BUS_REP_SEQ, seq);
         self.transactions.fetch_add(1, Ordering::Relaxed);
-        self.counts
-            .serve_ns
-            .fetch_add(served_from.elapsed().as_nanos() as u64, Ordering::Relaxed);
         // a board that waits for its reply halted (it halts at once when nobody watches the
         // page, and after a short busy wait when someone does): wake it
         fence(Ordering::SeqCst);
@@ -854,22 +812,6 @@ impl BenchLink {
     }
 }
 
-/// A thread of the bench counted among the page's watchers ([`BenchLink::watch`]).
-pub struct Watch<'a> {
-    link: &'a BenchLink,
-}
-
-impl Drop for Watch<'_> {
-    fn drop(&mut self) {
-        let page = &self.link.page;
-        page.a32(bl::WATCHING).fetch_sub(1, Ordering::SeqCst);
-        // a request the board posted while it still saw the count was not rung, and nothing
-        // else would answer it (the board waits for its reply with its executor blocked)
-        fence(Ordering::SeqCst);
-        self.link.serve_bus_if_pending();
-    }
-}
-
 /// The board's clock as the bench drives it.
 #[derive(Clone)]
 pub struct BenchClock {
@@ -928,60 +870,55 @@ impl BenchClock {
         };
         self.link.set_horizon(target);
         // Watch the page while the board runs towards the horizon, answering its bus requests
-        // here: no thread hand-over per transaction (the board waits for each reply).
+        // here: no thread hand-over per transaction (the board waits for each reply). Sleep
+        // until a doorbell only when the board makes no progress for a while.
         let mut last = (page.u64(bl::NOW), page.u32(bl::BUS_REQ_SEQ));
         let mut quiet_since = Instant::now();
-        let mut watch = Some(self.link.watch());
-        let mut turn = 0u32;
+        page.set_u32(bl::WATCHING, 1);
         let result = loop {
-            self.link.serve_bus_if_pending();
+            if self.link.bus_pending() {
+                self.link.serve_bus();
+            }
             self.link.pump();
             if page.u32(bl::WAITING) == 1 && page.u64(bl::NOW) == target {
                 break Ok(());
             }
-            turn = turn.wrapping_add(1);
+            if start.elapsed() > timeout || self.link.stop.load(Ordering::Acquire) {
+                break Err(stalled(page));
+            }
             let now = (page.u64(bl::NOW), page.u32(bl::BUS_REQ_SEQ));
             if now != last {
                 last = now;
                 quiet_since = Instant::now();
-                continue;
-            }
-            // the clock is read every few turns only (it was 13 % of the bench's CPU)
-            if !turn.is_multiple_of(16) {
+            } else if quiet_since.elapsed() > SPIN {
+                // stop polling: the board rings from now on; look once more, then sleep
+                self.link.counts.quiet.fetch_add(1, Ordering::Relaxed);
+                page.set_u32(bl::WATCHING, 0);
+                fence(Ordering::SeqCst);
+                if !self.link.bus_pending() && page.u32(bl::WAITING) == 0 {
+                    let rings = self.link.rings.lock().unwrap();
+                    let _ = self
+                        .link
+                        .rung
+                        .wait_timeout(rings, Duration::from_millis(2))
+                        .unwrap();
+                }
+                page.set_u32(bl::WATCHING, 1);
+                quiet_since = Instant::now();
+            } else {
                 std::hint::spin_loop();
-                continue;
             }
-            if start.elapsed() > timeout || self.link.stop.load(Ordering::Acquire) {
-                break Err(stalled(page));
-            }
-            if quiet_since.elapsed() <= SPIN {
-                std::hint::spin_loop();
-                continue;
-            }
-            // stop polling: the board rings from now on; look once more (the guard's drop),
-            // then sleep. (Tried on the shortened campaign at load 5-8: polling on — with or
-            // without 20 µs naps — made the steps' wait 1.1-10× longer; the bench's and the
-            // board's waits take turns on the two cores.)
-            self.link.counts.quiet.fetch_add(1, Ordering::Relaxed);
-            drop(watch.take());
-            if !self.link.bus_pending() && page.u32(bl::WAITING) == 0 {
-                let rings = self.link.rings.lock().unwrap();
-                let _ = self
-                    .link
-                    .rung
-                    .wait_timeout(rings, Duration::from_millis(2))
-                    .unwrap();
-            }
-            watch = Some(self.link.watch());
-            quiet_since = Instant::now();
         };
-        // Stop watching, then look once more (the guard's drop): a request the board posted
-        // while it still saw WATCHING set was not rung, and nothing else would answer it — the
-        // board waits for its reply with its executor blocked until the QEMU-clock watchdog
-        // resets it (measured: the published campaign's STATUS timeouts and its "watchdog"
-        // resets, after a management request made the sensor task fold while an exchange's
-        // nudge ended).
-        drop(watch);
+        // Stop watching, then look once more: a request the board posted while it still saw
+        // WATCHING set was not rung, and nothing else would answer it — the board spins for its
+        // reply with its executor blocked until the QEMU-clock watchdog resets it (measured:
+        // the published campaign's STATUS timeouts and its "watchdog" resets, after a
+        // management request made the sensor task fold while an exchange's nudge ended).
+        page.set_u32(bl::WATCHING, 0);
+        fence(Ordering::SeqCst);
+        if self.link.bus_pending() {
+            self.link.serve_bus();
+        }
         if result.is_ok() {
             self.link.notify_advanced();
         }
@@ -1055,9 +992,6 @@ impl RingPort {
         if self.link.stopped() {
             return false;
         }
-        // an exchange counts itself among the page's watchers: the board rings no bus
-        // doorbell then, and whoever polls answers
-        self.link.serve_bus_if_pending();
         self.link.pump();
         let waited = since.elapsed();
         if waited >= limit {

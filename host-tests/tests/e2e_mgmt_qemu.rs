@@ -21,7 +21,7 @@ mod fw_sim;
 
 use fw_sim::nanocal_cli;
 
-use fw_sim::{wait_until, Qemu, SensorSim, StageSim, HANG};
+use fw_sim::{wait_for, wait_until, Qemu, SensorSim, StageSim, HANG};
 use nanocal::papers::published::published_1dof;
 use nanocal_interface::bench_link as bl;
 use nanocal_interface::identity::ResetCause;
@@ -369,17 +369,6 @@ fn a_host_that_stops_reading_loses_its_replies_not_the_board_under_qemu() {
         s.uptime_ms
     );
     clk.free_run(1.0);
-}
-
-/// Wait (up to [`HANG`] of wall time) until `done`, ringing the board in case QEMU's loop
-/// sleeps on the socket.
-fn wait_for(q: &Qemu, what: &str, mut done: impl FnMut() -> bool) {
-    let hang = std::time::Instant::now() + HANG;
-    while !done() {
-        assert!(std::time::Instant::now() < hang, "never: {what}");
-        q.link().wake_for_input();
-        std::thread::sleep(Duration::from_millis(2));
-    }
 }
 
 /// QEMU hands a serial port's bytes to the board one at a time, when its main loop runs; on a

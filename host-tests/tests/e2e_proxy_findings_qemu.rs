@@ -329,12 +329,7 @@ impl Rig {
 /// in case QEMU's loop sleeps on the host's socket).
 fn stage_written(q: &Qemu, tx0: u32, n: u32, what: &str) {
     let link = q.link();
-    let hang = Instant::now() + HANG;
-    while link.tx_bytes(1).wrapping_sub(tx0) < n {
-        assert!(Instant::now() < hang, "{what}: not within {HANG:?}");
-        link.wake_for_input();
-        std::thread::sleep(Duration::from_millis(2));
-    }
+    fw_sim::wait_for(q, what, || link.tx_bytes(1).wrapping_sub(tx0) >= n);
 }
 
 /// Finding 1: `MOV 1 100`, `HLT 1`, then `MVR 1 1\n\x18` in one write. The proxy holds the

@@ -33,6 +33,20 @@ pub fn wait_until<T>(
     }
 }
 
+/// Wait (up to [`HANG`] of wall time) until `done`, ringing the board in case QEMU's loop
+/// sleeps on the socket: for what the board does on the bench's bytes, not on its own time.
+pub fn wait_for(q: &Qemu, what: &str, mut done: impl FnMut() -> bool) {
+    let hang = Instant::now() + HANG;
+    while !done() {
+        assert!(
+            Instant::now() < hang,
+            "{what}: not within {HANG:?} of wall time"
+        );
+        q.link().wake_for_input();
+        std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
 /// Let at least `s` seconds of the board's time pass (wall time is no measure of it: the board
 /// runs behind the wall clock when the machine is loaded).
 pub fn pass_board_time(clock: &BenchClock, s: f64) {

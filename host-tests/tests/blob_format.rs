@@ -370,6 +370,28 @@ fn crc32_matches_the_standard_check_value() {
     );
 }
 
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig {
+        // the same cases on every run (deterministic tests; a new case goes in by its seed)
+        rng_seed: proptest::test_runner::RngSeed::Fixed(0x6e61_6e6f_6361_6c00),
+        failure_persistence: None,
+        cases: 512,
+        ..proptest::prelude::ProptestConfig::default()
+    })]
+    /// The nibble-table CRC against an implementation nobody here wrote (`crc32fast`, the
+    /// PNG encoder's), over every length up to a management frame's and beyond, and split
+    /// anywhere through `crc32_update`.
+    #[test]
+    fn crc32_agrees_with_crc32fast(bytes in proptest::collection::vec(proptest::num::u8::ANY, 0..700), cut in 0usize..700) {
+        proptest::prop_assert_eq!(blob::crc32(&bytes), crc32fast::hash(&bytes));
+        let cut = cut.min(bytes.len());
+        proptest::prop_assert_eq!(
+            blob::crc32_update(blob::crc32(&bytes[..cut]), &bytes[cut..]),
+            crc32fast::hash(&bytes)
+        );
+    }
+}
+
 #[test]
 fn golden_bytes_of_format_version_4() {
     assert_eq!(FORMAT_VERSION, 4, "a version bump needs new golden bytes");

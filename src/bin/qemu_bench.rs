@@ -534,7 +534,7 @@ fn main() -> ! {
     }
     nanocal_bench_stop(20);
 
-    // the project's one CRC-32 (the model's bitwise one) over the largest management frame
+    // the project's one CRC-32 (the model's, a nibble table) over the largest management frame
     let mut frame = [0u8; 4 + nanocal_interface::mgmt::MAX_PAYLOAD];
     nanocal_bench_start(21);
     for i in 0..N {

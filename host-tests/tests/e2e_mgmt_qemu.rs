@@ -141,15 +141,9 @@ fn send_cut(q: &Qemu, s: &mut UnixStream) {
     let cut = cut_chunk();
     s.write_all(&cut).unwrap();
     let want = had.wrapping_add(cut.len() as u32);
-    let hang = std::time::Instant::now() + HANG;
-    while link.rx_bytes(3) != want {
-        assert!(
-            std::time::Instant::now() < hang,
-            "the board never read the cut frame"
-        );
-        link.wake_for_input();
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    wait_for(q, "the board reading the cut frame", || {
+        link.rx_bytes(3) == want
+    });
 }
 
 /// A raw management connection: requests written whole, replies read as they come.

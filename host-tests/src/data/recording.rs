@@ -1334,9 +1334,8 @@ unsafe fn mantissa_ssse3(p: *const u8, nd: usize, nf: usize) -> Option<u64> {
         if (_mm_movemask_epi8(digit) as u32) & want != want {
             return None;
         }
-        let shuffle = _mm_loadu_si128(
-            DIGIT_SHUFFLES[8 * (nd - 1) + nf - 1].as_ptr() as *const __m128i,
-        );
+        let shuffle =
+            _mm_loadu_si128(DIGIT_SHUFFLES[8 * (nd - 1) + nf - 1].as_ptr() as *const __m128i);
         let digits = _mm_shuffle_epi8(d, shuffle);
         // pairs (10·a + b), then fours (100·ab + cd), then eights (10⁴·abcd + efgh)
         let pairs = _mm_maddubs_epi16(digits, _mm_set1_epi16(0x010A));
@@ -1822,6 +1821,70 @@ mod tests {
                 assert_eq!(g.to_bits(), w.to_bits(), "row {i} column {c}: {w}");
             }
         }
+    }
+
+    /// [`Window::field`] compiled for SSSE3, for the test below.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "ssse3")]
+    unsafe fn field_ssse3(b: &[u8]) -> Option<(f64, usize)> {
+        Window::default().field::<true>(b, 0)
+    }
+
+    /// The SSSE3 mantissa and the word-wise one (a machine takes one of them for every file)
+    /// read every field the same way: each shape of `-?d{1,9}.d{1,9}` and a non-digit at every
+    /// place of it, the values bit-identical to `str::parse` where they take the field.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn fast_field_with_and_without_ssse3_agree() {
+        assert!(
+            std::arch::is_x86_feature_detected!("ssse3"),
+            "every x86-64 that runs these tests has SSSE3"
+        );
+        let digits = b"314159265358979323";
+        let mut taken = 0;
+        for neg in [false, true] {
+            for nd in 0..=9 {
+                for nf in 0..=9 {
+                    let mut text = Vec::new();
+                    if neg {
+                        text.push(b'-');
+                    }
+                    text.extend_from_slice(&digits[..nd]);
+                    text.push(b'.');
+                    text.extend_from_slice(&digits[nd..nd + nf]);
+                    let len = text.len();
+                    // a non-digit at every place (the point and sign too), or none
+                    for bad in (0..len).map(Some).chain([None]) {
+                        for with in [b'/', b':', b'a', b' ', 0xFF, b'0'] {
+                            let mut buf = text.clone();
+                            if let Some(k) = bad {
+                                buf[k] = with;
+                            }
+                            buf.push(b',');
+                            buf.resize(100, b'7');
+                            let plain = Window::default().field::<false>(&buf, 0);
+                            // SAFETY: the CPU has SSSE3 (asserted above)
+                            let simd = unsafe { field_ssse3(&buf) };
+                            let bits = |r: Option<(f64, usize)>| r.map(|(v, e)| (v.to_bits(), e));
+                            let shown = String::from_utf8_lossy(&buf[..=len]).into_owned();
+                            assert_eq!(bits(plain), bits(simd), "`{shown}`");
+                            if let Some((v, end)) = plain {
+                                assert_eq!(end, len, "`{shown}`");
+                                let want: f64 = std::str::from_utf8(&buf[..len])
+                                    .expect("digits")
+                                    .parse()
+                                    .expect("a number");
+                                assert_eq!(v.to_bits(), want.to_bits(), "`{shown}`");
+                                taken += 1;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        // 2 signs × 120 shapes (1–8 digits either side, 15 at most) × 6 with a digit replaced
+        // by '0' at each place or none
+        assert!(taken > 2 * 120, "only {taken} fields took the fast path");
     }
 
     #[test]

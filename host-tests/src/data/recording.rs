@@ -1926,7 +1926,7 @@ mod tests {
                 let until = body.len() + bytes;
                 while body.len() < until {
                     let pad = if long { " ".repeat(300) } else { String::new() };
-                    let end = if i % 3 == 0 { "\r\n" } else { "\n" };
+                    let end = if i.is_multiple_of(3) { "\r\n" } else { "\n" };
                     body.push_str(&format!("{pad}{i}.25,{pad}-{}.5,{}{end}", i % 89, i * 7));
                     if i % 1000 == 999 {
                         body.push_str(" \r\n");

@@ -191,3 +191,58 @@ fn a_byte_order_mark_as_a_column_name_is_refused() {
         other => panic!("{other:?}"),
     }
 }
+
+mod against_std {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// Reads `fields` as rows of three columns (a file of them) and compares every value, bit
+    /// for bit, with `str::parse::<f64>` of the same text.
+    fn read_as_std(fields: &[String]) -> Result<(), TestCaseError> {
+        let rows = fields.len() / 3;
+        let mut csv = String::from("a,b,c\n");
+        for row in fields[..3 * rows].chunks(3) {
+            csv.push_str(&row.join(","));
+            csv.push('\n');
+        }
+        let rec =
+            Recording::parse(csv.as_bytes()).map_err(|e| TestCaseError::fail(format!("{e}")))?;
+        prop_assert_eq!(rec.rows(), rows);
+        for (k, text) in fields[..3 * rows].iter().enumerate() {
+            let want: f64 = text.trim().parse().expect("the strategy makes numbers");
+            let got = rec.column_at(k % 3)[k / 3];
+            prop_assert_eq!(got.to_bits(), want.to_bits(), "`{}`", text);
+        }
+        Ok(())
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig {
+            // the same cases on every run (deterministic tests; a new case goes in by its seed)
+            rng_seed: proptest::test_runner::RngSeed::Fixed(0x6373_765f_7061_7273),
+            ..ProptestConfig::with_cases(300)
+        })]
+
+        /// The form instruments write and the fastest path takes (`-?d{1,8}.d{1,8}`, at any
+        /// place in a 64-byte window), and the ones beside it it leaves to the others.
+        #[test]
+        fn decimals_read_as_std_reads_them(
+            fields in prop::collection::vec("-?[0-9]{1,9}\\.[0-9]{1,9}", 3..300)
+        ) {
+            read_as_std(&fields)?;
+        }
+
+        /// Every number form the reader takes: signs, leading and trailing points, up to 24
+        /// digits either side, exponents, spaces and tabs around the value.
+        #[test]
+        fn number_forms_read_as_std_reads_them(
+            fields in prop::collection::vec(
+                "[ \\t]{0,2}[+-]?[0-9]{0,24}(\\.[0-9]{0,24})?([eE][+-]?[0-9]{1,3})?[ \\t]{0,2}"
+                    .prop_filter("a number", |s| s.trim().parse::<f64>().is_ok()),
+                3..200,
+            )
+        ) {
+            read_as_std(&fields)?;
+        }
+    }
+}

@@ -268,6 +268,31 @@ impl PredictionBand {
                 found: columns.len(),
             });
         }
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2
+            return Ok(unsafe { self.leverages_avx2(columns, rows) });
+        }
+        Ok(self.leverages_in(columns, rows))
+    }
+
+    /// [`Self::leverages_in`] compiled for AVX2: its loops run across rows, four at a time
+    /// instead of two, each lane the same operations in the same order (Rust never fuses a
+    /// product and a sum), so the same numbers. Why: the leverages were a tenth of `nanocal
+    /// stepwise`'s CPU on a 200,000-row file.
+    ///
+    /// # Safety
+    /// The CPU has AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn leverages_avx2(&self, columns: &[&[f64]], rows: &[usize]) -> Vec<f64> {
+        self.leverages_in(columns, rows)
+    }
+
+    /// The body of [`Self::leverages`] (`columns` checked).
+    #[inline(always)]
+    fn leverages_in(&self, columns: &[&[f64]], rows: &[usize]) -> Vec<f64> {
+        let p = self.regressors();
         const CHUNK: usize = 256;
         let k = p + 1;
         let mut out = Vec::with_capacity(rows.len());
@@ -305,7 +330,7 @@ impl PredictionBand {
             }
             out.extend_from_slice(&s[..b]);
         }
-        Ok(out)
+        out
     }
 
     /// Number of regressors (without the intercept).
@@ -696,6 +721,12 @@ mod tests {
         }
         let all: Vec<usize> = (0..400).collect();
         let h = tri_band.leverages(&[&d[0], &d[2]], &all).unwrap();
+        // the build for every x86-64 and the AVX2 one (taken where the CPU has it) alike
+        let plain = tri_band.leverages_in(&[&d[0], &d[2]], &all);
+        assert!(h
+            .iter()
+            .zip(&plain)
+            .all(|(a, b)| a.to_bits() == b.to_bits()));
         for (i, &hi) in h.iter().enumerate() {
             let x0 = [d[0][i], d[2][i]];
             // the batch is the per-point forward substitution, bit for bit

@@ -1887,22 +1887,29 @@ mod tests {
         assert!(taken > 2 * 120, "only {taken} fields took the fast path");
     }
 
+    /// `len` pseudo-random bytes (xorshift, fixed seed): digits, and a newline where the state
+    /// is a multiple of `newline_every` — the input of the line-scanning tests below.
+    fn digits_and_newlines(len: usize, newline_every: u64) -> Vec<u8> {
+        let mut seed = 0x2545_F491_4F6C_DD1Du64;
+        (0..len)
+            .map(|_| {
+                seed ^= seed << 13;
+                seed ^= seed >> 7;
+                seed ^= seed << 17;
+                if seed.is_multiple_of(newline_every) {
+                    b'\n'
+                } else {
+                    b'0' + (seed % 10) as u8
+                }
+            })
+            .collect()
+    }
+
     #[test]
     fn lines_counted_as_a_byte_loop_counts_them() {
         // every length around the 16- and 64-byte blocks, newlines at every offset, with and
         // without a last newline: the vector counts against the plain loop
-        let mut text = Vec::new();
-        let mut seed = 0x2545_F491_4F6C_DD1Du64;
-        for _ in 0..600 {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            text.push(if seed.is_multiple_of(5) {
-                b'\n'
-            } else {
-                b'0' + (seed % 10) as u8
-            });
-        }
+        let text = digits_and_newlines(600, 5);
         for start in 0..70 {
             for end in start..text.len().min(start + 300) {
                 let part = &text[start..end];
@@ -2019,18 +2026,7 @@ mod tests {
 
     #[test]
     fn line_starts_found_backward_as_a_byte_loop_finds_them() {
-        let mut text = Vec::new();
-        let mut seed = 0x2545_F491_4F6C_DD1Du64;
-        for _ in 0..400 {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            text.push(if seed.is_multiple_of(23) {
-                b'\n'
-            } else {
-                b'0' + (seed % 10) as u8
-            });
-        }
+        let text = digits_and_newlines(400, 23);
         for end in 0..=text.len() {
             let plain = text[..end]
                 .iter()

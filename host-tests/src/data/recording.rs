@@ -235,6 +235,18 @@ impl Block {
         }
     }
 
+    /// The block shared by `ncol` columns of `len` values: column `j` from `first + j * stride`.
+    fn into_columns(self, ncol: usize, stride: usize, first: usize, len: usize) -> Vec<Column> {
+        let block = std::sync::Arc::new(self);
+        (0..ncol)
+            .map(|j| Column::InBlock {
+                block: block.clone(),
+                start: first + j * stride,
+                len,
+            })
+            .collect()
+    }
+
     fn as_slice(&self) -> &[f64] {
         // SAFETY: `len` values from `ptr` lie in the mapping (see `zeroed`), zero-initialised
         // by the kernel, which every bit pattern of f64 allows
@@ -705,16 +717,7 @@ fn parse_two_way(parts: [&[u8]; 2], names: &[String], mapped: bool) -> Option<Ve
     let (Ok(first), Ok(second)) = (first, second) else {
         return None;
     };
-    let block = std::sync::Arc::new(block);
-    Some(
-        (0..ncol)
-            .map(|j| Column::InBlock {
-                block: block.clone(),
-                start: j * per_column + room[0] - first,
-                len: first + second,
-            })
-            .collect(),
-    )
+    Some(block.into_columns(ncol, per_column, room[0] - first, first + second))
 }
 
 /// Parses the rows after the header, splitting large inputs at line boundaries across threads.
@@ -847,16 +850,7 @@ fn parse_body_parallel(
     }
     drop(columns);
     Ok(match block {
-        Some(b) if total > 0 => {
-            let b = std::sync::Arc::new(b);
-            (0..names.len())
-                .map(|j| Column::InBlock {
-                    block: b.clone(),
-                    start: j * total,
-                    len: n,
-                })
-                .collect()
-        }
+        Some(b) if total > 0 => b.into_columns(names.len(), total, 0, n),
         _ => owned
             .into_iter()
             .map(|mut c| {

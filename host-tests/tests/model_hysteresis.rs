@@ -288,6 +288,15 @@ fn the_builder_refuses_banks_that_are_out_of_order_or_ill_posed() {
         b.add_term(term(0, [0; 3], 1)),
         Err(ModelError::InvalidPlayTerm { term: 2 })
     );
+    // Powers whose sum is 256 (fuzz: blob, crash-0748455b): the degree saturates instead of
+    // wrapping to 0 (a panic with overflow checks on; without them, a degree that looked like 0).
+    assert_eq!(
+        b.add_term(term(0, [200, 56, 0], 0)),
+        Err(ModelError::InvalidPlayTerm { term: 2 })
+    );
+    let mut wide = term(0, [200, 56, 0], 0);
+    wide.factor = Factor::None;
+    assert_eq!(b.add_term(wide), Err(ModelError::DegreeTooHigh { term: 2 }));
     // Weights summing to −1 would flatten the branch once both operators follow.
     let mut b = base();
     b.play_bank(0, &[(1.0, -0.6), (5.0, -0.4)]).unwrap();

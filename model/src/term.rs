@@ -43,9 +43,11 @@ pub struct Term {
 }
 
 impl Term {
-    /// Total degree of the position monomial.
+    /// Total degree of the position monomial, saturating at 255: the powers come from outside
+    /// (a blob), and validation compares the degree with the limit before anything else bounds
+    /// the powers, so a sum that wrapped could make a too-high degree look like 0.
     pub fn degree(&self) -> u8 {
-        self.powers.iter().sum()
+        self.powers.iter().fold(0u8, |d, &p| d.saturating_add(p))
     }
 
     /// Whether two terms differ only by their coefficient.

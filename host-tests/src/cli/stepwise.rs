@@ -252,7 +252,7 @@ impl Trust {
         full: &Compressed,
     ) -> anyhow::Result<Self> {
         use crate::numerics::uncertainty::{
-            variance_inflation_compressed, HeldOut, PredictionBand,
+            variance_inflation_compressed, HeldOut, HeldOutSum, PredictionBand,
         };
         let sel: Vec<usize> = (0..names.len()).filter(|&j| res.inmodel[j]).collect();
         // the triangle's columns: 0 is the intercept, candidate j is j + 1
@@ -264,25 +264,48 @@ impl Trust {
         let band =
             PredictionBand::from_compressed(&full.r, full.rows, &rcols, &constant, res.ss_resid);
         let held_out = |ranges: &[(usize, usize)]| -> anyhow::Result<HeldOut> {
-            let mut errors = Vec::new();
+            // the held-out errors summed as they come, a tile of rows at a time into one
+            // reused buffer: the same sums in the same order as a vector per block, without
+            // the fresh memory (its page faults were most of this single-threaded tail)
+            const TILE: usize = 1024;
+            let mut sum = HeldOutSum::default();
+            let mut prediction = [0.0f64; TILE];
             for (b, &(start, end)) in ranges.iter().enumerate() {
                 let fold = stepwise_compressed(blocks.merged(Some(b)), opts)?;
-                // the fold's prediction at each held-out row, summed as `predict` sums
+                let terms: Vec<(&[f64], f64)> = x
+                    .iter()
+                    .enumerate()
+                    .filter(|(j, _)| fold.inmodel[*j])
+                    .map(|(j, c)| (*c, fold.b[j]))
+                    .collect();
                 let rows = &used[start..end];
-                let mut sum = vec![0.0; rows.len()];
-                for (j, c) in x.iter().enumerate().filter(|(j, _)| fold.inmodel[*j]) {
-                    for (s, &i) in sum.iter_mut().zip(rows) {
-                        *s += c[i] * fold.b[j];
+                // the used rows ascend: a block without a NaN row is one range of the columns
+                let contiguous =
+                    rows.last().zip(rows.first()).map(|(l, f)| l - f + 1) == Some(rows.len());
+                let mut block = sum.start_block();
+                for tile in rows.chunks(TILE) {
+                    let p = &mut prediction[..tile.len()];
+                    p.fill(0.0);
+                    // the fold's prediction at each held-out row, summed as `predict` sums
+                    for &(c, bj) in &terms {
+                        if contiguous {
+                            let from = tile[0];
+                            for (s, &v) in p.iter_mut().zip(&c[from..from + tile.len()]) {
+                                *s += v * bj;
+                            }
+                        } else {
+                            for (s, &i) in p.iter_mut().zip(tile) {
+                                *s += c[i] * bj;
+                            }
+                        }
+                    }
+                    for (s, &i) in p.iter().zip(tile) {
+                        block.add(y[i] - (fold.intercept + s));
                     }
                 }
-                errors.push(
-                    rows.iter()
-                        .zip(&sum)
-                        .map(|(&i, s)| y[i] - (fold.intercept + s))
-                        .collect::<Vec<f64>>(),
-                );
+                block.finish();
             }
-            Ok(HeldOut::from_block_errors(&errors))
+            Ok(sum.finish())
         };
         let held_out = || match &blocks.ranges {
             None => (None, None),
@@ -300,27 +323,29 @@ impl Trust {
                 let ts = band.t_times_s(0.95);
                 let threads = opts.thread_count().clamp(1, used.len() / 16_384 + 1);
                 let per = used.len().div_ceil(threads).max(1);
-                std::thread::scope(|s| {
+                // the half-widths of every row in one vector, each thread filling its part
+                let mut hw = vec![0.0; used.len()];
+                let refitted = std::thread::scope(|s| {
                     let refits = s.spawn(held_out);
                     let handles: Vec<_> = used
                         .chunks(per)
-                        .map(|rows| {
+                        .zip(hw.chunks_mut(per))
+                        .map(|(rows, out)| {
                             s.spawn(|| {
-                                band.leverages(&refs, rows).map(|h| {
-                                    h.into_iter()
-                                        .map(|h| ts * (1.0 + h).sqrt())
-                                        .collect::<Vec<f64>>()
-                                })
+                                band.leverages_into(&refs, rows, out)?;
+                                for h in out.iter_mut() {
+                                    *h = ts * (1.0 + *h).sqrt();
+                                }
+                                anyhow::Ok(())
                             })
                         })
                         .collect();
-                    let mut hw = Vec::with_capacity(used.len());
                     for h in handles {
-                        hw.extend(h.join().expect("leverage worker panicked")?);
+                        h.join().expect("leverage worker panicked")?;
                     }
-                    let pi = (crate::cli::trust::spread(hw), None);
-                    anyhow::Ok((pi, refits.join().expect("held-out worker panicked")))
-                })?
+                    anyhow::Ok(refits.join().expect("held-out worker panicked"))
+                })?;
+                ((crate::cli::trust::spread(hw), None), refitted)
             }
             Err(e) => (
                 ((f64::NAN, f64::NAN, f64::NAN), Some(e.to_string())),

@@ -261,6 +261,20 @@ impl PredictionBand {
         columns: &[&[f64]],
         rows: &[usize],
     ) -> Result<Vec<f64>, UncertaintyError> {
+        let mut out = vec![0.0; rows.len()];
+        self.leverages_into(columns, rows, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`Self::leverages`] written into `out` (one value per row of `rows`; its length must
+    /// be theirs). Why: threads that each take a part of the rows fill one vector, instead of
+    /// a vector each copied into a third.
+    pub fn leverages_into(
+        &self,
+        columns: &[&[f64]],
+        rows: &[usize],
+        out: &mut [f64],
+    ) -> Result<(), UncertaintyError> {
         let p = self.regressors();
         if columns.len() != p {
             return Err(UncertaintyError::BadPoint {
@@ -268,12 +282,15 @@ impl PredictionBand {
                 found: columns.len(),
             });
         }
+        assert_eq!(out.len(), rows.len(), "leverages_into: one value per row");
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2
-            return Ok(unsafe { self.leverages_avx2(columns, rows) });
+            unsafe { self.leverages_avx2(columns, rows, out) };
+            return Ok(());
         }
-        Ok(self.leverages_in(columns, rows))
+        self.leverages_in(columns, rows, out);
+        Ok(())
     }
 
     /// [`Self::leverages_in`] compiled for AVX2: its loops run across rows, four at a time
@@ -285,20 +302,19 @@ impl PredictionBand {
     /// The CPU has AVX2.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn leverages_avx2(&self, columns: &[&[f64]], rows: &[usize]) -> Vec<f64> {
-        self.leverages_in(columns, rows)
+    unsafe fn leverages_avx2(&self, columns: &[&[f64]], rows: &[usize], out: &mut [f64]) {
+        self.leverages_in(columns, rows, out)
     }
 
-    /// The body of [`Self::leverages`] (`columns` checked).
+    /// The body of [`Self::leverages_into`] (`columns` and `out` checked).
     #[inline(always)]
-    fn leverages_in(&self, columns: &[&[f64]], rows: &[usize]) -> Vec<f64> {
+    fn leverages_in(&self, columns: &[&[f64]], rows: &[usize], out: &mut [f64]) {
         let p = self.regressors();
         const CHUNK: usize = 256;
         let k = p + 1;
-        let mut out = Vec::with_capacity(rows.len());
         let mut z = vec![0.0; k * CHUNK];
         let mut s = [0.0f64; CHUNK];
-        for idx in rows.chunks(CHUNK) {
+        for (idx, out) in rows.chunks(CHUNK).zip(out.chunks_mut(CHUNK)) {
             let b = idx.len();
             z[..b].fill(1.0 / self.r[0][0]);
             for i in 1..k {
@@ -328,9 +344,8 @@ impl PredictionBand {
                     *acc += zi * zi;
                 }
             }
-            out.extend_from_slice(&s[..b]);
+            out.copy_from_slice(&s[..b]);
         }
-        out
     }
 
     /// Number of regressors (without the intercept).
@@ -608,27 +623,93 @@ pub struct HeldOut {
 impl HeldOut {
     /// Summarises held-out errors given per block.
     pub fn from_block_errors(errors: &[Vec<f64>]) -> Self {
-        let all: Vec<f64> = errors
-            .iter()
-            .flatten()
-            .copied()
-            .filter(|e| e.is_finite())
-            .collect();
-        let rms_of = |v: &[f64]| (v.iter().map(|e| e * e).sum::<f64>() / v.len() as f64).sqrt();
-        HeldOut {
-            blocks: errors.len(),
-            n: all.len(),
-            rms: rms_of(&all),
-            max_abs: all.iter().fold(0.0f64, |a, e| a.max(e.abs())),
-            block_rms: errors
-                .iter()
-                .map(|b| {
-                    let f: Vec<f64> = b.iter().copied().filter(|e| e.is_finite()).collect();
-                    rms_of(&f)
-                })
-                .collect(),
+        let mut sum = HeldOutSum::default();
+        for block in errors {
+            sum.add_block(block.iter().copied());
+        }
+        sum.finish()
+    }
+}
+
+/// [`HeldOut`] summed as the errors come, block by block, without keeping them: bit for bit
+/// what [`HeldOut::from_block_errors`] gives for the same errors in the same order (each sum
+/// runs over the finite errors in that order, from the first).
+///
+/// Why: `nanocal stepwise` kept every held-out error of a 200,000-row file in fresh vectors
+/// and copied them twice more; their page faults and copies were most of the command's
+/// single-threaded tail.
+#[derive(Debug, Clone, Default)]
+pub struct HeldOutSum {
+    blocks: usize,
+    n: usize,
+    sum_sq: f64,
+    max_abs: f64,
+    block_rms: Vec<f64>,
+}
+
+impl HeldOutSum {
+    /// Adds the next block's errors (non-finite ones are left out, as by
+    /// [`HeldOut::from_block_errors`]).
+    pub fn add_block(&mut self, errors: impl IntoIterator<Item = f64>) {
+        let mut block = self.start_block();
+        for e in errors {
+            block.add(e);
+        }
+        block.finish();
+    }
+
+    /// Starts the next block; its errors go in through [`HeldOutBlock::add`].
+    pub fn start_block(&mut self) -> HeldOutBlock<'_> {
+        HeldOutBlock {
+            sum: self,
+            n: 0,
+            sum_sq: 0.0,
         }
     }
+
+    /// The summary.
+    pub fn finish(self) -> HeldOut {
+        HeldOut {
+            blocks: self.blocks,
+            n: self.n,
+            rms: rms(self.sum_sq, self.n),
+            max_abs: self.max_abs,
+            block_rms: self.block_rms,
+        }
+    }
+}
+
+/// One block of a [`HeldOutSum`] being added.
+pub struct HeldOutBlock<'a> {
+    sum: &'a mut HeldOutSum,
+    n: usize,
+    sum_sq: f64,
+}
+
+impl HeldOutBlock<'_> {
+    /// Adds one error (left out if not finite).
+    #[inline]
+    pub fn add(&mut self, e: f64) {
+        if e.is_finite() {
+            let sq = e * e;
+            self.sum_sq += sq;
+            self.n += 1;
+            self.sum.sum_sq += sq;
+            self.sum.n += 1;
+            self.sum.max_abs = self.sum.max_abs.max(e.abs());
+        }
+    }
+
+    /// Closes the block.
+    pub fn finish(self) {
+        self.sum.blocks += 1;
+        self.sum.block_rms.push(rms(self.sum_sq, self.n));
+    }
+}
+
+/// √(Σe² / n) as `Iterator::sum` gives it (NaN for no errors).
+fn rms(sum_sq: f64, n: usize) -> f64 {
+    (sum_sq / n as f64).sqrt()
 }
 
 #[cfg(test)]
@@ -722,7 +803,8 @@ mod tests {
         let all: Vec<usize> = (0..400).collect();
         let h = tri_band.leverages(&[&d[0], &d[2]], &all).unwrap();
         // the build for every x86-64 and the AVX2 one (taken where the CPU has it) alike
-        let plain = tri_band.leverages_in(&[&d[0], &d[2]], &all);
+        let mut plain = vec![0.0; all.len()];
+        tri_band.leverages_in(&[&d[0], &d[2]], &all, &mut plain);
         assert!(h
             .iter()
             .zip(&plain)

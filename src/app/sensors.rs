@@ -198,18 +198,35 @@ pub async fn sensors<B: InputBus>(bus: B, timeout: Duration, sh: &Shared) -> ! {
 /// ADC channel and scaling of every fast input of the model in service (`None`: not fast, or
 /// no model).
 fn fast_sources(sh: &Shared) -> [Option<AuxSource>; MAX_AUX] {
-    let settings = sh.settings.lock(|s| *s.borrow());
-    sh.model.lock(|m| {
-        let m = m.borrow();
-        let mut src = [None; MAX_AUX];
-        if let Some(model) = m.model.as_ref().filter(|_| !m.pending) {
-            for (n, s) in src.iter_mut().enumerate().take(model.aux()) {
-                if model.is_fast(n) {
-                    *s = Some(inputs::aux_source(&settings, model, n));
+    // the settings are borrowed, not copied: this runs at every wake-up of the fast sampler,
+    // and a copy of the settings (292 B) was ≈ 1,000 guest instructions each time
+    sh.settings.lock(|settings| {
+        let settings = settings.borrow();
+        sh.model.lock(|m| {
+            let m = m.borrow();
+            let mut src = [None; MAX_AUX];
+            if let Some(model) = m.model.as_ref().filter(|_| !m.pending) {
+                for (n, s) in src.iter_mut().enumerate().take(model.aux()) {
+                    if model.is_fast(n) {
+                        *s = Some(inputs::aux_source(&settings, model, n));
+                    }
                 }
             }
-        }
-        src
+            src
+        })
+    })
+}
+
+/// Whether the model in service has a fast input ([`fast_sources`] has one): the idle fast
+/// sampler asks this at every wake-up, without building (and moving, 48 B at a time) the
+/// sources themselves.
+fn any_fast(sh: &Shared) -> bool {
+    sh.model.lock(|m| {
+        let m = m.borrow();
+        m.model
+            .as_ref()
+            .filter(|_| !m.pending)
+            .is_some_and(|model| (0..model.aux().min(MAX_AUX)).any(|n| model.is_fast(n)))
     })
 }
 
@@ -244,7 +261,7 @@ async fn read_aux<B: InputBus>(
 async fn fast_inputs<B: InputBus>(bus: &SharedBus<B>, timeout: Duration, sh: &Shared) -> ! {
     let mut baro = Baro::default();
     loop {
-        if fast_sources(sh).iter().all(Option::is_none) {
+        if !any_fast(sh) {
             let _ = with_timeout(
                 Duration::from_millis(IDLE_RECHECK_MS),
                 sh.model_released.wait(),
@@ -377,7 +394,7 @@ async fn slow_cycle<B: InputBus>(bus: &SharedBus<B>, timeout: Duration, sh: &Sha
             let Some(dt_s) = dt_s else {
                 // between folds the fold in force stands; a failed input closes the gate now,
                 // the next fold opens it again
-                return Some(Some((None, blocked)));
+                return Some(Some((false, blocked)));
             };
             m.inputs_ready = true;
             let bank = match &mut lags {
@@ -386,8 +403,18 @@ async fn slow_cycle<B: InputBus>(bus: &SharedBus<B>, timeout: Duration, sh: &Sha
                 _ => &mut lags.insert((m.generation, LagBank::new(model.lags()))).1,
             };
             bank.update(&m.slow.temps_c, dt_s, &mut m.slow.lagged_c);
-            let comp = Comp::new(model, &m.slow);
-            m.slow_outside = comp.fold.slow_outside_envelope();
+            m.folds = m.folds.wrapping_add(1);
+            // the new fold is built where the command path reads it, under its lock (nothing
+            // runs between this and the gate's update below): built here and moved there, the
+            // corrector (≈ 3 KB) was copied twice a fold (issue 20 §5)
+            m.slow_outside = sh.core.lock(|c| {
+                let mut c = c.borrow_mut();
+                let c = &mut *c;
+                let comp = c.comp.insert(Comp::new(model, &m.slow));
+                c.comp_fold = m.folds;
+                c.folded_at_ms = ms;
+                comp.fold.slow_outside_envelope()
+            });
             // the model-stale check's envelope half: once a fold, never per command
             let excess_c = stale::envelope_excess_c(model, &m.slow);
             let was_stale = m.stale.is_stale();
@@ -398,16 +425,12 @@ async fn slow_cycle<B: InputBus>(bus: &SharedBus<B>, timeout: Duration, sh: &Sha
                     excess_c
                 );
             }
-            m.folds = m.folds.wrapping_add(1);
-            Some(Some((Some((comp, m.folds)), blocked)))
+            Some(Some((true, blocked)))
         });
         match update {
             Some(Some((folded, blocked))) => sh.core.lock(|c| {
                 let mut c = c.borrow_mut();
-                if let Some((comp, fold)) = folded {
-                    c.comp = Some(comp);
-                    c.comp_fold = fold;
-                    c.folded_at_ms = ms;
+                if folded {
                     c.proxy.gate = Gate::Open;
                 }
                 if blocked {

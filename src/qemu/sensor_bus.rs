@@ -21,6 +21,10 @@ const WATCHED_REPLY_TURNS: u32 = 2_000;
 /// The bus stand-in of the bench's mailbox.
 pub struct MailboxBus {
     seq: u32,
+    /// The request, then the reply, as they cross the page (kept between transactions: a
+    /// fresh zeroed frame each way, and the SPI data copied once more for the request, were a
+    /// third of a transaction's own guest instructions; issue 20 §5).
+    frame: [u8; bl::FRAME_LEN],
 }
 
 impl Default for MailboxBus {
@@ -34,6 +38,7 @@ impl MailboxBus {
     pub fn new() -> Self {
         Self {
             seq: link::read_u32(bl::BUS_REQ_SEQ),
+            frame: [0; bl::FRAME_LEN],
         }
     }
 
@@ -63,28 +68,26 @@ impl MailboxBus {
         }
     }
 
-    /// Send a request and wait for its reply; the reply data go to `data_in`.
+    /// Send a request and wait for its reply. With [`BusStatus::Ok`] the reply's `n_in` bytes
+    /// are [`Self::reply_data`].
     async fn transact(
         &mut self,
         op: BusOp,
         target: u8,
         data_out: &[u8],
-        data_in: &mut [u8],
+        n_in: usize,
     ) -> Result<BusStatus, ()> {
         if !super::time::linked() {
             return core::future::pending().await;
         }
-        let mut req = [0u8; bl::FRAME_LEN];
         let request = BusRequest {
             op,
             target,
             data_out,
-            n_in: data_in.len(),
+            n_in,
         };
-        let n = request.encode(&mut req).map_err(|_| ())?;
-        for (i, &b) in req[..n].iter().enumerate() {
-            link::write_u8(bl::BUS_REQ + i, b);
-        }
+        let n = request.encode(&mut self.frame).map_err(|_| ())?;
+        link::write_bytes(bl::BUS_REQ, &self.frame[..n]);
         self.seq = self.seq.wrapping_add(1);
         link::barrier();
         link::write_u32(bl::BUS_REQ_SEQ, self.seq);
@@ -95,52 +98,69 @@ impl MailboxBus {
         }
         self.wait_reply(watched);
         link::barrier();
-        let mut rep = [0u8; bl::FRAME_LEN];
-        for (i, b) in rep.iter_mut().enumerate() {
-            *b = link::read_u8(bl::BUS_REP + i);
-        }
-        let reply = BusReply::decode(&rep).map_err(|_| ())?;
+        let n_rep = self.read_reply();
+        let reply = BusReply::decode(&self.frame[..bus::HEADER + n_rep]).map_err(|_| ())?;
         if reply.status == BusStatus::NoAnswer {
             return core::future::pending().await;
         }
         if reply.op != op || reply.target != target {
             return Err(());
         }
-        if reply.status == BusStatus::Ok {
-            if reply.data_in.len() != data_in.len() {
-                return Err(());
-            }
-            data_in.copy_from_slice(reply.data_in);
+        if reply.status == BusStatus::Ok && reply.data_in.len() != n_in {
+            return Err(());
         }
         Ok(reply.status)
+    }
+
+    /// Read the posted reply into the frame: its header, then only the data bytes it announces
+    /// (at most [`bus::MAX_DATA`]: a longer count is left for the decoder to refuse, as it was
+    /// when the whole frame was read); the count of data bytes read.
+    fn read_reply(&mut self) -> usize {
+        // the first two words: the header and the first data bytes
+        const FIRST: usize = 8;
+        link::read_bytes(bl::BUS_REP, &mut self.frame[..FIRST]);
+        let n = usize::from(self.frame[bus::HEADER - 1]).min(bus::MAX_DATA);
+        let end = bus::HEADER + n;
+        if end > FIRST {
+            link::read_bytes(bl::BUS_REP + FIRST, &mut self.frame[FIRST..end]);
+        }
+        n
+    }
+
+    /// The data of the last reply, `n` bytes (as [`Self::transact`] checked).
+    fn reply_data(&self, n: usize) -> &[u8] {
+        &self.frame[bus::HEADER..bus::HEADER + n]
     }
 }
 
 impl InputBus for MailboxBus {
     async fn spi(&mut self, cs: u8, buf: &mut [u8]) -> Result<(), ()> {
-        let mut out = [0u8; bus::MAX_DATA];
         let n = buf.len().min(bus::MAX_DATA);
-        out[..n].copy_from_slice(&buf[..n]);
-        match self
-            .transact(BusOp::Spi, cs, &out[..n], &mut buf[..n])
-            .await?
-        {
-            BusStatus::Ok => Ok(()),
+        match self.transact(BusOp::Spi, cs, &buf[..n], n).await? {
+            BusStatus::Ok => {
+                buf[..n].copy_from_slice(self.reply_data(n));
+                Ok(())
+            }
             _ => Err(()),
         }
     }
 
     async fn i2c(&mut self, addr: u8, w: &[u8], r: &mut [u8]) -> Result<(), ()> {
-        match self.transact(BusOp::I2c, addr, w, r).await? {
-            BusStatus::Ok => Ok(()),
+        match self.transact(BusOp::I2c, addr, w, r.len()).await? {
+            BusStatus::Ok => {
+                r.copy_from_slice(self.reply_data(r.len()));
+                Ok(())
+            }
             _ => Err(()),
         }
     }
 
     async fn adc(&mut self, channel: u8) -> Result<u16, ()> {
-        let mut d = [0u8; 2];
-        match self.transact(BusOp::Adc, channel, &[], &mut d).await? {
-            BusStatus::Ok => Ok(u16::from_le_bytes(d)),
+        match self.transact(BusOp::Adc, channel, &[], 2).await? {
+            BusStatus::Ok => {
+                let d = self.reply_data(2);
+                Ok(u16::from_le_bytes([d[0], d[1]]))
+            }
             _ => Err(()),
         }
     }

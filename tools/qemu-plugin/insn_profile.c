@@ -15,6 +15,12 @@
  * (plugin API version 2, accepted by QEMU 8.x..10.x). One vCPU (mps2-an386): the tallies are
  * plain counters, read unlocked by the writer thread (a count a block behind is good enough).
  *
+ * Callers: `watch=ADDR` (hexadecimal, up to 64 of them) also counts, for every block starting
+ * at ADDR, the block executed just before it — for a function's entry, its call sites (a
+ * `memcpy` of many instructions a step is told apart by who calls it). Written as lines "edge
+ * <previous block's start> <ADDR> <times>"; `insn_profile.py --watch ELF NAME...` prints the
+ * arguments for named functions.
+ *
  * Build: gcc -shared -fPIC -O2 -pthread -o libinsn_profile.so insn_profile.c
  * Use:   NANOCAL_QEMU_PLUGIN=/path/libinsn_profile.so,out=/tmp/prof.txt nanocal campaign ...
  *        (or qemu-system-arm ... -plugin /path/libinsn_profile.so,out=/tmp/prof.txt)
@@ -48,18 +54,55 @@ struct tally {
     uint64_t vaddr;
     uint64_t n_insns;
     volatile uint64_t execs;
+    /* a block at a `watch=` address: its predecessors are counted */
+    int watched;
     struct tally *next;
+};
+
+/* (previous block's start, watched block's start) -> times; inserted under `lock` by the one
+ * vCPU thread, walked unlocked by it. */
+struct edge {
+    uint64_t from;
+    uint64_t to;
+    volatile uint64_t n;
+    struct edge *next;
 };
 
 #define BUCKETS 65536
 static struct tally *table[BUCKETS];
+static struct edge *edges[BUCKETS];
+#define MAX_WATCH 64
+static uint64_t watch[MAX_WATCH];
+static int n_watch;
+/* the block executed last (one vCPU) */
+static struct tally *prev;
 static pthread_mutex_t lock = PTHREAD_MUTEX_INITIALIZER;
 static const char *path;
 
 static void on_exec(unsigned int vcpu, void *udata)
 {
     (void)vcpu;
-    ((struct tally *)udata)->execs++;
+    struct tally *t = udata;
+    t->execs++;
+    if (t->watched && prev) {
+        uint64_t from = prev->vaddr;
+        unsigned h = (unsigned)((from >> 1) ^ (t->vaddr >> 1) * 31u) % BUCKETS;
+        struct edge *e = edges[h];
+        while (e && !(e->from == from && e->to == t->vaddr)) {
+            e = e->next;
+        }
+        if (!e) {
+            e = calloc(1, sizeof *e);
+            e->from = from;
+            e->to = t->vaddr;
+            pthread_mutex_lock(&lock);
+            e->next = edges[h];
+            edges[h] = e;
+            pthread_mutex_unlock(&lock);
+        }
+        e->n++;
+    }
+    prev = t;
 }
 
 static void on_tb(qemu_plugin_id_t id, struct qemu_plugin_tb *tb)
@@ -77,6 +120,9 @@ static void on_tb(qemu_plugin_id_t id, struct qemu_plugin_tb *tb)
         t = calloc(1, sizeof *t);
         t->vaddr = pc;
         t->n_insns = n;
+        for (int i = 0; i < n_watch; i++) {
+            t->watched |= watch[i] == pc;
+        }
         t->next = table[h];
         table[h] = t;
     }
@@ -106,6 +152,12 @@ static void dump(void)
                 fprintf(f, "%llx %llu %llu\n", (unsigned long long)t->vaddr,
                         (unsigned long long)t->n_insns, (unsigned long long)t->execs);
             }
+        }
+    }
+    for (unsigned h = 0; h < BUCKETS; h++) {
+        for (struct edge *e = edges[h]; e; e = e->next) {
+            fprintf(f, "edge %llx %llx %llu\n", (unsigned long long)e->from,
+                    (unsigned long long)e->to, (unsigned long long)e->n);
         }
     }
     pthread_mutex_unlock(&lock);
@@ -138,6 +190,8 @@ __attribute__((visibility("default"))) int qemu_plugin_install(qemu_plugin_id_t 
     for (int i = 0; i < argc; i++) {
         if (strncmp(argv[i], "out=", 4) == 0) {
             path = strdup(argv[i] + 4);
+        } else if (strncmp(argv[i], "watch=", 6) == 0 && n_watch < MAX_WATCH) {
+            watch[n_watch++] = strtoull(argv[i] + 6, NULL, 16) & ~1ull;
         }
     }
     if (!path) {

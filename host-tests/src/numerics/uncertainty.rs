@@ -717,6 +717,42 @@ mod tests {
     use super::*;
 
     #[test]
+    fn held_out_summary_is_the_textbook_one_bit_for_bit() {
+        // three blocks, one empty, with NaN and ∞ left out, summed as they come
+        let blocks: Vec<Vec<f64>> = vec![
+            vec![0.1, -0.25, f64::NAN, 1e-9, 3.0],
+            vec![],
+            vec![-7.5, f64::INFINITY, 0.3333333333333333, -0.0],
+        ];
+        let h = HeldOut::from_block_errors(&blocks);
+        let finite: Vec<f64> = blocks
+            .iter()
+            .flatten()
+            .copied()
+            .filter(|e| e.is_finite())
+            .collect();
+        let rms = |v: &[f64]| (v.iter().map(|e| e * e).sum::<f64>() / v.len() as f64).sqrt();
+        assert_eq!((h.blocks, h.n), (3, 7));
+        assert_eq!(h.rms.to_bits(), rms(&finite).to_bits());
+        assert_eq!(h.max_abs, 7.5);
+        for (got, b) in h.block_rms.iter().zip(&blocks) {
+            let f: Vec<f64> = b.iter().copied().filter(|e| e.is_finite()).collect();
+            assert_eq!(got.to_bits(), rms(&f).to_bits(), "{got} for {b:?}");
+        }
+        assert!(h.block_rms[1].is_nan(), "an empty block has no RMS");
+        // the same errors added one at a time give the same summary
+        let mut sum = HeldOutSum::default();
+        for b in &blocks {
+            let mut block = sum.start_block();
+            b.iter().for_each(|&e| block.add(e));
+            block.finish();
+        }
+        let one_by_one = sum.finish();
+        assert_eq!(one_by_one.rms.to_bits(), h.rms.to_bits());
+        assert_eq!(one_by_one.n, h.n);
+    }
+
+    #[test]
     fn t_quantiles_match_tables() {
         // Student t table (two-sided 95 %): df 1 → 12.706, 10 → 2.228, 30 → 2.042
         assert!((t_quantile(0.975, 1.0) - 12.7062047).abs() < 1e-6);

@@ -631,16 +631,15 @@ impl HeldOut {
     }
 }
 
-/// [`HeldOut`] summed as the errors come, block by block, without keeping them: bit for bit
-/// what [`HeldOut::from_block_errors`] gives for the same errors in the same order (each sum
-/// runs over the finite errors in that order, from the first).
+/// [`HeldOut`] summed as the errors come, block by block, without keeping them: each sum runs
+/// over the finite errors in the order they come, from the first, as a sum over a vector of
+/// them would ([`HeldOut::from_block_errors`] is this over the vectors it is given).
 ///
 /// Why: `nanocal stepwise` kept every held-out error of a 200,000-row file in fresh vectors
 /// and copied them twice more; their page faults and copies were most of the command's
 /// single-threaded tail.
 #[derive(Debug, Clone, Default)]
 pub struct HeldOutSum {
-    blocks: usize,
     n: usize,
     sum_sq: f64,
     max_abs: f64,
@@ -670,7 +669,7 @@ impl HeldOutSum {
     /// The summary.
     pub fn finish(self) -> HeldOut {
         HeldOut {
-            blocks: self.blocks,
+            blocks: self.block_rms.len(),
             n: self.n,
             rms: rms(self.sum_sq, self.n),
             max_abs: self.max_abs,
@@ -702,7 +701,6 @@ impl HeldOutBlock<'_> {
 
     /// Closes the block.
     pub fn finish(self) {
-        self.sum.blocks += 1;
         self.sum.block_rms.push(rms(self.sum_sq, self.n));
     }
 }

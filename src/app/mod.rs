@@ -146,6 +146,14 @@ pub struct ModelState {
     pub pending: bool,
 }
 
+impl ModelState {
+    /// The model in service: `None` without one, and while it is `pending` (not folded, no
+    /// move uses it, until the store has it).
+    pub fn in_service(&self) -> Option<&Model> {
+        self.model.as_ref().filter(|_| !self.pending)
+    }
+}
+
 /// Mutex for state shared between tasks of the one thread-mode executor (no interrupt masking).
 pub type M = ThreadModeRawMutex;
 /// Mutex for signals and pipes (wakers may come from interrupts).

@@ -205,7 +205,7 @@ fn fast_sources(sh: &Shared) -> [Option<AuxSource>; MAX_AUX] {
         sh.model.lock(|m| {
             let m = m.borrow();
             let mut src = [None; MAX_AUX];
-            if let Some(model) = m.model.as_ref().filter(|_| !m.pending) {
+            if let Some(model) = m.in_service() {
                 for (n, s) in src.iter_mut().enumerate().take(model.aux()) {
                     if model.is_fast(n) {
                         *s = Some(inputs::aux_source(&settings, model, n));
@@ -223,9 +223,7 @@ fn fast_sources(sh: &Shared) -> [Option<AuxSource>; MAX_AUX] {
 fn any_fast(sh: &Shared) -> bool {
     sh.model.lock(|m| {
         let m = m.borrow();
-        m.model
-            .as_ref()
-            .filter(|_| !m.pending)
+        m.in_service()
             .is_some_and(|model| (0..model.aux().min(MAX_AUX)).any(|n| model.is_fast(n)))
     })
 }
@@ -360,7 +358,7 @@ async fn slow_cycle<B: InputBus>(bus: &SharedBus<B>, timeout: Duration, sh: &Sha
                 }
             }
             let fold_ms = u32::from(settings.fold_period_ms);
-            let ready = m.model.as_ref().filter(|_| !m.pending).map(|model| {
+            let ready = m.in_service().map(|model| {
                 m.faults.all_usable(model.temps()) && m.aux_faults.all_usable(model.aux())
             });
             // a model released and readable for the first time is folded at once

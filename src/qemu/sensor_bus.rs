@@ -118,6 +118,7 @@ impl MailboxBus {
     fn read_reply(&mut self) -> usize {
         // the first two words: the header and the first data bytes
         const FIRST: usize = 8;
+        const _: () = assert!(bus::HEADER <= FIRST && FIRST <= bl::FRAME_LEN);
         link::read_bytes(bl::BUS_REP, &mut self.frame[..FIRST]);
         let n = usize::from(self.frame[bus::HEADER - 1]).min(bus::MAX_DATA);
         let end = bus::HEADER + n;

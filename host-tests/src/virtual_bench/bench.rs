@@ -6,6 +6,7 @@
 //! `t` is bench time `t + offset`, and nothing on the board happens between the instants the
 //! campaign lets it reach.
 
+use super::board_first::BoardFirst;
 use super::chips::{max31856::TempSource, Lps22hb, Max31856};
 use super::controller::{Clock, Config, Controller, IdealPlant, Plant, StageSim};
 use super::link::{BenchClock, BenchLink, RingPort};
@@ -666,7 +667,10 @@ impl BenchDriver for VirtualBench {
             });
             let mut idle_since: Option<Instant> = None;
             let mut stuck_since: Option<Instant> = None;
+            // this loop's looks give way to QEMU's threads (and the op's)
+            let mut board_first = BoardFirst::enter();
             while !h.is_finished() {
+                board_first.look();
                 self.link.pump();
                 // the board has started to answer the newest request: it needs no more time,
                 // and the fold it answered with must stay the one the next command meets
@@ -708,6 +712,7 @@ impl BenchDriver for VirtualBench {
                 if !*g {
                     let _ = done.1.wait_timeout(g, EXCHANGE_LOOK).unwrap();
                 }
+                board_first.rested();
             }
         });
         result

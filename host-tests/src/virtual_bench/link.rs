@@ -19,6 +19,7 @@ use std::sync::atomic::{fence, AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
+use super::board_first::BoardFirst;
 use super::input_watch::InputWatch;
 
 /// Size of the file behind the board's PSRAM (QEMU's mps2 machines have exactly 16 MiB).
@@ -874,8 +875,11 @@ impl BenchClock {
         // until a doorbell only when the board makes no progress for a while.
         let mut last = (page.u64(bl::NOW), page.u32(bl::BUS_REQ_SEQ));
         let mut quiet_since = Instant::now();
+        // the poll below gives way to QEMU's threads (they run what it waits for)
+        let mut board_first = BoardFirst::enter();
         page.set_u32(bl::WATCHING, 1);
         let result = loop {
+            board_first.look();
             if self.link.bus_pending() {
                 self.link.serve_bus();
             }
@@ -902,6 +906,7 @@ impl BenchClock {
                         .rung
                         .wait_timeout(rings, Duration::from_millis(2))
                         .unwrap();
+                    board_first.rested();
                 }
                 page.set_u32(bl::WATCHING, 1);
                 quiet_since = Instant::now();
@@ -988,10 +993,11 @@ impl RingPort {
 
     /// Wait a little for the board, pumping the stage meanwhile; false once `since` is more
     /// than `limit` ago or the link is shut down.
-    fn wait(&self, since: Instant, limit: Duration) -> bool {
+    fn wait(&self, since: Instant, limit: Duration, board_first: &mut BoardFirst) -> bool {
         if self.link.stopped() {
             return false;
         }
+        board_first.look();
         self.link.pump();
         let waited = since.elapsed();
         if waited >= limit {
@@ -1001,6 +1007,7 @@ impl RingPort {
             std::hint::spin_loop();
         } else {
             std::thread::sleep(RING_NAP);
+            board_first.rested();
         }
         true
     }
@@ -1012,6 +1019,8 @@ impl Read for RingPort {
             return Ok(0);
         }
         let start = Instant::now();
+        // lowered only once the reply is not there at the first look
+        let mut board_first: Option<BoardFirst> = None;
         loop {
             let n = self.link.ring_read(self.port, b);
             if n > 0 {
@@ -1020,7 +1029,8 @@ impl Read for RingPort {
             if self.link.stopped() {
                 return Ok(0);
             }
-            if !self.wait(start, self.read_timeout) {
+            let bf = board_first.get_or_insert_with(BoardFirst::enter);
+            if !self.wait(start, self.read_timeout, bf) {
                 return Err(std::io::ErrorKind::WouldBlock.into());
             }
         }
@@ -1033,6 +1043,7 @@ impl Write for RingPort {
             return Ok(0);
         }
         let start = Instant::now();
+        let mut board_first: Option<BoardFirst> = None;
         loop {
             let n = self.link.ring_write(self.port, b);
             if n > 0 {
@@ -1040,7 +1051,8 @@ impl Write for RingPort {
             }
             // the ring is full: the board takes its bytes as it reads (a board that stopped
             // reading for a minute is hung)
-            if !self.wait(start, Duration::from_secs(60)) {
+            let bf = board_first.get_or_insert_with(BoardFirst::enter);
+            if !self.wait(start, Duration::from_secs(60), bf) {
                 return Err(std::io::ErrorKind::BrokenPipe.into());
             }
         }

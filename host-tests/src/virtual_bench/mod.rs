@@ -4,6 +4,7 @@
 //! ([`campaign_bench`]) share it.
 
 pub mod bench;
+pub mod board_first;
 pub mod campaign_bench;
 pub mod chips;
 #[cfg(feature = "test-support")]

@@ -254,6 +254,8 @@ impl Qemu {
             .stderr(logf)
             .spawn()
             .expect("start qemu-system-arm");
+        // its CPU time is the bench's own, not other work on the machine
+        super::board_first::board_started(child.id());
         let mut child = child;
         let line = dial_unix(&mut child, &sockets.join("s4"), 4, &log);
         let wake = dial_unix(&mut child, &sockets.join("s2"), 2, &log);
@@ -430,6 +432,7 @@ fn dial_with<S>(
 impl Drop for Qemu {
     fn drop(&mut self) {
         self.link.shutdown();
+        super::board_first::board_stopped(self.child.id());
         let _ = self.child.kill();
         let _ = self.child.wait();
         // before its socket goes with the folder (its drop wakes its accept through it)

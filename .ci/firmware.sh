@@ -27,6 +27,8 @@ fi
 # STM32 board (default features) and QEMU board.
 cargo build --release
 cargo build --release --no-default-features --features qemu
+# the virtual bench's board image: the `qemu` profile (optimised for speed, Cargo.toml)
+cargo build --profile qemu --no-default-features --features qemu --bin nanocal-fw-qemu
 cargo clippy --release -- -D warnings
 cargo clippy --release --no-default-features --features qemu -- -D warnings
 cargo fmt --check
@@ -36,7 +38,7 @@ cargo fmt --check
 # 128 KiB). GNU size reads the ARM ELF's section headers (binutils is on every Debian).
 command -v size >/dev/null || apt_install binutils
 elf=target/thumbv7em-none-eabihf/release/nanocal-fw
-size -A "$elf" target/thumbv7em-none-eabihf/release/nanocal-fw-qemu | grep -E '^(target/.*|\.vector_table|\.text|\.rodata|\.data|\.bss|\.uninit) '
+size -A "$elf" target/thumbv7em-none-eabihf/qemu/nanocal-fw-qemu | grep -E '^(target/.*|\.vector_table|\.text|\.rodata|\.data|\.bss|\.uninit) '
 size -A "$elf" | awk '
     $1 == ".vector_table" || $1 == ".text" || $1 == ".rodata" { flash += $2 }
     $1 == ".data" { flash += $2; ram += $2 }

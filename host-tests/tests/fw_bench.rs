@@ -91,7 +91,6 @@ fn fw_bench_instructions() {
     if !require_qemu("fw_bench_instructions") {
         return;
     }
-    let _ = qemu_elf();
     let elf_path = bench_elf();
     let elf = Elf::read(&elf_path);
     let dir = std::env::temp_dir().join(format!("nanocal-plugin-{}", std::process::id()));
@@ -178,10 +177,10 @@ fn fw_bench_sizes() {
         .status()
         .unwrap();
     assert!(st.success());
-    let _ = qemu_elf();
+    let stm32 = root.join("target/thumbv7em-none-eabihf/release/nanocal-fw");
     println!("\n| image | flash (bytes) | static RAM (bytes) |\n|---|---:|---:|");
-    for name in ["nanocal-fw", "nanocal-fw-qemu"] {
-        let e = Elf::read(&root.join("target/thumbv7em-none-eabihf/release").join(name));
+    for (name, path) in [("nanocal-fw", stm32), ("nanocal-fw-qemu", qemu_elf())] {
+        let e = Elf::read(&path);
         let (flash, ram) = e.flash_ram();
         println!("| {name} | {flash} | {ram} |");
         if name == "nanocal-fw" {

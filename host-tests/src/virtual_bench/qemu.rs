@@ -21,43 +21,65 @@ pub fn repo_root() -> PathBuf {
         .to_path_buf()
 }
 
-/// Build the QEMU firmware images (compensator and benchmark) once per test process; returns
-/// the compensator's ELF path (the benchmark's is next to it, `nanocal-fw-bench`).
-pub fn qemu_elf() -> PathBuf {
-    static ELF: OnceLock<PathBuf> = OnceLock::new();
-    ELF.get_or_init(|| {
-        // an image built before, for measurements that compare two firmware versions in turn
-        // with one host binary (issue 20 §5): used as it is, nothing is built
-        if let Some(elf) = std::env::var_os("NANOCAL_QEMU_ELF").filter(|p| !p.is_empty()) {
-            return PathBuf::from(elf);
-        }
-        let root = repo_root();
-        let cargo = option_env!("CARGO").unwrap_or("cargo");
-        let status = Command::new(cargo)
-            .current_dir(&root)
-            .args([
-                "build",
-                "--release",
-                "--no-default-features",
-                "--features",
-                "qemu",
-                "--bins",
-            ])
-            .env_remove("CARGO_TARGET_DIR")
-            .env_remove("CARGO_BUILD_TARGET")
-            .env_remove("RUSTFLAGS")
-            .env_remove("CARGO_ENCODED_RUSTFLAGS")
-            .status()
-            .expect("run cargo to build the QEMU firmware");
-        assert!(status.success(), "building the QEMU firmware failed");
-        root.join("target/thumbv7em-none-eabihf/release/nanocal-fw-qemu")
-    })
-    .clone()
+/// Build a QEMU firmware binary (`--features qemu`) with cargo `profile`; returns its ELF.
+fn build_qemu_bin(profile: &str, bin: &str) -> PathBuf {
+    let root = repo_root();
+    let cargo = option_env!("CARGO").unwrap_or("cargo");
+    let status = Command::new(cargo)
+        .current_dir(&root)
+        .args([
+            "build",
+            "--profile",
+            profile,
+            "--no-default-features",
+            "--features",
+            "qemu",
+            "--bin",
+            bin,
+        ])
+        .env_remove("CARGO_TARGET_DIR")
+        .env_remove("CARGO_BUILD_TARGET")
+        .env_remove("RUSTFLAGS")
+        .env_remove("CARGO_ENCODED_RUSTFLAGS")
+        .status()
+        .expect("run cargo to build the QEMU firmware");
+    assert!(
+        status.success(),
+        "building the QEMU firmware ({bin}) failed"
+    );
+    // cargo's folder for the `release` profile is `release`, for the others their name
+    root.join("target/thumbv7em-none-eabihf")
+        .join(profile)
+        .join(bin)
 }
 
-/// The benchmark image.
+/// An image built before, for measurements that compare two firmware versions in turn with
+/// one host binary (issue 20 §5): used as it is, nothing is built.
+fn elf_from_env() -> Option<PathBuf> {
+    std::env::var_os("NANOCAL_QEMU_ELF")
+        .filter(|p| !p.is_empty())
+        .map(PathBuf::from)
+}
+
+/// The compensator's QEMU image, built once per process with the `qemu` profile (optimised for
+/// speed: the virtual bench's board, see the profile in `Cargo.toml`), or
+/// `NANOCAL_QEMU_ELF`.
+pub fn qemu_elf() -> PathBuf {
+    static ELF: OnceLock<PathBuf> = OnceLock::new();
+    ELF.get_or_init(|| elf_from_env().unwrap_or_else(|| build_qemu_bin("qemu", "nanocal-fw-qemu")))
+        .clone()
+}
+
+/// The benchmark image, built once per process with the `release` profile — the STM32 image's
+/// code generation, so that its guest-instruction counts stand for the shipped code — or the
+/// `nanocal-fw-bench` beside `NANOCAL_QEMU_ELF`.
 pub fn bench_elf() -> PathBuf {
-    qemu_elf().with_file_name("nanocal-fw-bench")
+    static ELF: OnceLock<PathBuf> = OnceLock::new();
+    ELF.get_or_init(|| match elf_from_env() {
+        Some(elf) => elf.with_file_name("nanocal-fw-bench"),
+        None => build_qemu_bin("release", "nanocal-fw-bench"),
+    })
+    .clone()
 }
 
 /// Symbols and section sizes of a little-endian ELF32 file.

@@ -58,13 +58,17 @@ pub fn led_state(sh: &Shared) -> LedState {
 }
 
 /// Longest the supervisor sleeps, ms: the stale-fold gate closes at most this late (on a limit
-/// of seconds), the watchdog (2 s) is petted well in time, and a change of the LED's pattern
-/// shows this soon.
-const SUPERVISE_MS: u32 = 250;
+/// of at least 6 s, [`limits_ms`]), a change of the LED's pattern shows this soon, and the
+/// watchdog is petted at about half its 2 s — at most 1.88 s with the LSI at its 34 kHz
+/// maximum (IWDG on the LSI, RM0351 §32.3; f_LSI 29.5–34 kHz, §6.2.6 and the datasheet) — with
+/// nothing in the firmware that blocks the executor for long (the store's erases are awaited:
+/// bank 2 erases while code runs from bank 1).
+const SUPERVISE_MS: u32 = 1_000;
 
 /// Run the supervisor: wakes every [`SUPERVISE_MS`], or sooner when the LED's blink pattern
-/// changes. (It woke every 50 ms: twenty wake-ups a second that a day on the virtual bench paid
-/// for in emulation, and the board in power.)
+/// changes. (It woke every 50 ms, then every 250 ms: four wake-ups a second were still 87
+/// wake-ups of the emulated board per step of the published virtual campaign, and ≈ 30 % of
+/// QEMU's CPU there — issue 20 §5 — besides the board's power.)
 pub async fn supervisor<B: Board>(mut board: B, sh: &Shared) -> ! {
     let mut sleep_ms = SUPERVISE_MS;
     loop {

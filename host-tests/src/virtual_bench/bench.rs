@@ -358,7 +358,8 @@ impl VirtualBench {
         faults: &Faults,
     ) -> Self {
         let rings = ring_ports();
-        let mut qemu = Qemu::start_with_rings(&[], rings);
+        // in lockstep from the board's boot: it boots at the same instant every run
+        let mut qemu = Qemu::start_lockstep_with_rings(&[], rings);
         let link = qemu.link();
         let clock = qemu.clock();
         let axes_n = twin.cfg.axes;

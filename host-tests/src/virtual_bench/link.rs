@@ -269,6 +269,19 @@ impl BenchLink {
     /// Link over `page` and the board's serial4 (`line`). Starts the doorbell reader and the
     /// free-running clock (scale 1).
     pub fn start(page: Page, line: UnixStream) -> Arc<BenchLink> {
+        Self::start_with(page, line, false)
+    }
+
+    /// [`Self::start`], the clock in lockstep from the board's first instruction: the board
+    /// boots at bench time 0 and no time passes until a caller advances it. Why: a board that
+    /// boots on the free-running clock and is put in lockstep later boots at an instant the
+    /// wall clock decides (35.4 or 35.9 ms in two runs), and every later sample of its sensors
+    /// keeps that phase — the campaign's readings and table differed from run to run.
+    pub fn start_lockstep(page: Page, line: UnixStream) -> Arc<BenchLink> {
+        Self::start_with(page, line, true)
+    }
+
+    fn start_with(page: Page, line: UnixStream, lockstep: bool) -> Arc<BenchLink> {
         let reader = line.try_clone().expect("clone serial4");
         let link = Arc::new(BenchLink {
             page,
@@ -278,7 +291,7 @@ impl BenchLink {
             rung: Condvar::new(),
             bus: Mutex::new(None),
             bus_attached: Condvar::new(),
-            lockstep: AtomicBool::new(false),
+            lockstep: AtomicBool::new(lockstep),
             stop: AtomicBool::new(false),
             advances: Mutex::new(0),
             advanced: Condvar::new(),
@@ -291,8 +304,10 @@ impl BenchLink {
         });
         let l = link.clone();
         std::thread::spawn(move || l.read_doorbells(reader));
-        let l = link.clone();
-        std::thread::spawn(move || l.free_run(1.0));
+        if !lockstep {
+            let l = link.clone();
+            std::thread::spawn(move || l.free_run(1.0));
+        }
         link
     }
 

@@ -222,6 +222,16 @@ impl Qemu {
     /// serial n, n < 4) carried by the page's rings instead of their UARTs
     /// (`nanocal_interface::bench_link`, *Rings*; [`super::link::RingPort`]).
     pub fn start_with_rings(extra: &[String], ring_ports: u32) -> Self {
+        Self::start_inner(extra, ring_ports, false)
+    }
+
+    /// [`Self::start_with_rings`], the board's clock in lockstep from its boot
+    /// ([`BenchLink::start_lockstep`]): a campaign's board boots at the same instant every run.
+    pub fn start_lockstep_with_rings(extra: &[String], ring_ports: u32) -> Self {
+        Self::start_inner(extra, ring_ports, true)
+    }
+
+    fn start_inner(extra: &[String], ring_ports: u32, lockstep: bool) -> Self {
         let elf = qemu_elf();
         let ports = [
             free_port(),
@@ -281,7 +291,11 @@ impl Qemu {
         let mut child = child;
         let line = dial_unix(&mut child, &sockets.join("s4"), 4, &log);
         let wake = dial_unix(&mut child, &sockets.join("s2"), 2, &log);
-        let link = BenchLink::start(page, line);
+        let link = if lockstep {
+            BenchLink::start_lockstep(page, line)
+        } else {
+            BenchLink::start(page, line)
+        };
         link.set_wake_port(wake);
         // input in flight holds the free-running clock: serial 0-1 (TCP) and the management
         // port (serial 3), not the bench's doorbells (serial 2 and 4)

@@ -230,18 +230,7 @@ impl BoardFirst {
         if starvation.recent(now) {
             return guard;
         }
-        // SAFETY: plain system calls on the calling thread (pid 0), no memory handed over but
-        // a parameter block that lives across the call
-        unsafe {
-            let policy = libc::sched_getscheduler(0);
-            if policy != libc::SCHED_OTHER && policy != libc::SCHED_BATCH {
-                return guard;
-            }
-            let param = libc::sched_param { sched_priority: 0 };
-            if libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) == 0 {
-                guard.saved = Some(policy);
-            }
-        }
+        guard.saved = policy::lower();
         guard
     }
 
@@ -274,14 +263,47 @@ impl BoardFirst {
     }
 
     fn restore(&mut self) {
-        if let Some(policy) = self.saved.take() {
-            let param = libc::sched_param { sched_priority: 0 };
-            // SAFETY: as in `enter`
-            unsafe {
-                libc::sched_setscheduler(0, policy, &param);
-            }
+        if let Some(p) = self.saved.take() {
+            policy::set(p);
         }
     }
+}
+
+/// The calling thread's scheduling policy (Linux: `SCHED_IDLE` exists only there; elsewhere
+/// nothing is lowered).
+#[cfg(target_os = "linux")]
+mod policy {
+    /// Lower the calling thread to `SCHED_IDLE` if it runs at the normal policy; its policy
+    /// before, or `None` (not lowered).
+    pub fn lower() -> Option<libc::c_int> {
+        // SAFETY: plain system calls on the calling thread (pid 0), no memory handed over but
+        // a parameter block that lives across the call
+        unsafe {
+            let policy = libc::sched_getscheduler(0);
+            if policy != libc::SCHED_OTHER && policy != libc::SCHED_BATCH {
+                return None;
+            }
+            let param = libc::sched_param { sched_priority: 0 };
+            (libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) == 0).then_some(policy)
+        }
+    }
+
+    /// Put the calling thread back at `policy`.
+    pub fn set(policy: libc::c_int) {
+        let param = libc::sched_param { sched_priority: 0 };
+        // SAFETY: as in `lower`
+        unsafe {
+            libc::sched_setscheduler(0, policy, &param);
+        }
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+mod policy {
+    pub fn lower() -> Option<libc::c_int> {
+        None
+    }
+    pub fn set(_policy: libc::c_int) {}
 }
 
 impl Drop for BoardFirst {
@@ -290,7 +312,7 @@ impl Drop for BoardFirst {
     }
 }
 
-#[cfg(test)]
+#[cfg(all(test, target_os = "linux"))]
 mod tests {
     use super::*;
 

@@ -17,7 +17,7 @@
 //! message, except in CI.
 
 use nanocal::data::plan::Plan;
-use nanocal::virtual_bench::have_qemu;
+use nanocal::virtual_bench::qemu_or_skip;
 use std::process::Command;
 
 /// Rounds of the published plan the test runs (see the module doc).
@@ -26,12 +26,9 @@ const ROUNDS: usize = 22;
 #[test]
 #[ignore = "7–8 min (the published campaign through QEMU): run with --ignored"]
 fn model_stale_rises_on_the_static_model_near_70_h_and_never_on_the_adaptive_one() {
-    if !have_qemu() {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "qemu-system-arm is missing in CI"
-        );
-        eprintln!("model_stale_rises_on_the_static_model: SKIPPED — qemu-system-arm not found");
+    if !qemu_or_skip(
+        "model_stale_rises_on_the_static_model_near_70_h_and_never_on_the_adaptive_one",
+    ) {
         return;
     }
     let out = std::env::temp_dir().join(format!("nanocal-campaign-stale-{}", std::process::id()));

@@ -15,7 +15,7 @@ use nanocal::campaign::state::{BenchSpec, State, VirtualBoard};
 use nanocal::campaign::{self, Config, Faults, Outcome, RECORDING};
 use nanocal::data::plan::{Phase, Plan, TestKind};
 use nanocal::virtual_bench::bench::Faults as BenchFaults;
-use nanocal::virtual_bench::{campaign_bench, have_qemu};
+use nanocal::virtual_bench::{campaign_bench, qemu_or_skip};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -34,18 +34,6 @@ fn steps_of(plan: &Plan, kind: TestKind) -> Vec<usize> {
         .filter(|(_, s)| matches!(s.phase, Phase::Test { kind: k, .. } if k == kind))
         .map(|(i, _)| i)
         .collect()
-}
-
-fn skip(test: &str) -> bool {
-    if have_qemu() {
-        return false;
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "{test}: qemu-system-arm is missing in CI"
-    );
-    eprintln!("{test}: SKIPPED — qemu-system-arm not found");
-    true
 }
 
 fn fresh_dir(name: &str) -> PathBuf {
@@ -148,7 +136,7 @@ fn agrees_within_1_nm(o: &Outcome) {
 /// `validate` of the same recording within 1 nm — for every compensation.
 #[test]
 fn campaign_table_agrees_with_file_based_validate_within_1_nm() {
-    if skip("campaign_table_agrees_with_file_based_validate_within_1_nm") {
+    if !qemu_or_skip("campaign_table_agrees_with_file_based_validate_within_1_nm") {
         return;
     }
     let out = fresh_dir("agree");
@@ -164,7 +152,7 @@ fn campaign_table_agrees_with_file_based_validate_within_1_nm() {
 
 #[test]
 fn a_campaign_stopped_and_resumed_gives_the_rows_and_result_of_one_run_through() {
-    if skip("a_campaign_stopped_and_resumed") {
+    if !qemu_or_skip("a_campaign_stopped_and_resumed") {
         return;
     }
     let plan = short_plan();
@@ -316,7 +304,7 @@ fn the_campaign_does_not_open_a_virtual_bench_itself() {
 
 #[test]
 fn a_pose_outside_the_travel_stops_the_campaign_before_the_first_move() {
-    if skip("a_pose_outside_the_travel") {
+    if !qemu_or_skip("a_pose_outside_the_travel") {
         return;
     }
     let out = fresh_dir("travel");
@@ -357,7 +345,7 @@ fn kept_up_to(out: &Path, t_s: f64, within_s: f64) {
 
 #[test]
 fn an_instrument_that_falls_silent_stops_the_campaign_and_keeps_the_recording() {
-    if skip("an_instrument_that_falls_silent") {
+    if !qemu_or_skip("an_instrument_that_falls_silent") {
         return;
     }
     let out = fresh_dir("silent");
@@ -380,7 +368,7 @@ fn an_instrument_that_falls_silent_stops_the_campaign_and_keeps_the_recording() 
 
 #[test]
 fn a_thermocouple_that_opens_mid_campaign_is_named_and_the_recording_kept() {
-    if skip("a_thermocouple_that_opens") {
+    if !qemu_or_skip("a_thermocouple_that_opens") {
         return;
     }
     let out = fresh_dir("open-tc");
@@ -404,7 +392,7 @@ fn a_thermocouple_that_opens_mid_campaign_is_named_and_the_recording_kept() {
 
 #[test]
 fn a_compensator_reset_mid_campaign_is_seen_and_the_campaign_goes_on() {
-    if skip("a_compensator_reset") {
+    if !qemu_or_skip("a_compensator_reset") {
         return;
     }
     let out = fresh_dir("reset");
@@ -431,7 +419,7 @@ fn a_compensator_reset_mid_campaign_is_seen_and_the_campaign_goes_on() {
 /// the device up again and goes on — with the table still the file-based `validate`'s.
 #[test]
 fn a_reset_that_takes_the_ports_away_is_reopened_and_the_campaign_goes_on() {
-    if skip("a_reset_that_takes_the_ports_away") {
+    if !qemu_or_skip("a_reset_that_takes_the_ports_away") {
         return;
     }
     let out = fresh_dir("ports");
@@ -463,7 +451,7 @@ fn a_reset_that_takes_the_ports_away_is_reopened_and_the_campaign_goes_on() {
 /// 9.5 nm on the published run).
 #[test]
 fn other_sample_and_fold_periods_agree_with_file_based_validate_within_1_nm() {
-    if skip("other_sample_and_fold_periods") {
+    if !qemu_or_skip("other_sample_and_fold_periods") {
         return;
     }
     for (sample, fold) in [(5000, 5000), (1000, 10_000)] {
@@ -494,7 +482,7 @@ fn other_sample_and_fold_periods_agree_with_file_based_validate_within_1_nm() {
 /// same block), and the firmware's table agrees with the file-based validation.
 #[test]
 fn the_validate_and_return_loop_finds_the_lag_and_the_hysteresis_and_improves() {
-    if skip("the_validate_and_return_loop") {
+    if !qemu_or_skip("the_validate_and_return_loop") {
         return;
     }
     let out = fresh_dir("loop");

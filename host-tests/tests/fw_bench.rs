@@ -10,23 +10,11 @@
 
 mod fw_sim;
 
-use fw_sim::{bench_elf, have_qemu, qemu_elf, repo_root, Elf, Qemu, SensorSim, StageSim};
+use fw_sim::{bench_elf, qemu_elf, qemu_or_skip, repo_root, Elf, Qemu, SensorSim, StageSim};
 use nanocal::papers::published::published_1dof;
 use nanocal_model::blob;
 use std::process::Command;
 use std::time::{Duration, Instant};
-
-fn require_qemu(test: &str) -> bool {
-    if have_qemu() {
-        return true;
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "{test}: qemu-system-arm missing in CI"
-    );
-    eprintln!("\n********** {test}: SKIPPED — qemu-system-arm not found **********\n");
-    false
-}
 
 /// The regions of src/bin/qemu_bench.rs, in order.
 const REGIONS: [&str; 22] = [
@@ -88,7 +76,7 @@ const SLOW_REGIONS: [usize; 2] = [6, 13];
 #[test]
 #[ignore = "benchmark: run with --ignored --nocapture"]
 fn fw_bench_instructions() {
-    if !require_qemu("fw_bench_instructions") {
+    if !qemu_or_skip("fw_bench_instructions") {
         return;
     }
     let elf_path = bench_elf();
@@ -198,7 +186,7 @@ fn median_p99(mut v: Vec<f64>) -> (f64, f64) {
 #[test]
 #[ignore = "benchmark: run with --ignored --nocapture"]
 fn fw_bench_latency_throughput() {
-    if !require_qemu("fw_bench_latency_throughput") {
+    if !qemu_or_skip("fw_bench_latency_throughput") {
         return;
     }
     let mut q = Qemu::start(&[]);

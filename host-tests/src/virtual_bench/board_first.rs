@@ -207,31 +207,27 @@ impl BoardFirst {
     /// as it is).
     pub fn enter() -> Self {
         if !enabled() || !machine_has_room(Instant::now()) {
-            return Self {
-                saved: None,
-                last_look: Instant::now(),
-                starvation: process_starvation(),
-                check_room: false,
-            };
+            return Self::unlowered(process_starvation(), false);
         }
-        let mut g = Self::enter_in(process_starvation());
-        g.check_room = true;
-        g
+        Self::enter_in(process_starvation(), true)
     }
 
-    fn enter_in(starvation: &'static Starvation) -> Self {
-        let now = Instant::now();
-        let mut guard = Self {
-            saved: None,
-            last_look: now,
-            starvation,
-            check_room: false,
-        };
-        if starvation.recent(now) {
-            return guard;
+    /// Lowered unless `starvation` is recent; `check_room`: see the field.
+    fn enter_in(starvation: &'static Starvation, check_room: bool) -> Self {
+        let mut guard = Self::unlowered(starvation, check_room);
+        if !starvation.recent(guard.last_look) {
+            guard.saved = policy::lower();
         }
-        guard.saved = policy::lower();
         guard
+    }
+
+    fn unlowered(starvation: &'static Starvation, check_room: bool) -> Self {
+        Self {
+            saved: None,
+            last_look: Instant::now(),
+            starvation,
+            check_room,
+        }
     }
 
     /// Whether the thread is lowered now.
@@ -332,7 +328,7 @@ mod tests {
         std::thread::spawn(|| {
             assert_eq!(policy(), libc::SCHED_OTHER);
             {
-                let mut g = BoardFirst::enter_in(fresh());
+                let mut g = BoardFirst::enter_in(fresh(), false);
                 assert!(g.lowered(), "any thread may lower itself");
                 assert_eq!(policy(), libc::SCHED_IDLE);
                 g.look();
@@ -354,18 +350,18 @@ mod tests {
     fn a_starved_poller_goes_back_at_once_and_the_next_stays_at_its_priority() {
         std::thread::spawn(|| {
             let starvation = fresh();
-            let mut g = BoardFirst::enter_in(starvation);
+            let mut g = BoardFirst::enter_in(starvation, false);
             assert!(g.lowered());
             // off its core for longer than STARVED, as far as the guard can tell
             g.last_look = Instant::now() - STARVED * 2;
             g.look();
             assert!(!g.lowered());
             assert_eq!(policy(), libc::SCHED_OTHER);
-            let g2 = BoardFirst::enter_in(starvation);
+            let g2 = BoardFirst::enter_in(starvation, false);
             assert!(!g2.lowered(), "within the back-off nobody lowers itself");
             assert_eq!(policy(), libc::SCHED_OTHER);
             // another process-wide record (no starvation seen): lowered again
-            assert!(BoardFirst::enter_in(fresh()).lowered());
+            assert!(BoardFirst::enter_in(fresh(), false).lowered());
         })
         .join()
         .unwrap();
@@ -425,7 +421,7 @@ mod tests {
                 unsafe { libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) },
                 0
             );
-            let g = BoardFirst::enter_in(fresh());
+            let g = BoardFirst::enter_in(fresh(), false);
             assert!(!g.lowered());
             drop(g);
             assert_eq!(policy(), libc::SCHED_IDLE, "not raised on drop either");

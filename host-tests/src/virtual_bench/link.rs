@@ -1008,10 +1008,13 @@ impl RingPort {
 
     /// Wait a little for the board, pumping the stage meanwhile; false once `since` is more
     /// than `limit` ago or the link is shut down.
-    fn wait(&self, since: Instant, limit: Duration, board_first: &mut BoardFirst) -> bool {
+    /// `board_first`: the caller's poll, lowered at its first wait (not when the reply is
+    /// there at the first look).
+    fn wait(&self, since: Instant, limit: Duration, board_first: &mut Option<BoardFirst>) -> bool {
         if self.link.stopped() {
             return false;
         }
+        let board_first = board_first.get_or_insert_with(BoardFirst::enter);
         board_first.look();
         self.link.pump();
         let waited = since.elapsed();
@@ -1034,8 +1037,7 @@ impl Read for RingPort {
             return Ok(0);
         }
         let start = Instant::now();
-        // lowered only once the reply is not there at the first look
-        let mut board_first: Option<BoardFirst> = None;
+        let mut board_first = None;
         loop {
             let n = self.link.ring_read(self.port, b);
             if n > 0 {
@@ -1044,8 +1046,7 @@ impl Read for RingPort {
             if self.link.stopped() {
                 return Ok(0);
             }
-            let bf = board_first.get_or_insert_with(BoardFirst::enter);
-            if !self.wait(start, self.read_timeout, bf) {
+            if !self.wait(start, self.read_timeout, &mut board_first) {
                 return Err(std::io::ErrorKind::WouldBlock.into());
             }
         }
@@ -1058,7 +1059,7 @@ impl Write for RingPort {
             return Ok(0);
         }
         let start = Instant::now();
-        let mut board_first: Option<BoardFirst> = None;
+        let mut board_first = None;
         loop {
             let n = self.link.ring_write(self.port, b);
             if n > 0 {
@@ -1066,8 +1067,7 @@ impl Write for RingPort {
             }
             // the ring is full: the board takes its bytes as it reads (a board that stopped
             // reading for a minute is hung)
-            let bf = board_first.get_or_insert_with(BoardFirst::enter);
-            if !self.wait(start, Duration::from_secs(60), bf) {
+            if !self.wait(start, Duration::from_secs(60), &mut board_first) {
                 return Err(std::io::ErrorKind::BrokenPipe.into());
             }
         }

@@ -27,4 +27,4 @@ pub use link::{BenchClock, BenchLink};
 pub use qemu::{bench_elf, have_qemu, qemu_elf, repo_root, Elf, Qemu, HANG};
 pub use sensors::Buses;
 #[cfg(feature = "test-support")]
-pub use test_support::{GcsHost, SensorSim};
+pub use test_support::{qemu_or_skip, GcsHost, SensorSim};

@@ -23,17 +23,29 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
+/// Whether `test` can run QEMU; if not, it is skipped with a loud message — except in CI, where
+/// a missing QEMU fails it.
+pub fn qemu_or_skip(test: &str) -> bool {
+    if have_qemu() {
+        return true;
+    }
+    if std::env::var_os("CI").is_some() {
+        panic!("{test}: qemu-system-arm is missing in CI (run .ci/firmware.sh first)");
+    }
+    eprintln!("\n**********\n{test}: SKIPPED — qemu-system-arm not found (install QEMU ≥ 10, see .ci/firmware.sh)\n**********\n");
+    false
+}
+
 impl Qemu {
-    /// Start QEMU, or skip (None) with a loud message when it is missing — except in CI.
+    /// Start QEMU, or skip (None) as [`qemu_or_skip`] says.
     pub fn start_or_skip(test: &str) -> Option<Self> {
-        if !have_qemu() {
-            if std::env::var_os("CI").is_some() {
-                panic!("{test}: qemu-system-arm is missing in CI (run .ci/firmware.sh first)");
-            }
-            eprintln!("\n**********\n{test}: SKIPPED — qemu-system-arm not found (install QEMU ≥ 10, see .ci/firmware.sh)\n**********\n");
-            return None;
-        }
-        Some(Self::start(&[]))
+        qemu_or_skip(test).then(|| Self::start(&[]))
+    }
+
+    /// [`Self::start_lockstep_with_rings`] (serial ports on their UARTs), or skip (None) as
+    /// [`qemu_or_skip`] says.
+    pub fn start_lockstep_or_skip(test: &str) -> Option<Self> {
+        qemu_or_skip(test).then(|| Self::start_lockstep_with_rings(&[], 0))
     }
 
     /// Wait until the board has read every byte the test's GCS hosts wrote (up to 10 s).

@@ -217,6 +217,10 @@ pub fn run(args: CampaignArgs) -> anyhow::Result<()> {
     if board_of(&args)? == Some(VirtualBoard::Stm32) {
         return run_stm32_process();
     }
+    if args.virtual_bench {
+        // this process runs one board: it may give the board and the bench a core each
+        crate::virtual_bench::core_split::allow();
+    }
     run_on(args, None)
 }
 

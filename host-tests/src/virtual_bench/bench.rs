@@ -360,6 +360,7 @@ impl VirtualBench {
         let rings = ring_ports();
         // in lockstep from the board's boot: it boots at the same instant every run
         let mut qemu = Qemu::start_lockstep_with_rings(&[], rings);
+        super::core_split::board_started(qemu.pid());
         let link = qemu.link();
         let clock = qemu.clock();
         let axes_n = twin.cfg.axes;
@@ -570,8 +571,11 @@ impl VirtualBench {
 
 impl Drop for VirtualBench {
     fn drop(&mut self) {
+        super::core_split::board_stopped(self.qemu.pid());
         if std::env::var_os("NANOCAL_CAMPAIGN_PROFILE").is_some() {
             eprintln!("virtual bench crossings: {:?}", self.link.crossings());
+            let (made, undone) = super::core_split::transitions();
+            eprintln!("virtual bench core split: made {made}, undone {undone} time(s)");
         }
         if self.link.pokes() > 0 {
             eprintln!(

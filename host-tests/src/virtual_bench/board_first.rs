@@ -168,10 +168,9 @@ fn machine_has_room(now: Instant) -> bool {
             let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
             let s = sample_now();
             if let (Some(a), Some(b)) = (last.1, s) {
-                r.free.store(
-                    other_cores(a, b, cores) < MAX_OTHER_CORES,
-                    Ordering::Relaxed,
-                );
+                let free = other_cores(a, b, cores) < MAX_OTHER_CORES;
+                r.free.store(free, Ordering::Relaxed);
+                super::core_split::machine_measured(free);
             }
             *last = (now, s);
         }

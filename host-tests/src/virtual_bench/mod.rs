@@ -10,6 +10,7 @@ pub mod chips;
 #[cfg(feature = "test-support")]
 mod cli_relay;
 pub mod controller;
+pub mod core_split;
 pub mod input_watch;
 pub mod jitter;
 pub mod link;

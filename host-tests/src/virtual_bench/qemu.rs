@@ -256,6 +256,9 @@ impl Qemu {
                 page.path().display()
             ))
             .args(["-display", "none", "-monitor", "none"])
+            // its threads named ("ALL CPUs/TCG"): a campaign finds the vCPU to give it a core
+            // of its own (`core_split`)
+            .args(["-name", "nanocal-board,debug-threads=on"])
             .args(["-semihosting-config", "enable=on,target=native"]);
         // serial0-2 on TCP (an external GCS client such as PIPython connects to serial0), the
         // management port and the bench's doorbells on Unix sockets: the board writes a byte

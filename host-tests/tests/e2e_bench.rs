@@ -232,6 +232,67 @@ fn e2e_a_lockstep_board_boots_at_bench_time_zero_and_waits_for_the_bench() {
 }
 
 #[test]
+fn e2e_an_idle_board_spins_for_the_bench_only_when_let() {
+    // what a campaign's core split relies on (`bench_link::IDLE_SPIN`, layout 7): a board let
+    // spin takes the bench's next horizon awake; a board not let halts at once, as every board
+    // of the test harness must (a spinning board would hold a core its bench needs)
+    let Some(q) =
+        Qemu::start_lockstep_or_skip("e2e_an_idle_board_spins_for_the_bench_only_when_let")
+    else {
+        return;
+    };
+    let link = q.link();
+    link.attach_bus(Box::new(|_, _, _, _, _| None));
+    let page = link.page();
+    let clock = BenchClock::new(link.clone());
+    let mut t_s = 0.1;
+    clock
+        .advance_to(t_s, HANG)
+        .expect("the board follows the bench");
+    // how often the bench found the board halted when it moved the horizon (and rang it)
+    let horizon_rings_over_five_advances = |t_s: &mut f64, halted_first: bool| {
+        let before = link.crossings().horizon_rings;
+        for _ in 0..5 {
+            if halted_first {
+                let start = std::time::Instant::now();
+                while page.u32(bl::HALTED) != 1 {
+                    assert!(start.elapsed() < HANG, "the idle board never halted");
+                    std::thread::sleep(Duration::from_millis(1));
+                }
+            } else {
+                // far less than the spin, more than a board not let takes to halt
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            *t_s += 0.01;
+            clock
+                .advance_to(*t_s, HANG)
+                .expect("the board follows the bench");
+        }
+        link.crossings().horizon_rings - before
+    };
+    assert_eq!(
+        page.u32(bl::IDLE_SPIN),
+        0,
+        "a bench does not let it by default"
+    );
+    let not_let = horizon_rings_over_five_advances(&mut t_s, true);
+    assert_eq!(not_let, 5, "idle at each horizon, it halted at once");
+    // ≥ 0.1 s of spinning at each horizon (≥ 50 guest instructions a turn): more than the
+    // 5 ms the bench pauses before its next advance, far less than the watchdog's 2 × 2 s of
+    // QEMU's clock
+    link.set_idle_spin(2_000_000);
+    t_s += 0.01;
+    clock
+        .advance_to(t_s, HANG)
+        .expect("the board follows the bench");
+    let let_spin = horizon_rings_over_five_advances(&mut t_s, false);
+    assert!(
+        let_spin <= 1,
+        "let spin, it takes the next horizons awake: rung {let_spin} times"
+    );
+}
+
+#[test]
 fn e2e_watchdog_resets_a_hung_firmware_and_settings_persist() {
     // defect: no watchdog: a hung firmware stayed hung with the last fold in use
     let Some(mut q) =

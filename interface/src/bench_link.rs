@@ -45,6 +45,9 @@
 //!                          at the horizon, or for a bus reply (layout 6)
 //! 0x0F4  u32   board       HALTS: times the board halted waiting for the bench (a counter)
 //! 0x0F8  u32   board       RX_ARMED: bit n set while the board's reader of a ring port waits
+//! 0x0FC  u32   host        IDLE_SPIN: turns the board may busy-wait, idle at the horizon, for
+//!                          the host's next bytes or horizon before it halts (0: halt at once;
+//!                          layout 7)
 //! 0x100  u32×2 ×8          RING[k] head (producer), tail (consumer), k = 2·n + d: serial n,
 //!                          d = 0 host → board, d = 1 board → host
 //! 0x400  1 KiB ×8          RING[k]'s bytes (index: counter mod RING_LEN)
@@ -79,12 +82,21 @@
 //!   one or posted a bus reply. The board reads nothing else from that port: it drains it and
 //!   arms its receive interrupt before each halt, so a doorbell ends every halt.
 //!
-//! **Halts (layout 6).** The board halts (WFI) at once when it has nothing to do at the horizon,
+//! **Halts (layout 6).** The board halts (WFI) at once when it has nothing to do at the horizon
+//! (after [`IDLE_SPIN`] turns, layout 7),
 //! and when it waits for a bus reply nobody is there to post at once (WATCHING clear; while
 //! WATCHING is set, after a short busy wait). Before, it spun 500 µs of QEMU's clock before
 //! each halt and for every bus reply: those spins were 60 % of the guest instructions of a
 //! campaign's step (issue 20 §5). Either halt sets HALTED, then looks once more at what it
 //! waits for; the host writes what it writes, then looks at HALTED and rings if it is set.
+//!
+//! **Idle spin (layout 7).** A halt costs a doorbell through QEMU's I/O thread and a wake-up of
+//! its vCPU — ≈ 100 µs on the 2-core machine, four of them a campaign step (the move, its
+//! `ERR?`, the status, the next horizon). A bench that has given the board a core of its own
+//! (the campaign's core split, `host-tests/src/virtual_bench/core_split.rs`) sets [`IDLE_SPIN`]:
+//! the board, idle at the horizon, then watches its rings and the horizon for that many turns
+//! before it halts, and the host's next command finds it awake. A bench without that core
+//! leaves it 0: a spinning board would hold the core the bench needs.
 //!
 //! A bus reply carries status [`BusStatus::Ok`], [`BusStatus::Nack`], or
 //! [`BusStatus::NoAnswer`]: the addressed device did not answer at all — the board then waits
@@ -107,7 +119,7 @@ pub const SHARED_LEN: usize = RING_DATA + RINGS * RING_LEN;
 /// Magic value at [`MAGIC`].
 pub const MAGIC_VALUE: u32 = 0x4B4C_434E; // "NCLK"
 /// Layout version at [`VERSION`].
-pub const VERSION_VALUE: u32 = 6;
+pub const VERSION_VALUE: u32 = 7;
 
 /// Offset of the magic.
 pub const MAGIC: usize = 0x000;
@@ -169,6 +181,9 @@ pub const HALTED: usize = 0x0F0;
 pub const HALTS: usize = 0x0F4;
 /// Offset of the mask of ring ports whose reader waits.
 pub const RX_ARMED: usize = 0x0F8;
+/// Offset of the turns the board may spin, idle at the horizon, before it halts (see the
+/// module's *Idle spin*).
+pub const IDLE_SPIN: usize = 0x0FC;
 /// Offset of the rings' heads and tails: ring k's head at `RING_HEADS + 8·k`, tail 4 after.
 pub const RING_HEADS: usize = 0x100;
 /// Offset of the rings' bytes: ring k's at `RING_DATA + k·RING_LEN`.
@@ -276,6 +291,7 @@ mod tests {
             (HALTED, 4),
             (HALTS, 4),
             (RX_ARMED, 4),
+            (IDLE_SPIN, 4),
         ];
         for (i, &(a, n)) in fields.iter().enumerate() {
             assert!(a + n <= PAGE_LEN);
@@ -296,6 +312,11 @@ mod tests {
             "layout 4 fills the gap after ANNOUNCED"
         );
         assert_eq!(TX_HOLD + 4, BUS_REQ_SEQ, "and ends at the bus mailbox");
+        assert_eq!(
+            IDLE_SPIN + 4,
+            PAGE_LEN,
+            "layout 7 takes the page's last word"
+        );
         assert_eq!(ticks_to_s(250_000), 0.25);
         // layout 5: the rings after the page, heads before bytes, none overlapping
         assert!(ring_tail(RINGS - 1) + 4 <= RING_DATA);

@@ -113,6 +113,19 @@ pub fn halt(ready: impl Fn() -> bool, pause_watchdog: bool) {
     write_u32(bl::HALTED, 0);
 }
 
+/// Busy-wait up to `turns` turns for `ready`; whether it came. No `YIELD` in the loop: QEMU
+/// runs a `YIELD` of a one-CPU board as an exit of its execution loop, which would make each
+/// turn cost as much as a short halt.
+pub fn spin_until(turns: u32, ready: impl Fn() -> bool) -> bool {
+    for _ in 0..turns {
+        if ready() {
+            return true;
+        }
+        core::sync::atomic::compiler_fence(Ordering::SeqCst);
+    }
+    false
+}
+
 /// True when the host set up the page (QEMU started with the memory backend and the bench).
 pub fn present() -> bool {
     read_u32(bl::MAGIC) == bl::MAGIC_VALUE && read_u32(bl::VERSION) == bl::VERSION_VALUE

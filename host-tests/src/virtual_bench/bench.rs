@@ -362,6 +362,8 @@ impl VirtualBench {
         let mut qemu = Qemu::start_lockstep_with_rings(&[], rings);
         super::core_split::board_started(qemu.pid());
         let link = qemu.link();
+        // the set-up's commands too find the board awake while it has a core of its own
+        link.set_idle_spin(super::core_split::idle_spin_turns());
         let clock = qemu.clock();
         let axes_n = twin.cfg.axes;
         let stage = Arc::new(Mutex::new(TwinStage::new(twin, traj, start_abs_s, stream)));
@@ -652,6 +654,10 @@ impl BenchDriver for VirtualBench {
             return Ok(false);
         }
         self.sync_stage()?;
+        // a board with a core of its own watches for the bench's next command when idle (the
+        // split may have been made or undone since the last step)
+        self.link
+            .set_idle_spin(super::core_split::idle_spin_turns());
         self.clock
             .advance_to(t_s + self.offset_s, Duration::from_secs(60))?;
         Ok(true)

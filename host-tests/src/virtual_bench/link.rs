@@ -323,6 +323,12 @@ impl BenchLink {
         *self.wake.lock().unwrap() = Some(wake);
     }
 
+    /// Let the board spin `turns` turns, idle at the horizon, before it halts
+    /// (`bench_link::IDLE_SPIN`; 0: halt at once).
+    pub fn set_idle_spin(&self, turns: u32) {
+        self.page.set_u32(bl::IDLE_SPIN, turns);
+    }
+
     /// Ring the board (a halted board wakes and looks at the page again).
     fn ring_board(&self) {
         if let Some(w) = self.wake.lock().unwrap().as_mut() {

@@ -61,15 +61,10 @@ pub fn watchdog_pet() {
     watchdog_reload_lazily();
 }
 
-/// The board waited for the bench and the bench answered (an idle spin that ended with its
-/// input): no busy loop, as after a halt, whose resume reloads the counter — reload it too,
-/// at most every 100 ms of QEMU's clock.
-pub fn watchdog_waited() {
-    watchdog_reload_lazily();
-}
-
-/// Reload the CMSDK counter if its last reload is 100 ms of QEMU's clock ago or more.
-fn watchdog_reload_lazily() {
+/// Reload the CMSDK counter if its last reload is 100 ms of QEMU's clock ago or more: at a pet,
+/// and when the board waited for the bench and the bench answered (an idle spin that ended with
+/// its input — no busy loop, as after a halt, whose resume reloads the counter).
+pub fn watchdog_reload_lazily() {
     let now = r(TIMER1 + 0x04);
     if LAST_RELOAD.load(Ordering::Relaxed).wrapping_sub(now) >= super::SYSCLK_HZ / 10 {
         LAST_RELOAD.store(now, Ordering::Relaxed);

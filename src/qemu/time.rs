@@ -250,7 +250,7 @@ pub fn idle() {
                 // first (`bench_link::IDLE_SPIN`): its next command then finds the board awake
                 // instead of ringing it out of a halt (≈ 100 µs each through QEMU's I/O thread)
                 if link::spin_until(link::read_u32(bl::IDLE_SPIN), ready) {
-                    super::board::watchdog_waited();
+                    super::board::watchdog_reload_lazily();
                 } else {
                     link::halt(ready, true);
                 }

@@ -49,7 +49,7 @@ pub const IDLE_SPIN_TURNS: u32 = 10_000;
 /// What the board may spin now: [`IDLE_SPIN_TURNS`] while the split holds, else 0 (a spinning
 /// board would hold the core its bench needs).
 pub fn idle_spin_turns() -> u32 {
-    if IN_FORCE.load(Ordering::Relaxed) {
+    if STATE.lock().unwrap().applied {
         IDLE_SPIN_TURNS
     } else {
         0
@@ -57,8 +57,6 @@ pub fn idle_spin_turns() -> u32 {
 }
 
 static ALLOWED: AtomicBool = AtomicBool::new(false);
-/// Whether the split holds now.
-static IN_FORCE: AtomicBool = AtomicBool::new(false);
 /// Times the split was made, and undone (for the campaign's profile).
 static MADE: AtomicU32 = AtomicU32::new(0);
 static UNDONE: AtomicU32 = AtomicU32::new(0);
@@ -137,7 +135,6 @@ fn settle(s: &mut State) {
         UNDONE.fetch_add(1, Ordering::Relaxed);
         false
     };
-    IN_FORCE.store(s.applied, Ordering::Relaxed);
 }
 
 #[cfg(target_os = "linux")]

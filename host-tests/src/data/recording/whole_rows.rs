@@ -131,16 +131,12 @@ impl WholeRows {
         let list = self.delimiters.as_ptr();
         let mut start = from;
         for line in 0..lines {
-            for (c, column) in columns.iter_mut().enumerate() {
-                // SAFETY: line · ncol + c < found entries were written by `index`
-                let at = from + unsafe { *list.add(line * ncol + c) } as usize;
-                // SAFETY: start ≤ at < end; the field's 16 bytes from at most start + 1 lie
-                // before end + 17 ≤ bytes.len()
-                let value = unsafe { field(b, start, at, c + 1 == ncol) }?;
-                // SAFETY: first + line < top ≤ the column's length
-                unsafe { *column.as_mut_ptr().add(first + line) = value };
-                start = at + 1;
-            }
+            // SAFETY: the row's ncol entries of the list were written by `index` (line · ncol
+            // + ncol ≤ found), its delimiters lie in [from, end), at least REACH bytes before
+            // the end of `bytes`; first + line < top ≤ every column's length
+            start = unsafe {
+                parse_row_whole(b, list.add(line * ncol), from, start, columns, first + line)
+            }?;
         }
         // every delimiter of [from, end) ended a field, the last one a row: `start` is `end`
         Some(lines)
@@ -189,25 +185,18 @@ impl WholeRows {
                     }
                     continue 'segments;
                 }
-                let mut start = row_start;
-                for (c, column) in columns.iter_mut().enumerate() {
-                    // SAFETY: k + c < found entries of the list were written by `index`
-                    let end = seg + unsafe { *list.add(k + c) } as usize;
-                    let last = c + 1 == ncol;
-                    // SAFETY: start ≤ end < seg_end + 64 ≤ n - 16; the field's 16 bytes read
-                    // from at most start + 1 < limit + 1
-                    let value = unsafe { field(b, start, end, last) };
-                    let Some(value) = value else {
-                        break 'segments;
-                    };
-                    // SAFETY: row + rows < row + max_rows ≤ the column's length
-                    unsafe { *column.as_mut_ptr().add(row + rows) = value };
-                    start = end + 1;
-                }
+                // SAFETY: entries k..k + ncol ≤ found of the list were written by `index`;
+                // the delimiters lie before seg_end ≤ limit (REACH bytes before the end);
+                // row + rows < row + max_rows ≤ every column's length
+                let next =
+                    unsafe { parse_row_whole(b, list.add(k), seg, row_start, columns, row + rows) };
+                let Some(next) = next else {
+                    break 'segments;
+                };
                 k += ncol;
                 rows += 1;
                 rows_here += 1;
-                row_start = start;
+                row_start = next;
             }
         }
         (rows, row_start)
@@ -270,6 +259,43 @@ impl WholeRows {
     }
 }
 
+/// Parses the row that starts at `start`, its fields ended by the delimiters at `base +
+/// list[0..ncol]`, into place `place` of every column; where the next line starts, or `None`
+/// if a field is not of the common form or a delimiter is not the one its place asks for (then
+/// some of the row's places hold values of no row). The last field out of the loop: the loop's
+/// fields need no test of their place.
+///
+/// # Safety
+/// The CPU has SSSE3, POPCNT and BMI1; `list` has `columns.len()` entries, ascending, each
+/// `base +` it after `start` and at least [`REACH`] bytes before the end of the input at `b`;
+/// `place` is within every column.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "ssse3,popcnt,bmi1")]
+#[inline]
+unsafe fn parse_row_whole(
+    b: *const u8,
+    list: *const u32,
+    base: usize,
+    mut start: usize,
+    columns: &mut [&mut [f64]],
+    place: usize,
+) -> Option<usize> {
+    let Some((last, before)) = columns.split_last_mut() else {
+        return Some(start);
+    };
+    // SAFETY: the caller's: the entries, the bytes around each field and the places exist
+    unsafe {
+        for (c, column) in before.iter_mut().enumerate() {
+            let end = base + *list.add(c) as usize;
+            *column.as_mut_ptr().add(place) = field(b, start, end, false)?;
+            start = end + 1;
+        }
+        let end = base + *list.add(before.len()) as usize;
+        *last.as_mut_ptr().add(place) = field(b, start, end, true)?;
+        Some(end + 1)
+    }
+}
+
 /// The field from `start` to its delimiter at `end` if it is of the common form and the
 /// delimiter is the one its place asks for (`\n` for the `last` field, `,` before it): the
 /// value, bit for bit what the general path reads (the mantissa below 10¹⁵ < 2⁵³, one exact
@@ -302,7 +328,8 @@ unsafe fn field(b: *const u8, start: usize, end: usize, last: bool) -> Option<f6
         // at all fails too), 15 in all
         let nd = point;
         let nf = end.wrapping_sub(p + point + 1);
-        if nd.wrapping_sub(1) >= 8 || nf.wrapping_sub(1) >= 8 || nd + nf > 15 {
+        // both within 1..=8 (the table refuses more than 15 in all)
+        if (nd.wrapping_sub(1) | nf.wrapping_sub(1)) >= 8 {
             return None;
         }
         let d = _mm_sub_epi8(v, _mm_set1_epi8(b'0' as i8));
@@ -329,7 +356,8 @@ unsafe fn field(b: *const u8, start: usize, end: usize, last: bool) -> Option<f6
 
 /// Which of the 16 bytes must be digits for a field of `nd` integer digits and `nf` decimals,
 /// by `8 · (nd − 1) + nf − 1` as [`super::DIGIT_SHUFFLES`]: bits `0..nd` and
-/// `nd + 1..nd + 1 + nf`.
+/// `nd + 1..nd + 1 + nf`; for more than 15 digits in all a bit no byte sets (bit 16), so the
+/// shape is refused by the same test.
 #[cfg(target_arch = "x86_64")]
 static DIGITS_WANTED: [u32; 64] = {
     let mut t = [0u32; 64];
@@ -337,7 +365,11 @@ static DIGITS_WANTED: [u32; 64] = {
     while nd <= 8 {
         let mut nf = 1;
         while nf <= 8 {
-            t[8 * (nd - 1) + nf - 1] = ((1u32 << nd) - 1) | (((1u32 << nf) - 1) << (nd + 1));
+            t[8 * (nd - 1) + nf - 1] = if nd + nf > 15 {
+                1 << 16
+            } else {
+                ((1u32 << nd) - 1) | (((1u32 << nf) - 1) << (nd + 1))
+            };
             nf += 1;
         }
         nd += 1;

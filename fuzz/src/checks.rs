@@ -778,10 +778,59 @@ fn csv_tail(bytes: &[u8], axes: usize, to_um: f64) {
 /// Recording CSV (`nanocal::data::recording`): parsing never panics; what parses has named, distinct
 /// columns of equal length and writes back to CSV that parses to the same values (bit for
 /// bit; NaN stays NaN).
+/// The rows of a recording the plainest way (for [`recording_csv`]): lines split at `\n`,
+/// lines of only spaces, tabs and `\r` skipped, fields split at `,`, one `\r` at a field's end
+/// dropped (the parser reads `\r` before any delimiter as it reads it before `\n`), spaces and
+/// tabs trimmed, each field read by `str::parse::<f64>`. Panics on a field that does not read
+/// (called only on input the parser took).
+fn plain_reading(input: &[u8]) -> Vec<Vec<f64>> {
+    fn trim(mut s: &[u8]) -> &[u8] {
+        while let [b' ' | b'\t', rest @ ..] = s {
+            s = rest;
+        }
+        while let [rest @ .., b' ' | b'\t'] = s {
+            s = rest;
+        }
+        s
+    }
+    let input = input.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(input);
+    input
+        .split(|&b| b == b'\n')
+        .skip(1)
+        .filter(|line| !line.iter().all(|b| matches!(b, b' ' | b'\t' | b'\r')))
+        .map(|line| {
+            line.split(|&b| b == b',')
+                .map(|field| {
+                    let field = field.strip_suffix(b"\r").unwrap_or(field);
+                    let text =
+                        std::str::from_utf8(trim(field)).expect("a field the parser took is UTF-8");
+                    text.parse::<f64>().unwrap_or_else(|_| {
+                        panic!("the parser took {text:?}, the standard library does not")
+                    })
+                })
+                .collect()
+        })
+        .collect()
+}
+
 pub fn recording_csv(input: &[u8]) {
     let Ok(rec) = Recording::parse(input) else {
         return;
     };
+    // every value as the standard library reads its field, line by line: the parser's fast
+    // paths (whole rows, the window, the exact decimal) against the plainest reading
+    let reference = plain_reading(input);
+    assert_eq!(reference.len(), rec.rows(), "rows against a plain reading");
+    for (r, values) in reference.iter().enumerate() {
+        assert_eq!(values.len(), rec.names().len(), "row {r}: values");
+        for (c, v) in values.iter().enumerate() {
+            let got = rec.column_at(c)[r];
+            assert!(
+                got.to_bits() == v.to_bits() || (got.is_nan() && v.is_nan()),
+                "row {r} column {c}: {got} read, {v} by the standard library"
+            );
+        }
+    }
     let names = rec.names().to_vec();
     for (i, n) in names.iter().enumerate() {
         assert!(!n.is_empty() && !names[..i].contains(n), "column names");

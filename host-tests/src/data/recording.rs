@@ -1431,17 +1431,31 @@ unsafe fn mantissa_ssse3(p: *const u8, nd: usize, nf: usize) -> Option<u64> {
         if (_mm_movemask_epi8(digit) as u32) & want != want {
             return None;
         }
-        let shuffle =
-            _mm_loadu_si128(DIGIT_SHUFFLES[8 * (nd - 1) + nf - 1].as_ptr() as *const __m128i);
+        Some(digits_value_ssse3(d, 8 * (nd - 1) + nf - 1))
+    }
+}
+
+/// The integer of the digits `d` (the 16 bytes of a field less `'0'`, digits checked) of shape
+/// `8 · (nd − 1) + nf − 1` ([`DIGIT_SHUFFLES`]): the digits right-aligned by the shape's
+/// shuffle, then summed in pairs (10·a + b), fours (100·ab + cd) and eights (10⁴·abcd + efgh).
+///
+/// # Safety
+/// The CPU has SSSE3; `shape < 64`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn digits_value_ssse3(d: std::arch::x86_64::__m128i, shape: usize) -> u64 {
+    use std::arch::x86_64::*;
+    // SAFETY: the caller's: SSSE3 present; the table has the row
+    unsafe {
+        let shuffle = _mm_loadu_si128(DIGIT_SHUFFLES[shape].as_ptr() as *const __m128i);
         let digits = _mm_shuffle_epi8(d, shuffle);
-        // pairs (10·a + b), then fours (100·ab + cd), then eights (10⁴·abcd + efgh)
         let pairs = _mm_maddubs_epi16(digits, _mm_set1_epi16(0x010A));
         let fours = _mm_madd_epi16(pairs, _mm_set1_epi32(0x0001_0064));
         let fours = _mm_packs_epi32(fours, fours);
         let eights = _mm_madd_epi16(fours, _mm_set1_epi32(0x0001_2710));
         let hi = _mm_cvtsi128_si32(eights) as u32 as u64;
         let lo = _mm_cvtsi128_si32(_mm_srli_si128(eights, 4)) as u32 as u64;
-        Some(hi * 100_000_000 + lo)
+        hi * 100_000_000 + lo
     }
 }
 

@@ -57,10 +57,7 @@ impl WholeRows {
             return (0, pos);
         }
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("ssse3")
-            && std::arch::is_x86_feature_detected!("popcnt")
-            && std::arch::is_x86_feature_detected!("bmi1")
-        {
+        if cpu_has_features() {
             // SAFETY: the CPU has the features; every column has room for `max_rows` rows from
             // `row` (checked above)
             return unsafe { self.take_ssse3(bytes, pos, columns, row, max_rows) };
@@ -94,10 +91,7 @@ impl WholeRows {
             return None;
         }
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("ssse3")
-            && std::arch::is_x86_feature_detected!("popcnt")
-            && std::arch::is_x86_feature_detected!("bmi1")
-        {
+        if cpu_has_features() {
             // SAFETY: the CPU has the features; the bounds are checked above
             return unsafe { self.take_below_ssse3(bytes, from, end, columns, top) };
         }
@@ -259,6 +253,16 @@ impl WholeRows {
     }
 }
 
+/// Whether the CPU has what the fast path is compiled for: SSSE3, POPCNT and BMI1 (every
+/// x86-64 of the last ten years; the flags are read once and cached by the standard library).
+#[cfg(target_arch = "x86_64")]
+#[inline]
+fn cpu_has_features() -> bool {
+    std::arch::is_x86_feature_detected!("ssse3")
+        && std::arch::is_x86_feature_detected!("popcnt")
+        && std::arch::is_x86_feature_detected!("bmi1")
+}
+
 /// Parses the row that starts at `start`, its fields ended by the delimiters at `base +
 /// list[0..ncol]`, into place `place` of every column; where the next line starts, or `None`
 /// if a field is not of the common form or a delimiter is not the one its place asks for (then
@@ -339,16 +343,7 @@ unsafe fn field(b: *const u8, start: usize, end: usize, last: bool) -> Option<f6
         if digit & want != want {
             return None;
         }
-        let shuffle = _mm_loadu_si128(super::DIGIT_SHUFFLES[shape].as_ptr() as *const __m128i);
-        let digits = _mm_shuffle_epi8(d, shuffle);
-        // pairs (10·a + b), then fours (100·ab + cd), then eights (10⁴·abcd + efgh)
-        let pairs = _mm_maddubs_epi16(digits, _mm_set1_epi16(0x010A));
-        let fours = _mm_madd_epi16(pairs, _mm_set1_epi32(0x0001_0064));
-        let fours = _mm_packs_epi32(fours, fours);
-        let eights = _mm_madd_epi16(fours, _mm_set1_epi32(0x0001_2710));
-        let hi = _mm_cvtsi128_si32(eights) as u32 as u64;
-        let lo = _mm_cvtsi128_si32(_mm_srli_si128(eights, 4)) as u32 as u64;
-        let mant = hi * 100_000_000 + lo;
+        let mant = super::digits_value_ssse3(d, shape);
         let value = mant as i64 as f64 / super::POW10[nf];
         Some(if neg { -value } else { value })
     }
